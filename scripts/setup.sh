@@ -1,0 +1,19 @@
+#!/usr/bin/env bash
+# Create .venv and install crane-x7 with its dev tools. The CPU build of torch 2.13.0 is pinned
+# through constraints.txt (an unpinned torch would pull several GB of CUDA packages).
+# Idempotent: re-running after a change to pyproject.toml or constraints.txt re-installs.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PY=${PYTHON:-python3}
+if [ ! -x .venv/bin/python ]; then
+    echo "== creating .venv with $($PY --version)"
+    "$PY" -m venv .venv
+fi
+stamp=.venv/.crane-x7-installed
+want=$(cat pyproject.toml constraints.txt | sha256sum | cut -d' ' -f1)
+if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
+    echo "== installing crane-x7 and its dependencies (CPU torch pinned by constraints.txt)"
+    .venv/bin/python -m pip install --quiet --upgrade pip
+    .venv/bin/python -m pip install --quiet -c constraints.txt -e ".[dev]"
+    echo "$want" > "$stamp"
+fi
