@@ -1,0 +1,1 @@
+"""Inverse-dynamics models behind one interface (train.models.base.Model)."""

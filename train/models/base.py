@@ -1,0 +1,91 @@
+"""The one interface every inverse-dynamics model implements (scikit-learn-like).
+
+    model = make_model("mlp-masked", joint_names=ds.joint_names, **options)
+    model.fit(train_ds, val_ds)          # uses train_ds.moving as its per-joint mask as its method says
+    tau_hat = model.predict(q, dq, ddq)  # SI arrays (N, J) -> (N, J) N m
+    model.save(directory); model = load_model(directory)
+
+A saved model is a directory holding `model.json` (method, joint names, options, preprocessing
+settings the data went through, normalisation) plus method-specific files (weights as .pt, arrays
+as .npz). Loading never needs the training data.
+"""
+
+from __future__ import annotations
+
+import abc
+import json
+from pathlib import Path
+
+import numpy as np
+
+from crane_io.errors import CraneError
+
+from ..dataset import Dataset
+
+MODEL_JSON = "model.json"
+
+
+class ModelFileError(CraneError):
+    """A model directory that cannot be loaded."""
+
+
+class Model(abc.ABC):
+    method: str = ""
+
+    def __init__(self, joint_names, preprocessing: dict | None = None, **options):
+        self.joint_names = tuple(joint_names)
+        self.preprocessing = dict(preprocessing or {})
+        self.options = options
+
+    @abc.abstractmethod
+    def fit(self, train: Dataset, val: Dataset | None = None) -> Model: ...
+
+    @abc.abstractmethod
+    def predict(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray: ...
+
+    def predict_dataset(self, ds: Dataset) -> np.ndarray:
+        return self.predict(ds.q, ds.dq, ds.ddq)
+
+    # ---- persistence -----------------------------------------------------------------------------
+    def _state(self) -> dict:
+        """JSON-able method-specific state; arrays go through _save_arrays."""
+        return {}
+
+    def _save_extra(self, directory: Path) -> None:
+        """Write method-specific files (weights, arrays)."""
+
+    def _load_extra(self, directory: Path, state: dict) -> None:
+        """Read what _save_extra wrote."""
+
+    def save(self, directory) -> Path:
+        directory = Path(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        doc = {"format": "crane-model", "format_version": 1, "method": self.method,
+               "joint_names": list(self.joint_names), "preprocessing": self.preprocessing,
+               "options": self.options, "state": self._state()}
+        (directory / MODEL_JSON).write_text(json.dumps(doc, indent=2, default=_jsonable))
+        self._save_extra(directory)
+        return directory
+
+
+def _jsonable(obj):
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, tuple):
+        return list(obj)
+    raise TypeError(f"cannot store {type(obj).__name__} in model.json")
+
+
+def read_model_json(directory) -> dict:
+    path = Path(directory) / MODEL_JSON
+    if not path.is_file():
+        raise ModelFileError(f"{directory} is not a crane-x7 model directory (no {MODEL_JSON})")
+    try:
+        doc = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ModelFileError(f"{path} is corrupt: {exc.msg}") from None
+    if doc.get("format") != "crane-model":
+        raise ModelFileError(f"{path} is not a crane-x7 model file")
+    return doc
