@@ -49,3 +49,7 @@ class Plant(Protocol):
 
     def hardware_errors(self) -> dict[int, int]:
         """Hardware Error Status bits the plant raises per servo ID (e.g. overload); {} when healthy."""
+
+    def set_external_torque(self, torque: np.ndarray) -> None:
+        """Torque (n,) N m that the outside world (an operator's hand, a contact) applies to each
+        joint from now on, in servo_ids order; the simulated operator uses it to move the leader."""
