@@ -1,0 +1,288 @@
+"""The collect configuration: controller, loop, safety and simulated-operator parameters.
+
+The packaged `collect/config/bilateral.toml` holds every key with its documented default. A user
+file (`--config FILE`) overrides any subset of it; an unknown key, a wrong type or an impossible
+value raises `ConfigError` with one sentence naming the key.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+from crane_io.errors import ConfigError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+DEG = math.pi / 180.0
+GRAVITY_MODELS = ("dynamics", "coefficients", "none")
+
+
+@dataclass(frozen=True)
+class JointGains:
+    inertia: float  # kg m^2, nominal J
+    kp: float  # 1/s^2
+    kd: float  # 1/s
+    kf: float  # dimensionless
+    cutoff: float  # rad/s, pseudo-derivative and observer cutoff g
+    viscous: float  # N m s/rad, RFOB viscous friction D
+
+
+@dataclass(frozen=True)
+class LoopConfig:
+    rate_hz: float
+    spin_s: float
+    status_hz: float
+
+    @property
+    def period_s(self) -> float:
+        return 1.0 / self.rate_hz
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    gravity_model: str
+    gravity_m0: float
+    gravity_m1: float
+    gravity_m2: float
+    position_deadband: float  # rad
+    joints: dict[str, JointGains]
+
+
+@dataclass(frozen=True)
+class SafetyConfig:
+    watchdog_s: float
+    current_fraction: float
+    limit_margin: float  # rad
+    limit_stiffness: float  # N m/rad
+    limit_overshoot: float  # rad
+    error_budget_consecutive: int
+    error_budget_per_second: int
+    hardware_poll_cycles: int
+    agree_tolerance: float  # rad
+    max_start_difference: float  # rad
+    homing_speed: float  # rad/s
+    velocity_limit: dict[str, float]  # rad/s per joint
+
+
+@dataclass(frozen=True)
+class OperatorConfig:
+    duty: float
+    mean_on_s: float
+    min_move_s: float
+    max_move_s: float
+    peak_speed: float
+    workspace_margin: float  # rad
+    stiffness: float
+    damping: float
+    max_torque: float
+
+
+@dataclass(frozen=True)
+class Config:
+    loop: LoopConfig
+    controller: ControllerConfig
+    held: dict[str, float]  # rad, goal position of each joint when held in position mode
+    safety: SafetyConfig
+    operator: OperatorConfig
+    values: dict  # the complete merged configuration as plain TOML data (degrees as written)
+
+    def to_toml(self) -> str:
+        """The complete configuration used, as TOML text (stored in every session)."""
+        return dump_toml(self.values)
+
+    def with_rate(self, rate_hz: float) -> Config:
+        values = _deep_copy(self.values)
+        values["loop"]["rate_hz"] = float(rate_hz)
+        return _build(values, "--rate")
+
+
+# ---- loading ---------------------------------------------------------------------------------------
+
+def default_config_text() -> str:
+    return resources.files("collect").joinpath("config/bilateral.toml").read_text()
+
+
+def load_config(path: str | Path | None = None) -> Config:
+    """The defaults, overridden by the TOML file at `path` (if given)."""
+    values = tomllib.loads(default_config_text())
+    where = "the default configuration"
+    if path is not None:
+        path = Path(path)
+        where = str(path)
+        try:
+            text = path.read_text()
+        except FileNotFoundError:
+            raise ConfigError(f"configuration file {path} does not exist") from None
+        except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
+            why = exc.__class__.__name__
+            raise ConfigError(f"configuration file {path} cannot be read ({why})") from None
+        try:
+            user = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"configuration file {path} is not valid TOML ({exc})") from None
+        _merge(values, user, where, prefix="")
+    return _build(values, where)
+
+
+def _merge(base: dict, user: dict, where: str, prefix: str) -> None:
+    for key, value in user.items():
+        name = f"{prefix}{key}"
+        if key not in base:
+            known = ", ".join(sorted(base))
+            raise ConfigError(f"unknown key {name!r} in {where} (known here: {known})")
+        default = base[key]
+        if isinstance(default, dict):
+            if not isinstance(value, dict):
+                raise ConfigError(f"{name!r} in {where} must be a table, got {value!r}")
+            _merge(default, value, where, prefix=f"{name}.")
+            continue
+        if isinstance(default, bool):
+            ok = isinstance(value, bool)
+        elif isinstance(default, int):
+            ok = isinstance(value, int) and not isinstance(value, bool)
+        elif isinstance(default, float):
+            ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+            value = float(value) if ok else value
+        else:
+            ok = isinstance(value, type(default))
+        if not ok:
+            raise ConfigError(
+                f"{name!r} in {where} must be a {type(default).__name__}, got {value!r}")
+        base[key] = value
+
+
+def _need(cond: bool, where: str, key: str, what: str, value) -> None:
+    if not cond:
+        raise ConfigError(f"{key!r} in {where} must be {what}, got {value!r}")
+
+
+def _pos(where, key, value):
+    _need(math.isfinite(value) and value > 0, where, key, "a positive number", value)
+    return value
+
+
+def _nonneg(where, key, value):
+    _need(math.isfinite(value) and value >= 0, where, key, "zero or positive", value)
+    return value
+
+
+def _build(values: dict, where: str) -> Config:
+    lp = values["loop"]
+    loop = LoopConfig(
+        rate_hz=_pos(where, "loop.rate_hz", lp["rate_hz"]),
+        spin_s=_nonneg(where, "loop.spin_s", lp["spin_s"]),
+        status_hz=_nonneg(where, "loop.status_hz", lp["status_hz"]),
+    )
+    _need(loop.rate_hz <= 2000, where, "loop.rate_hz", "at most 2000 Hz", loop.rate_hz)
+
+    c = values["controller"]
+    _need(c["gravity_model"] in GRAVITY_MODELS, where, "controller.gravity_model",
+          "one of " + ", ".join(GRAVITY_MODELS), c["gravity_model"])
+    joints = {}
+    for name, table in c.items():
+        if not isinstance(table, dict):
+            continue
+        gains = {}
+        for key in ("inertia", "kp", "cutoff"):
+            gains[key] = _pos(where, f"controller.{name}.{key}", table[key])
+        for key in ("kd", "kf", "viscous"):
+            gains[key] = _nonneg(where, f"controller.{name}.{key}", table[key])
+        joints[name] = JointGains(**gains)
+    controller = ControllerConfig(
+        gravity_model=c["gravity_model"],
+        gravity_m0=c["gravity_m0"], gravity_m1=c["gravity_m1"], gravity_m2=c["gravity_m2"],
+        position_deadband=_nonneg(where, "controller.position_deadband_deg",
+                                  c["position_deadband_deg"]) * DEG,
+        joints=joints,
+    )
+
+    held = {}
+    for key, value in values["held"].items():
+        _need(math.isfinite(value), where, f"held.{key}", "a finite angle", value)
+        held[key[: -len("_deg")]] = value * DEG
+
+    s = values["safety"]
+    vel = {}
+    for name, value in s["velocity_limit"].items():
+        vel[name] = _pos(where, f"safety.velocity_limit.{name}", value)
+    frac = s["current_fraction"]
+    _need(0 < frac <= 1, where, "safety.current_fraction", "in (0, 1]", frac)
+    wd = s["watchdog_s"]
+    _need(0.02 <= wd <= 2.54, where, "safety.watchdog_s", "between 0.02 and 2.54 s", wd)
+    for key in ("error_budget_consecutive", "error_budget_per_second", "hardware_poll_cycles"):
+        _need(s[key] >= 1, where, f"safety.{key}", "at least 1", s[key])
+    safety = SafetyConfig(
+        watchdog_s=wd,
+        current_fraction=frac,
+        limit_margin=_nonneg(where, "safety.limit_margin_deg", s["limit_margin_deg"]) * DEG,
+        limit_stiffness=_nonneg(where, "safety.limit_stiffness", s["limit_stiffness"]),
+        limit_overshoot=_nonneg(where, "safety.limit_overshoot_deg", s["limit_overshoot_deg"]) * DEG,
+        error_budget_consecutive=s["error_budget_consecutive"],
+        error_budget_per_second=s["error_budget_per_second"],
+        hardware_poll_cycles=s["hardware_poll_cycles"],
+        agree_tolerance=_nonneg(where, "safety.agree_tolerance_deg", s["agree_tolerance_deg"]) * DEG,
+        max_start_difference=_pos(where, "safety.max_start_difference_deg",
+                                  s["max_start_difference_deg"]) * DEG,
+        homing_speed=_pos(where, "safety.homing_speed", s["homing_speed"]),
+        velocity_limit=vel,
+    )
+
+    o = values["operator"]
+    _need(0 < o["duty"] <= 1, where, "operator.duty", "in (0, 1]", o["duty"])
+    operator = OperatorConfig(
+        duty=o["duty"],
+        mean_on_s=_pos(where, "operator.mean_on_s", o["mean_on_s"]),
+        min_move_s=_pos(where, "operator.min_move_s", o["min_move_s"]),
+        max_move_s=_pos(where, "operator.max_move_s", o["max_move_s"]),
+        peak_speed=_pos(where, "operator.peak_speed", o["peak_speed"]),
+        workspace_margin=_nonneg(where, "operator.workspace_margin_deg", o["workspace_margin_deg"]) * DEG,
+        stiffness=_pos(where, "operator.stiffness", o["stiffness"]),
+        damping=_nonneg(where, "operator.damping", o["damping"]),
+        max_torque=_pos(where, "operator.max_torque", o["max_torque"]),
+    )
+    _need(operator.min_move_s <= operator.max_move_s, where, "operator.min_move_s",
+          "at most operator.max_move_s", operator.min_move_s)
+    return Config(loop=loop, controller=controller, held=held, safety=safety, operator=operator,
+                  values=values)
+
+
+def _deep_copy(d):
+    return {k: _deep_copy(v) if isinstance(v, dict) else v for k, v in d.items()}
+
+
+# ---- a minimal TOML writer (tables of scalars, strings and flat lists) ------------------------------
+
+def _fmt(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_fmt(v) for v in value) + "]"
+    raise TypeError(f"cannot write {value!r} as TOML")
+
+
+def dump_toml(values: dict) -> str:
+    lines: list[str] = []
+
+    def table(d: dict, path: str) -> None:
+        scalars = {k: v for k, v in d.items() if not isinstance(v, dict)}
+        if path and (scalars or not d):
+            lines.append(f"[{path}]")
+        for k, v in scalars.items():
+            lines.append(f"{k} = {_fmt(v)}")
+        for k, v in d.items():
+            if isinstance(v, dict):
+                table(v, f"{path}.{k}" if path else k)
+
+    table(values, "")
+    return "\n".join(lines) + "\n"
