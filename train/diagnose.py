@@ -1,0 +1,441 @@
+"""Find the missing physics: rank the library's effects by how much of a model's held-out error each
+one removes.
+
+The method, per joint j (names as in the session):
+
+1. residual r = measured torque - model prediction, on the samples where joint j MOVES (its dead-zone
+   mask). Every candidate is judged on the same samples so that their error reductions compare like
+   with like; in a dead zone the torque is whatever stiction holds, which no function of (q, dq, ddq)
+   predicts, so those samples would add only noise — also for effects that act at rest (offset,
+   spring), which leave their mark on the moving samples just as well.
+2. The rows are cut into K contiguous time blocks (folds; blocks, not shuffled rows, because filtered
+   signals are correlated in time). For each fold, the candidate's regressor columns
+   (`effect.columns`) are fitted to the residual of the other K-1 blocks by least squares — for every
+   value of its shape grid (Stribeck velocity, spring rest angle, cogging period ...), keeping the shape
+   that fits the training blocks best — and the held-out block is predicted.
+3. `error_reduction` = 1 - (held-out SSE with the candidate) / (held-out SSE of the residual alone):
+   the fraction of the held-out mean squared error the candidate removes. A flexible candidate cannot
+   win by overfitting, because it is scored only on blocks it never saw.
+4. Parameters: the candidate fitted on each fold's training blocks gives one set of named values
+   (`effect.values_from_coefficients`); the value is the mean over folds and its uncertainty the
+   delete-a-block jackknife standard error sqrt((K-1)/K * sum (v_k - mean)^2), which stays honest when
+   neighbouring samples are correlated (plain least-squares standard errors would not).
+5. Significant: error_reduction >= `min_reduction` AND the held-out error falls in every fold
+   (`min_fold_fraction`). A session with nothing missing yields no significant candidate.
+
+Arm-scope effects (payload) have one set of parameters for all joints: they are fitted on all joints
+jointly (stacking each joint's moving samples) and reported once, on the joint where they remove the
+largest fraction of the error, with the other joints' fractions in the sentence.
+
+Effects the model already contains (same name on the same joint, or on the arm) are not candidates.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from crane_io.errors import CraneError
+
+from .dataset import Dataset
+
+DEFAULT_FOLDS = 5
+DEFAULT_MIN_REDUCTION = 0.10
+DEFAULT_MIN_FOLD_FRACTION = 1.0
+MIN_SAMPLES_PER_JOINT = 50
+
+
+class DiagnosisError(CraneError):
+    """The data cannot support a diagnosis (too few moving samples, a joint that never moves)."""
+
+
+@dataclass
+class Candidate:
+    joint: str  # joint name as in the session (for arm-scope effects: the joint where it helps most)
+    rank: int  # 1 = best on this joint
+    effect: str  # library name
+    title: str
+    scope: str  # "joint" or "arm"
+    error_reduction: float  # fraction of the held-out MSE removed (can be negative: it made things worse)
+    fold_reductions: list[float]  # the same, per fold
+    folds_improved: int  # folds whose held-out error fell
+    parameters: dict[str, dict]  # name -> {"value", "std", "unit"}
+    shape: dict  # chosen shape values (on all data)
+    mse_before: float  # held-out MSE of the model's residual on this joint's moving samples, N m^2
+    mse_after: float  # the same after adding the candidate
+    significant: bool
+    sentence: str
+    other_joints: dict[str, float] = field(default_factory=dict)  # arm scope: reduction on other joints
+
+
+@dataclass
+class Diagnosis:
+    joints: tuple[str, ...]
+    candidates: list[Candidate]  # ranked per joint (joint order, then rank)
+    summary: dict[str, str]  # joint -> one or two sentences
+    correlations: dict[str, list[dict]]  # joint -> [{"with": ..., "r": ...}], strongest first
+    settings: dict
+
+    def for_joint(self, joint: str) -> list[Candidate]:
+        return [c for c in self.candidates if c.joint == joint]
+
+    def best(self, joint: str) -> Candidate | None:
+        ranked = self.for_joint(joint)
+        return ranked[0] if ranked else None
+
+    def to_json(self) -> dict:
+        return {"joints": list(self.joints), "candidates": [asdict(c) for c in self.candidates],
+                "summary": dict(self.summary), "correlations": self.correlations,
+                "settings": self.settings}
+
+
+# ---- helpers on the effect interface ------------------------------------------------------------------
+
+def _shape_options(effect) -> list[dict | None]:
+    grid = dict(getattr(effect, "shape_grid", None) or {})
+    if not grid:
+        return [None]
+    names = list(grid)
+    return [dict(zip(names, values)) for values in itertools.product(*(list(grid[n]) for n in names))]
+
+
+def _param_units(effect) -> dict[str, str]:
+    return {p.name: getattr(p, "unit", "") for p in getattr(effect, "params", ())}
+
+
+def _effect_name(effect) -> str:
+    return getattr(effect, "name", type(effect).__name__)
+
+
+def _fold_ids(n: int, folds: int) -> np.ndarray:
+    """(n,) fold index of each row: `folds` contiguous blocks of (nearly) equal size."""
+    return np.minimum((np.arange(n) * folds) // max(n, 1), folds - 1)
+
+
+def _lstsq(X: np.ndarray, y: np.ndarray) -> np.ndarray:
+    # scale columns so that badly scaled columns (mass vs friction) do not hurt the conditioning
+    scale = np.sqrt((X ** 2).mean(axis=0))
+    scale[scale == 0] = 1.0
+    coef, *_ = np.linalg.lstsq(X / scale, y, rcond=None)
+    return coef / scale
+
+
+def _values(effect, coefs: np.ndarray, shape: dict | None) -> dict[str, float]:
+    values = effect.values_from_coefficients(np.asarray(coefs, dtype=float), shape)
+    out = {}
+    for name, value in dict(values).items():
+        try:
+            out[name] = float(value)
+        except (TypeError, ValueError):
+            continue
+    if shape:
+        for name, value in shape.items():
+            out.setdefault(name, float(value))
+    return out
+
+
+def _jackknife(per_fold: list[dict[str, float]]) -> dict[str, tuple[float, float]]:
+    names = [n for n in per_fold[0] if all(n in v for v in per_fold)]
+    k = len(per_fold)
+    out = {}
+    for name in names:
+        v = np.array([f[name] for f in per_fold], dtype=float)
+        out[name] = (float(v.mean()), float(math.sqrt((k - 1) / k * ((v - v.mean()) ** 2).sum())))
+    return out
+
+
+# ---- the cross-validated fit of one candidate ----------------------------------------------------------
+
+@dataclass
+class _Fit:
+    sse_before: np.ndarray  # (J, K) held-out SSE of the residual alone, per joint and fold
+    sse_after: np.ndarray  # (J, K) with the candidate
+    count: np.ndarray  # (J,) held-out rows per joint
+    fold_values: list[dict[str, float]]
+    shape_all: dict | None
+
+
+def _cross_validate(effect, columns_by_shape, residual, rows_by_joint, per_joint_folds, joints,
+                    folds) -> _Fit:
+    """Fit a candidate's columns to the residual on training blocks and score the held-out blocks.
+
+    columns_by_shape: [(shape, X (N, J, k))]; rows_by_joint[j]: the rows used for joint j;
+    per_joint_folds[j]: (N,) fold of each row for joint j; joints: the joints whose rows enter one
+    common fit (one joint, or all of them for an arm-scope effect).
+    """
+    J = residual.shape[1]
+    sse_before = np.zeros((J, folds))
+    sse_after = np.zeros((J, folds))
+    count = np.zeros(J)
+    fold_values = []
+
+    def stacked(X, in_fold):
+        Xs, ys = [], []
+        for j in joints:
+            rows = rows_by_joint[j]
+            rows = rows[in_fold(per_joint_folds[j][rows])]
+            Xs.append(X[rows, j, :])
+            ys.append(residual[rows, j])
+        return np.concatenate(Xs), np.concatenate(ys)
+
+    def best_fit(in_fold):
+        best = None
+        for shape, X in columns_by_shape:
+            Xt, yt = stacked(X, in_fold)
+            coef = _lstsq(Xt, yt)
+            sse = float(((yt - Xt @ coef) ** 2).sum())
+            if best is None or sse < best[0]:
+                best = (sse, shape, X, coef)
+        return best
+
+    for k in range(folds):
+        _, shape, X, coef = best_fit(lambda f, k=k: f != k)
+        fold_values.append(_values(effect, coef, shape))
+        for j in joints:
+            rows = rows_by_joint[j][per_joint_folds[j][rows_by_joint[j]] == k]
+            y = residual[rows, j]
+            sse_before[j, k] = float((y ** 2).sum())
+            sse_after[j, k] = float(((y - X[rows, j, :] @ coef) ** 2).sum())
+            count[j] += len(rows)
+    shape_all = best_fit(lambda f: np.ones(len(f), bool))[1]  # the shape on all data, for the record
+    return _Fit(sse_before, sse_after, count, fold_values, shape_all)
+
+
+# ---- sentences ----------------------------------------------------------------------------------------
+
+def _fmt(value: float) -> str:
+    if value == 0 or not math.isfinite(value):
+        return f"{value:g}"
+    return f"{value:.2g}" if abs(value) < 100 else f"{value:.0f}"
+
+
+def _describe_parameters(effect, parameters: dict[str, dict], shape: dict | None) -> str:
+    """'Coulomb friction of about 0.21 N m' for one linear parameter, else a list in brackets."""
+    linear = [p.name for p in getattr(effect, "params", ()) if getattr(p, "linear", True)
+              and p.name in parameters]
+    title = getattr(effect, "title", _effect_name(effect))
+    if len(linear) == 1 and len(parameters) == 1:
+        p = parameters[linear[0]]
+        return f"{title} of about {_fmt(abs(p['value']))} {p['unit']}".rstrip()
+    parts = [f"{name} ≈ {_fmt(p['value'])} {p['unit']}".rstrip() for name, p in parameters.items()]
+    return f"{title} ({', '.join(parts)})" if parts else title
+
+
+def _signature(effect, joint: str) -> str:
+    text = str(getattr(effect, "signature", "") or "")
+    try:
+        text = text.format(joint=joint)
+    except (KeyError, IndexError, ValueError):
+        pass
+    return text.rstrip(". ")
+
+
+def _pct(fraction: float) -> str:
+    return f"{100 * fraction:.0f}%"
+
+
+# ---- what the residual looks like -------------------------------------------------------------------
+
+def residual_correlations(ds: Dataset, residual: np.ndarray, joint: int) -> list[dict]:
+    """Pearson correlation of joint `joint`'s residual (its moving samples) with the angle, velocity,
+    acceleration and sign of velocity of every joint and with time; strongest first."""
+    rows = np.flatnonzero(ds.moving[:, joint])
+    r = residual[rows, joint]
+    out = []
+    if len(rows) < 3 or r.std() == 0:
+        return out
+    candidates = [("time", ds.t[rows])]
+    for i, name in enumerate(ds.joint_names):
+        candidates += [(f"angle of {name}", ds.q[rows, i]), (f"velocity of {name}", ds.dq[rows, i]),
+                       (f"acceleration of {name}", ds.ddq[rows, i]),
+                       (f"sign of velocity of {name}", np.sign(ds.dq[rows, i]))]
+    for label, x in candidates:
+        if x.std() == 0:
+            continue
+        out.append({"with": label, "r": float(np.corrcoef(r, x)[0, 1])})
+    out.sort(key=lambda d: -abs(d["r"]))
+    return out
+
+
+def _correlation_sentence(corr: list[dict]) -> str:
+    if not corr or abs(corr[0]["r"]) < 0.1:
+        return ("the residual does not correlate with angle, velocity, acceleration or time (|r| < 0.1); "
+                "it looks like noise")
+    top = [c for c in corr[:2] if abs(c["r"]) >= 0.1]
+    text = " and ".join(f"the {c['with']} (r = {c['r']:+.2f})" for c in top)
+    return f"the residual correlates most with {text}"
+
+
+# ---- the diagnosis -----------------------------------------------------------------------------------
+
+def model_effects(model) -> set[tuple[str, str | None]]:
+    """(effect name, joint name or None) pairs a model already contains (rigid-body / hybrid)."""
+    out = set()
+    for entry in (getattr(model, "options", {}) or {}).get("effects", []) or []:
+        if isinstance(entry, dict):
+            name, joint = entry.get("name"), entry.get("joint")
+        elif isinstance(entry, str):
+            name, joint = entry, None
+        else:
+            name, joint = entry[0], (entry[1] if len(entry) > 1 else None)
+        out.add((str(name), None if joint is None else str(joint)))
+    return out
+
+
+def diagnose(model, ds: Dataset, effects=None, **kwargs) -> Diagnosis:
+    """Diagnose `model` on `ds`: residual = ds.tau - model.predict(ds.q, ds.dq, ds.ddq)."""
+    residual = ds.tau - model.predict(ds.q, ds.dq, ds.ddq)
+    return diagnose_residual(ds, residual, effects, exclude=model_effects(model), **kwargs)
+
+
+def diagnose_residual(ds: Dataset, residual: np.ndarray, effects=None, *, exclude=(),
+                      folds: int = DEFAULT_FOLDS, min_reduction: float = DEFAULT_MIN_REDUCTION,
+                      min_fold_fraction: float = DEFAULT_MIN_FOLD_FRACTION,
+                      progress: bool = False) -> Diagnosis:
+    """Rank candidate effects per joint by cross-validated reduction of the residual's error.
+
+    effects: effect instances (default: the whole library, crane_io.effects.list_effects()).
+    exclude: (name, joint name or None) pairs already in the model.
+    """
+    if effects is None:
+        effects = _library_effects()
+    residual = np.asarray(residual, dtype=float)
+    J = len(ds.joint_names)
+    if residual.shape != ds.tau.shape:
+        raise DiagnosisError(f"the residual has shape {residual.shape} but the data {ds.tau.shape}")
+    if not np.isfinite(residual).all():
+        raise DiagnosisError("the model predicts NaN or infinite torque on these data")
+    if folds < 2:
+        raise DiagnosisError(f"cross-validation needs at least 2 folds, not {folds}")
+    rows_by_joint = [np.flatnonzero(ds.moving[:, j]) for j in range(J)]
+    for j, rows in enumerate(rows_by_joint):
+        if len(rows) < max(MIN_SAMPLES_PER_JOINT, 5 * folds):
+            raise DiagnosisError(f"{ds.joint_names[j]} moves in only {len(rows)} samples; the diagnosis "
+                                 f"needs at least {max(MIN_SAMPLES_PER_JOINT, 5 * folds)}")
+    # one fold assignment per joint over that joint's moving rows (contiguous in time)
+    per_joint_folds = []
+    for rows in rows_by_joint:
+        f = np.full(len(ds), -1)
+        f[rows] = _fold_ids(len(rows), folds)
+        per_joint_folds.append(f)
+    exclude = {(n, j) for n, j in exclude}
+
+    results: dict[int, list[Candidate]] = {j: [] for j in range(J)}
+    work = []
+    for effect in effects:
+        name = _effect_name(effect)
+        scope = getattr(effect, "scope", "joint")
+        if scope == "arm":
+            if (name, None) not in exclude:
+                work.append((effect, None))
+        else:
+            for j in range(J):
+                if (name, ds.joint_names[j]) not in exclude and (name, None) not in exclude:
+                    work.append((effect, j))
+    iterator = work
+    if progress:
+        from tqdm import tqdm
+        iterator = tqdm(work, desc="diagnose", unit="candidate", leave=False)
+
+    for effect, j in iterator:
+        name = _effect_name(effect)
+        units = _param_units(effect)
+        columns_by_shape = []
+        for shape in _shape_options(effect):
+            X = np.asarray(effect.columns(ds.q, ds.dq, ds.ddq, j, shape), dtype=float)
+            if X.ndim == 2:
+                X = X[:, :, None]
+            if not np.isfinite(X).all() or not np.any(X):
+                continue
+            columns_by_shape.append((shape, X))
+        if not columns_by_shape:
+            continue
+        joints = [j] if j is not None else list(range(J))
+        fit = _cross_validate(effect, columns_by_shape, residual, rows_by_joint, per_joint_folds, joints,
+                              folds)
+        reductions = {}
+        for jj in joints:
+            before = fit.sse_before[jj].sum()
+            reductions[jj] = 0.0 if before == 0 else 1.0 - fit.sse_after[jj].sum() / before
+        home = max(joints, key=lambda jj: reductions[jj])
+        before_k = fit.sse_before[home]
+        fold_red = [float(1 - a / b) if b > 0 else 0.0 for a, b in zip(fit.sse_after[home], before_k)]
+        improved = int(sum(r > 0 for r in fold_red))
+        stats = _jackknife(fit.fold_values) if fit.fold_values else {}
+        parameters = {n: {"value": v, "std": s, "unit": units.get(n, "")} for n, (v, s) in stats.items()}
+        red = float(reductions[home])
+        significant = bool(red >= min_reduction and improved >= math.ceil(min_fold_fraction * folds))
+        cand = Candidate(
+            joint=ds.joint_names[home], rank=0, effect=name, title=getattr(effect, "title", name),
+            scope="arm" if j is None else "joint", error_reduction=red, fold_reductions=fold_red,
+            folds_improved=improved, parameters=parameters, shape=dict(fit.shape_all or {}),
+            mse_before=float(fit.sse_before[home].sum() / max(fit.count[home], 1)),
+            mse_after=float(fit.sse_after[home].sum() / max(fit.count[home], 1)),
+            significant=significant, sentence="",
+            other_joints={ds.joint_names[jj]: float(reductions[jj]) for jj in joints if jj != home})
+        cand.sentence = _candidate_sentence(effect, cand)
+        results[home].append(cand)
+
+    candidates, summary, correlations = [], {}, {}
+    for j in range(J):
+        ranked = sorted(results[j], key=lambda c: -c.error_reduction)
+        for i, c in enumerate(ranked, start=1):
+            c.rank = i
+        candidates += ranked
+        corr = residual_correlations(ds, residual, j)
+        correlations[ds.joint_names[j]] = corr[:6]
+        summary[ds.joint_names[j]] = _joint_summary(ds.joint_names[j], ranked, corr)
+    settings = {"folds": folds, "min_reduction": min_reduction, "min_fold_fraction": min_fold_fraction,
+                "samples": len(ds), "moving_samples": {ds.joint_names[j]: int(len(rows_by_joint[j]))
+                                                       for j in range(J)}}
+    return Diagnosis(tuple(ds.joint_names), candidates, summary, correlations, settings)
+
+
+def _candidate_sentence(effect, c: Candidate) -> str:
+    what = _describe_parameters(effect, c.parameters if not c.shape else
+                                {n: p for n, p in c.parameters.items()}, c.shape)
+    sig = _signature(effect, c.joint)
+    if c.error_reduction <= 0:
+        text = f"{c.joint}: {what} does not reduce the held-out error"
+    else:
+        text = f"{c.joint}: "
+        if sig:
+            text += f"{sig}; "
+        text += f"{what} explains {_pct(c.error_reduction)} of the remaining error"
+        if not c.significant:
+            text += f" (not significant: it helped in {c.folds_improved} of {len(c.fold_reductions)} folds)"
+    if c.scope == "arm":
+        others = ", ".join(f"{_pct(v)} on {n}" for n, v in c.other_joints.items())
+        text += " — an arm-wide effect, shown on the joint where it helps most"
+        if others:
+            text += f" (also {others})"
+    return text + "."
+
+
+def _joint_summary(joint: str, ranked: list[Candidate], corr: list[dict]) -> str:
+    significant = [c for c in ranked if c.significant]
+    if significant:
+        text = significant[0].sentence
+        if len(significant) > 1:
+            text += (" Also significant: " + ", ".join(f"{c.effect} ({_pct(c.error_reduction)})"
+                                                       for c in significant[1:4]) + ".")
+        return text
+    if ranked:
+        best = ranked[0]
+        lead = (f"{joint}: no candidate effect explains a significant part of the remaining error "
+                f"(best: {best.effect}, {_pct(max(best.error_reduction, 0.0))})")
+    else:
+        lead = f"{joint}: no candidate effects to try"
+    return f"{lead}; {_correlation_sentence(corr)}."
+
+
+def _library_effects():
+    from crane_io.effects import list_effects
+
+    out = []
+    for e in list_effects():
+        out.append(e() if isinstance(e, type) else e)
+    return out

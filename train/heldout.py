@@ -1,0 +1,96 @@
+"""The held-out data a model is judged on (report, compare, diagnose): the sessions preprocessed with
+the model's own preprocessing settings and split with the model's split settings and seed (train.splits),
+keeping only what training never saw: the test blocks and the plotting window.
+
+The test set of train.splits holds only the rows of its blocks where every joint moves; the report
+also needs the dead-zone rows of those blocks (to show the error there). They are recovered by filling
+the rows between two test rows of the same piece when no training or validation row lies between them
+and they are less than one block apart.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .dataset import Dataset
+from .preprocess import PreprocessConfig, preprocess
+from .session import read_sessions
+from .splits import SplitConfig, Splits, make_splits
+
+
+@dataclass
+class HeldOut:
+    data: Dataset  # the held-out rows (test blocks, then the window), in time order within each part
+    test: np.ndarray  # (n,) bool: rows of the paper's test set (every joint moves)
+    window: np.ndarray  # (n,) bool: rows of the continuous plotting window
+    block_starts: list[int] = field(default_factory=list)  # row where each contiguous held-out block starts
+    description: str = ""
+
+    def moving_rows(self, j: int) -> np.ndarray:
+        return np.flatnonzero(self.data.moving[:, j])
+
+
+def held_out_rows(ds: Dataset, splits: Splits) -> np.ndarray:
+    """Row indices of `ds` that training and validation never used: the test blocks (with their
+    dead-zone rows) and the window, sorted."""
+    test = np.sort(np.asarray(splits.index["test"]))
+    used = np.zeros(len(ds), bool)
+    for key in ("pool", "val"):
+        used[np.asarray(splits.index[key], dtype=int)] = True
+    block = max(int(round(splits.config.block_s * ds.rate_hz)), 1)
+    gap = int(round(splits.config.gap_s * ds.rate_hz))
+    keep = np.zeros(len(ds), bool)
+    keep[test] = True
+    used_cum = np.r_[0, np.cumsum(used)]
+    for a, b in zip(test[:-1], test[1:]):
+        if b - a <= 1 or b - a > block + gap or ds.segment[a] != ds.segment[b]:
+            continue
+        if used_cum[b] - used_cum[a + 1] == 0:
+            keep[a + 1:b] = True
+    keep[np.asarray(splits.index["window"], dtype=int)] = True
+    return np.flatnonzero(keep)
+
+
+def held_out(ds: Dataset, splits: Splits, sessions=(), seed: int | None = None) -> HeldOut:
+    rows = held_out_rows(ds, splits)
+    test_set = set(np.asarray(splits.index["test"]).tolist())
+    window_set = set(np.asarray(splits.index["window"]).tolist())
+    test = np.array([r in test_set for r in rows], bool)
+    window = np.array([r in window_set for r in rows], bool)
+    starts = [0] + (np.flatnonzero((np.diff(rows) > 1) | (np.diff(ds.segment[rows]) != 0)) + 1).tolist()
+    w = np.asarray(splits.index["window"])
+    desc = (f"Test blocks: {int(test.sum())} test samples (every joint moves) and "
+            f"{int((~test & ~window).sum())} more samples of the same blocks (some joint stands still), "
+            f"in {len(starts) - 1} contiguous blocks; plus the continuous {splits.config.window_s:g} s "
+            f"plotting window (t = {ds.t[w[0]]:.1f}–{ds.t[w[-1]]:.1f} s, piece {int(ds.segment[w[0]])}). "
+            + (f"Split seed {seed}; " if seed is not None else "") +
+            "None of these samples was used for training or validation.")
+    if sessions:
+        desc += f" Sessions: {', '.join(str(s) for s in sessions)}."
+    return HeldOut(ds.subset(rows), test, window, starts, desc)
+
+
+def model_settings(model) -> tuple[PreprocessConfig, SplitConfig, int, bool]:
+    """The preprocessing, split settings, seed and scale-to-data flag a model was trained with."""
+    prep = dict(getattr(model, "preprocessing", {}) or {})
+    cfg = prep.get("preprocessing", prep.get("config", prep))
+    known = set(PreprocessConfig.__dataclass_fields__)
+    pconf = PreprocessConfig.from_dict({k: v for k, v in cfg.items() if k in known})
+    split = prep.get("splits", prep.get("split", {})) or {}
+    sknown = set(SplitConfig.__dataclass_fields__)
+    sconf = SplitConfig(**{k: v for k, v in dict(split.get("config", split)).items() if k in sknown})
+    seed = int(prep.get("seed", split.get("seed", 0)) or 0)
+    scale = bool(prep.get("scale_to_data", split.get("scale_to_data", False)))
+    return pconf, sconf, seed, scale
+
+
+def evaluation_data(model, session_paths, seed: int | None = None) -> tuple[Dataset, Splits, HeldOut]:
+    """Read and preprocess the sessions as the model's training did, split them the same way and
+    return (all data, the splits, the held-out part)."""
+    pconf, sconf, model_seed, scale = model_settings(model)
+    ds = preprocess(read_sessions(session_paths), pconf)
+    splits = make_splits(ds, sconf, seed=model_seed if seed is None else seed, scale_to_data=scale)
+    seed = model_seed if seed is None else seed
+    return ds, splits, held_out(ds, splits, session_paths, seed)
