@@ -1,0 +1,728 @@
+"""`DynamixelBus`: one CRANE-X7 on one U2D2, driven through dynamixel-sdk, in SI units.
+
+    from crane_io.bus import DynamixelBus
+
+    with DynamixelBus("/dev/crane_x7_follower", name="follower") as bus:   # opens at 3 Mbps
+        bus.ping_all()                  # every servo present and of the right model?
+        bus.configure(watchdog_s=0.1)   # torque off, return delay 0, modes, limits, bus watchdog
+        bus.torque_on()
+        for _ in range(1000):
+            state = bus.read_state()    # ONE fast sync read of addresses 126..135: rad, rad/s, A
+            bus.write_goal_current(...) # ONE sync write of Goal Current, clamped to the limits
+    # leaving the block (normally, by exception, Ctrl+C): goal current 0, then torque off
+
+Arrays are always (8,) in `arm.joints` order. Raw register units never leave this module.
+
+Faults: every transfer is retried at most `retries` times; a read that still fails raises
+`CommunicationError` (or `ServoMissingError` naming the silent servo) and never returns zeros or old
+values. Failed attempts are also counted in a sliding one-second window; more than `error_budget` of
+them means the link is unusable and the bus raises even if retries kept succeeding. A status packet
+with the alert bit set makes `read_state` read the Hardware Error Status registers and raise
+`ServoFaultError` naming each joint's faults.
+
+The object is not thread-safe: use one bus per thread (one per arm).
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+import serial
+from dynamixel_sdk import (
+    COMM_RX_CORRUPT,
+    COMM_SUCCESS,
+    COMM_TX_FAIL,
+    GroupSyncRead,
+    GroupSyncWrite,
+    PacketHandler,
+)
+from dynamixel_sdk.robotis_def import BROADCAST_ID
+
+from . import units
+from .control_table import (
+    MODE_CURRENT,
+    MODE_POSITION,
+    PRESENT_BLOCK_ADDRESS,
+    PRESENT_BLOCK_SIZE,
+    ServoModel,
+    model_by_number,
+)
+from .description import ArmDescription, default_arm
+from .errors import ConfigError, CraneError
+from .faults import (
+    CommunicationError,
+    ConfigurationMismatchError,
+    ServoFaultError,
+    ServoMissingError,
+    ServoRejectedError,
+    WrongModelError,
+    decode_hardware_error,
+    decode_status_error,
+    describe_faults,
+    servo_label,
+    status_alert,
+)
+from .port import CranePortHandler, open_port
+
+log = logging.getLogger(__name__)
+
+_PKT_ID = 4
+_PKT_FIRST_PARAM = 8  # fast sync read: the first servo's error byte
+_REPORT_BLOCK = 147  # addresses 0..146: everything servo_report shows, in one read per servo
+_FAST_TRIES_BEFORE_FALLBACK = 2
+
+
+class CommandError(CraneError):
+    """A command array that cannot be sent (wrong shape, NaN or infinite values)."""
+
+
+@dataclass(frozen=True)
+class ServoInfo:
+    servo_id: int
+    joint: str
+    model_number: int
+    model: str
+    firmware: int
+
+
+@dataclass
+class BusState:
+    """One synchronous snapshot of every servo, SI units, (8,) arrays in arm.joints order."""
+
+    position: np.ndarray  # rad
+    velocity: np.ndarray  # rad/s
+    current: np.ndarray  # A (Present Current)
+    t: float  # time.monotonic() when the read was sent
+    fast: bool  # True when it came from a fast sync read
+
+
+@dataclass
+class BusStats:
+    reads: int = 0  # read_state calls that returned data
+    writes: int = 0  # goal sync writes sent
+    attempts: int = 0  # read transfers tried (including retries)
+    retries: int = 0  # transfers repeated after a missing or corrupted reply
+    failures: int = 0  # calls that finally raised CommunicationError
+    fast: bool | None = None  # fast sync read in use (None: not decided yet)
+    fallback_note: str | None = None
+    bytes_written: int = 0
+    bytes_read: int = 0
+    recent_errors: collections.deque = field(default_factory=collections.deque, repr=False)
+
+    def as_dict(self) -> dict:
+        return {k: v for k, v in self.__dict__.items() if k != "recent_errors"}
+
+
+class _StatusSyncRead(GroupSyncRead):
+    """GroupSyncRead that keeps every servo's status error byte and removes byte stuffing from fast
+    sync read replies (the SDK parses the stuffed packet, which shifts the data when a reading happens
+    to contain FF FF FD)."""
+
+    def __init__(self, port, ph, start_address, data_length):
+        super().__init__(port, ph, start_address, data_length)
+        self.errors: dict[int, int] = {}
+
+    def rxPacket(self):  # noqa: N802 (SDK name)
+        self.last_result = False
+        self.errors = {}
+        for dxl_id in self.data_dict:
+            data, result, error = self.ph.readRx(self.port, dxl_id, self.data_length)
+            if result != COMM_SUCCESS:
+                return result
+            if len(data) != self.data_length:
+                return COMM_RX_CORRUPT
+            self.data_dict[dxl_id] = bytearray(data)
+            self.errors[dxl_id] = error
+        self.last_result = True
+        return COMM_SUCCESS
+
+    def fastSyncReadRxPacket(self):  # noqa: N802
+        self.last_result = False
+        self.errors = {}
+        packet, result = self.ph.rxPacket(self.port, True)
+        if result != COMM_SUCCESS:
+            return result
+        if packet[_PKT_ID] != BROADCAST_ID:
+            return COMM_RX_CORRUPT
+        packet = self.ph.removeStuffing(list(packet))
+        length = packet[5] | (packet[6] << 8)
+        body = packet[_PKT_FIRST_PARAM: 7 + length]  # [ERR ID DATA.. CRC CRC] per servo
+        chunk = self.data_length + 4
+        if len(body) != chunk * len(self.data_dict):
+            return COMM_RX_CORRUPT
+        seen = {}
+        for k in range(len(self.data_dict)):
+            part = body[k * chunk:(k + 1) * chunk]
+            dxl_id = part[1]
+            if dxl_id not in self.data_dict or dxl_id in seen:
+                return COMM_RX_CORRUPT
+            seen[dxl_id] = (bytearray(part[2:2 + self.data_length]), part[0])
+        for dxl_id, (data, error) in seen.items():
+            self.data_dict[dxl_id] = data
+            self.errors[dxl_id] = error
+        self.last_result = True
+        return COMM_SUCCESS
+
+
+class DynamixelBus:
+    """The CRANE-X7 servo chain behind one port (a U2D2 device path, a pty or `dxlsim://NAME`)."""
+
+    def __init__(self, port: str, arm: ArmDescription | None = None, *, name: str = "arm", retries: int = 2,
+                 error_budget: int = 50, latency_ms: float | None = None, fast_sync_read: bool = True):
+        if retries < 0:
+            raise ConfigError(f"retries must be 0 or more, got {retries}")
+        if error_budget < 1:
+            raise ConfigError(f"error_budget must be at least 1, got {error_budget}")
+        self.port_name = str(port)
+        self.arm = arm if arm is not None else default_arm()
+        self.name = name
+        self.retries = int(retries)
+        self.error_budget = int(error_budget)  # failed transfers tolerated in any 1 s window
+        self.error_window_s = 1.0
+        self.latency_ms = latency_ms
+        self.stats = BusStats(fast=None if fast_sync_read else False)
+        self.servos: dict[str, ServoInfo] = {}
+        self.stop_failures: dict[str, str] = {}
+        self.torque_enabled = False
+
+        joints = self.arm.joints
+        self.joint_names = tuple(j.name for j in joints)
+        self.ids = tuple(j.servo_id for j in joints)
+        self.modes = np.array([MODE_CURRENT if j.name in self.arm.bilateral_joints else MODE_POSITION
+                               for j in joints])
+        self.current_joints = tuple(i for i, m in enumerate(self.modes) if m == MODE_CURRENT)
+        self.position_joints = tuple(i for i, m in enumerate(self.modes) if m == MODE_POSITION)
+        self.current_limits = np.array([j.current_limit for j in joints])  # A; read back in configure
+        self.lower = np.array([j.lower for j in joints])
+        self.upper = np.array([j.upper for j in joints])
+
+        self._ph = PacketHandler(2.0)
+        self._port: CranePortHandler | None = None
+        self._reader: _StatusSyncRead | None = None
+        self._current_writer: GroupSyncWrite | None = None
+        self._position_writer: GroupSyncWrite | None = None
+        self._closed = False
+        self._fast_misses = 0
+        self._last_port_error = ""
+
+    # ---- life cycle ----------------------------------------------------------------------------
+    @property
+    def is_open(self) -> bool:
+        return self._port is not None and self._port.is_open
+
+    def open(self) -> DynamixelBus:
+        """Open the port at the arm's baud rate (3 Mbps). Raises HardwareError with the reason."""
+        if self.is_open:
+            return self
+        if self._closed:
+            raise CommunicationError(f"the bus on {self.port_name} was closed; make a new DynamixelBus")
+        self._port = open_port(self.port_name, self.arm.baudrate, latency_ms=self.latency_ms)
+        self._reader = _StatusSyncRead(self._port, self._ph, PRESENT_BLOCK_ADDRESS, PRESENT_BLOCK_SIZE)
+        for sid in self.ids:
+            self._reader.addParam(sid)
+        self._current_writer = GroupSyncWrite(self._port, self._ph, 102, 2)
+        for i in self.current_joints:
+            self._current_writer.addParam(self.ids[i], [0, 0])
+        self._position_writer = GroupSyncWrite(self._port, self._ph, 116, 4)
+        for i in self.position_joints:
+            self._position_writer.addParam(self.ids[i], [0, 0, 0, 0])
+        return self
+
+    def close(self) -> None:
+        """Goal current 0 and torque off on every servo that answers, then close the port.
+        Idempotent; never raises because of a servo that does not answer."""
+        if self._closed:
+            return
+        self._closed = True
+        port = self._port
+        if port is None:
+            return
+        try:
+            if port.is_open:
+                self.safe_stop()
+        finally:
+            self._update_byte_stats()
+            try:
+                port.closePort()
+            except Exception as exc:  # noqa: BLE001 - closing must not raise
+                log.warning("closing %s: %s", self.port_name, exc)
+
+    def __enter__(self) -> DynamixelBus:
+        return self.open()
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.close()
+
+    def __del__(self):
+        if getattr(self, "_port", None) is not None and not getattr(self, "_closed", True):
+            warnings.warn(f"DynamixelBus on {self.port_name} was not closed; closing it now "
+                          "(use `with DynamixelBus(...)` or call close())", ResourceWarning, stacklevel=2)
+            try:
+                self.close()
+            except Exception:  # noqa: BLE001 - never raise from a finaliser
+                pass
+
+    def __repr__(self) -> str:
+        state = "open" if self.is_open else ("closed" if self._closed else "not opened")
+        return f"DynamixelBus({self.port_name!r}, name={self.name!r}, {state})"
+
+    # ---- discovery and set-up ------------------------------------------------------------------
+    def ping_all(self) -> dict[int, ServoInfo]:
+        """Ping every servo of the arm and check its model number.
+        Raises ServoMissingError (naming joint, ID and port) or WrongModelError."""
+        self._need_port()
+        missing = {}
+        found = {}
+        for joint, sid in zip(self.joint_names, self.ids):
+            number = self._ping(sid)
+            if number is None:
+                missing[joint] = sid
+            else:
+                found[joint] = number
+        if missing:
+            raise self._missing_error(missing, "does not answer", "do not answer")
+        infos = {}
+        for j, (joint, sid) in enumerate(zip(self.joint_names, self.ids)):
+            expected = self.arm.joints[j].model
+            number = found[joint]
+            model = model_by_number(number)
+            if model is None or model.name != expected:
+                what = model.name if model else "an unknown model"
+                raise WrongModelError(
+                    f"servo {servo_label(joint, sid)} on {self.port_name} is model number {number} ({what}) "
+                    f"but the arm description expects a {expected}",
+                    joint=joint, expected=expected, found=number)
+            firmware = self._read(sid, "firmware_version", joint)
+            infos[sid] = ServoInfo(sid, joint, number, model.name, firmware)
+        self.servos = {i.joint: i for i in infos.values()}
+        return infos
+
+    def configure(self, *, watchdog_s: float | None = 0.1, current_limits=None) -> None:
+        """Torque off, then per servo: Return Delay Time 0, drive mode not reversed, operating mode
+        (current for arm.bilateral_joints, position for the held joints), Current Limit (A, a dict
+        joint -> A or an (8,) array; None keeps the servo's), Bus Watchdog (`watchdog_s`, 0.02..2.54 s,
+        None or 0 to disable). Every register is read back and verified."""
+        self._need_port()
+        watchdog_raw = 0
+        if watchdog_s:
+            if not 0.02 <= watchdog_s <= 127 * units.SECONDS_PER_WATCHDOG_LSB:
+                raise ConfigError(f"watchdog_s must be between 0.02 and 2.54 s (or 0 to disable), "
+                                  f"got {watchdog_s}")
+            watchdog_raw = units.seconds_to_watchdog(watchdog_s)
+        limits_raw = self._current_limit_raw(current_limits)
+        self.torque_off()
+        for j, (joint, sid) in enumerate(zip(self.joint_names, self.ids)):
+            self._write(sid, "return_delay_time", 0, joint)
+            drive = self._read(sid, "drive_mode", joint)
+            if drive & 1:
+                self._write(sid, "drive_mode", drive & ~1, joint)
+            if self._read(sid, "operating_mode", joint) != self.modes[j]:
+                self._write(sid, "operating_mode", int(self.modes[j]), joint)
+            if limits_raw[j] is not None:
+                self._write(sid, "current_limit", limits_raw[j], joint)
+            self._write(sid, "bus_watchdog", 0, joint)  # clears a latched watchdog error too
+            if watchdog_raw:
+                self._write(sid, "bus_watchdog", watchdog_raw, joint)
+        for j, (joint, sid) in enumerate(zip(self.joint_names, self.ids)):
+            expect = {"return_delay_time": 0, "operating_mode": int(self.modes[j]),
+                      "bus_watchdog": watchdog_raw}
+            if limits_raw[j] is not None:
+                expect["current_limit"] = limits_raw[j]
+            for reg, value in expect.items():
+                got = self._read(sid, reg, joint)
+                if got != value:
+                    raise ConfigurationMismatchError(
+                        f"servo {servo_label(joint, sid)} on {self.port_name} holds {reg} = {got} after "
+                        f"{value} was written; is its torque on or its firmware too old?")
+            self.current_limits[j] = float(units.current_to_ampere(self._read(sid, "current_limit", joint)))
+
+    def _current_limit_raw(self, current_limits) -> list[int | None]:
+        out: list[int | None] = [None] * len(self.ids)
+        if current_limits is None:
+            return out
+        if isinstance(current_limits, dict):
+            items = [(self.arm.index(k), v) for k, v in current_limits.items()]
+        else:
+            arr = np.asarray(current_limits, dtype=float)
+            if arr.shape != (len(self.ids),):
+                raise ConfigError(f"current_limits must have {len(self.ids)} entries, got shape {arr.shape}")
+            items = list(enumerate(arr))
+        for j, amps in items:
+            model: ServoModel = self.arm.joints[j].servo_model
+            raw = int(units.ampere_to_current(amps))
+            if not np.isfinite(amps) or amps < 0 or raw > model.current_limit_max:
+                top = float(units.current_to_ampere(model.current_limit_max))
+                raise ConfigError(f"current limit {amps} A for {self.joint_names[j]} is outside "
+                                  f"0..{top:.2f} A of its {model.name}")
+            out[j] = raw
+        return out
+
+    # ---- torque --------------------------------------------------------------------------------
+    def torque_on(self) -> None:
+        """Hold the held joints where they are (goal position = present), zero the goal current of the
+        current-mode joints, then enable torque on every servo."""
+        self._need_port()
+        for i in self.position_joints:
+            joint, sid = self.joint_names[i], self.ids[i]
+            self._write(sid, "goal_position", self._read(sid, "present_position", joint), joint)
+        for i in self.current_joints:
+            self._write(self.ids[i], "goal_current", 0, self.joint_names[i])
+        for joint, sid in zip(self.joint_names, self.ids):
+            self._write(sid, "torque_enable", 1, joint)
+        self.torque_enabled = True
+
+    def torque_off(self) -> None:
+        """Disable torque on every servo; raises if one does not acknowledge (see safe_stop)."""
+        self._need_port()
+        for joint, sid in zip(self.joint_names, self.ids):
+            self._write(sid, "torque_enable", 0, joint)
+        self.torque_enabled = False
+
+    def safe_stop(self) -> dict[str, str]:
+        """Goal current 0 on every current-mode servo, then torque off on each servo individually.
+        Never raises for a servo that does not answer: returns (and logs) joint -> reason instead."""
+        failures: dict[str, str] = {}
+        port = self._port
+        if port is None or not port.is_open:
+            return failures
+        port.is_using = False  # an exception in the middle of a transfer may have left it set
+        if self.current_joints:
+            for i in self.current_joints:
+                self._current_writer.changeParam(self.ids[i], [0, 0])
+            for _ in range(1 + self.retries):
+                try:
+                    if self._current_writer.txPacket() == COMM_SUCCESS:
+                        break
+                except (serial.SerialException, OSError):
+                    port.is_using = False
+        for joint, sid in zip(self.joint_names, self.ids):
+            try:
+                self._write(sid, "torque_enable", 0, joint)
+            except CraneError as exc:
+                failures[joint] = str(exc)
+            except (serial.SerialException, OSError) as exc:
+                failures[joint] = f"port error: {exc}"
+                port.is_using = False
+        self.torque_enabled = False
+        self.stop_failures = failures
+        if failures:
+            log.warning("%s: torque off not confirmed on %s", self.name, ", ".join(failures))
+        return failures
+
+    # ---- the control cycle ---------------------------------------------------------------------
+    def read_state(self, *, check_faults: bool = True) -> BusState:
+        """Present current, velocity and position of every servo in ONE (fast) sync read.
+
+        Retries within the budget; raises CommunicationError / ServoMissingError when the read finally
+        fails, and ServoFaultError when a servo reports a hardware error (unless check_faults=False)."""
+        self._need_port()
+        reader = self._reader
+        last = "no reply"
+        for attempt in range(1 + self.retries):
+            if attempt:
+                self.stats.retries += 1
+            t = time.monotonic()
+            fast = self.stats.fast is not False
+            result = self._transfer(reader.fastSyncRead if fast else reader.txRxPacket)
+            if result != COMM_SUCCESS and self.stats.fast is None:
+                plain_t = time.monotonic()
+                if self._transfer(reader.txRxPacket) == COMM_SUCCESS:
+                    self._fast_miss()
+                    result, fast, t = COMM_SUCCESS, False, plain_t
+            if result == COMM_SUCCESS and any(e & 0x7F for e in reader.errors.values()):
+                bad = {s: e for s, e in reader.errors.items() if e & 0x7F}
+                last = "; ".join(f"ID {s}: {', '.join(decode_status_error(e))}" for s, e in bad.items())
+                result = COMM_RX_CORRUPT
+            if result == COMM_SUCCESS:
+                if fast and self.stats.fast is None:
+                    self.stats.fast = True
+                return self._state_from(reader, t, fast, check_faults)
+            if result != COMM_RX_CORRUPT or last == "no reply":
+                last = self._ph.getTxRxResult(result).split("] ")[-1].rstrip("!").lower() or str(result)
+            self._spend_error_budget()
+        self.stats.failures += 1
+        missing = self._silent_servos()
+        if missing:
+            raise self._missing_error(missing, "stopped answering", "stopped answering")
+        raise CommunicationError(
+            f"reading the servos on {self.port_name} failed {1 + self.retries} times in a row ({last}); "
+            "check the cable, the power and the latency timer")
+
+    def _fast_miss(self) -> None:
+        self._fast_misses += 1
+        if self._fast_misses >= _FAST_TRIES_BEFORE_FALLBACK:
+            self.stats.fast = False
+            self.stats.fallback_note = (
+                f"the servos on {self.port_name} did not answer fast sync read while plain sync read "
+                "worked; using plain sync read from now on (update the servo firmware to speed up the loop)")
+            log.warning("%s: %s", self.name, self.stats.fallback_note)
+
+    def _state_from(self, reader: _StatusSyncRead, t: float, fast: bool, check_faults: bool) -> BusState:
+        n = len(self.ids)
+        cur = np.empty(n)
+        vel = np.empty(n)
+        pos = np.empty(n)
+        for j, sid in enumerate(self.ids):
+            data = reader.data_dict[sid]
+            cur[j] = int.from_bytes(data[0:2], "little", signed=True)
+            vel[j] = int.from_bytes(data[2:6], "little", signed=True)
+            pos[j] = int.from_bytes(data[6:10], "little", signed=True)
+        self.stats.reads += 1
+        self._update_byte_stats()
+        if check_faults and any(status_alert(e) for e in reader.errors.values()):
+            faults = self.read_hardware_errors()
+            if faults:
+                where = describe_faults(faults, dict(zip(self.joint_names, self.ids)))
+                raise ServoFaultError(
+                    f"hardware error on {self.port_name}: {where}"
+                    "; the servo switched its torque off (remove the cause, then power-cycle or reboot it)",
+                    faults=faults)
+        return BusState(position=units.position_to_rad(pos), velocity=units.velocity_to_rads(vel),
+                        current=units.current_to_ampere(cur), t=t, fast=fast)
+
+    def write_goal_current(self, amps) -> np.ndarray:
+        """Send the goal current of every current-mode joint in ONE sync write.
+
+        `amps` is (8,) in arm.joints order; entries of position-mode joints are ignored. Values are
+        clamped to each servo's Current Limit. Returns the currents actually commanded (A, quantised;
+        0 for position-mode joints)."""
+        self._need_port()
+        amps = self._command_array(amps, "goal current", self.current_joints)
+        sent = np.zeros(len(self.ids))
+        limits = self.current_limits
+        for i in self.current_joints:
+            raw = int(units.ampere_to_current(np.clip(amps[i], -limits[i], limits[i])))
+            lim_raw = int(np.floor(limits[i] / units.AMPERE_PER_CURRENT_LSB + 1e-9))
+            raw = max(-lim_raw, min(lim_raw, raw))
+            sent[i] = raw * units.AMPERE_PER_CURRENT_LSB
+            self._current_writer.changeParam(self.ids[i], list((raw & 0xFFFF).to_bytes(2, "little")))
+        self._send(self._current_writer, "goal current")
+        return sent
+
+    def write_goal_position(self, rad) -> np.ndarray:
+        """Send the goal position of every position-mode (held) joint in ONE sync write, clamped to the
+        joint limits. `rad` is (8,); entries of current-mode joints are ignored. Returns what was sent."""
+        self._need_port()
+        rad = self._command_array(rad, "goal position", self.position_joints)
+        sent = np.zeros(len(self.ids))
+        for i in self.position_joints:
+            raw = int(units.rad_to_position(np.clip(rad[i], self.lower[i], self.upper[i])))
+            sent[i] = float(units.position_to_rad(raw))
+            self._position_writer.changeParam(self.ids[i], list((raw & 0xFFFFFFFF).to_bytes(4, "little")))
+        self._send(self._position_writer, "goal position")
+        return sent
+
+    def _command_array(self, values, what: str, used) -> np.ndarray:
+        arr = np.asarray(values, dtype=float)
+        if arr.shape != (len(self.ids),):
+            raise CommandError(f"{what} needs {len(self.ids)} values in joint order "
+                               f"({', '.join(self.joint_names)}), got shape {arr.shape}")
+        bad = [self.joint_names[i] for i in used if not np.isfinite(arr[i])]
+        if bad:
+            raise CommandError(f"{what} for {', '.join(bad)} is not a finite number; nothing was sent")
+        return arr
+
+    def _send(self, writer: GroupSyncWrite, what: str) -> None:
+        for attempt in range(1 + self.retries):
+            if attempt:
+                self.stats.retries += 1
+            if self._transfer(writer.txPacket) == COMM_SUCCESS:
+                self.stats.writes += 1
+                return
+            self._spend_error_budget()
+        self.stats.failures += 1
+        raise CommunicationError(f"sending the {what} on {self.port_name} failed {1 + self.retries} times")
+
+    # ---- diagnostics ---------------------------------------------------------------------------
+    def read_hardware_errors(self) -> dict[str, list[str]]:
+        """Joint -> named Hardware Error Status faults, for the joints that have any. A servo that
+        does not answer is listed as ['not answering']."""
+        self._need_port()
+        faults = {}
+        for joint, sid in zip(self.joint_names, self.ids):
+            try:
+                bits = self._read(sid, "hardware_error_status", joint)
+            except CommunicationError:
+                faults[joint] = ["not answering"]
+                continue
+            if bits:
+                faults[joint] = decode_hardware_error(bits)
+        return faults
+
+    def servo_report(self) -> list[dict]:
+        """One dict per servo (for `crane-collect check`): id, joint, answering, model, firmware, mode,
+        torque, return delay, limits (SI), watchdog, hardware errors, voltage, temperature, position."""
+        self._need_port()
+        rows = []
+        for j, (joint, sid) in enumerate(zip(self.joint_names, self.ids)):
+            row = {"id": sid, "joint": joint, "expected_model": self.arm.joints[j].model}
+            try:
+                block = self._read_block(sid, 0, _REPORT_BLOCK, joint)
+            except CommunicationError:
+                row["answering"] = False
+                rows.append(row)
+                continue
+            model = model_by_number(int.from_bytes(block[0:2], "little"))
+            table = model or self.arm.joints[j].servo_model
+
+            def reg(name, _block=block, _table=table):
+                r = _table.register(name)
+                return int.from_bytes(_block[r.address:r.address + r.size], "little", signed=r.signed)
+
+            row.update(
+                answering=True,
+                model_number=reg("model_number"),
+                model=model.name if model else f"unknown model {reg('model_number')}",
+                firmware=reg("firmware_version"),
+                operating_mode=reg("operating_mode"),
+                torque_enabled=bool(reg("torque_enable")),
+                return_delay_s=reg("return_delay_time") * units.SECONDS_PER_RETURN_DELAY_LSB,
+                drive_mode=reg("drive_mode"),
+                current_limit_a=float(units.current_to_ampere(reg("current_limit"))),
+                velocity_limit_rads=float(units.velocity_to_rads(reg("velocity_limit"))),
+                min_position_rad=float(units.position_to_rad(reg("min_position_limit"))),
+                max_position_rad=float(units.position_to_rad(reg("max_position_limit"))),
+                bus_watchdog_s=(float(units.watchdog_to_seconds(reg("bus_watchdog")))
+                                if reg("bus_watchdog") >= 0 else None),
+                watchdog_expired=reg("bus_watchdog") < 0,
+                hardware_errors=decode_hardware_error(reg("hardware_error_status")),
+                voltage_v=float(units.voltage_to_volt(reg("present_input_voltage"))),
+                temperature_c=float(reg("present_temperature")),
+                position_rad=float(units.position_to_rad(reg("present_position"))),
+            )
+            rows.append(row)
+        return rows
+
+    # ---- low level -----------------------------------------------------------------------------
+    def _need_port(self) -> CranePortHandler:
+        if self._port is None or not self._port.is_open:
+            if self._closed:
+                raise CommunicationError(f"the bus on {self.port_name} is closed")
+            raise CommunicationError(f"the bus on {self.port_name} is not open; call open() or use `with`")
+        return self._port
+
+    def _transfer(self, fn, *args):
+        """Run one SDK transfer; a serial-level exception counts as a failed transfer."""
+        self.stats.attempts += 1
+        try:
+            out = fn(*args)
+        except (serial.SerialException, OSError) as exc:
+            self._port.is_using = False
+            self._last_port_error = str(exc)
+            return COMM_TX_FAIL
+        return out
+
+    def _spend_error_budget(self) -> None:
+        now = time.monotonic()
+        recent = self.stats.recent_errors
+        recent.append(now)
+        while recent and recent[0] < now - self.error_window_s:
+            recent.popleft()
+        if len(recent) > self.error_budget:
+            self.stats.failures += 1
+            raise CommunicationError(
+                f"the bus on {self.port_name} lost or corrupted {len(recent)} replies within "
+                f"{self.error_window_s:g} s (budget {self.error_budget}); check the cable, the RS-485 "
+                "termination and the latency timer")
+
+    def _ping(self, sid: int) -> int | None:
+        for _ in range(1 + self.retries):
+            number, result, _err = self._call(self._ph.ping, sid)
+            if result == COMM_SUCCESS:
+                return number
+        return None
+
+    def _call(self, fn, *args):
+        """SDK call returning a tuple whose second item is the result; port errors become failures."""
+        self.stats.attempts += 1
+        try:
+            return fn(self._port, *args)
+        except (serial.SerialException, OSError) as exc:
+            self._port.is_using = False
+            self._last_port_error = str(exc)
+            return None, COMM_TX_FAIL, 0
+
+    def _read_block(self, sid: int, address: int, size: int, joint: str) -> bytes:
+        last = 0
+        for attempt in range(1 + self.retries):
+            if attempt:
+                self.stats.retries += 1
+            data, result, error = self._call(self._ph.readTxRx, sid, address, size)
+            if result == COMM_SUCCESS and len(data) == size:
+                self._raise_if_rejected(error, sid, joint, f"reading address {address}")
+                return bytes(data)
+            last = result
+        self._update_byte_stats()
+        reason = self._ph.getTxRxResult(last).split("] ")[-1].rstrip("!").lower()
+        raise CommunicationError(f"servo {servo_label(joint, sid)} on {self.port_name} did not answer a "
+                                 f"read of address {address} after {1 + self.retries} tries "
+                                 f"({reason or 'no reply'})")
+
+    def _read(self, sid: int, name: str, joint: str) -> int:
+        reg = self.arm.by_id(sid).servo_model.register(name)
+        data = self._read_block(sid, reg.address, reg.size, joint)
+        return int.from_bytes(data, "little", signed=reg.signed)
+
+    def _write(self, sid: int, name: str, value: int, joint: str) -> None:
+        reg = self.arm.by_id(sid).servo_model.register(name)
+        payload = list(units.to_unsigned(int(value), reg.size).to_bytes(reg.size, "little"))
+        last = 0
+        for attempt in range(1 + self.retries):
+            if attempt:
+                self.stats.retries += 1
+            result, error = self._call_write(sid, reg.address, reg.size, payload)
+            if result == COMM_SUCCESS:
+                self._raise_if_rejected(error, sid, joint, f"writing {name} = {value}")
+                return
+            last = result
+        reason = self._ph.getTxRxResult(last).split("] ")[-1].rstrip("!").lower()
+        raise CommunicationError(f"servo {servo_label(joint, sid)} on {self.port_name} did not acknowledge "
+                                 f"writing {name} after {1 + self.retries} tries ({reason or 'no reply'})")
+
+    def _call_write(self, sid, address, size, payload):
+        self.stats.attempts += 1
+        try:
+            return self._ph.writeTxRx(self._port, sid, address, size, payload)
+        except (serial.SerialException, OSError) as exc:
+            self._port.is_using = False
+            self._last_port_error = str(exc)
+            return COMM_TX_FAIL, 0
+
+    def _raise_if_rejected(self, error: int, sid: int, joint: str, what: str) -> None:
+        names = [n for n in decode_status_error(error) if n != "alert"]
+        if names:
+            raise ServoRejectedError(f"servo {servo_label(joint, sid)} on {self.port_name} refused "
+                                     f"{what}: {', '.join(names)}")
+
+    def _silent_servos(self) -> dict[str, int]:
+        """Ping each servo once to learn which ones went silent (after a failed read)."""
+        silent = {}
+        for joint, sid in zip(self.joint_names, self.ids):
+            _n, result, _e = self._call(self._ph.ping, sid)
+            if result != COMM_SUCCESS:
+                _n, result, _e = self._call(self._ph.ping, sid)
+            if result != COMM_SUCCESS:
+                silent[joint] = sid
+        if len(silent) == len(self.ids):
+            return {}  # nobody answers: a link problem, not a servo problem
+        return silent
+
+    def _missing_error(self, missing: dict[str, int], one: str, many: str) -> ServoMissingError:
+        if len(missing) == len(self.ids):
+            return ServoMissingError(
+                f"no servo answers on {self.port_name} at {self.arm.baudrate} bps (is the arm powered, the "
+                "cable plugged in and the baud rate right?)", missing=missing, port=self.port_name)
+        names = ", ".join(servo_label(j, s) for j, s in missing.items())
+        verb = one if len(missing) == 1 else many
+        return ServoMissingError(f"servo {names} {verb} on {self.port_name} (check its cable and power)",
+                                 missing=missing, port=self.port_name)
+
+    def _update_byte_stats(self) -> None:
+        if self._port is not None:
+            self.stats.bytes_written = self._port.bytes_written
+            self.stats.bytes_read = self._port.bytes_read
