@@ -1,0 +1,68 @@
+"""Model methods by name: make a model, load a saved one.
+
+    model = make_model("mlp-masked", joint_names, epochs=50)
+    model = load_model("models/masked")
+
+"hybrid" resolves lazily to train.models.hybrid:HybridModel, so this file works before that exists.
+"""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+
+from crane_io.errors import CraneError
+
+from .base import Model, ModelFileError, read_model_json
+
+# method -> ("module:Class", options the method fixes)
+METHODS: dict[str, tuple[str, dict]] = {
+    "rigid-body": ("train.models.rigid_body:RigidBodyModel", {}),
+    "mlp-mse": ("train.models.mlp:MLPModel", {"loss": "mse"}),
+    "mlp-masked": ("train.models.mlp:MLPModel", {"loss": "masked"}),
+    "hybrid": ("train.models.hybrid:HybridModel", {}),
+}
+
+
+class UnknownMethodError(CraneError):
+    """A method name that is not in METHODS."""
+
+
+def model_class(method: str) -> tuple[type[Model], dict]:
+    if method not in METHODS:
+        raise UnknownMethodError(f"unknown model method {method!r}; choose one of {', '.join(METHODS)}")
+    target, fixed = METHODS[method]
+    module, cls = target.split(":")
+    try:
+        return getattr(importlib.import_module(module), cls), dict(fixed)
+    except (ImportError, AttributeError):
+        raise UnknownMethodError(f"model method {method!r} is not available in this installation") from None
+
+
+def make_model(method: str, joint_names, preprocessing: dict | None = None, **options) -> Model:
+    """A fresh, unfitted model of `method` for `joint_names`; options as the method documents."""
+    cls, fixed = model_class(method)
+    for k, v in fixed.items():
+        if k in options and options[k] != v:
+            raise CraneError(f"method {method} fixes {k}={v!r}; do not pass {k}={options[k]!r}")
+    options.update(fixed)
+    try:
+        return cls(joint_names, preprocessing=preprocessing, **options)
+    except TypeError as exc:
+        raise CraneError(f"bad option for method {method}: {exc}") from None
+
+
+def load_model(directory) -> Model:
+    """Load a model directory written by Model.save (never needs the training data)."""
+    doc = read_model_json(directory)
+    method = doc.get("method")
+    if method not in METHODS:
+        raise ModelFileError(f"{Path(directory)} holds a model of unknown method {method!r}")
+    cls, _ = model_class(method)
+    try:
+        model = cls(doc["joint_names"], preprocessing=doc.get("preprocessing") or {},
+                    **doc.get("options", {}))
+    except (TypeError, KeyError) as exc:
+        raise ModelFileError(f"{Path(directory)} has an unusable model.json ({exc})") from None
+    model._load_extra(Path(directory), doc.get("state", {}))
+    return model

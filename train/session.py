@@ -1,0 +1,147 @@
+"""Read crane-session HDF5 files (docs/session-format.md) into plain numpy arrays.
+
+Only the contract minimum is needed: root attributes `format`, `format_version`, `rate_hz`,
+`joint_names`, `source`, and `/<arm>/t`, `/<arm>/q`, `/<arm>/tau`. Files are opened read-only (SWMR
+read when the file was written in SWMR mode, so a recording in progress can be read too); the input
+is never modified. Every problem is a `SessionFileError` whose one sentence names the file.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from crane_io.errors import SessionFileError
+
+FORMAT = "crane-session"
+FORMAT_VERSION = 1  # newest version this reader understands
+MIN_SAMPLES = 100  # fewer raw samples than this cannot be filtered and split meaningfully
+REQUIRED_ATTRS = ("format", "format_version", "rate_hz", "joint_names", "source")
+
+
+@dataclass
+class RawSession:
+    """One arm's recorded signals, SI units, as stored (no filtering)."""
+
+    t: np.ndarray  # (N,) s
+    q: np.ndarray  # (N, J) rad
+    tau: np.ndarray  # (N, J) N m
+    rate_hz: float
+    joint_names: tuple[str, ...]
+    source: str
+    path: str = ""
+    attrs: dict = field(default_factory=dict)  # every root attribute, decoded to plain Python
+    truncated: bool = False  # datasets had different lengths (a crashed recording); cut to the shortest
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t[-1] - self.t[0]) if len(self.t) > 1 else 0.0
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+
+def _decode(value):
+    if isinstance(value, bytes):
+        return value.decode("utf-8", "replace")
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind in "SO":
+            return [_decode(v) for v in value.tolist()]
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _open(path: Path) -> h5py.File:
+    if not path.exists():
+        raise SessionFileError(f"session file {path} does not exist")
+    if not path.is_file():
+        raise SessionFileError(f"{path} is not a file")
+    if not h5py.is_hdf5(str(path)):
+        raise SessionFileError(f"{path} is not an HDF5 file, so it cannot be a crane-session")
+    try:
+        return h5py.File(str(path), "r", swmr=True)
+    except (OSError, ValueError):
+        try:  # files not written with libver="latest" cannot be opened in SWMR mode
+            return h5py.File(str(path), "r")
+        except OSError as exc:
+            raise SessionFileError(f"{path} cannot be opened as HDF5 ({exc})") from None
+
+
+def read_session(path, arm: str = "follower") -> RawSession:
+    """Read and validate one session file; see the module docstring for what is checked."""
+    path = Path(path)
+    with _open(path) as f:
+        attrs = {k: _decode(v) for k, v in f.attrs.items()}
+        fmt = attrs.get("format")
+        if fmt != FORMAT:
+            what = "has no 'format' attribute" if fmt is None else f"has format {fmt!r}"
+            raise SessionFileError(f"{path} is not a crane-session file (it {what})")
+        missing = [a for a in REQUIRED_ATTRS if a not in attrs]
+        if missing:
+            raise SessionFileError(f"{path} lacks the required attribute(s) {', '.join(missing)}")
+        try:
+            version = int(attrs["format_version"])
+        except (TypeError, ValueError):
+            raise SessionFileError(f"{path} has an unreadable format_version "
+                                   f"{attrs['format_version']!r}") from None
+        if version > FORMAT_VERSION:
+            raise SessionFileError(f"{path} is crane-session version {version}, newer than this "
+                                   f"reader's version {FORMAT_VERSION}; update crane-x7")
+        try:
+            rate = float(attrs["rate_hz"])
+        except (TypeError, ValueError):
+            rate = float("nan")
+        if not np.isfinite(rate) or rate <= 0:
+            raise SessionFileError(f"{path} has an invalid rate_hz {attrs['rate_hz']!r}")
+        names = attrs["joint_names"]
+        names = tuple(names) if isinstance(names, list) else (str(names),)
+        if arm not in f or not isinstance(f[arm], h5py.Group):
+            raise SessionFileError(f"{path} has no /{arm} group")
+        group = f[arm]
+        for key in ("t", "q", "tau"):
+            if key not in group or not isinstance(group[key], h5py.Dataset):
+                raise SessionFileError(f"{path} lacks the required dataset /{arm}/{key}")
+        dt, dq, dtau = group["t"], group["q"], group["tau"]
+        if dt.ndim != 1:
+            raise SessionFileError(f"{path}: /{arm}/t has shape {dt.shape}, expected (N,)")
+        for name, d in (("q", dq), ("tau", dtau)):
+            if d.ndim != 2 or d.shape[1] != len(names):
+                raise SessionFileError(f"{path}: /{arm}/{name} has shape {d.shape}, expected (N, "
+                                       f"{len(names)}) to match the {len(names)} joint_names")
+        n = min(dt.shape[0], dq.shape[0], dtau.shape[0])
+        truncated = len({dt.shape[0], dq.shape[0], dtau.shape[0]}) > 1
+        t = np.asarray(dt[:n], dtype=float)
+        q = np.asarray(dq[:n], dtype=float)
+        tau = np.asarray(dtau[:n], dtype=float)
+    if n < MIN_SAMPLES:
+        raise SessionFileError(f"{path} has only {n} samples; at least {MIN_SAMPLES} are needed")
+    for name, arr in (("t", t), ("q", q), ("tau", tau)):
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            row = int(np.argwhere(bad)[0][0])
+            raise SessionFileError(f"{path}: /{arm}/{name} contains NaN or infinite values "
+                                   f"({int(bad.sum())} of them, first in sample {row})")
+    if np.any(np.diff(t) <= 0):
+        row = int(np.argmax(np.diff(t) <= 0))
+        raise SessionFileError(f"{path}: /{arm}/t is not strictly increasing (at sample {row + 1})")
+    return RawSession(t=t, q=q, tau=tau, rate_hz=rate, joint_names=names, source=str(attrs["source"]),
+                      path=str(path), attrs=attrs, truncated=truncated)
+
+
+def read_sessions(paths, arm: str = "follower") -> list[RawSession]:
+    """Read several session files; they must name the same joints."""
+    paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
+    if not paths:
+        raise SessionFileError("no session files were given")
+    sessions = [read_session(p, arm) for p in paths]
+    first = sessions[0]
+    for s in sessions[1:]:
+        if s.joint_names != first.joint_names:
+            raise SessionFileError(f"{s.path} has joints {', '.join(s.joint_names)} but {first.path} has "
+                                   f"{', '.join(first.joint_names)}; sessions must record the same joints")
+    return sessions
