@@ -1,0 +1,40 @@
+"""`crane-train compare MODEL_DIR...`: the held-out error per joint of successive models side by side,
+as a table and a plot, so the fall is visible (train.compare)."""
+
+from __future__ import annotations
+
+import json
+
+import click
+
+from crane_io.errors import cli_errors
+
+
+@click.command()
+@click.argument("model_dirs", nargs=-1, required=True, type=click.Path(file_okay=False))
+@click.option("--session", "sessions", multiple=True, type=click.Path(dir_okay=False),
+              help="Session file(s) to evaluate on (repeatable; default: the first model's training "
+                   "sessions).")
+@click.option("--json", "as_json", is_flag=True, help="Print the comparison as JSON.")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
+              help="Write the bar plot of the error per joint to this PNG.")
+@click.option("--metric", type=click.Choice(["mse", "rmse", "nmse"]), default="mse", show_default=True,
+              help="The metric of the printed table.")
+@cli_errors
+def compare(model_dirs, sessions, as_json, output, metric):
+    """Compare MODEL_DIR(s), in the given order, on the same held-out samples."""
+    from .compare import compare_models, plot, table_text
+
+    result = compare_models(list(model_dirs), list(sessions), progress=not as_json)
+    if output:
+        plot(result, output)
+    if as_json:
+        doc = result.to_json()
+        if output:
+            doc["plot"] = str(output)
+        click.echo(json.dumps(doc, indent=2))
+        return
+    click.echo(table_text(result, metric))
+    click.echo(f"Evaluated on: {result.evaluated_on}")
+    if output:
+        click.echo(f"Wrote the plot to {output}")

@@ -1,0 +1,37 @@
+"""`crane-train report MODEL_DIR SESSION... -o REPORT.html`: one self-contained page showing where the
+model fails, evaluated on the held-out part of the sessions (train.report, train.heldout)."""
+
+from __future__ import annotations
+
+import click
+
+from crane_io.errors import cli_errors
+
+
+@click.command()
+@click.argument("model_dir", type=click.Path(file_okay=False))
+@click.argument("sessions", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="The HTML file to write.")
+@click.option("--diagnosis/--no-diagnosis", default=True, show_default=True,
+              help="Add the diagnosis sentences (which effect is missing) to the page.")
+@click.option("--seed", type=int, default=None,
+              help="Split seed (default: the one the model was trained with).")
+@cli_errors
+def report(model_dir, sessions, output, diagnosis, seed):
+    """Write an HTML report of MODEL_DIR's error on the held-out part of SESSION(s)."""
+    from .heldout import evaluation_data
+    from .models.registry import load_model
+    from .report import report_html, write_report
+
+    model = load_model(model_dir)
+    click.echo(f"Evaluating {model_dir} ({model.method}) on the held-out part of {', '.join(sessions)} ...",
+               err=True)
+    ds, _, held = evaluation_data(model, list(sessions), seed=seed)
+    diag = None
+    if diagnosis:
+        from .diagnose import diagnose as run_diagnosis
+
+        diag = run_diagnosis(model, ds)
+    path = write_report(output, report_html(model, model_dir, held, sessions, diag))
+    click.echo(f"Wrote {path} ({path.stat().st_size / 1e3:.0f} kB); open it in a browser (works offline).")

@@ -1,0 +1,218 @@
+"""`crane-train compare`: the error per joint of successive models side by side, so the fall is visible.
+
+All models are judged on the same held-out samples: the first model's preprocessing and split (seed,
+sizes) define them (train.heldout). A model whose preprocessing differs (another cut-off, zero-phase
+...) gets the sessions preprocessed its own way, and is scored on its rows at the same times (same piece,
+same down-sampled instant), so every model sees inputs prepared as in its training and the comparison
+is over the same moments.
+
+Metrics per joint: MSE, RMSE and normalised MSE on the test set (every joint moves: the paper's test
+set) and MSE on all held-out samples where that joint moves.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from crane_io.errors import CraneError
+
+from .heldout import HeldOut, evaluation_data, model_settings
+from .metrics import metrics_table, mse
+
+
+class CompareError(CraneError):
+    """Models that cannot be compared (different joints, no sessions)."""
+
+
+@dataclass
+class ModelScore:
+    directory: str
+    method: str
+    effects: list[str]
+    test: dict  # {"mse": {joint: v}, "rmse": ..., "nmse": ...} on the test set (every joint moves)
+    moving_mse: dict  # {joint: MSE on the held-out samples where that joint moves}
+    n_test: int
+    notes: list[str] = field(default_factory=list)
+
+    def to_json(self) -> dict:
+        return {"directory": self.directory, "method": self.method, "effects": self.effects,
+                "n_test": self.n_test, "test": self.test, "moving_mse": self.moving_mse, "notes": self.notes}
+
+
+@dataclass
+class Comparison:
+    joints: tuple[str, ...]
+    models: list[ModelScore]
+    evaluated_on: str
+
+    def to_json(self) -> dict:
+        return {"joints": list(self.joints), "evaluated_on": self.evaluated_on,
+                "models": [m.to_json() for m in self.models]}
+
+
+def effect_labels(model) -> list[str]:
+    out = []
+    for e in (getattr(model, "options", {}) or {}).get("effects") or []:
+        if isinstance(e, dict):
+            name, joint = e.get("name"), e.get("joint")
+        elif isinstance(e, str):
+            name, joint = e, None
+        else:
+            name, joint = e[0], (e[1] if len(e) > 1 else None)
+        out.append(f"{name}:joint={joint}" if joint else str(name))
+    return out
+
+
+def model_sessions(model) -> list[str]:
+    """The session files a model was trained on, as its preprocessing record names them."""
+    prep = getattr(model, "preprocessing", {}) or {}
+    for key in ("sources", "sessions"):
+        if prep.get(key):
+            return [str(s) for s in prep[key]]
+    return []
+
+
+def score(model, held: HeldOut, directory: str = "") -> ModelScore:
+    ds = held.data
+    pred = model.predict(ds.q, ds.dq, ds.ddq)
+    test = metrics_table(ds.tau[held.test], pred[held.test], ds.joint_names)
+    moving = mse(ds.tau, pred, ds.moving)
+    return ModelScore(directory, model.method, effect_labels(model), test,
+                      {j: float(v) for j, v in zip(ds.joint_names, moving)}, int(held.test.sum()))
+
+
+def _align(reference: HeldOut, other: HeldOut) -> HeldOut:
+    """Rows of `other` at the same (piece, instant) as the reference's held-out rows."""
+    def keys(h):
+        return list(zip(h.data.segment.tolist(), np.round(h.data.t * 1000).astype(int).tolist()))
+
+    where = {k: i for i, k in enumerate(keys(other))}
+    ref_keys = keys(reference)
+    rows = [where.get(k, -1) for k in ref_keys]
+    found = np.array([r >= 0 for r in rows])
+    rows = np.array([r for r in rows if r >= 0], int)
+    return HeldOut(other.data.subset(rows), reference.test[found], reference.window[found],
+                   reference.block_starts, reference.description)
+
+
+def compare_models(model_dirs, sessions=None, progress: bool = False) -> Comparison:
+    """Load each model directory and score it on the same held-out samples."""
+    from .heldout import held_out
+    from .models.registry import load_model
+    from .preprocess import preprocess
+    from .session import read_sessions
+
+    if not model_dirs:
+        raise CompareError("give at least one model directory to compare")
+    models = [load_model(d) for d in model_dirs]
+    joints = models[0].joint_names
+    for d, m in zip(model_dirs, models):
+        if tuple(m.joint_names) != tuple(joints):
+            raise CompareError(f"{d} predicts joints {', '.join(m.joint_names)} but {model_dirs[0]} "
+                               f"predicts {', '.join(joints)}; only models of the same joints compare")
+    sessions = list(sessions or model_sessions(models[0]))
+    if not sessions:
+        raise CompareError("the models do not record their sessions; name them with --session")
+    _, splits, reference = evaluation_data(models[0], sessions)
+    ref_settings = model_settings(models[0])[0]
+    out = []
+    iterator = list(zip(model_dirs, models))
+    if progress:
+        from tqdm import tqdm
+        iterator = tqdm(iterator, desc="compare", unit="model", leave=False)
+    for d, m in iterator:
+        held = reference
+        notes = []
+        pconf = model_settings(m)[0]
+        if pconf != ref_settings:
+            ds_m = preprocess(read_sessions(sessions), pconf)
+            held = _align(reference, held_out(ds_m, _reindex(splits, ds_m, reference)))
+            notes.append("preprocessed with its own settings; scored at the same instants")
+        s = score(m, held, str(d))
+        s.notes = notes
+        out.append(s)
+    return Comparison(tuple(joints), out, reference.description)
+
+
+def _reindex(splits, ds_other, reference):
+    """A Splits-like object whose index addresses `ds_other` at the reference's held-out instants."""
+    from copy import copy
+
+    ref = reference.data
+    key = {k: i for i, k in enumerate(zip(ds_other.segment.tolist(),
+                                          np.round(ds_other.t * 1000).astype(int).tolist()))}
+
+    def rows(mask):
+        ks = zip(ref.segment[mask].tolist(), np.round(ref.t[mask] * 1000).astype(int).tolist())
+        return np.array([key[k] for k in ks if k in key], int)
+
+    s = copy(splits)
+    s.index = {"pool": np.array([], int), "val": np.array([], int), "test": rows(reference.test),
+               "window": rows(reference.window)}
+    return s
+
+
+# ---- output -----------------------------------------------------------------------------------------
+
+def _label(s: ModelScore, i: int) -> str:
+    name = Path(s.directory).name or s.directory
+    return f"{i + 1}. {name}"
+
+
+def table_text(c: Comparison, metric: str = "mse") -> str:
+    """A plain-text table: one row per model, one column per joint (test-set metric), with the change
+    against the first model."""
+    head = ["model", "method", *[f"{j} {metric.upper()}" for j in c.joints]]
+    rows = []
+    base = c.models[0].test[metric]
+    for i, s in enumerate(c.models):
+        cells = [_label(s, i), s.method + (f" +{','.join(s.effects)}" if s.effects else "")]
+        for j in c.joints:
+            v = s.test[metric][j]
+            change = "" if i == 0 or not base[j] else f" ({100 * (v / base[j] - 1):+.0f}%)"
+            cells.append(f"{v:.4g}{change}")
+        rows.append(cells)
+    widths = [max(len(str(r[k])) for r in [head, *rows]) for k in range(len(head))]
+    lines = ["  ".join(str(x).ljust(w) for x, w in zip(r, widths)) for r in [head, *rows]]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    unit = {"mse": "N m^2", "rmse": "N m", "nmse": "1"}[metric]
+    return "\n".join(lines) + f"\n({metric.upper()} in {unit} on {c.models[0].n_test} held-out test samples)"
+
+
+def plot(c: Comparison, path) -> Path:
+    """One panel per joint: bars of test MSE per model in the given order, a line through them and the
+    change against the first model written on each bar."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    J = len(c.joints)
+    fig, axes = plt.subplots(1, J, figsize=(3.6 * J + 0.8, 3.6), squeeze=False)
+    x = np.arange(len(c.models))
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for ax, joint in zip(axes[0], c.joints):
+        v = np.array([s.test["mse"][joint] for s in c.models])
+        ax.bar(x, v, color=[colors[i % len(colors)] for i in range(len(v))], alpha=0.85)
+        ax.plot(x, v, "k.-", lw=1)
+        for i, vi in enumerate(v):
+            if i > 0 and v[0] > 0:
+                ax.annotate(f"{100 * (vi / v[0] - 1):+.0f}%", (i, vi), ha="center", va="bottom", fontsize=8)
+        ax.set_title(joint)
+        ax.set_xticks(x, [str(i + 1) for i in x])
+        ax.set_xlabel("model")
+        ax.set_ylim(0, max(v.max() * 1.15, 1e-12))
+    axes[0][0].set_ylabel("test MSE [N m²]")
+    legend = "   ".join(f"{_label(s, i)} ({s.method}{' +' + ','.join(s.effects) if s.effects else ''})"
+                       for i, s in enumerate(c.models))
+    fig.text(0.5, -0.02, legend, ha="center", va="top", fontsize=8, wrap=True)
+    fig.suptitle("Held-out error per joint, model by model", fontsize=11)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90, bbox_inches="tight")
+    plt.close(fig)
+    return path
