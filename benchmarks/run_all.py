@@ -77,7 +77,8 @@ def table(rows: list[dict]) -> str:
     line = "  ".join("-" * w for w in widths)
 
     def fmt(c):
-        return "  ".join(c[i].rjust(widths[i]) if i == 2 else c[i].ljust(widths[i]) for i in range(5)).rstrip()
+        padded = (c[i].rjust(widths[i]) if i == 2 else c[i].ljust(widths[i]) for i in range(5))
+        return "  ".join(padded).rstrip()
 
     return "\n".join([fmt(head), line] + [fmt(c) for c in cells])
 

@@ -57,7 +57,8 @@ def test_no_sysfs_means_no_latency_and_no_warning(tmp_path):
 def test_latency_warning_names_the_fix(fake_tree):
     assert read_latency_timer("/dev/ttyUSB0", fake_tree.sysfs) == 16
     warning = latency_warning("/dev/ttyUSB0", 16)
-    assert "udev/99-crane-x7.rules" in warning and "/sys/bus/usb-serial/devices/ttyUSB0/latency_timer" in warning
+    assert "udev/99-crane-x7.rules" in warning
+    assert "/sys/bus/usb-serial/devices/ttyUSB0/latency_timer" in warning
     assert latency_warning("/dev/ttyUSB0", 1) is None
     assert port_warnings(f"{fake_tree.dev}/ttyUSB1", sysfs_root=fake_tree.sysfs) == []
     assert len(port_warnings(f"{fake_tree.dev}/ttyUSB0", sysfs_root=fake_tree.sysfs)) == 1
