@@ -1,0 +1,413 @@
+"""A chain of emulated X-series servos on one Protocol 2.0 bus, with a plant behind them.
+
+`SimulatedChain.feed(bytes)` takes what the host puts on the wire and returns what the servos put
+back: status packets with real CRCs, byte stuffing and error bytes. Transports (crane_io.sim.transport:
+an in-process pyserial URL `dxlsim://NAME`, or a pseudo-terminal) only move bytes.
+
+Two clocks:
+- "lockstep": the plant advances exactly `period_s` each time a Sync Write (or Bulk Write) of Goal
+  Current or Goal Position arrives, after the written values are applied. Deterministic and as fast
+  as the host can talk. `advance(seconds)` lets time pass without a write (a host that stalls).
+- "wall": whenever the chain is touched, the plant is stepped (substeps of at most `max_substep_s`)
+  up to time.monotonic(); replies wait each servo's Return Delay Time with a real sleep.
+The bus watchdogs and the Realtime Tick count the chain's time in both modes.
+
+Hooks for fault-injection tests: `servos`, `remove_servo`/`restore_servo`, `reply_filter`, `stats`.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..control_table import XM430_W350, ServoModel
+from ..errors import ConfigError
+from . import protocol as p
+from .plant_api import ActuatorCommand, Plant
+from .servo import EmulatedServo
+
+GOAL_CURRENT_ADDRESS = 102
+GOAL_POSITION_ADDRESS = 116
+MAX_CATCHUP_S = 5.0  # wall clock: longer idle gaps are skipped instead of simulated
+
+
+@dataclass
+class ChainStats:
+    """Counters of what crossed the simulated bus."""
+
+    packets_received: int = 0  # instruction packets with a good CRC
+    replies_sent: int = 0  # reply chunks (status packets) that went on the wire
+    replies_dropped: int = 0  # reply chunks the reply_filter dropped
+    crc_errors: int = 0  # packets whose CRC did not match (discarded, no reply)
+    bytes_received: int = 0
+    bytes_sent: int = 0
+    plant_steps: int = 0
+    ignored_fast_sync_reads: int = 0  # Fast Sync Reads left unanswered (fast_sync_read=False)
+
+
+class SimulatedChain:
+    """Emulated servos (one per plant joint, in `plant.servo_ids` order) on one bus."""
+
+    def __init__(
+        self,
+        plant: Plant,
+        models: Mapping[int, ServoModel | str] | None = None,
+        *,
+        clock: str = "lockstep",
+        period_s: float = 0.002,
+        fast_sync_read: bool = True,
+        baud_code: int = 5,
+        return_delay_time: int | None = None,
+        max_substep_s: float = 0.001,
+    ):
+        if clock not in ("lockstep", "wall"):
+            raise ConfigError(f"clock must be 'lockstep' or 'wall', not {clock!r}")
+        if not period_s > 0:
+            raise ConfigError(f"the control period must be positive, got {period_s}")
+        self.plant = plant
+        self.clock = clock
+        self.period_s = float(period_s)
+        self.fast_sync_read = fast_sync_read
+        self.max_substep_s = float(max_substep_s)
+        models = dict(models or {})
+        self._order: list[EmulatedServo] = [
+            EmulatedServo(sid, models.get(sid, XM430_W350), baud_code=baud_code,
+                          return_delay_time=return_delay_time)
+            for sid in plant.servo_ids
+        ]
+        self.servos: dict[int, EmulatedServo] = {}
+        self._rekey()
+        self.reply_filter: Callable[[bytes], bytes | None] | None = None
+        self.stats = ChainStats()
+        self.parser = p.PacketParser()
+        self.time = 0.0
+        self._t0 = time.monotonic()
+        self._lock = threading.RLock()
+        self._read_plant()
+
+    @classmethod
+    def for_arm(cls, arm, plant: Plant, **kwargs) -> SimulatedChain:
+        """A chain whose servo models follow an ArmDescription (crane_io.description)."""
+        return cls(plant, {j.servo_id: j.model for j in arm.joints}, **kwargs)
+
+    # ---- fault-injection hooks ------------------------------------------------------------------
+    def remove_servo(self, servo_id: int) -> None:
+        """The servo vanishes from the bus: it neither hears instructions nor answers."""
+        self._find(servo_id).on_bus = False
+
+    def restore_servo(self, servo_id: int) -> None:
+        self._find(servo_id).on_bus = True
+
+    def _find(self, servo_id: int) -> EmulatedServo:
+        for s in self._order:
+            if s.id == servo_id:
+                return s
+        raise KeyError(f"no simulated servo with ID {servo_id}")
+
+    def _rekey(self) -> None:
+        self.servos = {s.id: s for s in self._order}
+
+    # ---- time --------------------------------------------------------------------------------
+    def touch(self) -> None:
+        """Wall clock: bring the plant up to now (transports call this while idle)."""
+        with self._lock:
+            if self.clock == "wall":
+                self._advance_to(time.monotonic() - self._t0)
+
+    def advance(self, seconds: float) -> None:
+        """Let `seconds` of simulated time pass in control periods without any instruction."""
+        with self._lock:
+            steps = int(round(seconds / self.period_s))
+            for _ in range(steps):
+                self._step(self.period_s)
+
+    def _advance_to(self, target: float) -> None:
+        gap = target - self.time
+        if gap > MAX_CATCHUP_S:
+            self.time = target - MAX_CATCHUP_S
+            gap = MAX_CATCHUP_S
+        while gap > 1e-9:
+            dt = min(gap, self.max_substep_s)
+            self._step(dt)
+            gap = target - self.time
+
+    def _command(self) -> ActuatorCommand:
+        cmds = [s.command() for s in self._order]
+        return ActuatorCommand(
+            torque_enabled=np.array([c[0] for c in cmds], dtype=bool),
+            operating_mode=np.array([c[1] for c in cmds], dtype=int),
+            goal_current=np.array([c[2] for c in cmds], dtype=float),
+            goal_position=np.array([c[3] for c in cmds], dtype=float),
+            position_gains=np.array([c[4] for c in cmds], dtype=float).reshape(len(cmds), 3),
+            current_limit=np.array([c[5] for c in cmds], dtype=float),
+        )
+
+    def _step(self, dt: float) -> None:
+        for s in self._order:
+            s.check_watchdog(self.time)
+        self.plant.step(self._command(), dt)
+        self.time += dt
+        self.stats.plant_steps += 1
+        self._read_plant()
+
+    def _read_plant(self) -> None:
+        reading = self.plant.read()
+        for i, s in enumerate(self._order):
+            s.set_sensors(
+                float(reading.position[i]), float(reading.velocity[i]), float(reading.current[i]), self.time,
+                None if reading.voltage is None else float(reading.voltage[i]),
+                None if reading.temperature is None else float(reading.temperature[i]),
+            )
+        for sid, bits in (self.plant.hardware_errors() or {}).items():
+            for s in self._order:
+                if s.id == sid and bits:
+                    s.raise_hardware_error(bits)
+
+    # ---- the wire ------------------------------------------------------------------------------
+    def feed(self, data: bytes, baudrate: int | None = None) -> bytes:
+        """Bytes from the host in, the servos' reply bytes out (possibly empty).
+
+        `baudrate`: the host port's speed when the transport knows it; servos set to another baud
+        rate do not understand the host (and stay silent)."""
+        with self._lock:
+            wall = time.monotonic()
+            if self.clock == "wall":
+                self._advance_to(wall - self._t0)
+            self.stats.bytes_received += len(data)
+            crc_before = self.parser.crc_errors
+            packets = self.parser.feed(data, now=wall)
+            self.stats.crc_errors += self.parser.crc_errors - crc_before
+            out = bytearray()
+            for pkt in packets:
+                self.stats.packets_received += 1
+                for chunk, delay in self._handle(pkt, baudrate):
+                    if self.clock == "wall" and delay > 0:
+                        time.sleep(delay)
+                    if self.reply_filter is not None:
+                        chunk = self.reply_filter(chunk)
+                        if chunk is None:
+                            self.stats.replies_dropped += 1
+                            continue
+                    out += chunk
+                    self.stats.replies_sent += 1
+            self.stats.bytes_sent += len(out)
+            return bytes(out)
+
+    def _hearing(self, baudrate: int | None) -> list[EmulatedServo]:
+        return [s for s in self._order if s.on_bus and (baudrate is None or s.baudrate == baudrate)]
+
+    def _handle(self, pkt: p.Packet, baudrate: int | None) -> Iterable[tuple[bytes, float]]:
+        servos = self._hearing(baudrate)
+        if not servos or pkt.instruction == p.INST_STATUS:
+            return []
+        now = self.time
+        inst, params = pkt.instruction, pkt.params
+        if pkt.id == p.BROADCAST_ID:
+            handler = {
+                p.INST_PING: self._broadcast_ping,
+                p.INST_SYNC_READ: self._sync_read,
+                p.INST_FAST_SYNC_READ: self._fast_sync_read,
+                p.INST_SYNC_WRITE: self._sync_write,
+                p.INST_BULK_READ: self._bulk_read,
+                p.INST_FAST_BULK_READ: self._fast_bulk_read,
+                p.INST_BULK_WRITE: self._bulk_write,
+            }.get(inst)
+            if handler is not None:
+                return handler(servos, params, now)
+            for s in servos:  # broadcast write, reg write, action, reboot, factory reset: no replies
+                s.contact(now)
+                self._unicast(s, inst, params, now, broadcast=True)
+            self._rekey()
+            return []
+        replies = []
+        for s in servos:
+            if s.id == pkt.id:
+                s.contact(now)
+                replies.extend(self._unicast(s, inst, params, now, broadcast=False))
+        self._rekey()
+        return replies
+
+    # ---- instructions to one servo --------------------------------------------------------------
+    def _unicast(self, s: EmulatedServo, inst: int, params: bytes, now: float,
+                 broadcast: bool) -> list[tuple[bytes, float]]:
+        level = s.read_register("status_return_level")
+        sid = s.id
+        delay = s.return_delay_s
+
+        def status(error: int, data: bytes = b"", min_level: int = 2):
+            if broadcast or level < min_level:
+                return []
+            return [(p.status_packet(sid, s.status_error(error), data), delay)]
+
+        if inst == p.INST_PING:
+            mn = s.read_register("model_number")
+            return [] if broadcast else [(p.status_packet(sid, s.status_error(), bytes(
+                (mn & 0xFF, mn >> 8, s.read_register("firmware_version")))), delay)]
+        if inst == p.INST_READ:
+            if len(params) != 4:
+                return status(p.ERR_DATA_LENGTH, b"", 1)
+            address, length = params[0] | params[1] << 8, params[2] | params[3] << 8
+            error, data = s.read(address, length)
+            return status(error, data, 1)
+        if inst in (p.INST_WRITE, p.INST_REG_WRITE):
+            if len(params) < 3:
+                return status(p.ERR_DATA_LENGTH)
+            address, data = params[0] | params[1] << 8, params[2:]
+            if inst == p.INST_WRITE:
+                error = s.write(address, data, now)
+            else:
+                error = s.reg_write(address, data)
+            return status(error)
+        if inst == p.INST_ACTION:
+            return status(s.action(now))
+        if inst == p.INST_REBOOT:
+            replies = status(p.ERR_NONE)
+            s.reboot(now)
+            return replies
+        if inst == p.INST_FACTORY_RESET:
+            if len(params) != 1:
+                return status(p.ERR_DATA_LENGTH)
+            if broadcast and params[0] == 0xFF:
+                return []  # e-manual: broadcast "reset all" is not carried out
+            replies = status(p.ERR_NONE if params[0] in (0x01, 0x02, 0xFF) else p.ERR_DATA_RANGE)
+            s.factory_reset(params[0])
+            return replies
+        if inst == p.INST_CLEAR:
+            ok = len(params) == 5 and params[0] == 0x01 and bytes(params[1:]) == b"\x44\x58\x4c\x22"
+            if ok and s.read_register("moving"):
+                return status(p.ERR_RESULT_FAIL)
+            return status(p.ERR_NONE if ok else p.ERR_DATA_RANGE)
+        return status(p.ERR_INSTRUCTION)
+
+    # ---- broadcast instructions ------------------------------------------------------------------
+    def _broadcast_ping(self, servos, params, now):
+        replies = []
+        for s in sorted(servos, key=lambda s: s.id):
+            s.contact(now)
+            replies.extend(self._unicast(s, p.INST_PING, b"", now, broadcast=False))
+        return replies
+
+    def _by_id(self, servos, sid):
+        for s in servos:
+            if s.id == sid:
+                return s
+        return None
+
+    def _sync_read(self, servos, params, now):
+        if len(params) < 5:
+            return []
+        address, length = params[0] | params[1] << 8, params[2] | params[3] << 8
+        replies = []
+        for sid in params[4:]:
+            s = self._by_id(servos, sid)
+            if s is None:
+                continue
+            s.contact(now)
+            if s.read_register("status_return_level") < 1:
+                continue
+            error, data = s.read(address, length)
+            replies.append((p.status_packet(sid, s.status_error(error), data), s.return_delay_s))
+        return replies
+
+    def _fast_blocks(self, servos, requests, now):
+        """(blocks, complete) of a fast read; the chain breaks at the first silent servo."""
+        blocks = []
+        for sid, address, length in requests:
+            s = self._by_id(servos, sid)
+            if s is None or not s.supports_fast_sync_read:
+                return blocks, False
+            s.contact(now)
+            error, data = s.read(address, length)
+            blocks.append((s.status_error(error), sid, data))
+        return blocks, True
+
+    def _fast_sync_read(self, servos, params, now):
+        if len(params) < 5:
+            return []
+        if not self.fast_sync_read:
+            self.stats.ignored_fast_sync_reads += 1
+            return []
+        address, length = params[0] | params[1] << 8, params[2] | params[3] << 8
+        ids = list(params[4:])
+        blocks, complete = self._fast_blocks(servos, [(i, address, length) for i in ids], now)
+        if not blocks:
+            return []
+        first = self._by_id(servos, ids[0])
+        delay = first.return_delay_s if first is not None else 0.0
+        if complete:
+            return [(p.fast_status_packet(blocks), delay)]
+        return [(p.fast_status_prefix(blocks, len(ids), length), delay)]
+
+    def _bulk_requests(self, params):
+        return [(params[i], params[i + 1] | params[i + 2] << 8, params[i + 3] | params[i + 4] << 8)
+                for i in range(0, len(params) - len(params) % 5, 5)]
+
+    def _bulk_read(self, servos, params, now):
+        replies = []
+        for sid, address, length in self._bulk_requests(params):
+            s = self._by_id(servos, sid)
+            if s is None:
+                continue
+            s.contact(now)
+            if s.read_register("status_return_level") < 1:
+                continue
+            error, data = s.read(address, length)
+            replies.append((p.status_packet(sid, s.status_error(error), data), s.return_delay_s))
+        return replies
+
+    def _fast_bulk_read(self, servos, params, now):
+        if not self.fast_sync_read:
+            self.stats.ignored_fast_sync_reads += 1
+            return []
+        requests = self._bulk_requests(params)
+        blocks, complete = self._fast_blocks(servos, requests, now)
+        if not blocks or not complete:
+            return []
+        first = self._by_id(servos, requests[0][0])
+        return [(p.fast_status_packet(blocks), first.return_delay_s)]
+
+    def _sync_write(self, servos, params, now):
+        if len(params) < 4:
+            return []
+        address, length = params[0] | params[1] << 8, params[2] | params[3] << 8
+        body = params[4:]
+        if length == 0:
+            return []
+        for k in range(0, len(body) - len(body) % (1 + length), 1 + length):
+            s = self._by_id(servos, body[k])
+            if s is not None:
+                s.contact(now)
+                s.write(address, body[k + 1:k + 1 + length], now)
+        self._rekey()
+        self._lockstep_tick([(address, length)])
+        return []
+
+    def _bulk_write(self, servos, params, now):
+        i, spans = 0, []
+        while i + 5 <= len(params):
+            sid, address = params[i], params[i + 1] | params[i + 2] << 8
+            length = params[i + 3] | params[i + 4] << 8
+            data = params[i + 5:i + 5 + length]
+            i += 5 + length
+            if len(data) != length:
+                break
+            s = self._by_id(servos, sid)
+            if s is not None:
+                s.contact(now)
+                s.write(address, data, now)
+                spans.append((address, length))
+        self._rekey()
+        self._lockstep_tick(spans)
+        return []
+
+    def _lockstep_tick(self, spans) -> None:
+        if self.clock != "lockstep":
+            return
+        for address, length in spans:
+            if any(address <= a < address + length for a in (GOAL_CURRENT_ADDRESS, GOAL_POSITION_ADDRESS)):
+                self._step(self.period_s)
+                return

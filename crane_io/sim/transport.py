@@ -1,0 +1,163 @@
+"""Transports that put a SimulatedChain on a serial line the unchanged dynamixel-sdk client can use.
+
+1. In-process: a pyserial URL handler. After `register_chain("arm", chain)`,
+   `serial.serial_for_url("dxlsim://arm", baudrate=3_000_000, timeout=0)` is a port whose writes
+   go to the chain and whose reads return its replies (`in_waiting`, `read`, `reset_input_buffer`
+   behave like a real port). Importing this module registers the handler package with pyserial.
+2. A pseudo-terminal: `PtyServer(chain, link="/tmp/crane_x7")` opens a pty pair, links the slave
+   side at `link` and serves the chain from a thread until `stop()` (or the `with` block ends).
+   Any program that opens a serial port (Dynamixel Wizard, the SDK, `screen`) can use the link.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import select
+import threading
+import tty
+from pathlib import Path
+
+import serial
+
+from ..errors import HardwareError
+from .chain import SimulatedChain
+
+URL_SCHEME = "dxlsim"
+_HANDLER_PACKAGE = "crane_io.sim"
+
+if _HANDLER_PACKAGE not in serial.protocol_handler_packages:
+    serial.protocol_handler_packages.append(_HANDLER_PACKAGE)
+
+_chains: dict[str, SimulatedChain] = {}
+_registry_lock = threading.Lock()
+
+
+def url_for(name: str) -> str:
+    return f"{URL_SCHEME}://{name}"
+
+
+def register_chain(name: str, chain: SimulatedChain) -> str:
+    """Make `chain` reachable as dxlsim://NAME; returns the URL."""
+    if not name or "/" in name or "?" in name:
+        raise HardwareError(f"simulated chain name {name!r} must be a non-empty word without '/' or '?'")
+    with _registry_lock:
+        if name in _chains and _chains[name] is not chain:
+            raise HardwareError(f"a simulated chain named {name!r} is already registered")
+        _chains[name] = chain
+    return url_for(name)
+
+
+def unregister_chain(name: str) -> None:
+    with _registry_lock:
+        _chains.pop(name, None)
+
+
+def lookup_chain(name: str) -> SimulatedChain | None:
+    with _registry_lock:
+        return _chains.get(name)
+
+
+def registered_names() -> list[str]:
+    with _registry_lock:
+        return sorted(_chains)
+
+
+class PtyServer:
+    """Serve a SimulatedChain on a pseudo-terminal whose slave side is symlinked at `link`."""
+
+    def __init__(self, chain: SimulatedChain, link: str | os.PathLike, idle_touch_s: float = 0.005):
+        self.chain = chain
+        self.link = Path(link)
+        self.idle_touch_s = idle_touch_s
+        self._master = self._slave = None
+        self._wake_r = self._wake_w = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self.error: BaseException | None = None
+
+    @property
+    def slave_path(self) -> str:
+        return os.ttyname(self._slave)
+
+    def start(self) -> PtyServer:
+        if self._thread is not None:
+            return self
+        if self.link.is_symlink():
+            self.link.unlink()
+        elif self.link.exists():
+            raise HardwareError(f"{self.link} already exists and is not a link; choose another --link path")
+        if not self.link.parent.is_dir():
+            raise HardwareError(f"cannot create {self.link}: folder {self.link.parent} does not exist")
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)  # no echo, no newline translation: the line carries binary packets
+        os.set_blocking(self._master, False)
+        self._wake_r, self._wake_w = os.pipe()
+        try:
+            os.symlink(os.ttyname(self._slave), self.link)
+        except OSError as exc:
+            self._close_fds()
+            raise HardwareError(f"cannot create the link {self.link}: {exc.strerror}") from None
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._serve, name=f"pty-server {self.link}", daemon=True)
+        self._thread.start()
+        return self
+
+    def _serve(self) -> None:
+        try:
+            while not self._stop.is_set():
+                ready, _, _ = select.select([self._master, self._wake_r], [], [], self.idle_touch_s)
+                if self._master in ready:
+                    try:
+                        data = os.read(self._master, 65536)
+                    except OSError as exc:
+                        if exc.errno in (errno.EAGAIN, errno.EIO):
+                            continue
+                        raise
+                    if data:
+                        reply = self.chain.feed(data)
+                        if reply:
+                            self._write_all(reply)
+                else:
+                    self.chain.touch()
+        except BaseException as exc:  # reported through .error; the thread must not die silently
+            self.error = exc
+
+    def _write_all(self, data: bytes) -> None:
+        view = memoryview(data)
+        while view:
+            try:
+                n = os.write(self._master, view)
+            except BlockingIOError:
+                select.select([], [self._master], [], 0.01)
+                continue
+            view = view[n:]
+
+    def stop(self) -> None:
+        if self._thread is None:
+            return
+        self._stop.set()
+        os.write(self._wake_w, b"x")
+        self._thread.join(timeout=5)
+        self._thread = None
+        try:
+            if self.link.is_symlink():
+                self.link.unlink()
+        except OSError:
+            pass
+        self._close_fds()
+
+    def _close_fds(self) -> None:
+        for fd in (self._master, self._slave, self._wake_r, self._wake_w):
+            if fd is not None:
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+        self._master = self._slave = self._wake_r = self._wake_w = None
+
+    def __enter__(self) -> PtyServer:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
