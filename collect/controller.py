@@ -1,0 +1,187 @@
+"""4-channel bilateral control of a leader and a follower CRANE-X7 (pure numpy, no I/O).
+
+Per bilateral joint, with nominal inertia J, gains Kp, Kd, Kf and cutoff g (shared/crane_x7_facts.md
+section 6a; the Sakaino/Tsuji-lab structure):
+
+- pseudo-derivative velocity: w = g (q - z),  z <- z + w dt  (a first-order filtered derivative);
+- disturbance observer (DOB): tau_dis = LPF_g(tau_ref + g J w) - g J w, with tau_ref the torque
+  actually applied in the previous cycle (after safety clamps);
+- reaction-force observer (RFOB): tau_res = tau_dis - gravity(q) - D w  (what the outside world -
+  the operator's hand on the leader, the environment on the follower - pushes against the arm, with
+  the DOB's sign: a hand pushing the joint positive gives tau_res < 0);
+- position term  tau_p = (J/2) [Kp (q_l - q_f) + Kd (w_l - w_f)]  (follower +, leader -);
+- force term     tau_f = -(Kf/2) (tau_res_l + tau_res_f)  (both arms);
+- references:  tau_ref_f = tau_p + tau_f + tau_dis_f,   tau_ref_l = -tau_p + tau_f + tau_dis_l,
+  which drive q_l - q_f -> 0 (position tracking) and tau_res_l + tau_res_f -> 0 (action = reaction).
+
+Goal torques become goal currents through each joint's torque constant. Joints that are not
+bilateral get no current (they are held in position mode by the servos); their observer estimates are
+NaN. The pseudo-derivative velocity is computed for every joint.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from crane_io.description import ArmDescription, default_arm
+from crane_io.errors import ConfigError
+
+from .config import Config
+
+
+@dataclass
+class ArmSignals:
+    """What one arm's bus read gave this cycle, in arm.joints order (SI)."""
+
+    q: np.ndarray  # (n,) rad
+    dq_servo: np.ndarray | None = None  # (n,) rad/s, servo-reported (recorded, not used by the law)
+    current: np.ndarray | None = None  # (n,) A, servo-reported
+
+
+@dataclass
+class ArmEstimates:
+    """The controller's internal signals for one arm, recorded in the session."""
+
+    dq: np.ndarray  # (n,) rad/s, pseudo-derivative
+    tau_dis: np.ndarray  # (n,) N m, DOB estimate (NaN for held joints)
+    tau_res: np.ndarray  # (n,) N m, RFOB estimate (NaN for held joints)
+
+
+@dataclass
+class Commands:
+    """Goal torques and currents for both arms, (n,) in arm.joints order; 0 for held joints."""
+
+    leader_tau: np.ndarray
+    follower_tau: np.ndarray
+    leader_current: np.ndarray
+    follower_current: np.ndarray
+
+
+class GravityModel:
+    """Motor torque (n,) needed to hold the arm against gravity, for the RFOB."""
+
+    def __init__(self, kind: str, config: Config, arm: ArmDescription):
+        self.kind = kind
+        self.arm = arm
+        self.n = len(arm.joints)
+        self._dyn = None
+        self._dyn_idx = None
+        names = arm.joint_names
+        self._i2 = names.index("joint2") if "joint2" in names else None
+        self._i4 = names.index("joint4") if "joint4" in names else None
+        c = config.controller
+        self._m = (c.gravity_m0, c.gravity_m1, c.gravity_m2)
+        if kind == "dynamics":
+            try:
+                from crane_io.dynamics import ArmDynamics
+            except ImportError:
+                warnings.warn("crane_io.dynamics is not available; using the sine gravity coefficients",
+                              stacklevel=2)
+                self.kind = "coefficients"
+            else:
+                joints = tuple(arm.bilateral_joints)
+                locked = {n: config.held.get(n, 0.0) for n in names if n not in joints}
+                self._dyn = ArmDynamics(joints=joints, locked=locked)
+                self._dyn_idx = np.array([names.index(n) for n in self._dyn.joint_names])
+        self._out = np.zeros(self.n)
+
+    def __call__(self, q: np.ndarray) -> np.ndarray:
+        out = self._out.copy()
+        if self.kind == "dynamics":
+            out[self._dyn_idx] = self._dyn.gravity_torque(q[self._dyn_idx])
+        elif self.kind == "coefficients" and self._i2 is not None and self._i4 is not None:
+            m0, m1, m2 = self._m
+            s2 = np.sin(q[self._i2])
+            s24 = np.sin(q[self._i2] + q[self._i4])
+            out[self._i2] = -m0 * s2 - m1 * s24
+            out[self._i4] = -m2 * s24
+        return out
+
+
+class _Observer:
+    """Pseudo-derivative + DOB + RFOB state of one arm."""
+
+    def __init__(self, ctl: BilateralController):
+        self.ctl = ctl
+        self.z = None  # pseudo-derivative integrator (n,)
+        self.y = None  # DOB low-pass state (n,)
+        self.applied = None  # torque applied in the previous cycle (n,)
+
+    def update(self, q: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        c = self.ctl
+        grav = c.gravity(q)
+        if self.z is None:
+            self.z = q.copy()
+            self.y = grav * c.bil  # DOB starts at the gravity torque: no sag when control engages
+            self.applied = self.y.copy()
+        w = c.g * (q - self.z)
+        self.z += w * dt
+        gjw = c.gJ * w
+        a = np.exp(-c.g * dt)
+        self.y = a * self.y + (1.0 - a) * (self.applied + gjw)
+        tau_dis = self.y - gjw
+        tau_res = tau_dis - grav - c.D * w
+        return w, tau_dis, tau_res
+
+
+class BilateralController:
+    """`step(leader, follower, dt) -> Commands`; estimates of the last step in `.leader` and
+    `.follower` (ArmEstimates). Call `applied(tau_leader, tau_follower)` after safety clamps so the
+    observers see the torque that really went out (otherwise the unclamped reference is assumed)."""
+
+    def __init__(self, config: Config, arm: ArmDescription | None = None):
+        self.config = config
+        self.arm = arm or default_arm()
+        names = self.arm.joint_names
+        gains = config.controller.joints
+        missing = [n for n in names if n not in gains]
+        if missing:
+            raise ConfigError(f"the configuration has no [controller.{missing[0]}] gains for that joint")
+        self.n = len(names)
+        self.J = np.array([gains[n].inertia for n in names])
+        self.kp = np.array([gains[n].kp for n in names])
+        self.kd = np.array([gains[n].kd for n in names])
+        self.kf = np.array([gains[n].kf for n in names])
+        self.g = np.array([gains[n].cutoff for n in names])
+        self.D = np.array([gains[n].viscous for n in names])
+        self.gJ = self.g * self.J
+        self.bil = np.array([n in self.arm.bilateral_joints for n in names], dtype=float)
+        self.bil_mask = self.bil.astype(bool)
+        self.kt = np.array([j.torque_constant for j in self.arm.joints])
+        self.deadband = config.controller.position_deadband
+        self.gravity = GravityModel(config.controller.gravity_model, config, self.arm)
+        self._nan_held = np.where(self.bil_mask, 0.0, np.nan)
+        self.reset()
+
+    def reset(self) -> None:
+        self._obs_l = _Observer(self)
+        self._obs_f = _Observer(self)
+        self.leader: ArmEstimates | None = None
+        self.follower: ArmEstimates | None = None
+
+    def step(self, leader: ArmSignals, follower: ArmSignals, dt: float) -> Commands:
+        ql = np.asarray(leader.q, dtype=float)
+        qf = np.asarray(follower.q, dtype=float)
+        wl, dis_l, res_l = self._obs_l.update(ql, dt)
+        wf, dis_f, res_f = self._obs_f.update(qf, dt)
+        e = ql - qf
+        if self.deadband > 0:
+            e = np.sign(e) * np.maximum(np.abs(e) - self.deadband, 0.0)
+        tau_p = 0.5 * self.J * (self.kp * e + self.kd * (wl - wf))
+        tau_f = -0.5 * self.kf * (res_l + res_f)
+        tau_l = (-tau_p + tau_f + dis_l) * self.bil
+        tau_f_ref = (tau_p + tau_f + dis_f) * self.bil
+        self._obs_l.applied = tau_l
+        self._obs_f.applied = tau_f_ref
+        held = self._nan_held
+        self.leader = ArmEstimates(wl, dis_l + held, res_l + held)
+        self.follower = ArmEstimates(wf, dis_f + held, res_f + held)
+        return Commands(tau_l, tau_f_ref, tau_l / self.kt, tau_f_ref / self.kt)
+
+    def applied(self, tau_leader: np.ndarray, tau_follower: np.ndarray) -> None:
+        """Tell the observers the torques that were actually commanded this cycle."""
+        self._obs_l.applied = np.asarray(tau_leader, dtype=float) * self.bil
+        self._obs_f.applied = np.asarray(tau_follower, dtype=float) * self.bil
