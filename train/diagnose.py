@@ -69,6 +69,7 @@ class Candidate:
     significant: bool
     sentence: str
     other_joints: dict[str, float] = field(default_factory=dict)  # arm scope: reduction on other joints
+    n_parameters: int = 1  # parameters the candidate estimates (linear + shape)
 
 
 @dataclass
@@ -95,6 +96,8 @@ class Diagnosis:
 # ---- helpers on the effect interface ------------------------------------------------------------------
 
 def _shape_options(effect) -> list[dict | None]:
+    if hasattr(effect, "shape_options"):
+        return [o or None for o in effect.shape_options()]
     grid = dict(getattr(effect, "shape_grid", None) or {})
     if not grid:
         return [None]
@@ -102,8 +105,18 @@ def _shape_options(effect) -> list[dict | None]:
     return [dict(zip(names, values)) for values in itertools.product(*(list(grid[n]) for n in names))]
 
 
+def _model_params(effect) -> list:
+    """The parameters a model estimates (not the plant-only ones)."""
+    return [p for p in getattr(effect, "params", ()) if getattr(p, "model", True)]
+
+
 def _param_units(effect) -> dict[str, str]:
-    return {p.name: getattr(p, "unit", "") for p in getattr(effect, "params", ())}
+    return {p.name: getattr(p, "unit", "") for p in _model_params(effect)}
+
+
+def _complexity(effect) -> int:
+    """Number of estimated parameters (linear coefficients + shape parameters chosen from a grid)."""
+    return max(len(_model_params(effect)), 1)
 
 
 def _effect_name(effect) -> str:
@@ -125,15 +138,19 @@ def _lstsq(X: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 def _values(effect, coefs: np.ndarray, shape: dict | None) -> dict[str, float]:
     values = effect.values_from_coefficients(np.asarray(coefs, dtype=float), shape)
+    keep = {p.name for p in _model_params(effect)} or set(values)
     out = {}
     for name, value in dict(values).items():
+        if name not in keep:
+            continue
         try:
             out[name] = float(value)
         except (TypeError, ValueError):
             continue
     if shape:
         for name, value in shape.items():
-            out.setdefault(name, float(value))
+            if name in keep:
+                out.setdefault(name, float(value))
     return out
 
 
@@ -212,15 +229,18 @@ def _fmt(value: float) -> str:
     return f"{value:.2g}" if abs(value) < 100 else f"{value:.0f}"
 
 
+def _unit(unit: str) -> str:
+    return "" if unit in ("1", "-", None) else f" {unit}"
+
+
 def _describe_parameters(effect, parameters: dict[str, dict], shape: dict | None) -> str:
     """'Coulomb friction of about 0.21 N m' for one linear parameter, else a list in brackets."""
-    linear = [p.name for p in getattr(effect, "params", ()) if getattr(p, "linear", True)
-              and p.name in parameters]
+    linear = [p.name for p in _model_params(effect) if getattr(p, "linear", True) and p.name in parameters]
     title = getattr(effect, "title", _effect_name(effect))
     if len(linear) == 1 and len(parameters) == 1:
         p = parameters[linear[0]]
-        return f"{title} of about {_fmt(abs(p['value']))} {p['unit']}".rstrip()
-    parts = [f"{name} ≈ {_fmt(p['value'])} {p['unit']}".rstrip() for name, p in parameters.items()]
+        return f"{title} of about {_fmt(p['value'])}{_unit(p['unit'])}"
+    parts = [f"{name} ≈ {_fmt(p['value'])}{_unit(p['unit'])}" for name, p in parameters.items()]
     return f"{title} ({', '.join(parts)})" if parts else title
 
 
@@ -302,6 +322,7 @@ def diagnose_residual(ds: Dataset, residual: np.ndarray, effects=None, *, exclud
     """
     if effects is None:
         effects = _library_effects()
+    effects = [_bind(e, ds.joint_names) for e in effects]
     residual = np.asarray(residual, dtype=float)
     J = len(ds.joint_names)
     if residual.shape != ds.tau.shape:
@@ -377,11 +398,12 @@ def diagnose_residual(ds: Dataset, residual: np.ndarray, effects=None, *, exclud
             significant=significant, sentence="",
             other_joints={ds.joint_names[jj]: float(reductions[jj]) for jj in joints if jj != home})
         cand.sentence = _candidate_sentence(effect, cand)
+        cand.n_parameters = _complexity(effect)
         results[home].append(cand)
 
     candidates, summary, correlations = [], {}, {}
     for j in range(J):
-        ranked = sorted(results[j], key=lambda c: -c.error_reduction)
+        ranked = _rank(results[j])
         for i, c in enumerate(ranked, start=1):
             c.rank = i
         candidates += ranked
@@ -394,9 +416,50 @@ def diagnose_residual(ds: Dataset, residual: np.ndarray, effects=None, *, exclud
     return Diagnosis(tuple(ds.joint_names), candidates, summary, correlations, settings)
 
 
+def _rank(cands: list[Candidate]) -> list[Candidate]:
+    """By error reduction, except that the simplest candidate whose held-out error is not clearly worse
+    than the best one's goes first (the one-standard-error rule of cross-validation, on the paired
+    per-fold differences): a candidate that contains another as a special case (asymmetric Coulomb vs
+    Coulomb, stiction vs Coulomb) gains a little on noise and must not win on that alone."""
+    ranked = sorted(cands, key=lambda c: -c.error_reduction)
+    if len(ranked) < 2:
+        return ranked
+    best = ranked[0]
+    k = len(best.fold_reductions)
+    choice = best
+    for c in ranked[1:]:
+        if c.n_parameters >= choice.n_parameters:
+            continue
+        d = np.array(best.fold_reductions) - np.array(c.fold_reductions)
+        se = float(d.std(ddof=1) / math.sqrt(k)) if k > 1 else 0.0
+        gap = best.error_reduction - c.error_reduction
+        if gap <= se and c.error_reduction > 0:
+            choice = c
+    if choice is not best:
+        ranked.remove(choice)
+        ranked.insert(0, choice)
+    return ranked
+
+
+def _bind(effect, joint_names):
+    """Effects computed from the rigid-body dynamics get dynamics of the data's joints."""
+    absent = object()
+    dyn = getattr(effect, "_dynamics", absent)
+    if dyn is absent or not hasattr(effect, "bind"):
+        return effect
+    if dyn is not None and tuple(getattr(dyn, "joint_names", ())) == tuple(joint_names):
+        return effect
+    try:
+        from crane_io.dynamics import ArmDynamics
+
+        return effect.bind(ArmDynamics(joints=tuple(joint_names)))
+    except CraneError as exc:
+        raise DiagnosisError(f"effect {getattr(effect, 'name', effect)!r} needs the arm's dynamics for "
+                             f"joints {', '.join(joint_names)}: {exc}") from None
+
+
 def _candidate_sentence(effect, c: Candidate) -> str:
-    what = _describe_parameters(effect, c.parameters if not c.shape else
-                                {n: p for n, p in c.parameters.items()}, c.shape)
+    what = _describe_parameters(effect, c.parameters, c.shape)
     sig = _signature(effect, c.joint)
     if c.error_reduction <= 0:
         text = f"{c.joint}: {what} does not reduce the held-out error"
