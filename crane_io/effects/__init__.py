@@ -1,0 +1,134 @@
+"""The one library of named physical effects, shared by the simulated plant (the truth), the physics
+model (columns to fit) and the diagnosis (candidates).
+
+    from crane_io.effects import get_effect, list_effects, load_effect_file
+    eff = get_effect("coulomb")                  # a fresh instance
+    cols = eff.columns(q, dq, ddq, joint=1)      # (N, J, 1)
+    eff.values_from_coefficients(coefs)          # {"coulomb": 0.21}, units in eff.units
+
+A user adds an effect without editing the package: write a Python file with `Effect` subclasses (see
+docs/arm-model.md) and call `load_effect_file(path)` (or pass `--effect-file` on the command lines).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import inspect
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ConfigError
+from .base import Effect, Param
+from .library import BUILTIN_EFFECTS
+
+__all__ = ["Effect", "Param", "list_effects", "get_effect", "register_effect", "load_effect_file",
+           "effect_names", "in_rigid_body_span"]
+
+_REGISTRY: dict[str, type[Effect]] = {}
+
+
+def register_effect(cls: type[Effect], replace: bool = False) -> type[Effect]:
+    """Add an Effect subclass to the library (usable as a decorator). A name already taken by a
+    different class -> ConfigError unless replace=True."""
+    if not (inspect.isclass(cls) and issubclass(cls, Effect)):
+        raise ConfigError(f"{cls!r} is not an Effect subclass")
+    name = getattr(cls, "name", "")
+    if not isinstance(name, str) or not name:
+        raise ConfigError(f"effect class {cls.__name__} has no name")
+    if cls.scope not in ("joint", "arm"):
+        raise ConfigError(f"effect {name!r} has scope {cls.scope!r}; it must be 'joint' or 'arm'")
+    for p in cls.params:
+        if p.model and not p.linear and p.name not in cls.shape_grid:
+            raise ConfigError(f"effect {name!r}: shape parameter {p.name!r} needs a shape_grid entry")
+    old = _REGISTRY.get(name)
+    if old is not None and old is not cls and not replace and old.__qualname__ != cls.__qualname__:
+        raise ConfigError(f"an effect named {name!r} already exists ({old.__name__})")
+    _REGISTRY[name] = cls
+    return cls
+
+
+for _cls in BUILTIN_EFFECTS:
+    register_effect(_cls)
+
+
+def effect_names() -> list[str]:
+    return list(_REGISTRY)
+
+
+def list_effects() -> list[Effect]:
+    """A fresh instance of every registered effect, built-ins first, in registration order."""
+    return [cls() for cls in _REGISTRY.values()]
+
+
+def get_effect(name: str, **kwargs) -> Effect:
+    """A fresh instance of the named effect (kwargs go to its constructor, e.g. dynamics=... for
+    payload and torque-constant-error). Unknown name -> ConfigError listing the names."""
+    cls = _REGISTRY.get(name)
+    if cls is None:
+        raise ConfigError(f"unknown effect {name!r}; known effects: {', '.join(_REGISTRY)}")
+    try:
+        return cls(**kwargs)
+    except TypeError as exc:
+        raise ConfigError(f"effect {name!r} cannot be built with {sorted(kwargs)}: {exc}") from None
+
+
+def load_effect_file(path) -> list[str]:
+    """Import a user's Python file and register every Effect subclass it defines; returns their names.
+    A missing or broken file, or one with no effect, -> ConfigError."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"effect file {path} does not exist")
+    mod_name = f"crane_user_effects_{abs(hash(str(path.resolve())))}"
+    spec = importlib.util.spec_from_file_location(mod_name, path)
+    if spec is None or spec.loader is None:
+        raise ConfigError(f"effect file {path} is not a Python file")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[mod_name] = module
+    try:
+        spec.loader.exec_module(module)
+    except Exception as exc:  # a user's file can fail in any way; report it in one sentence
+        sys.modules.pop(mod_name, None)
+        raise ConfigError(f"effect file {path} failed to load: {type(exc).__name__}: {exc}") from None
+    found = [obj for obj in vars(module).values()
+             if inspect.isclass(obj) and issubclass(obj, Effect) and obj.__module__ == mod_name and obj.name]
+    if not found:
+        raise ConfigError(f"effect file {path} defines no Effect subclass with a name")
+    for cls in found:
+        register_effect(cls, replace=True)
+        try:
+            inst = cls()
+            n = 4
+            cols = inst.columns(np.zeros((n, 3)), np.ones((n, 3)), np.zeros((n, 3)),
+                                None if inst.scope == "arm" else 0, None)
+            if np.shape(cols)[:2] != (n, 3):
+                raise ValueError(f"columns() returned shape {np.shape(cols)}, expected (N, J, k)")
+        except ConfigError:
+            raise
+        except Exception as exc:
+            _REGISTRY.pop(cls.name, None)
+            raise ConfigError(f"effect {cls.name!r} in {path} does not work: "
+                              f"{type(exc).__name__}: {exc}") from None
+    return [cls.name for cls in found]
+
+
+def in_rigid_body_span(effect: Effect, joint: int | None, dynamics=None, shape: dict | None = None,
+                       samples: int = 300, seed: int = 0) -> bool:
+    """True when the effect's columns lie in the span of the rigid-body base regressor, i.e. a
+    rigid-body model that fits its own base parameters absorbs the effect (e.g. rotor inertia on
+    joint1, a payload). Checked numerically on random states."""
+    if dynamics is None:
+        from ..dynamics import ArmDynamics
+
+        dynamics = ArmDynamics()
+    rng = np.random.default_rng(seed)
+    j = dynamics.n_joints
+    q = rng.uniform(-1.2, 0.0, (samples, j)) + rng.uniform(0, 1.2, (samples, j))
+    dq = rng.normal(0, 1, (samples, j))
+    ddq = rng.normal(0, 5, (samples, j))
+    yb = dynamics.base_regressor(q, dq, ddq).reshape(samples * j, -1)
+    c = effect.columns(q, dq, ddq, joint, shape).reshape(samples * j, -1)
+    coef, *_ = np.linalg.lstsq(yb, c, rcond=None)
+    resid = np.linalg.norm(c - yb @ coef) / max(np.linalg.norm(c), 1e-300)
+    return bool(resid < 1e-6)
