@@ -87,7 +87,7 @@ def test_friction_effects_oppose_motion_and_report_a_static_band(states):
         tau = eff.torque(q, dq, ddq, 1, eff.default_values())[:, 1]
         moving = dq[:, 1] != 0
         # the motor must push harder in the direction of motion (Stribeck fades to ~0 at speed)
-        assert np.all(tau[moving] * dq[moving, 1] >= 0) and np.any(tau[moving] * dq[moving, 1] > 0.01)
+        assert np.all(tau[moving] * dq[moving, 1] >= 0) and np.abs(tau[moving]).max() > 0.05
         assert np.all(tau[~moving] == 0)
         lo, hi = eff.static_band(eff.default_values())
         assert lo > 0 and hi > 0
