@@ -84,6 +84,8 @@ class CranePortHandler(PortHandler):
 
 def _open_serial(port: str, baudrate: int):
     url = is_url(port)
+    if port.startswith("dxlsim://"):
+        from .sim import transport  # noqa: F401 - registers the dxlsim:// URL handler with pyserial
     if not url and port.startswith("/") and not os.path.exists(port):
         raise HardwareError(f"port {port} does not exist (is the U2D2 plugged in? see `crane-collect ports`)")
     try:
