@@ -1,0 +1,230 @@
+"""The physics model: torque = base regressor (crane_io.dynamics) @ base parameters, plus the columns of
+any chosen physical effects (crane_io.effects), fitted by recursive least squares.
+
+Fitting uses only the training samples in which every joint moves (as the paper does for its
+Newton-Euler baseline). The estimator is a real recursive least-squares filter with forgetting factor 1:
+starting from theta = 0, P = p0 I, it takes the data in time order, `block` samples (J rows each) per
+update
+
+    K = P Phi^T (I + Phi P Phi^T)^-1,   theta += K (y - Phi theta),   P -= K Phi P.
+
+With forgetting factor 1 taking one sample or a block of samples per update gives the same estimate
+(block=1 is the textbook row-by-row form; the default block of 64 samples is just faster); the result
+equals least squares regularised by 1/p0, i.e. plain least squares for large p0. Columns are scaled to
+unit RMS on the training data before the filter runs, so p0 means the same for every column.
+Standard errors: sqrt(diag(s^2 P)) with s^2 the residual variance (RSS / (rows - parameters)).
+
+Effects: `effects=[(name, joint_name or None, shape dict or None), ...]`. A joint-scope effect with
+joint None is added once per learning joint. An effect with shape parameters (e.g. a Stribeck
+velocity) and no shape given tries every value of its grid and keeps the one with the lowest validation
+MSE (effects are tuned one after another, in the order given).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from crane_io.errors import ConfigError, CraneError
+
+from ..dataset import Dataset
+from .base import Model, ModelFileError
+
+ARRAYS = "rigid_body.npz"
+
+
+def rls(Phi: np.ndarray, y: np.ndarray, block: int = 64, p0: float = 1e8):
+    """Recursive least squares, forgetting factor 1. Phi (N, k, p) stacked rows per sample, y (N, k).
+    Returns (theta (p,), P (p, p))."""
+    Phi = np.asarray(Phi, dtype=float)
+    y = np.asarray(y, dtype=float)
+    n, k, p = Phi.shape
+    theta = np.zeros(p)
+    P = np.eye(p) * p0
+    for start in range(0, n, block):
+        A = Phi[start:start + block].reshape(-1, p)
+        b = y[start:start + block].reshape(-1)
+        PA = P @ A.T  # (p, m)
+        S = np.eye(len(b)) + A @ PA
+        K = np.linalg.solve(S, PA.T).T  # (p, m) = P A^T S^-1 (S symmetric)
+        theta = theta + K @ (b - A @ theta)
+        P = P - K @ PA.T
+        P = 0.5 * (P + P.T)
+    return theta, P
+
+
+def _effect_registry():
+    try:
+        from crane_io import effects
+    except ImportError:
+        raise CraneError("the physical-effects library crane_io.effects is not available") from None
+    return effects
+
+
+class RigidBodyModel(Model):
+    method = "rigid-body"
+
+    def __init__(self, joint_names, preprocessing: dict | None = None, effects=(), effect_files=(),
+                 block: int = 64, p0: float = 1e8, payload_mass: float = 0.0, locked: dict | None = None):
+        specs = []
+        for spec in effects or ():
+            if isinstance(spec, str):
+                spec = (spec, None, None)
+            spec = tuple(spec) + (None,) * (3 - len(spec))
+            specs.append([spec[0], spec[1], dict(spec[2]) if spec[2] else None])
+        super().__init__(joint_names, preprocessing, effects=specs, effect_files=[str(f) for f in effect_files],
+                         block=int(block), p0=float(p0), payload_mass=float(payload_mass),
+                         locked=dict(locked or {}))
+        self.block, self.p0 = int(block), float(p0)
+        self._dyn = None
+        self.theta: np.ndarray | None = None
+        self.stderr: np.ndarray | None = None
+        self.names: list[str] = []
+        self.terms: list[dict] = []  # resolved effect terms: name, joint (index or None), shape
+        self.fit_info: dict = {}
+
+    # ---- regressor -------------------------------------------------------------------------------
+    @property
+    def dynamics(self):
+        if self._dyn is None:
+            from crane_io.dynamics import ArmDynamics
+            self._dyn = ArmDynamics(joints=self.joint_names, locked=self.options["locked"] or None,
+                                    payload_mass=self.options["payload_mass"])
+        return self._dyn
+
+    def _resolve_terms(self) -> list[dict]:
+        fx = _effect_registry()
+        for f in self.options["effect_files"]:
+            fx.load_effect_file(f)
+        terms = []
+        for name, joint, shape in self.options["effects"]:
+            effect = fx.get_effect(name)
+            if effect.scope == "arm":
+                terms.append({"name": name, "joint": None, "shape": shape})
+                continue
+            if joint is None:
+                joints = list(range(len(self.joint_names)))
+            elif joint in self.joint_names:
+                joints = [self.joint_names.index(joint)]
+            else:
+                raise ConfigError(f"effect {name} names joint {joint!r}, which is not one of the learning "
+                                  f"joints {', '.join(self.joint_names)}")
+            terms += [{"name": name, "joint": j, "shape": shape} for j in joints]
+        return terms
+
+    def _term_columns(self, term, q, dq, ddq, shape=None):
+        effect = _effect_registry().get_effect(term["name"])
+        return effect.columns(q, dq, ddq, term["joint"], shape if shape is not None else term["shape"])
+
+    def regressor(self, q, dq, ddq, terms=None) -> np.ndarray:
+        """(N, J, p) base regressor followed by every effect term's columns."""
+        q, dq, ddq = (np.atleast_2d(np.asarray(a, dtype=float)) for a in (q, dq, ddq))
+        cols = [self.dynamics.base_regressor(q, dq, ddq)]
+        for term in (self.terms if terms is None else terms):
+            cols.append(self._term_columns(term, q, dq, ddq))
+        return np.concatenate(cols, axis=2)
+
+    def _parameter_names(self, terms) -> list[str]:
+        names = list(self.dynamics.base_parameter_names())
+        fx = _effect_registry()
+        for term in terms:
+            joint = None if term["joint"] is None else self.joint_names[term["joint"]]
+            names += fx.get_effect(term["name"]).column_names(joint, term["shape"])
+        return names
+
+    # ---- fitting ---------------------------------------------------------------------------------
+    def _solve(self, ds: Dataset, terms):
+        Phi = self.regressor(ds.q, ds.dq, ds.ddq, terms)
+        scale = np.sqrt((Phi ** 2).mean(axis=(0, 1)))
+        scale = np.where(scale > 1e-12, scale, 1.0)
+        theta_s, P_s = rls(Phi / scale, ds.tau, self.block, self.p0)
+        theta = theta_s / scale
+        resid = ds.tau - Phi @ theta
+        dof = max(resid.size - len(theta), 1)
+        s2 = float((resid ** 2).sum() / dof)
+        stderr = np.sqrt(np.clip(np.diag(P_s), 0, None) * s2) / scale
+        return theta, stderr, s2
+
+    def fit(self, train: Dataset, val: Dataset | None = None) -> RigidBodyModel:
+        if tuple(train.joint_names) != self.joint_names:
+            raise CraneError(f"the data has joints {', '.join(train.joint_names)} but the model was made "
+                             f"for {', '.join(self.joint_names)}")
+        rows = np.flatnonzero(train.all_moving)
+        terms = self._resolve_terms()
+        n_par = self.dynamics.n_base + sum(_effect_registry().get_effect(t["name"]).n_columns() for t in terms)
+        if len(rows) * len(self.joint_names) < n_par + 1:
+            raise CraneError(f"the rigid-body fit needs more than {n_par // len(self.joint_names) + 1} samples "
+                             f"with every joint moving; the training data has {len(rows)}")
+        fit_ds = train.subset(rows)
+        val_ds = val.subset(np.flatnonzero(val.all_moving)) if val is not None else fit_ds
+        tuned = []
+        for i, term in enumerate(terms):
+            effect = _effect_registry().get_effect(term["name"])
+            options = effect.shape_options()
+            if term["shape"] is not None or len(options) <= 1:
+                continue
+            scores = []
+            for shape in options:
+                trial = [dict(t) for t in terms]
+                trial[i]["shape"] = shape
+                theta, _, _ = self._solve(fit_ds, trial)
+                pred = self.regressor(val_ds.q, val_ds.dq, val_ds.ddq, trial) @ theta
+                scores.append(float(((val_ds.tau - pred) ** 2).mean()))
+            best = int(np.argmin(scores))
+            terms[i]["shape"] = options[best]
+            tuned.append({"effect": term["name"], "joint": term["joint"], "shape": options[best],
+                          "val_mse": scores[best], "grid": options, "grid_val_mse": scores})
+        self.terms = terms
+        self.theta, self.stderr, s2 = self._solve(fit_ds, terms)
+        self.names = self._parameter_names(terms)
+        self.fit_info = {"rows": int(len(rows)), "residual_variance": s2, "shape_search": tuned}
+        if not self.preprocessing:
+            self.preprocessing = dict(train.meta.get("preprocessing", {}))
+        return self
+
+    def predict(self, q, dq, ddq) -> np.ndarray:
+        if self.theta is None:
+            raise CraneError("the model has not been fitted yet")
+        return self.regressor(q, dq, ddq) @ self.theta
+
+    def parameters_table(self) -> list[dict]:
+        """One row per fitted parameter: name, value, standard error, relative standard error."""
+        out = []
+        for name, v, se in zip(self.names, self.theta, self.stderr):
+            out.append({"name": name, "value": float(v), "stderr": float(se),
+                        "rel_stderr": float(se / abs(v)) if v != 0 else float("inf")})
+        return out
+
+    def effect_values(self) -> list[dict]:
+        """Named physical values of every effect term (from its fitted coefficients and shape)."""
+        fx = _effect_registry()
+        out, k = [], self.dynamics.n_base
+        for term in self.terms:
+            effect = fx.get_effect(term["name"])
+            n = effect.n_columns()
+            joint = None if term["joint"] is None else self.joint_names[term["joint"]]
+            out.append({"effect": term["name"], "joint": joint,
+                        "values": effect.values_from_coefficients(self.theta[k:k + n], term["shape"])})
+            k += n
+        return out
+
+    # ---- persistence -----------------------------------------------------------------------------
+    def _state(self) -> dict:
+        return {"terms": self.terms, "names": self.names, "fit_info": self.fit_info}
+
+    def _save_extra(self, directory: Path) -> None:
+        np.savez(directory / ARRAYS, theta=self.theta, stderr=self.stderr)
+
+    def _load_extra(self, directory: Path, state: dict) -> None:
+        path = Path(directory) / ARRAYS
+        try:
+            with np.load(path) as z:
+                self.theta, self.stderr = z["theta"], z["stderr"]
+            self.terms = state["terms"]
+            self.names = state["names"]
+        except (OSError, KeyError, ValueError) as exc:
+            raise ModelFileError(f"{directory} lacks or has a corrupt {ARRAYS} ({exc})") from None
+        self.fit_info = state.get("fit_info", {})
+        for f in self.options["effect_files"]:
+            _effect_registry().load_effect_file(f)
