@@ -135,7 +135,7 @@ class SimulatedChain:
             self._step(dt)
             gap = target - self.time
 
-    def _command(self) -> ActuatorCommand:
+    def actuator_command(self) -> ActuatorCommand:
         cmds = [s.command() for s in self._order]
         return ActuatorCommand(
             torque_enabled=np.array([c[0] for c in cmds], dtype=bool),
@@ -149,7 +149,7 @@ class SimulatedChain:
     def _step(self, dt: float) -> None:
         for s in self._order:
             s.check_watchdog(self.time)
-        self.plant.step(self._command(), dt)
+        self.plant.step(self.actuator_command(), dt)
         self.time += dt
         self.stats.plant_steps += 1
         self._read_plant()
