@@ -123,7 +123,8 @@ def test_masked_mlp_fits_and_beats_mse_on_the_same_samples(arm):
 def test_save_load_round_trip_predicts_identically(arm, tmp_path, method):
     ds, _ = _mlp_data(arm, 400)
     options = {"epochs": 3} if method.startswith("mlp") else {"effects": [("viscous", None, None)]}
-    model = make_model(method, JOINTS, **options).fit(ds.subset(np.arange(300)), ds.subset(np.arange(300, 400)))
+    model = make_model(method, JOINTS, **options)
+    model.fit(ds.subset(np.arange(300)), ds.subset(np.arange(300, 400)))
     model.save(tmp_path / "m")
     loaded = load_model(tmp_path / "m")
     assert loaded.method == method and loaded.joint_names == JOINTS

@@ -73,7 +73,8 @@ class RigidBodyModel(Model):
                 spec = (spec, None, None)
             spec = tuple(spec) + (None,) * (3 - len(spec))
             specs.append([spec[0], spec[1], dict(spec[2]) if spec[2] else None])
-        super().__init__(joint_names, preprocessing, effects=specs, effect_files=[str(f) for f in effect_files],
+        files = [str(f) for f in effect_files]
+        super().__init__(joint_names, preprocessing, effects=specs, effect_files=files,
                          block=int(block), p0=float(p0), payload_mass=float(payload_mass),
                          locked=dict(locked or {}))
         self.block, self.p0 = int(block), float(p0)
@@ -152,10 +153,12 @@ class RigidBodyModel(Model):
                              f"for {', '.join(self.joint_names)}")
         rows = np.flatnonzero(train.all_moving)
         terms = self._resolve_terms()
-        n_par = self.dynamics.n_base + sum(_effect_registry().get_effect(t["name"]).n_columns() for t in terms)
-        if len(rows) * len(self.joint_names) < n_par + 1:
-            raise CraneError(f"the rigid-body fit needs more than {n_par // len(self.joint_names) + 1} samples "
-                             f"with every joint moving; the training data has {len(rows)}")
+        fx = _effect_registry()
+        n_par = self.dynamics.n_base + sum(fx.get_effect(t["name"]).n_columns() for t in terms)
+        need = n_par // len(self.joint_names) + 1
+        if len(rows) < need:
+            raise CraneError(f"the rigid-body fit needs at least {need} samples with every joint moving; "
+                             f"the training data has {len(rows)}")
         fit_ds = train.subset(rows)
         val_ds = val.subset(np.flatnonzero(val.all_moving)) if val is not None else fit_ds
         tuned = []
