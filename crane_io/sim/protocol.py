@@ -174,8 +174,8 @@ class PacketParser:
     raises on any input and never waits forever: garbage is skipped byte by byte until a header is
     found, a LEN that is impossible is skipped, a packet with a wrong CRC is counted in
     `crc_errors` and skipped, and a partial packet that has waited longer than `stale_after_s`
-    (on the caller's clock, passed as `now`) is abandoned when new bytes arrive, so a corrupted
-    LEN cannot swallow the packets that follow it.
+    (on the caller's clock, passed as `now`) is abandoned when new bytes arrive (a servo's receive
+    timeout), so a corrupted LEN cannot swallow the packets that follow it.
     """
 
     def __init__(self, stale_after_s: float = 0.02, max_length: int = MAX_LENGTH):
@@ -199,9 +199,10 @@ class PacketParser:
             and now - self._partial_since > self.stale_after_s
             and self.buffer
         ):
-            # The partial packet in the buffer waited too long: its header is not a real one.
-            del self.buffer[:1]
-            self.discarded_bytes += 1
+            # The partial packet in the buffer waited too long: like a servo's receive timeout,
+            # forget it and start afresh with the new bytes.
+            self.discarded_bytes += len(self.buffer)
+            self.buffer.clear()
             dropped = True
         self.buffer += data
         packets = []
