@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import errno
 import os
+import select
 
 import serial
 from dynamixel_sdk import PortHandler
@@ -23,6 +24,8 @@ from .ports import read_latency_timer
 
 # The SDK's allowance for the USB adapter's latency timer, used when the real one is unknown.
 SDK_LATENCY_MS = 16.0
+# Longest a read waits for the port to become readable before handing control back to the SDK's poll.
+WAIT_S = 0.0005
 
 
 def is_url(port: str) -> bool:
@@ -48,6 +51,7 @@ class CranePortHandler(PortHandler):
         self.bytes_written = 0
         self.bytes_read = 0
         self.low_latency = False
+        self._fd = None
 
     # -- the SDK's hooks -------------------------------------------------------------------------
     def setupPort(self, cflag_baud):  # noqa: N802 (SDK name)
@@ -55,6 +59,10 @@ class CranePortHandler(PortHandler):
             self.closePort()
         self.ser = _open_serial(self.port_name, self.baudrate)
         self.low_latency = _try_low_latency(self.ser)
+        try:
+            self._fd = self.ser.fileno()
+        except (AttributeError, NotImplementedError, OSError, serial.SerialException):
+            self._fd = None  # URL ports (dxlsim://) have no descriptor
         self.is_open = True
         self.ser.reset_input_buffer()
         self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
@@ -73,6 +81,15 @@ class CranePortHandler(PortHandler):
 
     def readPort(self, length):  # noqa: N802
         data = self.ser.read(length)
+        if not data and self._fd is not None:
+            # The SDK polls with timeout 0 until its packet timeout; waiting here for the descriptor
+            # to become readable (at most WAIT_S) keeps the poll from spinning a core and holding the
+            # GIL, which matters with two arms in two threads.
+            try:
+                select.select([self._fd], [], [], WAIT_S)
+            except (OSError, ValueError):
+                self._fd = None
+            data = self.ser.read(length)
         self.bytes_read += len(data)
         return data
 
