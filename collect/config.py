@@ -61,6 +61,7 @@ class SafetyConfig:
     current_fraction: float
     limit_margin: float  # rad
     limit_stiffness: float  # N m/rad
+    limit_damping: float  # N m s/rad
     limit_overshoot: float  # rad
     error_budget_consecutive: int
     error_budget_per_second: int
@@ -82,6 +83,7 @@ class OperatorConfig:
     stiffness: float
     damping: float
     max_torque: float
+    start: dict[str, float]  # rad, sim start pose per joint
 
 
 @dataclass(frozen=True)
@@ -223,6 +225,7 @@ def _build(values: dict, where: str) -> Config:
         current_fraction=frac,
         limit_margin=_nonneg(where, "safety.limit_margin_deg", s["limit_margin_deg"]) * DEG,
         limit_stiffness=_nonneg(where, "safety.limit_stiffness", s["limit_stiffness"]),
+        limit_damping=_nonneg(where, "safety.limit_damping", s["limit_damping"]),
         limit_overshoot=_nonneg(where, "safety.limit_overshoot_deg", s["limit_overshoot_deg"]) * DEG,
         error_budget_consecutive=s["error_budget_consecutive"],
         error_budget_per_second=s["error_budget_per_second"],
@@ -246,6 +249,7 @@ def _build(values: dict, where: str) -> Config:
         stiffness=_pos(where, "operator.stiffness", o["stiffness"]),
         damping=_nonneg(where, "operator.damping", o["damping"]),
         max_torque=_pos(where, "operator.max_torque", o["max_torque"]),
+        start={k: v * DEG for k, v in o["start_deg"].items()},
     )
     _need(operator.min_move_s <= operator.max_move_s, where, "operator.min_move_s",
           "at most operator.max_move_s", operator.min_move_s)

@@ -181,6 +181,23 @@ class BilateralController:
         self.follower = ArmEstimates(wf, dis_f + held, res_f + held)
         return Commands(tau_l, tau_f_ref, tau_l / self.kt, tau_f_ref / self.kt)
 
+    def hold(self, leader: ArmSignals, follower: ArmSignals, ref_leader: tuple[np.ndarray, np.ndarray],
+             ref_follower: tuple[np.ndarray, np.ndarray], dt: float) -> Commands:
+        """Independent position control of each arm to a reference (q (n,), dq (n,)) with the same
+        observers (DOB compensation): tau = J [Kp (q_ref - q) + Kd (dq_ref - w)] + tau_dis. Used to
+        bring the arms into agreement before bilateral control; the observers carry over seamlessly."""
+        out = []
+        pairs = ((self._obs_l, leader, ref_leader), (self._obs_f, follower, ref_follower))
+        for obs, sig, (q_ref, dq_ref) in pairs:
+            q = np.asarray(sig.q, dtype=float)
+            w, dis, res = obs.update(q, dt)
+            tau = (self.J * (self.kp * (q_ref - q) + self.kd * (dq_ref - w)) + dis) * self.bil
+            obs.applied = tau
+            out.append((tau, ArmEstimates(w, dis + self._nan_held, res + self._nan_held)))
+        (tau_l, est_l), (tau_f, est_f) = out
+        self.leader, self.follower = est_l, est_f
+        return Commands(tau_l, tau_f, tau_l / self.kt, tau_f / self.kt)
+
     def applied(self, tau_leader: np.ndarray, tau_follower: np.ndarray) -> None:
         """Tell the observers the torques that were actually commanded this cycle."""
         self._obs_l.applied = np.asarray(tau_leader, dtype=float) * self.bil

@@ -3,7 +3,8 @@
 In current mode the servos do not enforce their position limits (shared/crane_x7_facts.md section
 8), so software does, as RT's rt_manipulators_cpp does:
 - inside a soft zone (`limit_margin` from each joint limit) current pushing further out is cut and a
-  spring (`limit_stiffness`) pushes back; beyond the limit plus `limit_overshoot` the run stops;
+  damped spring (`limit_stiffness`, `limit_damping`) pushes back; beyond the limit plus
+  `limit_overshoot` the run stops;
 - goal current is clamped to a fraction of each servo's Current Limit;
 - a velocity guard per joint stops the run when a joint moves faster than allowed;
 - a communication-error budget: too many failed bus cycles in a row or within one second stops;
@@ -58,23 +59,36 @@ class SafetyMonitor:
         self.current_max = np.array([j.current_limit for j in self.arm.joints]) * s.current_fraction
         self.tau_max = self.current_max * kt
         self.k_wall = s.limit_stiffness
+        self.d_wall = s.limit_damping
         self.bil = np.array([n in self.arm.bilateral_joints for n in names])
         self._consecutive = {"leader": 0, "follower": 0}
         self._recent_errors: deque[float] = deque()
         self.errors_total = 0
 
     # ---- shaping commands ---------------------------------------------------------------------------
-    def limit_torque(self, q: np.ndarray, tau: np.ndarray) -> np.ndarray:
-        """The goal torque made safe: soft joint limits, then the current clamp (held joints: 0)."""
+    def limit_torque(self, q: np.ndarray, tau: np.ndarray, dq: np.ndarray | None = None,
+                     spring: bool = True) -> np.ndarray:
+        """The goal torque made safe: soft joint limits, then the current clamp (held joints: 0).
+
+        Inside the soft zone the outward part of the command is cut and a damped spring pushes back
+        (stiffness per rad of penetration, damping on outward velocity only). spring=False only cuts
+        the outward part (used while aligning, when a joint may start deep inside the zone)."""
         tau = np.where(self.bil, tau, 0.0)
         over = q - self.soft_upper
         under = self.soft_lower - q
         up = over > 0
         lo = under > 0
-        if up.any():
-            tau = np.where(up, np.minimum(tau, 0.0) - self.k_wall * over, tau)
-        if lo.any():
-            tau = np.where(lo, np.maximum(tau, 0.0) + self.k_wall * under, tau)
+        if (up.any() or lo.any()) and not spring:
+            tau = np.where(up, np.minimum(tau, 0.0), tau)
+            tau = np.where(lo, np.maximum(tau, 0.0), tau)
+        elif up.any() or lo.any():
+            v = np.zeros_like(q) if dq is None else dq
+            if up.any():
+                wall = -self.k_wall * over - self.d_wall * np.maximum(v, 0.0)
+                tau = np.where(up, np.minimum(tau, 0.0) + wall, tau)
+            if lo.any():
+                wall = self.k_wall * under - self.d_wall * np.minimum(v, 0.0)
+                tau = np.where(lo, np.maximum(tau, 0.0) + wall, tau)
         return np.clip(tau, -self.tau_max, self.tau_max) * self.bil
 
     # ---- checks -------------------------------------------------------------------------------------
