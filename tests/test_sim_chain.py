@@ -397,3 +397,46 @@ def test_corrupted_instruction_is_counted_and_unanswered(sim):
     assert sim.chain.feed(bytes(bad)) == b""
     assert sim.chain.stats.crc_errors == 1
     assert sim.chain.feed(p.instruction_packet(2, p.INST_PING)) == p.status_packet(2, 0, bytes((0xFC, 3, 52)))
+
+
+# ---- crane-collect sim-serve ---------------------------------------------------------------------------
+
+def test_sim_serve_serves_a_pty_until_sigterm(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    link = tmp_path / "crane_x7"
+    exe = Path(sys.executable).parent / "crane-collect"
+    proc = subprocess.Popen([str(exe), "sim-serve", "--link", str(link), "--plant", "simple"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for _ in range(200):
+            if link.is_symlink() or proc.poll() is not None:
+                break
+            time.sleep(0.05)
+        assert link.is_symlink(), proc.stderr.read() if proc.poll() is not None else "no link"
+        port = PortHandler(str(link))
+        assert port.openPort() and port.setBaudRate(3_000_000)
+        assert PacketHandler(2.0).ping(port, 3) == (1120, COMM_SUCCESS, 0)
+        port.closePort()
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0, err
+    assert str(link) in out and "Stopped" in out
+    assert not link.exists() and not link.is_symlink()
+
+
+def test_sim_serve_reports_a_bad_link_in_one_sentence(tmp_path):
+    from click.testing import CliRunner
+
+    from collect.cmd_sim_serve import sim_serve
+
+    result = CliRunner().invoke(sim_serve, ["--link", str(tmp_path / "missing" / "x"), "--plant", "simple"])
+    assert result.exit_code != 0
+    assert result.output.startswith("Error: ") and "does not exist" in result.output
+    assert "Traceback" not in result.output
+    result = CliRunner().invoke(sim_serve, ["--link", str(tmp_path / "x"), "--plant", "no-such-plant"])
+    assert result.exit_code != 0 and result.output.startswith("Error: ")
