@@ -1,0 +1,68 @@
+"""`crane-collect check`: what each servo of an arm says about itself."""
+
+from __future__ import annotations
+
+import math
+
+import click
+
+from crane_io.errors import ConfigError, cli_errors
+
+_MODES = {0: "current", 1: "velocity", 3: "position", 4: "ext. position", 5: "current-based pos.", 16: "PWM"}
+
+
+def _row(r: dict) -> str:
+    head = f"ID {r['id']:>2} {r['joint']:<8}"
+    if not r.get("answering"):
+        return f"{head} NOT ANSWERING (expected {r['expected_model']})"
+    model = r["model"] + ("" if r["model"] == r["expected_model"] else f" (EXPECTED {r['expected_model']})")
+    mode = _MODES.get(r["operating_mode"], str(r["operating_mode"]))
+    errors = ", ".join(r["hardware_errors"]) or "none"
+    torque = "on " if r["torque_enabled"] else "off"
+    lo, hi = math.degrees(r["min_position_rad"]), math.degrees(r["max_position_rad"])
+    return (f"{head} {model:<12} fw {r['firmware']:>3}  mode {mode:<8} torque {torque}"
+            f"  limits {lo:7.1f}..{hi:6.1f} deg {r['current_limit_a']:.2f} A  errors {errors}"
+            f"  {r['voltage_v']:.1f} V  {r['temperature_c']:.0f} C  at {math.degrees(r['position_rad']):7.1f} deg")
+
+
+@click.command("check")
+@click.option("--sim", is_flag=True, help="Check a simulated arm (in-process) instead of hardware.")
+@click.option("--port", "ports", multiple=True, metavar="PORT",
+              help="Serial port of an arm's U2D2; repeat for both arms.")
+@cli_errors
+def check(sim, ports):
+    """Per servo: ID, joint, model, firmware, mode, torque, limits, errors, voltage, temperature.
+
+    The check reads registers only; on the way out it leaves every servo with torque off."""
+    from crane_io.bus import DynamixelBus
+    from crane_io.description import default_arm
+    from crane_io.ports import port_warnings
+
+    arm = default_arm()
+    sims = []
+    if sim:
+        if ports:
+            raise ConfigError("--port cannot be combined with --sim")
+        from crane_io.sim import simulated_arm
+
+        sims.append(simulated_arm(arm=arm))
+        ports = (sims[0].url,)
+    elif not ports:
+        raise ConfigError("give --port PORT for each arm (see `crane-collect ports`), or --sim")
+    try:
+        problems = 0
+        for port in ports:
+            click.echo(f"{port}:")
+            if not sim:
+                for w in port_warnings(port):
+                    click.echo(f"  Warning: {w}")
+            with DynamixelBus(port, arm, name=str(port)) as bus:
+                for r in bus.servo_report():
+                    click.echo("  " + _row(r))
+                    bad = not r.get("answering") or r["model"] != r["expected_model"] or r["hardware_errors"]
+                    problems += bool(bad)
+        if problems:
+            raise click.exceptions.Exit(1)
+    finally:
+        for s in sims:
+            s.close()

@@ -1,0 +1,28 @@
+"""`crane-collect ports`: the candidate U2D2 ports, their stable names and latency timers."""
+
+from __future__ import annotations
+
+import click
+
+from crane_io.errors import cli_errors
+
+
+@click.command("ports")
+@click.option("--all", "all_ports", is_flag=True, help="Also list serial ports that are not FTDI FT232H.")
+@cli_errors
+def ports(all_ports):
+    """List U2D2 adapters (FTDI 0403:6014): device, by-id path, USB serial, latency timer."""
+    from crane_io.ports import list_u2d2_ports
+
+    found = list_u2d2_ports(all_ports=all_ports)
+    if not found:
+        click.echo("no U2D2 found (is it plugged in? `lsusb` should show 0403:6014 Future Technology "
+                   "Devices FT232H)")
+        return
+    for p in found:
+        latency = "unknown" if p.latency_timer_ms is None else f"{p.latency_timer_ms} ms"
+        click.echo(f"{p.device}  serial {p.serial_number or '?'}  latency timer {latency}  {p.description}")
+        if p.by_id:
+            click.echo(f"    stable name: {p.by_id}")
+        if p.warning:
+            click.echo(f"    Warning: {p.warning}")
