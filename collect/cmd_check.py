@@ -22,7 +22,8 @@ def _row(r: dict) -> str:
     lo, hi = math.degrees(r["min_position_rad"]), math.degrees(r["max_position_rad"])
     return (f"{head} {model:<12} fw {r['firmware']:>3}  mode {mode:<8} torque {torque}"
             f"  limits {lo:7.1f}..{hi:6.1f} deg {r['current_limit_a']:.2f} A  errors {errors}"
-            f"  {r['voltage_v']:.1f} V  {r['temperature_c']:.0f} C  at {math.degrees(r['position_rad']):7.1f} deg")
+            f"  {r['voltage_v']:.1f} V  {r['temperature_c']:.0f} C"
+            f"  at {math.degrees(r['position_rad']):7.1f} deg")
 
 
 @click.command("check")
