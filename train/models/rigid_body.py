@@ -32,6 +32,16 @@ from ..dataset import Dataset
 from .base import Model, ModelFileError
 
 ARRAYS = "rigid_body.npz"
+_DYNAMICS_CACHE: dict = {}  # building the pinocchio model and its base decomposition is the slow part
+
+
+def _arm_dynamics(joints, locked, payload_mass):
+    key = (tuple(joints), tuple(sorted((locked or {}).items())), float(payload_mass))
+    if key not in _DYNAMICS_CACHE:
+        from crane_io.dynamics import ArmDynamics
+        _DYNAMICS_CACHE[key] = ArmDynamics(joints=tuple(joints), locked=locked or None,
+                                           payload_mass=payload_mass)
+    return _DYNAMICS_CACHE[key]
 
 
 def rls(Phi: np.ndarray, y: np.ndarray, block: int = 64, p0: float = 1e8):
@@ -89,9 +99,7 @@ class RigidBodyModel(Model):
     @property
     def dynamics(self):
         if self._dyn is None:
-            from crane_io.dynamics import ArmDynamics
-            self._dyn = ArmDynamics(joints=self.joint_names, locked=self.options["locked"] or None,
-                                    payload_mass=self.options["payload_mass"])
+            self._dyn = _arm_dynamics(self.joint_names, self.options["locked"], self.options["payload_mass"])
         return self._dyn
 
     def _resolve_terms(self) -> list[dict]:
