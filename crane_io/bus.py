@@ -421,6 +421,7 @@ class DynamixelBus:
         Retries within the budget; raises CommunicationError / ServoMissingError when the read finally
         fails, and ServoFaultError when a servo reports a hardware error (unless check_faults=False)."""
         self._need_port()
+        self._last_port_error = ""
         reader = self._reader
         last = "no reply"
         for attempt in range(1 + self.retries):
@@ -449,6 +450,9 @@ class DynamixelBus:
         missing = self._silent_servos()
         if missing:
             raise self._missing_error(missing, "stopped answering", "stopped answering")
+        if self._last_port_error:
+            raise CommunicationError(f"the port {self.port_name} stopped working ({self._last_port_error}); "
+                                     "is the U2D2 still plugged in?")
         raise CommunicationError(
             f"reading the servos on {self.port_name} failed {1 + self.retries} times in a row ({last}); "
             "check the cable, the power and the latency timer")

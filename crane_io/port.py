@@ -22,6 +22,18 @@ from dynamixel_sdk import PortHandler
 from .errors import HardwareError
 from .ports import read_latency_timer
 
+try:
+    import termios
+
+    _LOW_LEVEL_ERRORS: tuple = (OSError, termios.error)
+except ImportError:  # pragma: no cover - not POSIX
+    _LOW_LEVEL_ERRORS = (OSError,)
+
+
+class PortIOError(serial.SerialException):
+    """The open port stopped working (adapter unplugged, pty closed); raised from inside SDK calls."""
+
+
 # The SDK's allowance for the USB adapter's latency timer, used when the real one is unknown.
 SDK_LATENCY_MS = 16.0
 # Longest a read waits for the port to become readable before handing control back to the SDK's poll.
@@ -72,14 +84,28 @@ class CranePortHandler(PortHandler):
         if self.ser is not None:
             try:
                 self.ser.close()
+            except _LOW_LEVEL_ERRORS + (serial.SerialException,):
+                pass
             finally:
                 self.is_open = False
+
+    def clearPort(self):  # noqa: N802
+        try:
+            self.ser.reset_input_buffer()
+        except _LOW_LEVEL_ERRORS as exc:
+            raise PortIOError(_io_reason(exc)) from None
 
     def setPacketTimeout(self, packet_length):  # noqa: N802
         self.packet_start_time = self.getCurrentTime()
         self.packet_timeout = self.tx_time_per_byte * packet_length + 2.0 * self.latency_ms + 2.0
 
     def readPort(self, length):  # noqa: N802
+        try:
+            return self._read(length)
+        except _LOW_LEVEL_ERRORS as exc:
+            raise PortIOError(_io_reason(exc)) from None
+
+    def _read(self, length):
         data = self.ser.read(length)
         if not data and self._fd is not None:
             # The SDK polls with timeout 0 until its packet timeout; waiting here for the descriptor
@@ -94,9 +120,19 @@ class CranePortHandler(PortHandler):
         return data
 
     def writePort(self, packet):  # noqa: N802
-        n = self.ser.write(bytes(packet))
+        try:
+            n = self.ser.write(bytes(packet))
+        except _LOW_LEVEL_ERRORS as exc:
+            raise PortIOError(_io_reason(exc)) from None
         self.bytes_written += n or 0
         return n
+
+
+def _io_reason(exc: BaseException) -> str:
+    args = getattr(exc, "args", ())
+    if len(args) == 2 and isinstance(args[1], str):
+        return args[1]
+    return str(exc) or type(exc).__name__
 
 
 def _open_serial(port: str, baudrate: int):

@@ -181,3 +181,20 @@ def test_sigterm_to_a_running_bus_loop_leaves_torque_off(tmp_path):
         assert_stopped(sim)
     finally:
         sim.close()
+
+
+def test_a_port_that_goes_away_mid_run_is_one_clear_error_and_close_does_not_raise(tmp_path):
+    sim = simulated_arm()
+    try:
+        server = PtyServer(sim.chain, tmp_path / "arm").start()
+        bus = DynamixelBus(str(tmp_path / "arm")).open()
+        bus.configure()
+        bus.torque_on()
+        bus.read_state()
+        server.stop()  # the other end of the line disappears, like an unplugged U2D2
+        with pytest.raises(CommunicationError, match=r"stopped working \(.+\); is the U2D2 still plugged in"):
+            bus.read_state()
+        bus.close()
+        assert set(bus.stop_failures) == set(bus.joint_names)
+    finally:
+        sim.close()
