@@ -440,3 +440,34 @@ def test_sim_serve_reports_a_bad_link_in_one_sentence(tmp_path):
     assert "Traceback" not in result.output
     result = CliRunner().invoke(sim_serve, ["--link", str(tmp_path / "x"), "--plant", "no-such-plant"])
     assert result.exit_code != 0 and result.output.startswith("Error: ")
+
+
+# ---- the simple plant ----------------------------------------------------------------------------------
+
+def _command(n, mode=0, current=0.0, enabled=True, goal=0.0):
+    from crane_io.sim.plant_api import ActuatorCommand
+
+    return ActuatorCommand(
+        torque_enabled=np.full(n, enabled), operating_mode=np.full(n, mode),
+        goal_current=np.full(n, current), goal_position=np.full(n, goal),
+        position_gains=np.tile([800.0, 0.0, 0.0], (n, 1)), current_limit=np.full(n, 3.21))
+
+
+def test_simple_plant_sticks_below_coulomb_and_slides_above():
+    from crane_io.sim.plant_api import Plant
+    from crane_io.sim.simple_plant import SimplePlant
+
+    plant = SimplePlant(servo_ids=(2,), inertia=0.01, viscous=0.0, coulomb=0.2, kt=2.0)
+    assert isinstance(plant, Plant)
+    plant.step(_command(1, current=0.09), 0.5)  # 0.18 N m < 0.2 N m
+    assert plant.read().position[0] == 0.0 and plant.read().velocity[0] == 0.0
+    plant.step(_command(1, current=0.15), 0.1)  # 0.3 N m: (0.3 - 0.2) / 0.01 = 10 rad/s^2
+    assert plant.read().velocity[0] == pytest.approx(1.0, rel=1e-6)
+    assert plant.read().current[0] == pytest.approx(0.15)
+    plant.step(_command(1, enabled=False), 1.0)  # torque off: friction stops it, never reverses it
+    assert plant.read().velocity[0] == 0.0 and plant.read().current[0] == 0.0
+    plant.set_external_torque(np.array([-0.5]))
+    plant.step(_command(1, enabled=False), 0.1)
+    assert plant.read().velocity[0] < 0  # a hand pushing a limp joint moves it
+    with pytest.raises(ValueError):
+        plant.set_external_torque(np.zeros(3))

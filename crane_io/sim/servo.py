@@ -36,11 +36,11 @@ from ..control_table import (
 )
 from ..units import (
     AMPERE_PER_CURRENT_LSB,
+    POSITION_CENTER,
+    RAD_PER_PULSE,
+    RADS_PER_VELOCITY_LSB,
     SECONDS_PER_WATCHDOG_LSB,
-    ampere_to_current,
     position_to_rad,
-    rad_to_position,
-    rads_to_velocity,
     to_signed,
     to_unsigned,
 )
@@ -186,11 +186,12 @@ class EmulatedServo:
     def _set_present(self, position: float, velocity: float, current: float) -> None:
         if not all(math.isfinite(v) for v in (position, velocity, current)):
             return  # a plant that blew up leaves the last finite reading in place
-        pos = int(rad_to_position(position))
+        # same rounding as crane_io.units (rad_to_position etc.), in scalar arithmetic for speed
+        pos = round(position / RAD_PER_PULSE) + POSITION_CENTER
         self.write_register("present_position", max(-(2**31), min(2**31 - 1, pos)))
-        vel = int(rads_to_velocity(velocity))
+        vel = round(velocity / RADS_PER_VELOCITY_LSB)
         self.write_register("present_velocity", max(-(2**31), min(2**31 - 1, vel)))
-        cur = int(ampere_to_current(current))
+        cur = round(current / AMPERE_PER_CURRENT_LSB)
         self.write_register("present_current", max(-32768, min(32767, cur)))
 
     # ---- faults --------------------------------------------------------------------------------

@@ -107,7 +107,7 @@ class SimplePlant:
         limit = np.asarray(command.current_limit, dtype=float) * self.kt
         cur = enabled & (mode == 0)
         tau[cur] = self.kt[cur] * np.asarray(command.goal_current, dtype=float)[cur]
-        pos = enabled & np.isin(mode, POSITION_MODES)
+        pos = enabled & ((mode == 3) | (mode == 4) | (mode == 5))  # POSITION_MODES
         if np.any(pos):
             gains = np.asarray(command.position_gains, dtype=float)
             per_pulse = self.stall_torque / 885.0
