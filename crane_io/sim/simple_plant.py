@@ -54,17 +54,27 @@ class SimplePlant:
     def __init__(
         self,
         servo_ids: Sequence[int] = DEFAULT_IDS,
-        inertia: Sequence[float] | float = DEFAULT_INERTIA,
-        viscous: Sequence[float] | float = DEFAULT_VISCOUS,
-        coulomb: Sequence[float] | float = DEFAULT_COULOMB,
-        kt: Sequence[float] | float = DEFAULT_KT,
-        stall_torque: Sequence[float] | float = DEFAULT_STALL,
+        inertia: Sequence[float] | float | None = None,
+        viscous: Sequence[float] | float | None = None,
+        coulomb: Sequence[float] | float | None = None,
+        kt: Sequence[float] | float | None = None,
+        stall_torque: Sequence[float] | float | None = None,
         lower: Sequence[float] | float | None = None,
         upper: Sequence[float] | float | None = None,
         initial_position: Sequence[float] | float = 0.0,
     ):
         self.servo_ids = tuple(int(i) for i in servo_ids)
         n = len(self.servo_ids)
+        crane = self.servo_ids == DEFAULT_IDS  # None means: the CRANE-X7 value, or a generic one
+
+        def pick(value, crane_default, generic):
+            return value if value is not None else (crane_default if crane else generic)
+
+        inertia = pick(inertia, DEFAULT_INERTIA, 0.01)
+        viscous = pick(viscous, DEFAULT_VISCOUS, 0.05)
+        coulomb = pick(coulomb, DEFAULT_COULOMB, 0.05)
+        kt = pick(kt, DEFAULT_KT, 2.20)
+        stall_torque = pick(stall_torque, DEFAULT_STALL, 4.1)
         self.inertia = _vec(inertia, n, "inertia")
         self.viscous = _vec(viscous, n, "viscous")
         self.coulomb = _vec(coulomb, n, "coulomb")
@@ -84,7 +94,7 @@ class SimplePlant:
     @classmethod
     def from_arm(cls, arm, **overrides) -> SimplePlant:
         """A SimplePlant for an ArmDescription: its IDs, torque constants and joint limits (+3 deg
-        mechanical margin). Defaults of the other parameters follow DEFAULT_IDS when they match."""
+        mechanical margin); inertia and friction are the CRANE-X7 defaults when the IDs are 2..9."""
         ids = arm.servo_ids
         kwargs = dict(
             servo_ids=ids,
@@ -93,8 +103,6 @@ class SimplePlant:
             lower=[j.lower - math.radians(3) for j in arm.joints],
             upper=[j.upper + math.radians(3) for j in arm.joints],
         )
-        if tuple(ids) != DEFAULT_IDS:
-            kwargs.update(inertia=0.01, viscous=0.05, coulomb=0.05)
         kwargs.update(overrides)
         return cls(**kwargs)
 
