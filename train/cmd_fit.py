@@ -1,0 +1,91 @@
+"""`crane-train fit SESSION... --model METHOD -o MODEL_DIR`: train one model the paper's way, print its
+test metrics and save it (with its preprocessing and normalisation)."""
+
+from __future__ import annotations
+
+import json
+
+import click
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from crane_io.errors import ConfigError, cli_errors
+
+from .cli_options import data_options, load_dataset, parse_effect
+from .metrics import metrics_table
+from .models.registry import METHODS, make_model
+from .splits import make_splits
+
+
+def fit_model(sessions, method: str, out_dir, train_size: int | None = None, seed: int = 0,
+              effects=(), effect_files=(), joints="joint1,joint2,joint4", alpha=0.1, zero_phase=False,
+              scale_to_data=False, epochs: int | None = None, progress: bool = True) -> dict:
+    """Preprocess, split, fit on `train_size` samples of the pool (all of it by default), score on the
+    test set, save to out_dir. Returns the metrics document (also written as fit_metrics.json)."""
+    ds = load_dataset(sessions, joints, alpha, zero_phase)
+    splits = make_splits(ds, seed=seed, scale_to_data=scale_to_data)
+    pool = splits.pool
+    if train_size is not None:
+        if not 0 < train_size <= len(pool):
+            raise ConfigError(f"--train-size must be between 1 and the pool size {len(pool)}, "
+                              f"got {train_size}")
+        rows = np.sort(np.random.default_rng([seed, train_size]).choice(len(pool), train_size, replace=False))
+        pool = pool.subset(rows)
+    options = {}
+    if effects or effect_files:
+        if method not in ("rigid-body", "hybrid"):
+            raise ConfigError(f"--effect and --effect-file apply to rigid-body and hybrid, not {method}")
+        options["effects"] = [list(e) for e in effects]
+        options["effect_files"] = list(effect_files)
+    if method.startswith("mlp-"):
+        options["seed"] = seed
+        if epochs is not None:
+            options["epochs"] = epochs
+    torch.set_num_threads(1)
+    model = make_model(method, ds.joint_names, preprocessing=ds.meta["preprocessing"], **options)
+    if method.startswith("mlp-"):
+        bar = tqdm(total=model.settings.epochs, desc=method, unit="epoch", disable=not progress, leave=False)
+        model.fit(pool, splits.val, progress=lambda done, total: bar.update(1))
+        bar.close()
+    else:
+        model.fit(pool, splits.val)
+    test = splits.test
+    doc = {"method": method, "joints": list(ds.joint_names), "train_samples": len(pool),
+           "train_samples_all_moving": int(pool.all_moving.sum()), "test_samples": len(test), "seed": seed,
+           "test": metrics_table(test.tau, model.predict_dataset(test), ds.joint_names),
+           "usable_fraction": ds.meta["usable_fraction"], "sources": ds.meta["sources"]}
+    path = model.save(out_dir)
+    (path / "fit_metrics.json").write_text(json.dumps(doc, indent=2))
+    return doc
+
+
+@click.command()
+@click.argument("sessions", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("--model", "method", required=True, type=click.Choice(list(METHODS)), help="Method to train.")
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
+              help="Model directory to write.")
+@click.option("--train-size", type=int, default=None, help="Training samples drawn from the pool [all 6000].")
+@click.option("--seed", default=0, show_default=True, type=int, help="Seed of splits, draws and weights.")
+@click.option("--effect", "effects", multiple=True, metavar="NAME[:joint=JOINT,shape=VALUE]",
+              help="Add a physical effect's columns (rigid-body, hybrid); repeatable. Without joint= a "
+                   "joint effect goes on every learning joint.")
+@click.option("--effect-file", "effect_files", multiple=True, type=click.Path(dir_okay=False, exists=True),
+              help="Python file defining extra effects (see crane_io.effects).")
+@click.option("--epochs", type=int, default=None, help="MLP epochs [100].")
+@data_options
+@click.option("--no-progress", is_flag=True, help="No progress bar.")
+@cli_errors
+def fit(sessions, method, out_dir, train_size, seed, effects, effect_files, epochs, joints, alpha, zero_phase,
+        scale_to_data, no_progress):
+    """Train one model on session files and save it."""
+    doc = fit_model(sessions, method, out_dir, train_size, seed, [parse_effect(e) for e in effects],
+                    effect_files, joints, alpha, zero_phase, scale_to_data, epochs, not no_progress)
+    click.echo(f"{method}: trained on {doc['train_samples']} samples "
+               f"({doc['train_samples_all_moving']} with every joint moving); "
+               f"test on {doc['test_samples']} samples")
+    click.echo(f"{'joint':<10}{'MSE (N m)^2':>14}{'RMSE N m':>12}{'NMSE':>10}")
+    for j in doc["joints"]:
+        t = doc["test"]
+        click.echo(f"{j:<10}{t['mse'][j]:>14.4g}{t['rmse'][j]:>12.4g}{t['nmse'][j]:>10.3g}")
+    click.echo(f"model written to {out_dir}")
