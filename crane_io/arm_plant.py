@@ -1,0 +1,450 @@
+"""The simulated CRANE-X7 arm: the physics behind the simulated servo chain for all 8 servos.
+
+Bilateral joints (joint1, joint2, joint4) are integrated with the 3-DOF pinocchio dynamics
+(crane_io.dynamics; the held joints locked at the configured angles), plus the configured physical
+effects (crane_io.effects), plus the actuator, plus the external torque (an operator's hand):
+
+    M(q) ddq + C(q, dq) dq + g(q) + tau_effects(q, dq) + friction = Kt_true * I + tau_ext
+
+- Actuator: current mode -> torque = Kt_true x goal current (the chain already clamped it to the
+  Current Limit); position modes -> the servo's PD controller (as in crane_io.sim.simple_plant);
+  torque off -> no motor torque: the joint is back-drivable (gravity + friction only).
+- Rotor inertia goes into the mass matrix (pinocchio's armature); a payload into the dynamics.
+- Friction effects (coulomb, coulomb-asym, stribeck, stiction, user effects with friction=True) do
+  true stick-slip, resolved every substep (default 0.25 ms): a joint at rest stays EXACTLY at rest
+  while the friction needed to hold it (the net of motor, gravity, coupling, external and other
+  effect torques) lies inside its static band (sum of the effects' static levels, e.g. the
+  breakaway torque); beyond it the joint breaks away and kinetic friction applies. A moving joint
+  whose velocity would change sign in a substep stops at zero and is tested for sticking again.
+  Several joints may stick at once; the coupled system is solved with the stuck joints' accelerations
+  held at zero (semi-implicit Euler: velocity first, then position).
+- Joint limits are stiff end stops (spring-damper) just beyond the description's limits.
+- Held joints (joint3, joint5..7, gripper) follow their servos with crane_io.sim.simple_plant
+  (position controller or current, no gravity: they are locked in the 3-DOF dynamics).
+- Sensors: position to the 4096-count grid is done by the chain; the plant adds an occasional
+  one-count error, velocity noise and current noise (PlantConfig.sensor); present current is the
+  motor torque / Kt_true.
+- Overload (optional): a joint whose goal current sits at its Current Limit for `overload.time_s`
+  gets Hardware Error Status bit 5; it stays set (the chain's Shutdown logic turns torque off).
+
+The truth (effects and parameters) is available as `truth()` / `write_truth(path)` only.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from .description import default_arm
+from .dynamics import ArmDynamics
+from .effects import get_effect
+from .errors import ConfigError
+from .plant_config import BILATERAL_JOINTS, PlantConfig, load_plant_config, write_truth
+from .sim.plant_api import ActuatorCommand, SensorReading
+from .sim.simple_plant import DEFAULT_INERTIA, DEFAULT_VISCOUS, SimplePlant
+from .units import AMPERE_PER_CURRENT_LSB, RAD_PER_PULSE, RADS_PER_VELOCITY_LSB
+
+OVERLOAD_BIT = 0x20
+_HELD_OMEGA = 30.0  # rad/s: held joints follow their goal as a critically damped 2nd-order system
+_STOP_MARGIN = math.radians(2.0)  # end stops sit this far beyond the software limits
+_SKL_INERTIA = dict(zip(("joint1", "joint2", "joint3", "joint4", "joint5", "joint6", "joint7", "gripper"),
+                        DEFAULT_INERTIA))
+
+
+class ArmPlant:
+    """The simulated CRANE-X7 (see module docstring). `config`: a PlantConfig, a preset name or a
+    TOML path (default "crane-x7"); `seed`: the sensor-noise seed (default: the config's)."""
+
+    def __init__(self, config: PlantConfig | str | Path | None = None, seed: int | None = None):
+        if not isinstance(config, PlantConfig):
+            config = load_plant_config("crane-x7" if config is None else config)
+        self.config = config
+        self.seed = config.seed if seed is None else int(seed)
+        self.rng = np.random.default_rng(self.seed)
+        arm = default_arm()
+        self.arm = arm
+        self.servo_ids = arm.servo_ids
+        names = arm.joint_names
+        self._bi = np.array([names.index(n) for n in BILATERAL_JOINTS])
+        self._held = np.array([i for i in range(len(names)) if names[i] not in BILATERAL_JOINTS])
+        self._held_names = tuple(names[i] for i in self._held)
+        self.kt = np.array([config.torque_constant[n] for n in names], dtype=float)
+        self._compile_effects()
+        self.dyn = ArmDynamics(BILATERAL_JOINTS, locked=config.locked, payload_mass=self._payload)
+        self.model = self.dyn.model
+        self.model.armature = self._armature.copy()
+        self.data = self.model.createData()
+        lo = np.array([arm.joint(n).lower for n in BILATERAL_JOINTS]) - _STOP_MARGIN
+        hi = np.array([arm.joint(n).upper for n in BILATERAL_JOINTS]) + _STOP_MARGIN
+        self._lo, self._hi = lo, hi
+        self._lo_l, self._hi_l = lo.tolist(), hi.tolist()
+        self._k_stop, self._d_stop = config.limits.stiffness, config.limits.damping
+        init = np.array([config.initial.get(n, 0.0) for n in names])
+        self.q = init[self._bi].copy()
+        self.dq = np.zeros(3)
+        self.h = config.substep_s
+        # PD controller of the bilateral servos in position modes (SimplePlant's servo model)
+        self._pd = SimplePlant(servo_ids=tuple(self.servo_ids[i] for i in self._bi),
+                               inertia=[_SKL_INERTIA[n] for n in BILATERAL_JOINTS], viscous=0.0, coulomb=0.0,
+                               kt=self.kt[self._bi],
+                               stall_torque=[10.6 if arm.joint(n).model == "XM540-W270" else 4.1
+                                             for n in BILATERAL_JOINTS])
+        self._held_q = init[self._held].copy()
+        self._held_dq = np.zeros(len(self._held))
+        self._held_current = np.zeros(len(self._held))
+        self._held_ext = np.zeros(len(self._held))
+        self._held_inertia = np.array([DEFAULT_INERTIA[i] for i in self._held])
+        self._held_visc = np.array([DEFAULT_VISCOUS[i] for i in self._held])
+        self._held_lo = np.array([arm.joint(n).lower - _STOP_MARGIN for n in self._held_names])
+        self._held_hi = np.array([arm.joint(n).upper + _STOP_MARGIN for n in self._held_names])
+        self._held_cache: dict[float, np.ndarray] = {}
+        self.external = np.zeros(3)
+        self.motor_torque = np.zeros(3)
+        self._saturated_time = np.zeros(len(names))
+        self._errors: dict[int, int] = {}
+        self.time = 0.0
+
+    # ---- effects -> arrays ---------------------------------------------------------------------------
+    def _compile_effects(self):
+        j = {n: i for i, n in enumerate(BILATERAL_JOINTS)}
+        self._fc_pos = np.zeros(3)
+        self._fc_neg = np.zeros(3)
+        self._band_pos = np.zeros(3)
+        self._band_neg = np.zeros(3)
+        strib_amp, strib_vel = [], []
+        self._visc = np.zeros(3)
+        self._offset = np.zeros(3)
+        self._spring_k = np.zeros(3)
+        self._spring_q0k = np.zeros(3)
+        self._cogging: list[tuple[int, float, float, float]] = []
+        self._armature = np.zeros(3)
+        self._payload = 0.0
+        self._generic: list[tuple] = []  # (effect, joint index or None, values)
+        for spec in self.config.all_effects:
+            eff = get_effect(spec.effect)
+            v = eff.check_values(spec.values)
+            k = j.get(spec.joint) if spec.joint is not None else None
+            name = spec.effect
+            if name == "coulomb":
+                self._fc_pos[k] += v["coulomb"]
+                self._fc_neg[k] += v["coulomb"]
+            elif name == "coulomb-asym":
+                self._fc_pos[k] += v["coulomb_pos"]
+                self._fc_neg[k] += v["coulomb_neg"]
+            elif name in ("stribeck", "stiction"):
+                if name == "stiction":
+                    self._fc_pos[k] += v["coulomb"]
+                    self._fc_neg[k] += v["coulomb"]
+                    amp, vel = v["breakaway"] - v["coulomb"], v["stiction_velocity"]
+                else:
+                    amp, vel = v["stribeck"], v["stribeck_velocity"]
+                a = np.zeros(3)
+                a[k] = amp
+                strib_amp.append(a)
+                vv = np.ones(3)
+                vv[k] = max(vel, 1e-6)
+                strib_vel.append(vv)
+            elif name == "viscous":
+                self._visc[k] += v["viscous"]
+            elif name == "offset":
+                self._offset[k] += v["offset"]
+            elif name == "spring":
+                self._spring_k[k] += v["stiffness"]
+                self._spring_q0k[k] += v["stiffness"] * v["rest_angle"]
+            elif name == "cogging":
+                c = eff.coefficients(v)
+                self._cogging.append((k, float(c[0]), float(c[1]), v["cycles_per_rev"]))
+            elif name == "rotor-inertia":
+                self._armature[k] += v["inertia"]
+            elif name == "payload":
+                self._payload += v["mass"]
+            elif name == "torque-constant-error":
+                i = self.arm.joint_names.index(spec.joint)
+                self.kt[i] = self.kt[i] / (1.0 + v["scale_error"])
+            elif name == "backlash":
+                raise ConfigError("the arm plant does not simulate backlash yet (the library's backlash is "
+                                  "model-side only); remove it from the plant configuration")
+            else:  # a user's effect: evaluated generically each substep
+                self._generic.append((eff, k, v))
+            if eff.friction and k is not None:
+                lo, hi = eff.static_band(v)
+                self._band_neg[k] += lo
+                self._band_pos[k] += hi
+        self._strib_amp = np.array(strib_amp) if strib_amp else np.zeros((0, 3))
+        self._strib_vel = np.array(strib_vel) if strib_vel else np.ones((0, 3))
+        self._zero3 = np.zeros((1, 3))
+        self._fc_pos_l, self._fc_neg_l = self._fc_pos.tolist(), self._fc_neg.tolist()
+        self._band_pos_l, self._band_neg_l = self._band_pos.tolist(), self._band_neg.tolist()
+        pairs = list(zip(self._strib_amp, self._strib_vel))
+        self._strib_l = [[(float(a[i]), float(v[i])) for a, v in pairs if a[i] != 0] for i in range(3)]
+        self._visc_l, self._offset_l = self._visc.tolist(), self._offset.tolist()
+        self._spring_k_l, self._spring_q0k_l = self._spring_k.tolist(), self._spring_q0k.tolist()
+
+    # ---- forces (the hot path: plain Python floats for the 3 joints, pinocchio for the arm) ------------
+    def _kinetic(self, i: int, v: float) -> float:
+        """Kinetic friction of joint i at velocity v (v = +-tiny for a joint breaking away)."""
+        if v > 0:
+            f = self._fc_pos_l[i]
+        elif v < 0:
+            f = -self._fc_neg_l[i]
+        else:
+            return 0.0
+        for amp, vs in self._strib_l[i]:
+            x = v / vs
+            f += math.copysign(amp * math.exp(-x * x), v)
+        return f
+
+    def _other_torque(self, q: list, dq: list) -> list:
+        """Non-friction effect torques and end stops (inverse-dynamics sense), per joint."""
+        out = []
+        for i in range(3):
+            t = (self._visc_l[i] * dq[i] + self._offset_l[i] + self._spring_k_l[i] * q[i]
+                 - self._spring_q0k_l[i])
+            if q[i] < self._lo_l[i]:
+                t += self._k_stop * (q[i] - self._lo_l[i]) + self._d_stop * dq[i]
+            elif q[i] > self._hi_l[i]:
+                t += self._k_stop * (q[i] - self._hi_l[i]) + self._d_stop * dq[i]
+            out.append(t)
+        for k, a, b, n in self._cogging:
+            out[k] += a * math.sin(n * q[k]) + b * math.cos(n * q[k])
+        return out
+
+    def _generic_torques(self, q: list, dq: list) -> tuple[list, list]:
+        """(non-friction, friction) torques of user-defined effects."""
+        qa, dqa = np.array([q]), np.array([dq])
+        nf, fr = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
+        for eff, k, v in self._generic:
+            t = eff.torque(qa, dqa, self._zero3, k, v)[0].tolist()
+            tgt = fr if eff.friction else nf
+            for i in range(3):
+                tgt[i] += t[i]
+        return nf, fr
+
+    # ---- Plant protocol ------------------------------------------------------------------------------
+    def step(self, command: ActuatorCommand, dt: float) -> None:
+        if dt <= 0:
+            return
+        enabled = np.asarray(command.torque_enabled, dtype=bool)
+        mode = np.asarray(command.operating_mode)
+        goal_current = np.asarray(command.goal_current, dtype=float)
+        limit = np.asarray(command.current_limit, dtype=float)
+        goal_position = np.asarray(command.goal_position, dtype=float)
+        self._overload(enabled, mode, goal_current, limit, dt)
+        self._step_held(enabled[self._held], mode[self._held], goal_current[self._held],
+                        goal_position[self._held], limit[self._held], dt)
+        bi = self._bi
+        current_mode = enabled[bi] & (mode[bi] == 0)
+        position_mode = bool(np.any(enabled[bi] & (mode[bi] != 0)))
+        tau_current = np.where(current_mode, self.kt[bi] * goal_current[bi], 0.0)
+        if position_mode:
+            bi_cmd = ActuatorCommand(enabled[bi], mode[bi], goal_current[bi], goal_position[bi],
+                                     np.asarray(command.position_gains)[bi], limit[bi])
+        n_sub = max(1, math.ceil(dt / self.h - 1e-9))
+        h = dt / n_sub
+        q, dq = self.q.tolist(), self.dq.tolist()
+        ext = self.external.tolist()
+        tau_l = tau_current.tolist()
+        for _ in range(n_sub):
+            if position_mode:
+                self._pd.q, self._pd.dq = np.array(q), np.array(dq)
+                tau_l = np.where(current_mode, tau_current, self._pd.motor_torque(bi_cmd)).tolist()
+            q, dq = self._substep(q, dq, tau_l, ext, h)
+        self.q, self.dq = np.array(q), np.array(dq)
+        self.motor_torque = np.array(tau_l)
+        self.time += dt
+
+    def _substep(self, q: list, dq: list, tau_m: list, ext: list, h: float) -> tuple[list, list]:
+        other = self._other_torque(q, dq)
+        gen_fr = None
+        if self._generic:
+            gen_nf, gen_fr = self._generic_torques(q, dq)
+            other = [other[i] + gen_nf[i] for i in range(3)]
+        drive = [tau_m[i] + ext[i] - other[i] for i in range(3)]
+        qa, dqa = np.array(q), np.array(dq)
+        if dq[0] != 0.0 and dq[1] != 0.0 and dq[2] != 0.0:
+            f = [self._kinetic(i, dq[i]) for i in range(3)]
+            if gen_fr is not None:
+                f = [f[i] + gen_fr[i] for i in range(3)]
+            net = np.array([drive[i] - f[i] for i in range(3)])
+            ddq = pin.aba(self.model, self.data, qa, dqa, net).tolist()
+        else:
+            ddq = self._stick_slip(qa, dqa, dq, drive, gen_fr)
+        q_new, dq_new = [0.0] * 3, [0.0] * 3
+        for i in range(3):
+            v = dq[i] + h * ddq[i]
+            if (dq[i] > 0 and v < 0) or (dq[i] < 0 and v > 0):
+                v = 0.0  # friction stops a joint; it never reverses it within a substep
+            dq_new[i] = v
+            q_new[i] = q[i] + h * v
+        return q_new, dq_new
+
+    def _stick_slip(self, qa, dqa, dq: list, drive: list, gen_fr) -> list:
+        m = pin.crba(self.model, self.data, qa).tolist()
+        m[1][0], m[2][0], m[2][1] = m[0][1], m[0][2], m[1][2]
+        nle = pin.nonLinearEffects(self.model, self.data, qa, dqa).tolist()
+        rhs = [drive[i] - nle[i] for i in range(3)]
+        free = [v != 0.0 for v in dq]
+        vel = list(dq)  # velocity used for friction: tiny in the break-away direction
+        for _ in range(4):
+            f = [self._kinetic(i, vel[i]) if free[i] else 0.0 for i in range(3)]
+            if gen_fr is not None:
+                f = [f[i] + (gen_fr[i] if free[i] else 0.0) for i in range(3)]
+            idx = [i for i in range(3) if free[i]]
+            ddq = [0.0, 0.0, 0.0]
+            if idx:
+                sol = _solve([[m[a][b] for b in idx] for a in idx], [rhs[a] - f[a] for a in idx])
+                for a, x in zip(idx, sol):
+                    ddq[a] = x
+            worst, worst_excess, push = -1, 0.0, 0.0
+            for s in range(3):
+                if free[s]:
+                    continue
+                hold = rhs[s] - sum(m[s][a] * ddq[a] for a in idx)  # friction needed to hold joint s
+                excess = max(hold - self._band_pos_l[s], -self._band_neg_l[s] - hold)
+                if excess > worst_excess:
+                    worst, worst_excess, push = s, excess, hold
+            if worst < 0:
+                return ddq
+            # the joint pushed furthest beyond its static band breaks away first, in that direction
+            free[worst] = True
+            vel[worst] = 1e-12 if push > 0 else -1e-12
+        return ddq
+
+    def _step_held(self, enabled, mode, goal_current, goal_position, limit, dt) -> None:
+        """Held joints: position modes -> a critically damped second-order response to the goal
+        (exact discretisation); current mode -> inertia + viscous friction; torque off -> at rest."""
+        q, dq = self._held_q, self._held_dq
+        pos = enabled & (mode != 0)
+        cur = enabled & (mode == 0)
+        a = self._held_matrix(dt)
+        if pos.any():
+            e = q - goal_position
+            new_e = a[0, 0] * e + a[0, 1] * dq
+            new_dq = a[1, 0] * e + a[1, 1] * dq
+            w = _HELD_OMEGA
+            torque = self._held_inertia * (-(w * w) * e - 2 * w * dq)
+            self._held_current = np.where(pos, np.clip(torque / self.kt[self._held], -limit, limit), 0.0)
+            q = np.where(pos, goal_position + new_e, q)
+            dq = np.where(pos, new_dq, dq)
+        else:
+            self._held_current = np.zeros(len(q))
+        if cur.any():
+            tau = self.kt[self._held] * goal_current + self._held_ext - self._held_visc * dq
+            acc = tau / self._held_inertia
+            dq = np.where(cur, dq + dt * acc, dq)
+            q = np.where(cur, q + dt * dq, q)
+            self._held_current = np.where(cur, goal_current, self._held_current)
+        off = ~enabled
+        dq = np.where(off, 0.0, dq)
+        self._held_q = np.clip(q, self._held_lo, self._held_hi)
+        self._held_dq = dq
+
+    def _held_matrix(self, dt: float) -> np.ndarray:
+        a = self._held_cache.get(dt)
+        if a is None:
+            w = _HELD_OMEGA
+            e = math.exp(-w * dt)
+            # x'' = -w^2 x - 2 w x' (critically damped), exact transition matrix over dt
+            a = np.array([[e * (1 + w * dt), e * dt], [-w * w * dt * e, e * (1 - w * dt)]])
+            self._held_cache[dt] = a
+        return a
+
+    def _overload(self, enabled, mode, goal_current, limit, dt) -> None:
+        if not self.config.overload.enabled:
+            return
+        sat = enabled & (mode == 0) & (np.abs(goal_current) >= limit * (1 - 1e-6)) & (limit > 0)
+        self._saturated_time = np.where(sat, self._saturated_time + dt, 0.0)
+        for i in np.flatnonzero(self._saturated_time >= self.config.overload.time_s):
+            self._errors[self.servo_ids[i]] = self._errors.get(self.servo_ids[i], 0) | OVERLOAD_BIT
+
+    def read(self) -> SensorReading:
+        n = len(self.servo_ids)
+        s = self.config.sensor
+        pos = np.empty(n)
+        vel = np.empty(n)
+        cur = np.empty(n)
+        pos[self._bi], pos[self._held] = self.q, self._held_q
+        vel[self._bi], vel[self._held] = self.dq, self._held_dq
+        cur[self._bi], cur[self._held] = self.motor_torque / self.kt[self._bi], self._held_current
+        rng = self.rng
+        if s.position_noise_probability > 0:
+            flip = rng.random(n) < s.position_noise_probability
+            pos = pos + flip * rng.choice((-RAD_PER_PULSE, RAD_PER_PULSE), n)
+        if s.velocity_noise_lsb > 0:
+            vel = vel + rng.normal(0.0, s.velocity_noise_lsb * RADS_PER_VELOCITY_LSB, n)
+        if s.current_noise_lsb > 0:
+            cur = cur + rng.normal(0.0, s.current_noise_lsb * AMPERE_PER_CURRENT_LSB, n)
+        return SensorReading(position=pos, velocity=vel, current=cur, voltage=np.full(n, 12.0),
+                             temperature=np.full(n, 35.0))
+
+    def hardware_errors(self) -> dict[int, int]:
+        return dict(self._errors)
+
+    def clear_errors(self) -> None:
+        """Clear latched hardware errors (what a servo reboot does)."""
+        self._errors.clear()
+        self._saturated_time[:] = 0.0
+
+    def set_external_torque(self, torque: np.ndarray) -> None:
+        torque = np.asarray(torque, dtype=float)
+        if torque.shape != (len(self.servo_ids),):
+            raise ValueError(f"external torque needs {len(self.servo_ids)} values, got {torque.shape}")
+        if not np.isfinite(torque).all():
+            raise ValueError("external torque must be finite")
+        self.external = torque[self._bi].copy()
+        self._held_ext = torque[self._held].copy()
+
+    # ---- state and truth -----------------------------------------------------------------------------
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.arm.joint_names
+
+    def state(self) -> tuple[np.ndarray, np.ndarray]:
+        """True (noise-free) joint angles and velocities, (8,) each, in servo order."""
+        n = len(self.servo_ids)
+        q, dq = np.empty(n), np.empty(n)
+        q[self._bi], q[self._held] = self.q, self._held_q
+        dq[self._bi], dq[self._held] = self.dq, self._held_dq
+        return q, dq
+
+    def set_state(self, q=None, dq=None) -> None:
+        """Set true joint angles / velocities ((8,) in servo order) e.g. to start a test pose."""
+        if q is not None:
+            q = np.asarray(q, dtype=float)
+            self.q = q[self._bi].copy()
+            self._held_q = q[self._held].copy()
+        if dq is not None:
+            dq = np.asarray(dq, dtype=float)
+            self.dq = dq[self._bi].copy()
+            self._held_dq = dq[self._held].copy()
+
+    def truth(self) -> dict:
+        """The plant's hidden truth (effects, parameters, true torque constants). Never in a session."""
+        t = self.config.truth()
+        t["seed"] = self.seed
+        t["torque_constant_effective"] = dict(zip(self.arm.joint_names, self.kt.tolist()))
+        return t
+
+    def write_truth(self, path) -> Path:
+        return write_truth(self.config, path)
+
+
+def _solve(a: list, b: list) -> list:
+    """Solve a small (1..3) symmetric positive-definite system by Gaussian elimination, in floats."""
+    n = len(b)
+    a = [row[:] for row in a]
+    b = b[:]
+    for k in range(n):
+        p = a[k][k]
+        for r in range(k + 1, n):
+            f = a[r][k] / p
+            for c in range(k, n):
+                a[r][c] -= f * a[k][c]
+            b[r] -= f * b[k]
+    x = [0.0] * n
+    for k in range(n - 1, -1, -1):
+        x[k] = (b[k] - sum(a[k][c] * x[c] for c in range(k + 1, n))) / a[k][k]
+    return x
