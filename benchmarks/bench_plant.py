@@ -22,7 +22,8 @@ BI = [0, 1, 3]
 
 def _drive(plant: ArmPlant, i: int) -> np.ndarray:
     cur = np.zeros(8)
-    tau = plant.dyn.gravity_torque(plant.q) + np.array([0.35, 0.5, 0.3]) * np.sin(2 * np.pi * 0.4 * i * PERIOD)
+    wave = np.sin(2 * np.pi * 0.4 * i * PERIOD)
+    tau = plant.dyn.gravity_torque(plant.q) + np.array([0.35, 0.5, 0.3]) * wave
     cur[BI] = tau / plant.kt[BI]
     return cur
 
@@ -62,7 +63,8 @@ def through_chain(steps: int) -> float:
 
 def run(quick: bool = False) -> list[dict]:
     steps = 500 if quick else 5000
-    rows = [{"benchmark": "plant", "metric": "ArmPlant alone: simulated s per wall s", "value": plant_alone(steps),
+    rows = [{"benchmark": "plant", "metric": "ArmPlant alone: simulated s per wall s",
+             "value": plant_alone(steps),
              "unit": "x real time", "note": f"{steps} steps of 2 ms, 0.25 ms substeps, preset crane-x7"}]
     try:
         value = through_chain(steps)
@@ -70,7 +72,8 @@ def run(quick: bool = False) -> list[dict]:
                      "value": value, "unit": "x real time",
                      "note": f"{steps} cycles: fast sync read + Goal Current sync write; goal >= 5"})
     except ImportError as exc:  # the chain or bus layer is not there
-        rows.append({"benchmark": "plant", "metric": "ArmPlant + servo chain, lockstep", "value": float("nan"),
+        rows.append({"benchmark": "plant", "metric": "ArmPlant + servo chain, lockstep",
+                     "value": float("nan"),
                      "unit": "x real time", "note": f"skipped: {exc}"})
     return rows
 
