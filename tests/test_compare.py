@@ -10,34 +10,28 @@ from click.testing import CliRunner
 
 from tests.sessions import write_synthetic_session
 from train.cli import main
+from train.cmd_fit import fit_model
 from train.compare import compare_models, plot, table_text
 from train.heldout import evaluation_data
-from train.models.registry import load_model, make_model
-from train.preprocess import PreprocessConfig, preprocess
+from train.models.registry import load_model
+from train.preprocess import preprocess
 from train.session import read_sessions
-from train.splits import SplitConfig, make_splits
-
-SPLIT = SplitConfig(n_pool=1500, n_val=250, n_test=250)
-
-
-def _record(prep: PreprocessConfig, seed: int) -> dict:
-    """What a model keeps about the data it was trained on (preprocessing, split settings, seed)."""
-    return {"preprocessing": prep.to_dict(), "splits": vars(SPLIT).copy(), "seed": seed}
+from train.splits import make_splits
 
 
 @pytest.fixture(scope="module")
 def fitted(tmp_path_factory):
+    """Two models fitted by `crane-train fit`'s code path on one session: rigid-body without and with
+    the session's friction."""
     root = tmp_path_factory.mktemp("cmp")
     session, _ = write_synthetic_session(root / "s.h5", 150, seed=7)
-    prep = PreprocessConfig()
-    ds = preprocess(read_sessions([session]), prep)
-    sp = make_splits(ds, SPLIT, seed=2)
     dirs = []
     for name, effects in (("rb", []), ("rb-friction", [("coulomb", None, None), ("viscous", None, None)])):
-        m = make_model("rigid-body", ds.joint_names, preprocessing=_record(prep, 2), effects=effects)
-        m.fit(sp.pool, sp.val)
-        dirs.append(m.save(root / name))
-    return session, dirs, sp
+        fit_model([str(session)], "rigid-body", root / name, seed=2, effects=effects, scale_to_data=True,
+                  progress=False)
+        dirs.append(root / name)
+    ds = preprocess(read_sessions([session]))
+    return session, dirs, make_splits(ds, seed=2, scale_to_data=True)
 
 
 def test_models_are_scored_on_the_same_held_out_samples(fitted):
@@ -59,7 +53,7 @@ def test_models_are_scored_on_the_same_held_out_samples(fitted):
 
 def test_held_out_data_follow_the_models_recorded_split(fitted):
     session, dirs, sp = fitted
-    _, splits, held = evaluation_data(load_model(dirs[0]), [session])
+    _, splits, held = evaluation_data(load_model(dirs[0]), [session], model_dir=dirs[0])
     np.testing.assert_array_equal(splits.index["test"], sp.index["test"])
     assert held.test.sum() == len(sp.index["test"])
 
@@ -86,6 +80,12 @@ def test_compare_bad_input_is_one_sentence(fitted, tmp_path):
     bad.write_bytes(b"not hdf5")
     r = CliRunner().invoke(main, ["compare", str(dirs[0]), "--session", str(bad)])
     assert r.exit_code != 0 and r.output.startswith("Error: ")
+
+
+def test_sessions_default_to_the_ones_the_model_was_trained_on(fitted):
+    _, dirs, sp = fitted
+    c = compare_models(dirs)
+    assert c.models[0].n_test == len(sp.index["test"])
 
 
 def test_plot_writes_one_panel_per_joint(fitted, tmp_path):

@@ -47,7 +47,7 @@ def diagnose(model_dir, sessions, as_json, folds, min_reduction, top, effect_fil
     for path in effect_files:
         load_effect_file(path)
     model = load_model(model_dir)
-    pconf = model_settings(model)[0]
+    pconf = model_settings(model, model_dir)[0]
     ds = preprocess(read_sessions(list(sessions)), pconf)
     result = run_diagnosis(model, ds, folds=folds, min_reduction=min_reduction, progress=not as_json)
     if as_json:

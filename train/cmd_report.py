@@ -27,7 +27,7 @@ def report(model_dir, sessions, output, diagnosis, seed):
     model = load_model(model_dir)
     click.echo(f"Evaluating {model_dir} ({model.method}) on the held-out part of {', '.join(sessions)} ...",
                err=True)
-    ds, _, held = evaluation_data(model, list(sessions), seed=seed)
+    ds, _, held = evaluation_data(model, list(sessions), seed=seed, model_dir=model_dir)
     diag = None
     if diagnosis:
         from .diagnose import diagnose as run_diagnosis

@@ -19,7 +19,7 @@ import numpy as np
 
 from crane_io.errors import CraneError
 
-from .heldout import HeldOut, evaluation_data, model_settings
+from .heldout import HeldOut, evaluation_data, fit_record, model_settings
 from .metrics import metrics_table, mse
 
 
@@ -66,12 +66,12 @@ def effect_labels(model) -> list[str]:
     return out
 
 
-def model_sessions(model) -> list[str]:
-    """The session files a model was trained on, as its preprocessing record names them."""
-    prep = getattr(model, "preprocessing", {}) or {}
-    for key in ("sources", "sessions"):
-        if prep.get(key):
-            return [str(s) for s in prep[key]]
+def model_sessions(model, model_dir=None) -> list[str]:
+    """The session files a model was trained on, as its fit record or preprocessing record names them."""
+    for record in (fit_record(model_dir), getattr(model, "preprocessing", {}) or {}):
+        for key in ("sources", "sessions"):
+            if record.get(key):
+                return [str(s) for s in record[key]]
     return []
 
 
@@ -113,11 +113,11 @@ def compare_models(model_dirs, sessions=None, progress: bool = False) -> Compari
         if tuple(m.joint_names) != tuple(joints):
             raise CompareError(f"{d} predicts joints {', '.join(m.joint_names)} but {model_dirs[0]} "
                                f"predicts {', '.join(joints)}; only models of the same joints compare")
-    sessions = list(sessions or model_sessions(models[0]))
+    sessions = list(sessions or model_sessions(models[0], model_dirs[0]))
     if not sessions:
         raise CompareError("the models do not record their sessions; name them with --session")
-    _, splits, reference = evaluation_data(models[0], sessions)
-    ref_settings = model_settings(models[0])[0]
+    _, splits, reference = evaluation_data(models[0], sessions, model_dir=model_dirs[0])
+    ref_settings, _, ref_seed = model_settings(models[0], model_dirs[0])
     out = []
     iterator = list(zip(model_dirs, models))
     if progress:
@@ -126,7 +126,10 @@ def compare_models(model_dirs, sessions=None, progress: bool = False) -> Compari
     for d, m in iterator:
         held = reference
         notes = []
-        pconf = model_settings(m)[0]
+        pconf, _, seed = model_settings(m, d)
+        if seed != ref_seed:
+            notes.append(f"trained with split seed {seed}, not {ref_seed}: some held-out samples may have "
+                         "been in its training data")
         if pconf != ref_settings:
             ds_m = preprocess(read_sessions(sessions), pconf)
             held = _align(reference, held_out(ds_m, _reindex(splits, ds_m, reference)))

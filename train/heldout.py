@@ -10,7 +10,9 @@ and they are less than one block apart.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -72,25 +74,43 @@ def held_out(ds: Dataset, splits: Splits, sessions=(), seed: int | None = None) 
     return HeldOut(ds.subset(rows), test, window, starts, desc)
 
 
-def model_settings(model) -> tuple[PreprocessConfig, SplitConfig, int, bool]:
-    """The preprocessing, split settings, seed and scale-to-data flag a model was trained with."""
+def fit_record(model_dir) -> dict:
+    """What `crane-train fit` wrote next to the model (fit_metrics.json: seed, sources ...), or {}."""
+    if model_dir is None:
+        return {}
+    path = Path(model_dir) / "fit_metrics.json"
+    try:
+        return json.loads(path.read_text()) if path.is_file() else {}
+    except (OSError, json.JSONDecodeError):
+        return {}
+
+
+def model_settings(model, model_dir=None) -> tuple[PreprocessConfig, SplitConfig, int]:
+    """The preprocessing, split settings and split seed a model was trained with.
+
+    The preprocessing is in the model itself; the seed comes from the fit record (fit_metrics.json)
+    or the model's preprocessing record, else 0. The splits are always made with scale_to_data: with
+    enough data that is the same split as without it, and with too little it is the scaled split
+    `fit --scale-to-data` made (make_splits is deterministic either way).
+    """
     prep = dict(getattr(model, "preprocessing", {}) or {})
-    cfg = prep.get("preprocessing", prep.get("config", prep))
+    cfg = prep.get("preprocessing", prep)
     known = set(PreprocessConfig.__dataclass_fields__)
     pconf = PreprocessConfig.from_dict({k: v for k, v in cfg.items() if k in known})
-    split = prep.get("splits", prep.get("split", {})) or {}
+    split = dict(prep.get("splits") or {})
     sknown = set(SplitConfig.__dataclass_fields__)
-    sconf = SplitConfig(**{k: v for k, v in dict(split.get("config", split)).items() if k in sknown})
-    seed = int(prep.get("seed", split.get("seed", 0)) or 0)
-    scale = bool(prep.get("scale_to_data", split.get("scale_to_data", False)))
-    return pconf, sconf, seed, scale
+    sconf = SplitConfig(**{k: v for k, v in split.items() if k in sknown})
+    record = fit_record(model_dir)
+    seed = int(record.get("seed", prep.get("seed", 0)) or 0)
+    return pconf, sconf, seed
 
 
-def evaluation_data(model, session_paths, seed: int | None = None) -> tuple[Dataset, Splits, HeldOut]:
+def evaluation_data(model, session_paths, seed: int | None = None,
+                    model_dir=None) -> tuple[Dataset, Splits, HeldOut]:
     """Read and preprocess the sessions as the model's training did, split them the same way and
     return (all data, the splits, the held-out part)."""
-    pconf, sconf, model_seed, scale = model_settings(model)
+    pconf, sconf, model_seed = model_settings(model, model_dir)
     ds = preprocess(read_sessions(session_paths), pconf)
-    splits = make_splits(ds, sconf, seed=model_seed if seed is None else seed, scale_to_data=scale)
     seed = model_seed if seed is None else seed
+    splits = make_splits(ds, sconf, seed=seed, scale_to_data=True)
     return ds, splits, held_out(ds, splits, session_paths, seed)
