@@ -184,14 +184,15 @@ class BilateralController:
     def hold(self, leader: ArmSignals, follower: ArmSignals, ref_leader: tuple[np.ndarray, np.ndarray],
              ref_follower: tuple[np.ndarray, np.ndarray], dt: float) -> Commands:
         """Independent position control of each arm to a reference (q (n,), dq (n,)) with the same
-        observers (DOB compensation): tau = J [Kp (q_ref - q) + Kd (dq_ref - w)] + tau_dis. Used to
+        observers (DOB compensation): tau = (J/2) [Kp (q_ref - q) + Kd (dq_ref - w)] + tau_dis (the
+        per-arm gains of the bilateral position term; full J Kp is too fast for the observers). Used to
         bring the arms into agreement before bilateral control; the observers carry over seamlessly."""
         out = []
         pairs = ((self._obs_l, leader, ref_leader), (self._obs_f, follower, ref_follower))
         for obs, sig, (q_ref, dq_ref) in pairs:
             q = np.asarray(sig.q, dtype=float)
             w, dis, res = obs.update(q, dt)
-            tau = (self.J * (self.kp * (q_ref - q) + self.kd * (dq_ref - w)) + dis) * self.bil
+            tau = (0.5 * self.J * (self.kp * (q_ref - q) + self.kd * (dq_ref - w)) + dis) * self.bil
             obs.applied = tau
             out.append((tau, ArmEstimates(w, dis + self._nan_held, res + self._nan_held)))
         (tau_l, est_l), (tau_f, est_f) = out

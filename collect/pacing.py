@@ -3,7 +3,8 @@
 Deadlines are t0 + k T (no drift however long the run). `wait()` sleeps until shortly before the
 next deadline and busy-waits the rest (sleep alone overshoots by up to a scheduler tick). A cycle
 that ends after its deadline is an overrun; if a cycle overran by more than a whole period, the grid
-skips the missed deadlines instead of firing a burst of late cycles. In lockstep (simulated, faster
+is re-anchored at that moment (the missed deadlines are counted and skipped) instead of firing a burst
+of late cycles to catch up. In lockstep (simulated, faster
 than real time) mode nothing sleeps: the loop runs as fast as it can and the statistics describe the
 wall-clock speed.
 
@@ -66,8 +67,8 @@ class CycleTimer:
         if not self.lockstep:
             if overrun:
                 missed = math.floor((now - self._deadline) / self.period)
-                if missed >= 1:  # more than a whole period late: skip ahead on the grid
-                    self._deadline += missed * self.period
+                if missed >= 1:  # more than a whole period late: re-anchor the grid at now
+                    self._deadline = now
                     self.skipped_deadlines += missed
             else:
                 remaining = self._deadline - now
