@@ -115,19 +115,17 @@ def run_rigid_body(splits: Splits, subsets: dict, sizes, trials, progress: bool 
     return out, rows_used, largest
 
 
-def run_mlps(splits: Splits, subsets: dict, sizes, trials, methods, settings: MLPSettings, seed: int,
-             progress: bool = True):
-    """Every MLP of the sweep in one batched run. Returns {method: ((S, T, J) mse, rows_used)} and the
-    window predictions of trial 0 at the largest size."""
+def mlp_jobs(splits: Splits, subsets: dict, sizes, trials, methods, seed: int) -> dict:
+    """Everything the MLPs of a sweep train on: stacked data X, Y, W (rows < N: the pool with the
+    dead-zone mask as loss weights, for the masked loss; rows >= N: the same pool with weight 1, for MSE),
+    and per model its key (method, size index, trial), training rows and seed."""
     pool = splits.pool
     X = features(pool.q, pool.dq, pool.ddq)
     N = len(X)
-    # rows < N use the dead-zone mask as loss weights (masked loss); rows >= N are a copy with weight 1
-    X2 = np.vstack([X, X])
-    Y2 = np.vstack([pool.tau, pool.tau])
-    W2 = np.vstack([pool.moving.astype(np.float32), np.ones_like(pool.tau, dtype=np.float32)])
+    job = {"X": np.vstack([X, X]), "Y": np.vstack([pool.tau, pool.tau]),
+           "W": np.vstack([pool.moving.astype(np.float32), np.ones_like(pool.tau, dtype=np.float32)]),
+           "keys": [], "rows": [], "seeds": []}
     all_moving = pool.all_moving
-    keys, rows, seeds = [], [], []
     for mi, method in enumerate(methods):
         for s, size in enumerate(sizes):
             for trial in range(trials):
@@ -135,24 +133,31 @@ def run_mlps(splits: Splits, subsets: dict, sizes, trials, methods, settings: ML
                 r = sub if method == "mlp-masked" else sub[all_moving[sub]] + N
                 if len(r) < 2:
                     continue
-                keys.append((method, s, trial))
-                rows.append(r)
-                seeds.append(int(np.random.SeedSequence([seed, mi, size, trial]).generate_state(1)[0]))
-    val = splits.val
-    Xv = features(val.q, val.dq, val.ddq)
-    results = {m: (np.full((len(sizes), trials, pool.tau.shape[1]), np.nan),
-                   [[0] * trials for _ in sizes]) for m in methods}
+                job["keys"].append((method, s, trial))
+                job["rows"].append(r)
+                job["seeds"].append(int(np.random.SeedSequence([seed, mi, size, trial]).generate_state(1)[0]))
+    return job
+
+
+def run_mlps(splits: Splits, subsets: dict, sizes, trials, methods, settings: MLPSettings, seed: int,
+             progress: bool = True):
+    """Every MLP of the sweep in one batched run. Returns {method: ((S, T, J) mse, rows_used)} and the
+    window predictions of trial 0 at the largest size."""
+    job = mlp_jobs(splits, subsets, sizes, trials, methods, seed)
+    keys, rows = job["keys"], job["rows"]
+    J = splits.pool.tau.shape[1]
+    results = {m: (np.full((len(sizes), trials, J), np.nan), [[0] * trials for _ in sizes]) for m in methods}
     window_pred = {}
     if not keys:
         return results, window_pred
+    val = splits.val
     bar = tqdm(total=settings.epochs, desc=f"{len(keys)} MLPs", unit="epoch", disable=not progress,
                leave=False)
-    res = train_mlps(X2, Y2, W2, rows, Xv, val.tau, settings, seeds=seeds,
-                     progress=lambda done, total: bar.update(1))
+    res = train_mlps(job["X"], job["Y"], job["W"], rows, features(val.q, val.dq, val.ddq), val.tau, settings,
+                     seeds=job["seeds"], progress=lambda done, total: bar.update(1))
     bar.close()
-    test = splits.test
+    test, win = splits.test, splits.window
     pred = predict(res.params, res.norm, features(test.q, test.dq, test.ddq))  # (M, n, J)
-    win = splits.window
     wpred = predict(res.params, res.norm, features(win.q, win.dq, win.ddq))
     for m, (method, s, trial) in enumerate(keys):
         results[method][0][s, trial] = mse(test.tau, pred[m])
