@@ -1,9 +1,9 @@
 """collect configuration: defaults, overrides, and one-sentence errors for bad files."""
 
 import math
-import tomllib
 
 import pytest
+import tomllib
 from click.testing import CliRunner
 
 from collect.cli import main

@@ -129,7 +129,8 @@ def test_hold_brings_both_arms_to_their_references():
     target = q0 - 0.2 * BIL
     zero = np.zeros(8)
     for _ in range(int(5 / DT)):
-        cmd = ctl.hold(ArmSignals(lead.q.copy()), ArmSignals(foll.q.copy()), (target, zero), (target, zero), DT)
+        cmd = ctl.hold(ArmSignals(lead.q.copy()), ArmSignals(foll.q.copy()), (target, zero), (target, zero),
+                       DT)
         lead.step(cmd.leader_tau)
         foll.step(cmd.follower_tau)
     assert lead.q[BIL] == pytest.approx(target[BIL], abs=5e-3)

@@ -125,7 +125,7 @@ def test_communication_budget_consecutive_and_per_second():
     s = _safety()
     t = 0.0
     breach = None
-    for k in range(10):  # isolated failures, but 10 within a second
+    for _ in range(10):  # isolated failures, but 10 within a second
         breach = s.bus_error("follower", t, err)
         s.bus_ok("follower")
         t += 0.05

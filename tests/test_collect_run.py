@@ -1,0 +1,201 @@
+"""crane-collect run end to end in simulation: tracking, the session format, faults, signals, crashes."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from collect.recorder import read_events
+from collect.runner import RunOptions, SafetyStop, run_session
+from crane_io.description import default_arm
+
+ARM = default_arm()
+BIL = np.array([n in ARM.bilateral_joints for n in ARM.joint_names])
+CLI = str(Path(sys.executable).parent / "crane-collect")
+
+# a short alignment (the simple plant starts at 0) and no status line for in-process runs
+TEST_CONFIG = """
+[loop]
+status_hz = {status}
+[operator.start_deg]
+joint2 = 0.0
+joint4 = -20.0
+"""
+
+REQUIRED_ATTRS = ("format", "format_version", "rate_hz", "joint_names", "source")
+OPTIONAL_ATTRS = ("tau_source", "torque_constants", "servo_ids", "servo_models", "firmware_versions",
+                  "leader_firmware_versions", "follower_firmware_versions", "bilateral_joints",
+                  "software_version", "start_time", "config_toml", "rate_hz_achieved", "complete", "seed")
+ARM_MEMBERS = ("t", "q", "tau", "dq_servo", "current", "goal_current", "dq", "tau_dis", "tau_res", "q_goal")
+TIMING = ("cycle_start", "period", "bus_time_leader", "bus_time_follower", "compute_time", "overrun")
+
+
+@pytest.fixture
+def cfg(tmp_path):
+    p = tmp_path / "test.toml"
+    p.write_text(TEST_CONFIG.format(status=0))
+    return p
+
+
+def _opts(tmp_path, cfg, **kw):
+    base = dict(output=tmp_path / "s.h5", sim=True, plant="simple", duration=3.0, config=cfg, seed=5,
+                status=False)
+    base.update(kw)
+    return RunOptions(**base)
+
+
+def _torque_off_everywhere(sims) -> bool:
+    """Torque off on every simulated servo still on the bus (a vanished one cannot be reached; its
+    Bus Watchdog stops it)."""
+    servos = [s for sim in sims.values() for s in sim.chain.servos.values() if s.on_bus]
+    return len(servos) >= 15 and all(s.read_register("torque_enable") == 0 for s in servos)
+
+
+def test_sim_session_tracks_the_leader_and_meets_the_format(tmp_path, cfg):
+    seen = {}
+    r = run_session(_opts(tmp_path, cfg, on_cycle=lambda k, ctx: seen.setdefault("sims", ctx.sims)))
+    assert r.end_reason == "duration" and r.cycles == 1500
+    with h5py.File(r.path, "r") as f:
+        for a in REQUIRED_ATTRS + OPTIONAL_ATTRS:
+            assert a in f.attrs, a
+        assert f.attrs["format"] == "crane-session" and f.attrs["source"] == "sim"
+        assert f.attrs["complete"] and f.attrs["end_reason"] == "duration"
+        assert list(f.attrs["joint_names"]) == list(ARM.joint_names)
+        cfg_used = tomllib.loads(f.attrs["config_toml"])
+        assert cfg_used["operator"]["start_deg"]["joint4"] == -20.0
+        n = f["follower/t"].shape[0]
+        assert n == 1500
+        for arm in ("leader", "follower"):
+            for m in ARM_MEMBERS:
+                ds = f[f"{arm}/{m}"]
+                assert ds.shape[0] == n and (ds.ndim == 1 or ds.shape[1] == 8), (arm, m)
+        for m in TIMING:
+            assert f[f"timing/{m}"].shape == (n,)
+        assert "period_p99_s" in f["timing"].attrs
+        t = f["follower/t"][()]
+        assert np.allclose(np.diff(t), 0.002)
+        # tau is the commanded torque: goal current x torque constant on the bilateral joints
+        kt = f.attrs["torque_constants"]
+        assert np.allclose(f["follower/tau"][:, BIL], f["follower/goal_current"][:, BIL] * kt[BIL], atol=1e-5)
+        assert np.isnan(f["follower/q_goal"][:, BIL]).all() and np.isfinite(f["follower/q_goal"][:, ~BIL]).all()
+        # the follower tracks the leader: error small against the motion's range
+        ql, qf = f["leader/q"][:, BIL], f["follower/q"][:, BIL]
+        motion = ql.max(0) - ql.min(0)
+        assert (motion > 0.05).any()
+        rms = np.sqrt(((ql - qf) ** 2).mean(0))
+        assert (rms < 0.1 * np.maximum(motion, 0.05)).all(), (rms, motion)
+        kinds = [e["kind"] for e in read_events(f)]
+        assert kinds[0] == "start" and "end" in kinds
+        states = [e["message"] for e in read_events(f) if e["kind"] == "torque_state"]
+        assert states == ["leader: torque off on 8 of 8 servos", "follower: torque off on 8 of 8 servos"]
+        # a simulated session never stores the plant's truth
+        assert not [k for k in f.attrs if "truth" in k or "hidden" in k or "effect" in k]
+    assert _torque_off_everywhere(seen["sims"])
+
+
+def test_refuses_to_overwrite_a_session(tmp_path, cfg):
+    out = tmp_path / "s.h5"
+    out.write_bytes(b"keep me")
+    with pytest.raises(Exception, match="already exists; pass --force"):
+        run_session(_opts(tmp_path, cfg))
+    assert out.read_bytes() == b"keep me"
+
+
+@pytest.mark.parametrize("fault, words", [
+    ("vanish", "joint2"),
+    ("overload", "overload"),
+])
+def test_injected_fault_ends_in_a_safe_stop_with_an_event(tmp_path, cfg, fault, words):
+    seen = {}
+
+    def inject(k, ctx):
+        seen["sims"] = ctx.sims
+        if k == 250:
+            if fault == "vanish":
+                ctx.sims["follower"].chain.remove_servo(3)  # joint2's XM540 drops off the bus
+            else:
+                ctx.sims["leader"].chain.servos[5].set_hardware_error(0x20)  # joint4 overload
+
+    with pytest.raises(SafetyStop) as info:
+        run_session(_opts(tmp_path, cfg, duration=5.0, on_cycle=inject))
+    assert words in str(info.value)
+    with h5py.File(tmp_path / "s.h5", "r") as f:
+        assert f.attrs["complete"] and f.attrs["end_reason"] == "safety_stop"
+        events = read_events(f)
+        stops = [e for e in events if e["kind"] == "safety_stop"]
+        assert len(stops) == 1 and words in stops[0]["message"]
+        assert 240 <= f["follower/t"].shape[0] <= 260  # stopped right away
+    # every servo that still answers has its torque off
+    assert _torque_off_everywhere(seen["sims"])
+
+
+def _start(tmp_path, status=2, duration=60):
+    cfg = tmp_path / "sub.toml"
+    cfg.write_text(TEST_CONFIG.format(status=status))
+    out = tmp_path / "sub.h5"
+    proc = subprocess.Popen([CLI, "run", "--sim", "--plant", "simple", "--duration", str(duration),
+                             "--config", str(cfg), "-o", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return proc, out
+
+
+def _rows(out: Path) -> int:
+    try:
+        with h5py.File(out, "r", libver="latest", swmr=True) as f:
+            return f["follower/t"].shape[0]
+    except (OSError, KeyError):
+        return 0
+
+
+def _wait_rows(proc, out, rows, timeout=60):
+    end = time.monotonic() + timeout
+    while _rows(out) < rows:
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < end, "the run did not start recording"
+        time.sleep(0.1)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_ctrl_c_and_sigterm_leave_a_complete_file_and_torque_off(tmp_path, sig):
+    proc, out = _start(tmp_path)
+    _wait_rows(proc, out, 300)
+    proc.send_signal(sig)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 0, stderr
+    assert "Traceback" not in stderr and "session" in stderr  # the summary was printed
+    with h5py.File(out, "r") as f:
+        assert f.attrs["complete"]
+        assert f.attrs["end_reason"] == ("interrupted" if sig == signal.SIGINT else "terminated")
+        events = read_events(f)
+        assert [e for e in events if e["kind"] == "interrupted"]
+        # read back from the servos over the bus after the safe stop
+        states = [e["message"] for e in events if e["kind"] == "torque_state"]
+        assert states == ["leader: torque off on 8 of 8 servos", "follower: torque off on 8 of 8 servos"]
+        n = f["follower/t"].shape[0]
+        assert all(f[f"{a}/{m}"].shape[0] == n for a in ("leader", "follower") for m in ARM_MEMBERS)
+
+
+def test_sigkill_loses_at_most_the_last_second(tmp_path):
+    proc, out = _start(tmp_path, status=20)
+    _wait_rows(proc, out, 1500)
+    time.sleep(0.3)
+    os.kill(proc.pid, signal.SIGKILL)
+    stdout, stderr = proc.communicate(timeout=30)
+    # the status lines say how far the session had got when the process died (at least)
+    reached = [float(line.split(" s |")[0]) for line in stderr.splitlines() if " s |" in line]
+    assert reached, stderr
+    with h5py.File(out, "r", libver="latest", swmr=True) as f:
+        assert not f.attrs["complete"]
+        lengths = [f[f"{a}/{m}"].shape[0] for a in ("leader", "follower") for m in ARM_MEMBERS]
+        n = min(lengths)
+        t = f["follower/t"][:n]
+        assert np.all(np.isfinite(t)) and np.all(np.diff(t) > 0)
+        assert t[-1] >= reached[-1] - 1.0 - 0.01
+        assert np.isfinite(f["follower/q"][:n]).all()
