@@ -3,31 +3,36 @@ one removes.
 
 The method, per joint j (names as in the session):
 
-1. residual r = measured torque - model prediction, on the samples where joint j MOVES (its dead-zone
-   mask). Every candidate is judged on the same samples so that their error reductions compare like
-   with like; in a dead zone the torque is whatever stiction holds, which no function of (q, dq, ddq)
-   predicts, so those samples would add only noise — also for effects that act at rest (offset,
-   spring), which leave their mark on the moving samples just as well.
+1. The samples judged are those where joint j MOVES (its dead-zone mask): in a dead zone the torque is
+   whatever stiction holds, which no function of (q, dq, ddq) predicts, so those samples would only add
+   noise — also for effects that act at rest (offset, spring), which leave their mark on the moving
+   samples just as well. Every candidate is judged on the same samples, so their error reductions
+   compare like with like.
 2. The rows are cut into K contiguous time blocks (folds; blocks, not shuffled rows, because filtered
-   signals are correlated in time). For each fold, the candidate's regressor columns
-   (`effect.columns`) are fitted to the residual of the other K-1 blocks by least squares — for every
-   value of its shape grid (Stribeck velocity, spring rest angle, cogging period ...), keeping the shape
-   that fits the training blocks best — and the held-out block is predicted.
-3. `error_reduction` = 1 - (held-out SSE with the candidate) / (held-out SSE of the residual alone):
-   the fraction of the held-out mean squared error the candidate removes. A flexible candidate cannot
-   win by overfitting, because it is scored only on blocks it never saw.
-4. Parameters: the candidate fitted on each fold's training blocks gives one set of named values
-   (`effect.values_from_coefficients`); the value is the mean over folds and its uncertainty the
-   delete-a-block jackknife standard error sqrt((K-1)/K * sum (v_k - mean)^2), which stays honest when
-   neighbouring samples are correlated (plain least-squares standard errors would not).
+   signals are correlated in time). For each fold the model is refitted on the other K-1 blocks twice,
+   without and with the candidate's regressor columns (`effect.columns`), and both predict the held-out
+   block. For a physics model (rigid-body: base regressor + its effects' columns) the refit is the
+   whole regressor, by least squares on the per-joint masked rows (each joint's equation where that
+   joint moves: its equation holds whatever the other joints do), so a candidate competes with the
+   rigid-body parameters it correlates with. For any other model (network, hybrid) the model is kept
+   and the candidate is fitted to its residual. A candidate with shape parameters (Stribeck velocity,
+   spring rest angle, cogging period ...) tries every value of its grid and keeps the one that fits the
+   training blocks best.
+3. `error_reduction` = 1 - (held-out SSE with the candidate) / (held-out SSE without it): the fraction
+   of the held-out mean squared error the candidate removes. A flexible candidate cannot win by
+   overfitting: it is scored only on blocks it never saw. Ranking: by error reduction, except that a
+   simpler candidate within one standard error (paired, per fold) of the best one goes first.
+4. Parameters: each fold's fit gives one set of named values (`effect.values_from_coefficients`); the
+   value is the mean over folds and its uncertainty the delete-a-block jackknife standard error
+   sqrt((K-1)/K * sum (v_k - mean)^2), which stays honest when neighbouring samples are correlated
+   (plain least-squares standard errors would not).
 5. Significant: error_reduction >= `min_reduction` AND the held-out error falls in every fold
    (`min_fold_fraction`). A session with nothing missing yields no significant candidate.
 
-Arm-scope effects (payload) have one set of parameters for all joints: they are fitted on all joints
-jointly (stacking each joint's moving samples) and reported once, on the joint where they remove the
-largest fraction of the error, with the other joints' fractions in the sentence.
-
-Effects the model already contains (same name on the same joint, or on the arm) are not candidates.
+Arm-scope effects (payload) have one set of parameters for all joints: their fit is joint across all
+joints and they are reported once, on the joint where they remove the largest fraction of the error,
+with the other joints' fractions in the sentence. Effects the model already contains (same name on the
+same joint, or on every joint) are not candidates.
 """
 
 from __future__ import annotations
@@ -128,14 +133,6 @@ def _fold_ids(n: int, folds: int) -> np.ndarray:
     return np.minimum((np.arange(n) * folds) // max(n, 1), folds - 1)
 
 
-def _lstsq(X: np.ndarray, y: np.ndarray) -> np.ndarray:
-    # scale columns so that badly scaled columns (mass vs friction) do not hurt the conditioning
-    scale = np.sqrt((X ** 2).mean(axis=0))
-    scale[scale == 0] = 1.0
-    coef, *_ = np.linalg.lstsq(X / scale, y, rcond=None)
-    return coef / scale
-
-
 def _values(effect, coefs: np.ndarray, shape: dict | None) -> dict[str, float]:
     values = effect.values_from_coefficients(np.asarray(coefs, dtype=float), shape)
     keep = {p.name for p in _model_params(effect)} or set(values)
@@ -166,59 +163,100 @@ def _jackknife(per_fold: list[dict[str, float]]) -> dict[str, tuple[float, float
 
 # ---- the cross-validated fit of one candidate ----------------------------------------------------------
 
+class _Engine:
+    """Per-fold normal equations of the masked least-squares problem, so that a candidate's fit on the
+    training folds is a small linear solve.
+
+    basis X (N, J, p) (may have p = 0), target y (N, J), weights W (N, J) (the moving masks), fold (N,).
+    Columns are scaled to unit RMS over the weighted rows; a tiny ridge keeps rank-deficient problems
+    solvable (base parameters the data barely excite).
+    """
+
+    RIDGE = 1e-8
+
+    def __init__(self, X: np.ndarray, y: np.ndarray, W: np.ndarray, fold: np.ndarray, folds: int):
+        self.X, self.y, self.W, self.fold, self.K = X, y, W.astype(float), fold, folds
+        self.p = X.shape[2]
+        self.sx = self._scale(X)
+        self.Xs = X / self.sx
+        self.masks = [self.W * (fold == k)[:, None] for k in range(folds)]  # (N, J) per fold
+        self.XX = np.stack([np.einsum("nj,nja,njb->ab", m, self.Xs, self.Xs) for m in self.masks])
+        self.Xy = np.stack([np.einsum("nj,nja,nj->a", m, self.Xs, y) for m in self.masks])
+        self.yy = np.array([float((m * y * y).sum()) for m in self.masks])
+
+    def _scale(self, A):
+        w = self.W[:, :, None]
+        s = np.sqrt((w * A * A).sum(axis=(0, 1)) / max(w.sum(), 1.0))
+        return np.where(s > 1e-12, s, 1.0)
+
+    def _solve(self, G, b):
+        n = len(b)
+        if n == 0:
+            return np.zeros(0)
+        lam = self.RIDGE * max(float(np.trace(G)) / n, 1e-12)
+        try:
+            return np.linalg.solve(G + lam * np.eye(n), b)
+        except np.linalg.LinAlgError:
+            return np.linalg.lstsq(G, b, rcond=None)[0]
+
+    def fit(self, C: np.ndarray | None, train: list[int]):
+        """Least squares on the training folds; returns (theta_x, theta_c (unscaled), training SSE)."""
+        XX, Xy, yy = self.XX[train].sum(0), self.Xy[train].sum(0), self.yy[train].sum()
+        if C is None:
+            th = self._solve(XX, Xy)
+            sse = yy - 2 * th @ Xy + th @ XX @ th
+            return th / self.sx, np.zeros(0), float(sse)
+        sc = self._scale(C)
+        Cs = C / sc
+        mask = sum(self.masks[k] for k in train)
+        XC = np.einsum("nj,nja,njb->ab", mask, self.Xs, Cs)
+        CC = np.einsum("nj,nja,njb->ab", mask, Cs, Cs)
+        Cy = np.einsum("nj,nja,nj->a", mask, Cs, self.y)
+        G = np.block([[XX, XC], [XC.T, CC]])
+        b = np.concatenate([Xy, Cy])
+        th = self._solve(G, b)
+        sse = yy - 2 * th @ b + th @ G @ th
+        return th[:self.p] / self.sx, th[self.p:] / sc, float(sse)
+
+    def heldout_sse(self, C, th_x, th_c, k: int) -> np.ndarray:
+        """(J,) SSE of the held-out fold k per joint (weighted rows only)."""
+        pred = self.X @ th_x if self.p else np.zeros_like(self.y)
+        if C is not None:
+            pred = pred + C @ th_c
+        return ((self.y - pred) ** 2 * self.masks[k]).sum(axis=0)
+
+
 @dataclass
 class _Fit:
-    sse_before: np.ndarray  # (J, K) held-out SSE of the residual alone, per joint and fold
+    sse_before: np.ndarray  # (J, K) held-out SSE without the candidate, per joint and fold
     sse_after: np.ndarray  # (J, K) with the candidate
     count: np.ndarray  # (J,) held-out rows per joint
     fold_values: list[dict[str, float]]
     shape_all: dict | None
 
 
-def _cross_validate(effect, columns_by_shape, residual, rows_by_joint, per_joint_folds, joints,
-                    folds) -> _Fit:
-    """Fit a candidate's columns to the residual on training blocks and score the held-out blocks.
-
-    columns_by_shape: [(shape, X (N, J, k))]; rows_by_joint[j]: the rows used for joint j;
-    per_joint_folds[j]: (N,) fold of each row for joint j; joints: the joints whose rows enter one
-    common fit (one joint, or all of them for an arm-scope effect).
-    """
-    J = residual.shape[1]
-    sse_before = np.zeros((J, folds))
-    sse_after = np.zeros((J, folds))
-    count = np.zeros(J)
+def _cross_validate(engine: _Engine, effect, columns_by_shape, baseline) -> _Fit:
+    """baseline[k] = (theta_x, sse_before (J,)) of the refit without candidate for fold k."""
+    K = engine.K
+    J = engine.y.shape[1]
+    sse_before = np.zeros((J, K))
+    sse_after = np.zeros((J, K))
     fold_values = []
-
-    def stacked(X, in_fold):
-        Xs, ys = [], []
-        for j in joints:
-            rows = rows_by_joint[j]
-            rows = rows[in_fold(per_joint_folds[j][rows])]
-            Xs.append(X[rows, j, :])
-            ys.append(residual[rows, j])
-        return np.concatenate(Xs), np.concatenate(ys)
-
-    def best_fit(in_fold):
+    for k in range(K):
+        train = [i for i in range(K) if i != k]
         best = None
-        for shape, X in columns_by_shape:
-            Xt, yt = stacked(X, in_fold)
-            coef = _lstsq(Xt, yt)
-            sse = float(((yt - Xt @ coef) ** 2).sum())
+        for shape, C in columns_by_shape:
+            th_x, th_c, sse = engine.fit(C, train)
             if best is None or sse < best[0]:
-                best = (sse, shape, X, coef)
-        return best
-
-    for k in range(folds):
-        _, shape, X, coef = best_fit(lambda f, k=k: f != k)
-        fold_values.append(_values(effect, coef, shape))
-        for j in joints:
-            rows = rows_by_joint[j][per_joint_folds[j][rows_by_joint[j]] == k]
-            y = residual[rows, j]
-            sse_before[j, k] = float((y ** 2).sum())
-            sse_after[j, k] = float(((y - X[rows, j, :] @ coef) ** 2).sum())
-            count[j] += len(rows)
-    shape_all = best_fit(lambda f: np.ones(len(f), bool))[1]  # the shape on all data, for the record
-    return _Fit(sse_before, sse_after, count, fold_values, shape_all)
+                best = (sse, shape, C, th_x, th_c)
+        _, shape, C, th_x, th_c = best
+        fold_values.append(_values(effect, th_c, shape))
+        sse_before[:, k] = baseline[k]
+        sse_after[:, k] = engine.heldout_sse(C, th_x, th_c, k)
+    count = engine.W.sum(axis=0)
+    every = list(range(K))
+    shape_all = min(((engine.fit(C, every)[2], i) for i, (_, C) in enumerate(columns_by_shape)))[1]
+    return _Fit(sse_before, sse_after, count, fold_values, columns_by_shape[shape_all][0])
 
 
 # ---- sentences ----------------------------------------------------------------------------------------
@@ -305,25 +343,36 @@ def model_effects(model) -> set[tuple[str, str | None]]:
     return out
 
 
+def physics_basis(model, ds: Dataset) -> np.ndarray | None:
+    """(N, J, p) regressor of a physics model (rigid-body: base regressor + its effects' columns), or
+    None for a model that is not linear in its parameters."""
+    regressor = getattr(model, "regressor", None)
+    if callable(regressor) and getattr(model, "theta", None) is not None:
+        X = np.asarray(regressor(ds.q, ds.dq, ds.ddq), dtype=float)
+        if X.ndim == 3 and X.shape[:2] == ds.tau.shape and np.isfinite(X).all():
+            return X
+    return None
+
+
 def diagnose(model, ds: Dataset, effects=None, **kwargs) -> Diagnosis:
-    """Diagnose `model` on `ds`: residual = ds.tau - model.predict(ds.q, ds.dq, ds.ddq)."""
-    residual = ds.tau - model.predict(ds.q, ds.dq, ds.ddq)
-    return diagnose_residual(ds, residual, effects, exclude=model_effects(model), **kwargs)
+    """Diagnose `model` on `ds` (see the module docstring): a physics model is refitted with each
+    candidate; any other model keeps its predictions and the candidate explains its residual."""
+    residual = ds.tau - np.asarray(model.predict(ds.q, ds.dq, ds.ddq), dtype=float)
+    X = physics_basis(model, ds)
+    if X is None:
+        return _run(ds, None, residual, residual, effects, exclude=model_effects(model), **kwargs)
+    return _run(ds, X, ds.tau, residual, effects, exclude=model_effects(model), refit=True, **kwargs)
 
 
-def diagnose_residual(ds: Dataset, residual: np.ndarray, effects=None, *, exclude=(),
-                      folds: int = DEFAULT_FOLDS, min_reduction: float = DEFAULT_MIN_REDUCTION,
-                      min_fold_fraction: float = DEFAULT_MIN_FOLD_FRACTION,
-                      progress: bool = False) -> Diagnosis:
-    """Rank candidate effects per joint by cross-validated reduction of the residual's error.
-
-    effects: effect instances (default: the whole library, crane_io.effects.list_effects()).
-    exclude: (name, joint name or None) pairs already in the model.
-    """
-    if effects is None:
-        effects = _library_effects()
-    effects = [_bind(e, ds.joint_names) for e in effects]
+def diagnose_residual(ds: Dataset, residual: np.ndarray, effects=None, **kwargs) -> Diagnosis:
+    """Rank candidate effects by how much of `residual` (N, J) each explains, cross-validated."""
     residual = np.asarray(residual, dtype=float)
+    return _run(ds, None, residual, residual, effects, **kwargs)
+
+
+def _run(ds: Dataset, X, y, residual, effects=None, *, exclude=(), folds: int = DEFAULT_FOLDS,
+         min_reduction: float = DEFAULT_MIN_REDUCTION, min_fold_fraction: float = DEFAULT_MIN_FOLD_FRACTION,
+         refit: bool = False, progress: bool = False) -> Diagnosis:
     J = len(ds.joint_names)
     if residual.shape != ds.tau.shape:
         raise DiagnosisError(f"the residual has shape {residual.shape} but the data {ds.tau.shape}")
@@ -331,25 +380,30 @@ def diagnose_residual(ds: Dataset, residual: np.ndarray, effects=None, *, exclud
         raise DiagnosisError("the model predicts NaN or infinite torque on these data")
     if folds < 2:
         raise DiagnosisError(f"cross-validation needs at least 2 folds, not {folds}")
-    rows_by_joint = [np.flatnonzero(ds.moving[:, j]) for j in range(J)]
-    for j, rows in enumerate(rows_by_joint):
-        if len(rows) < max(MIN_SAMPLES_PER_JOINT, 5 * folds):
-            raise DiagnosisError(f"{ds.joint_names[j]} moves in only {len(rows)} samples; the diagnosis "
-                                 f"needs at least {max(MIN_SAMPLES_PER_JOINT, 5 * folds)}")
-    # one fold assignment per joint over that joint's moving rows (contiguous in time)
-    per_joint_folds = []
-    for rows in rows_by_joint:
-        f = np.full(len(ds), -1)
-        f[rows] = _fold_ids(len(rows), folds)
-        per_joint_folds.append(f)
+    fold = _fold_ids(len(ds), folds)
+    need = max(MIN_SAMPLES_PER_JOINT, 5 * folds)
+    for j in range(J):
+        per_fold = np.bincount(fold[ds.moving[:, j]], minlength=folds)
+        if per_fold.sum() < need or per_fold.min() == 0:
+            raise DiagnosisError(f"{ds.joint_names[j]} moves in only {int(per_fold.sum())} samples (or not "
+                                 f"in every part of the recording); the diagnosis needs at least {need} "
+                                 "spread over the whole recording")
+    if effects is None:
+        effects = _library_effects()
+    effects = [_bind(e, ds.joint_names) for e in effects]
+    if X is None:
+        X = np.zeros(ds.tau.shape + (0,))
+    engine = _Engine(X, y, ds.moving, fold, folds)
+    baseline = []
+    for k in range(folds):
+        th_x, _, _ = engine.fit(None, [i for i in range(folds) if i != k])
+        baseline.append(engine.heldout_sse(None, th_x, None, k))
     exclude = {(n, j) for n, j in exclude}
 
-    results: dict[int, list[Candidate]] = {j: [] for j in range(J)}
     work = []
     for effect in effects:
         name = _effect_name(effect)
-        scope = getattr(effect, "scope", "joint")
-        if scope == "arm":
+        if getattr(effect, "scope", "joint") == "arm":
             if (name, None) not in exclude:
                 work.append((effect, None))
         else:
@@ -361,33 +415,34 @@ def diagnose_residual(ds: Dataset, residual: np.ndarray, effects=None, *, exclud
         from tqdm import tqdm
         iterator = tqdm(work, desc="diagnose", unit="candidate", leave=False)
 
+    results: dict[int, list[Candidate]] = {j: [] for j in range(J)}
     for effect, j in iterator:
         name = _effect_name(effect)
         units = _param_units(effect)
         columns_by_shape = []
         for shape in _shape_options(effect):
-            X = np.asarray(effect.columns(ds.q, ds.dq, ds.ddq, j, shape), dtype=float)
-            if X.ndim == 2:
-                X = X[:, :, None]
-            if not np.isfinite(X).all() or not np.any(X):
+            C = np.asarray(effect.columns(ds.q, ds.dq, ds.ddq, j, shape), dtype=float)
+            if C.ndim == 2:
+                C = C[:, :, None]
+            usable = C.shape[:2] == ds.tau.shape and np.isfinite(C).all()
+            if not usable or not np.any(C * ds.moving[:, :, None]):
                 continue
-            columns_by_shape.append((shape, X))
+            columns_by_shape.append((shape, C))
         if not columns_by_shape:
             continue
+        fit = _cross_validate(engine, effect, columns_by_shape, baseline)
         joints = [j] if j is not None else list(range(J))
-        fit = _cross_validate(effect, columns_by_shape, residual, rows_by_joint, per_joint_folds, joints,
-                              folds)
         reductions = {}
         for jj in joints:
             before = fit.sse_before[jj].sum()
-            reductions[jj] = 0.0 if before == 0 else 1.0 - fit.sse_after[jj].sum() / before
+            reductions[jj] = 0.0 if before == 0 else float(1.0 - fit.sse_after[jj].sum() / before)
         home = max(joints, key=lambda jj: reductions[jj])
-        before_k = fit.sse_before[home]
-        fold_red = [float(1 - a / b) if b > 0 else 0.0 for a, b in zip(fit.sse_after[home], before_k)]
+        fold_red = [float(1 - a / b) if b > 0 else 0.0
+                    for a, b in zip(fit.sse_after[home], fit.sse_before[home])]
         improved = int(sum(r > 0 for r in fold_red))
         stats = _jackknife(fit.fold_values) if fit.fold_values else {}
-        parameters = {n: {"value": v, "std": s, "unit": units.get(n, "")} for n, (v, s) in stats.items()}
-        red = float(reductions[home])
+        parameters = {n: {"value": v, "std": sd, "unit": units.get(n, "")} for n, (v, sd) in stats.items()}
+        red = reductions[home]
         significant = bool(red >= min_reduction and improved >= math.ceil(min_fold_fraction * folds))
         cand = Candidate(
             joint=ds.joint_names[home], rank=0, effect=name, title=getattr(effect, "title", name),
@@ -396,9 +451,9 @@ def diagnose_residual(ds: Dataset, residual: np.ndarray, effects=None, *, exclud
             mse_before=float(fit.sse_before[home].sum() / max(fit.count[home], 1)),
             mse_after=float(fit.sse_after[home].sum() / max(fit.count[home], 1)),
             significant=significant, sentence="",
-            other_joints={ds.joint_names[jj]: float(reductions[jj]) for jj in joints if jj != home})
+            other_joints={ds.joint_names[jj]: reductions[jj] for jj in joints if jj != home},
+            n_parameters=_complexity(effect))
         cand.sentence = _candidate_sentence(effect, cand)
-        cand.n_parameters = _complexity(effect)
         results[home].append(cand)
 
     candidates, summary, correlations = [], {}, {}
@@ -411,7 +466,9 @@ def diagnose_residual(ds: Dataset, residual: np.ndarray, effects=None, *, exclud
         correlations[ds.joint_names[j]] = corr[:6]
         summary[ds.joint_names[j]] = _joint_summary(ds.joint_names[j], ranked, corr)
     settings = {"folds": folds, "min_reduction": min_reduction, "min_fold_fraction": min_fold_fraction,
-                "samples": len(ds), "moving_samples": {ds.joint_names[j]: int(len(rows_by_joint[j]))
+                "method": "refit of the physics model with each candidate" if refit else
+                          "candidate fitted to the model's residual",
+                "samples": len(ds), "moving_samples": {ds.joint_names[j]: int(ds.moving[:, j].sum())
                                                        for j in range(J)}}
     return Diagnosis(tuple(ds.joint_names), candidates, summary, correlations, settings)
 

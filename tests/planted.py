@@ -1,0 +1,121 @@
+"""Test helper: short simulated sessions from a planted-effect plant preset, fast enough for CI.
+
+Why not `crane-collect run --sim`: the full pipeline (two arms, the servo chain's protocol bytes, the
+bilateral controller) runs at about 1.4x real time on the 2-core CI machine, i.e. ~45 s of wall time
+per minute of session and several minutes for the seven presets the diagnosis tests need. The physics
+is what the diagnosis is about, so these sessions drive crane_io.arm_plant.ArmPlant (the same plant
+`crane-collect run --sim --plant PRESET` uses) directly, at the control rate (500 Hz), with what a
+human operator does to the follower under bilateral control: each of joints 1, 2 and 4 independently
+makes smooth minimum-jerk moves between random targets and pauses in between (about 70 % of the time
+moving), tracked by a PD controller with rigid-body feed-forward in current mode. Joints stick in the
+pauses (the plant's true stick-slip), so the data have the paper's dead zones. What is recorded is what
+the recorder stores: the quantised servo position and the commanded torque = goal current x the
+configured torque constant (not the plant's true one), in the contract-minimum session format.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from crane_io.arm_plant import ArmPlant
+from crane_io.description import default_arm
+from crane_io.dynamics import ArmDynamics
+from crane_io.plant_config import load_plant_config
+from crane_io.sim.plant_api import ActuatorCommand
+from crane_io.units import RAD_PER_PULSE
+
+LEARN = ("joint1", "joint2", "joint4")
+CENTER = {"joint1": 0.0, "joint2": 0.5, "joint4": -1.3}  # rad: middle of each joint's working range
+SPAN = {"joint1": 0.9, "joint2": 0.7, "joint4": 0.7}  # rad: targets within CENTER +- SPAN
+KP = np.array([25.0, 45.0, 20.0])  # N m/rad
+KD = np.array([1.2, 2.5, 0.9])  # N m s/rad
+
+
+def operator_reference(duration_s: float, rate_hz: float, rng) -> tuple[np.ndarray, ...]:
+    """(q, dq, ddq) references (N, 3): per joint, minimum-jerk moves of 1-2.5 s between random targets,
+    separated by pauses of 0.1-0.7 s (independent per joint)."""
+    n = int(round(duration_s * rate_hz))
+    dt = 1.0 / rate_hz
+    q, dq, ddq = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+    for j, name in enumerate(LEARN):
+        pos, i = CENTER[name], 0
+        q[:, j] = pos
+        while i < n:
+            pause = int(rng.uniform(0.1, 0.7) * rate_hz)
+            q[i:i + pause, j] = pos
+            i += pause
+            if i >= n:
+                break
+            T = rng.uniform(1.0, 2.5)
+            m = min(int(T * rate_hz), n - i)
+            target = CENTER[name] + rng.uniform(-1, 1) * SPAN[name]
+            s = np.arange(m) * dt / T
+            d = target - pos
+            q[i:i + m, j] = pos + d * (10 * s ** 3 - 15 * s ** 4 + 6 * s ** 5)
+            dq[i:i + m, j] = d / T * (30 * s ** 2 - 60 * s ** 3 + 30 * s ** 4)
+            ddq[i:i + m, j] = d / T ** 2 * (60 * s - 180 * s ** 2 + 120 * s ** 3)
+            pos = q[i + m - 1, j] if m < int(T * rate_hz) else target
+            i += m
+    return q, dq, ddq
+
+
+def simulate_session(path, preset: str, duration_s: float = 60.0, seed: int = 0,
+                     rate_hz: float = 500.0) -> Path:
+    """Simulate `duration_s` of operator-like motion on the plant `preset` and write a session file."""
+    config = load_plant_config(preset)
+    plant = ArmPlant(config, seed=seed)
+    arm = default_arm()
+    names = arm.joint_names
+    bi = np.array([names.index(n) for n in LEARN])
+    n_servo = len(names)
+    kt_cfg = np.array([arm.joint(n).torque_constant for n in names])
+    limit = np.array([arm.joint(n).current_limit for n in names])
+    nominal = ArmDynamics(LEARN, locked=config.locked)
+    rng = np.random.default_rng(seed)
+    q_ref, dq_ref, ddq_ref = operator_reference(duration_s, rate_hz, rng)
+    start = np.zeros(n_servo)
+    start[bi] = q_ref[0]
+    for name, angle in config.locked.items():
+        start[names.index(name)] = angle
+    plant.set_state(q=start, dq=np.zeros(n_servo))
+    ff = nominal.inverse_dynamics(q_ref, dq_ref, ddq_ref)  # feed-forward of the reference (no friction)
+    n = len(q_ref)
+    dt = 1.0 / rate_hz
+    t = np.arange(n) * dt
+    Q, TAU = np.zeros((n, n_servo)), np.zeros((n, n_servo))
+    enabled = np.ones(n_servo, bool)
+    mode = np.full(n_servo, 3)
+    mode[bi] = 0  # current mode for the learning joints, position mode for the held ones
+    goal_position = start.copy()
+    gains = np.tile([800, 0, 0], (n_servo, 1))
+    goal_current = np.zeros(n_servo)
+    q_prev, dq_b_prev = None, np.zeros(3)
+    for i in range(n):
+        reading = plant.read()
+        q_meas = np.rint(np.asarray(reading.position) / RAD_PER_PULSE) * RAD_PER_PULSE
+        q_b = q_meas[bi]
+        dq_b = np.zeros(3) if q_prev is None else (q_b - q_prev) / dt * 0.3 + dq_b_prev * 0.7
+        tau_cmd = ff[i] + KP * (q_ref[i] - q_b) + KD * (dq_ref[i] - dq_b)
+        goal_current[:] = 0.0
+        goal_current[bi] = np.clip(tau_cmd / kt_cfg[bi], -limit[bi], limit[bi])
+        Q[i] = q_meas
+        TAU[i] = goal_current * kt_cfg
+        plant.step(ActuatorCommand(enabled, mode, goal_current.copy(), goal_position, gains, limit), dt)
+        q_prev, dq_b_prev = q_b, dq_b
+    path = Path(path)
+    with h5py.File(path, "w") as f:
+        f.attrs["format"] = "crane-session"
+        f.attrs["format_version"] = 1
+        f.attrs["rate_hz"] = float(rate_hz)
+        f.attrs["joint_names"] = np.array(names, dtype=h5py.string_dtype())
+        f.attrs["source"] = "sim"
+        f.attrs["complete"] = True
+        f.attrs["seed"] = int(seed)
+        g = f.create_group("follower")
+        g.create_dataset("t", data=t)
+        g.create_dataset("q", data=Q)
+        g.create_dataset("tau", data=TAU)
+    return path
