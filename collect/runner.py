@@ -127,7 +127,9 @@ def make_plant(spec: str | None, seed: int, arm: ArmDescription):
 def make_sim_arms(opts: RunOptions, config: Config, arm: ArmDescription) -> dict:
     from crane_io.sim import simulated_arm
 
-    clock = "wall" if opts.realtime else "lockstep"
+    # Start-up (ping, configure, torque on) always runs in lockstep so the simulated arms do not fall
+    # under gravity while their torque is off; --realtime switches them to the wall clock afterwards.
+    clock = "lockstep"
     sims = {}
     tag = f"{os.getpid()}-{id(opts) & 0xFFFF:x}"
     for k, name in enumerate(ARMS):
@@ -138,6 +140,16 @@ def make_sim_arms(opts: RunOptions, config: Config, arm: ArmDescription) -> dict
 
 
 # ---- the loop -----------------------------------------------------------------------------------------
+
+def _switch_to_wall_clock(sims: dict) -> None:
+    """From now on the simulated arms follow real time, continuing from their present simulated time."""
+    now = time.monotonic()
+    for sim in sims.values():
+        chain = sim.chain
+        chain.clock = "wall"
+        if hasattr(chain, "_t0"):
+            chain._t0 = now - chain.time  # noqa: SLF001 - no public re-anchoring in SimulatedChain yet
+
 
 class _Loop:
     def __init__(self, opts: RunOptions, config: Config, arm: ArmDescription, buses: dict, sims: dict,
@@ -156,7 +168,10 @@ class _Loop:
         self.bil = np.array([n in arm.bilateral_joints for n in arm.joint_names])
         self.held_goal = np.array([config.held.get(n, 0.0) for n in arm.joint_names])
         self.q_goal_row = np.where(self.bil, np.nan, self.held_goal)
-        self.pool = None if self.lockstep else concurrent.futures.ThreadPoolExecutor(2, "crane-bus")
+        # Hardware: one thread per bus, so the two arms' transfers overlap (they wait on I/O without the
+        # GIL). Simulated arms live in this process and are pure CPU work: threads would only fight for
+        # the GIL (5 ms switch interval), so they are driven one after the other, deterministically.
+        self.pool = None if sims else concurrent.futures.ThreadPoolExecutor(2, "crane-bus")
         self.recorder: SessionRecorder | None = None
         self.operator: SimulatedOperator | None = None
         self.timer = CycleTimer(config.loop.rate_hz, lockstep=self.lockstep, spin_s=config.loop.spin_s)
@@ -524,6 +539,8 @@ def run_session(opts: RunOptions) -> RunResult:
         with handle_termination():
             try:
                 buses, hw = _open_buses(opts, arm, config, ports, out)
+                if sims and opts.realtime:
+                    _switch_to_wall_clock(sims)
                 loop = _Loop(opts, config, arm, buses, sims, out)
                 loop.align()
                 if sims:
