@@ -114,7 +114,6 @@ def make_plant(spec: str | None, seed: int, arm: ArmDescription):
         return SimplePlant.from_arm(arm)
     try:
         from crane_io.arm_plant import ArmPlant
-
         from crane_io.plant_config import load_plant_config
     except ImportError:
         if spec is None:

@@ -1,0 +1,120 @@
+"""crane-collect benchmarks: per-cycle cost of the controller and the recorder (no bus), the loop's
+achieved rate and jitter in real-time simulation, and the wall time of a lockstep session.
+
+    python benchmarks/run_all.py collect [--quick]      or      python benchmarks/bench_collect.py
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def _row(metric, value, unit, note=""):
+    return {"benchmark": "collect", "metric": metric, "value": float(value), "unit": unit, "note": note}
+
+
+def _per_cycle_us(fn, n):
+    fn(0)
+    t = time.perf_counter()
+    for k in range(n):
+        fn(k)
+    return (time.perf_counter() - t) / n * 1e6
+
+
+def bench_compute(n: int) -> list[dict]:
+    from collect.config import load_config
+    from collect.controller import ArmSignals, BilateralController
+    from collect.operator import SimulatedOperator
+    from collect.recorder import SessionRecorder
+    from collect.safety import SafetyMonitor
+    from crane_io.description import default_arm
+
+    arm = default_arm()
+    cfg = load_config()
+    ctl = BilateralController(cfg, arm)
+    safety = SafetyMonitor(cfg, arm)
+    op = SimulatedOperator(0, arm, cfg.loop.rate_hz, cfg)
+    rng = np.random.default_rng(0)
+    q = np.array([0.0, 0.2, 0.0, -1.2, 0, 0, 0, 0]) + rng.normal(0, 0.01, (n + 1, 8))
+    dq = rng.normal(0, 0.1, (n + 1, 8))
+    op.start(q[0])
+
+    def control(k):
+        cmd = ctl.step(ArmSignals(q[k], dq[k]), ArmSignals(q[k], dq[k]), 0.002)
+        tl = safety.limit_torque(q[k], cmd.leader_tau, dq[k])
+        tf = safety.limit_torque(q[k], cmd.follower_tau, dq[k])
+        ctl.applied(tl, tf)
+        safety.check("leader", q[k], dq[k])
+        safety.check("follower", q[k], dq[k])
+
+    rows = [_row("controller + safety per cycle", _per_cycle_us(control, n), "us",
+                 f"both arms, gravity model {ctl.gravity.kind}")]
+    op_us = _per_cycle_us(lambda k: op.torque(k * 0.002, q[k], dq[k]), n)
+    rows.append(_row("simulated operator per cycle", op_us, "us"))
+    with tempfile.TemporaryDirectory() as d:
+        rec = SessionRecorder(Path(d) / "b.h5", joint_names=arm.joint_names, rate_hz=500, source="bench")
+        zeros = np.zeros(8)
+
+        def record(k):
+            row = {}
+            for a in ("leader", "follower"):
+                row.update({f"{a}/t": k * 0.002, f"{a}/q": q[k], f"{a}/tau": zeros, f"{a}/dq_servo": dq[k],
+                            f"{a}/current": zeros, f"{a}/goal_current": zeros, f"{a}/dq": dq[k],
+                            f"{a}/tau_dis": zeros, f"{a}/tau_res": zeros, f"{a}/q_goal": zeros})
+            row.update({"timing/cycle_start": k * 0.002, "timing/period": 0.002,
+                        "timing/bus_time_leader": 0.0, "timing/bus_time_follower": 0.0,
+                        "timing/compute_time": 0.0, "timing/overrun": False})
+            rec.append(row)
+
+        rows.append(_row("recorder append per cycle", _per_cycle_us(record, n), "us",
+                         "incl. flushes (every 0.5 s of data), gzip 1"))
+        rec.close()
+        size = os.path.getsize(Path(d) / "b.h5")
+    rows.append(_row("session size", size / (n + 1) * 500 * 60 / 1e6, "MB per minute", "500 Hz, random data"))
+    return rows
+
+
+def _session(duration: float, realtime: bool, plant: str | None) -> dict:
+    from collect.runner import RunOptions, run_session
+
+    with tempfile.TemporaryDirectory() as d:
+        r = run_session(RunOptions(output=Path(d) / "s.h5", sim=True, plant=plant, duration=duration,
+                                   realtime=realtime, status=False))
+    return {"wall": r.wall_s, "summary": r.summary, "cycles": r.cycles}
+
+
+def run(quick: bool = False) -> list[dict]:
+    rows = bench_compute(2000 if quick else 20000)
+    rt = 5.0 if quick else 60.0
+    s = _session(rt, True, "simple")
+    m = s["summary"]
+    note = f"{rt:g} s, --sim --realtime --plant simple (wall-clock sim arms in this process)"
+    rows += [_row("real-time loop rate", m["rate_hz"], "Hz", note),
+             _row("real-time period std (jitter)", m["period_std_s"] * 1e3, "ms", note),
+             _row("real-time period p99", m["period_p99_s"] * 1e3, "ms", note),
+             _row("real-time period max", m["period_max_s"] * 1e3, "ms", note),
+             _row("real-time overruns", m["overruns"] / max(m["cycles"], 1) * 100, "%", note),
+             _row("real-time bus time per cycle (leader)", m["bus_leader_mean_s"] * 1e3, "ms", note)]
+    lock = 10.0 if quick else 180.0
+    s = _session(lock, False, None)
+    m = s["summary"]
+    note = f"{lock:g} s session, --sim lockstep, default plant, incl. start-up and alignment"
+    rows += [_row("lockstep session wall time", s["wall"], "s", note),
+             _row("lockstep speed", lock / s["wall"], "x real time", note),
+             _row("lockstep bus time per cycle (both arms)",
+                  (m["bus_leader_mean_s"] + m["bus_follower_mean_s"]) * 1e6, "us", "sim chain + SDK"),
+             _row("lockstep compute per cycle", m["compute_mean_s"] * 1e6, "us",
+                  "operator+controller+safety"),
+             _row("lockstep record per cycle", m["record_mean_s"] * 1e6, "us", note)]
+    return rows
+
+
+if __name__ == "__main__":
+    for r in run(quick="--quick" in sys.argv):
+        print(f"{r['metric']:<42} {r['value']:>10.3f} {r['unit']:<14} {r['note']}")
