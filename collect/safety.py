@@ -61,6 +61,7 @@ class SafetyMonitor:
         self.k_wall = s.limit_stiffness
         self.d_wall = s.limit_damping
         self.bil = np.array([n in self.arm.bilateral_joints for n in names])
+        self.bil_f = self.bil.astype(float)
         self._consecutive = {"leader": 0, "follower": 0}
         self._recent_errors: deque[float] = deque()
         self.errors_total = 0
@@ -73,15 +74,17 @@ class SafetyMonitor:
         Inside the soft zone the outward part of the command is cut and a damped spring pushes back
         (stiffness per rad of penetration, damping on outward velocity only). spring=False only cuts
         the outward part (used while aligning, when a joint may start deep inside the zone)."""
-        tau = np.where(self.bil, tau, 0.0)
+        tau = tau * self.bil_f
         over = q - self.soft_upper
         under = self.soft_lower - q
         up = over > 0
         lo = under > 0
-        if (up.any() or lo.any()) and not spring:
+        if not (up.any() or lo.any()):
+            return np.minimum(np.maximum(tau, -self.tau_max), self.tau_max)
+        if not spring:
             tau = np.where(up, np.minimum(tau, 0.0), tau)
             tau = np.where(lo, np.maximum(tau, 0.0), tau)
-        elif up.any() or lo.any():
+        else:
             v = np.zeros_like(q) if dq is None else dq
             if up.any():
                 wall = -self.k_wall * over - self.d_wall * np.maximum(v, 0.0)
