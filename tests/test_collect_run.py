@@ -200,3 +200,29 @@ def test_sigkill_loses_at_most_the_last_second(tmp_path):
         assert np.all(np.isfinite(t)) and np.all(np.diff(t) > 0)
         assert t[-1] >= reached[-1] - 1.0 - 0.01
         assert np.isfinite(f["follower/q"][:n]).all()
+
+
+def test_hardware_path_over_ptys_refuses_arms_that_disagree(tmp_path):
+    """The hardware code path (real ports, one bus thread per arm) against two simulated chains served
+    on pseudo-terminals: arms 90 deg apart are not brought together automatically."""
+    from collect.runner import StartRefused
+    from crane_io.sim.chain import SimulatedChain
+    from crane_io.sim.simple_plant import SimplePlant
+    from crane_io.sim.transport import PtyServer
+
+    poses = {"leader": np.zeros(8), "follower": np.where(np.arange(8) == 1, np.pi / 2, 0.0)}
+    servers, chains = [], {}
+    try:
+        for name, q0 in poses.items():
+            chain = SimulatedChain.for_arm(ARM, SimplePlant.from_arm(ARM, initial_position=q0),
+                                           return_delay_time=0)
+            chains[name] = chain
+            servers.append(PtyServer(chain, link=tmp_path / name).start())
+        with pytest.raises(StartRefused, match="joint2 differ by 90 deg"):
+            run_session(RunOptions(output=tmp_path / "s.h5", leader_port=str(tmp_path / "leader"),
+                                   follower_port=str(tmp_path / "follower"), duration=1.0, status=False))
+    finally:
+        for s in servers:
+            s.stop()
+    assert not (tmp_path / "s.h5").exists()  # nothing recorded
+    assert all(s.read_register("torque_enable") == 0 for c in chains.values() for s in c.servos.values())
