@@ -22,6 +22,7 @@ else:  # pragma: no cover
 
 DEG = math.pi / 180.0
 GRAVITY_MODELS = ("dynamics", "coefficients", "none")
+INERTIA_MODELS = ("dynamics", "constant")
 
 
 @dataclass(frozen=True)
@@ -52,6 +53,8 @@ class ControllerConfig:
     gravity_m1: float
     gravity_m2: float
     position_deadband: float  # rad
+    inertia_model: str
+    inertia_update_cycles: int
     joints: dict[str, JointGains]
 
 
@@ -202,8 +205,14 @@ def _build(values: dict, where: str) -> Config:
         gravity_m0=c["gravity_m0"], gravity_m1=c["gravity_m1"], gravity_m2=c["gravity_m2"],
         position_deadband=_nonneg(where, "controller.position_deadband_deg",
                                   c["position_deadband_deg"]) * DEG,
+        inertia_model=c["inertia_model"],
+        inertia_update_cycles=c["inertia_update_cycles"],
         joints=joints,
     )
+    _need(c["inertia_model"] in INERTIA_MODELS, where, "controller.inertia_model",
+          "one of " + ", ".join(INERTIA_MODELS), c["inertia_model"])
+    _need(c["inertia_update_cycles"] >= 1, where, "controller.inertia_update_cycles", "at least 1",
+          c["inertia_update_cycles"])
 
     held = {}
     for key, value in values["held"].items():

@@ -1,6 +1,6 @@
 """4-channel bilateral control of a leader and a follower CRANE-X7 (pure numpy, no I/O).
 
-Per bilateral joint, with nominal inertia J, gains Kp, Kd, Kf and cutoff g (shared/crane_x7_facts.md
+Per bilateral joint, with nominal inertia J (constant, or following the pose: InertiaModel), gains Kp, Kd, Kf and cutoff g (shared/crane_x7_facts.md
 section 6a; the Sakaino/Tsuji-lab structure):
 
 - pseudo-derivative velocity: w = g (q - z),  z <- z + w dt  (a first-order filtered derivative);
@@ -101,6 +101,45 @@ class GravityModel:
         return out
 
 
+class InertiaModel:
+    """Nominal inertia J (n,) of one arm at pose q.
+
+    "constant": the configured J. "dynamics": the configured J is taken as the inertia at the zero
+    pose (upright, elbow straight) and the change of the link inertia with the pose, M_ii(q) - M_ii(0)
+    from crane_io.dynamics, is added (never below half the configured value). Joint 1's inertia
+    grows about 60x from upright to arm outstretched; a constant J then makes the DOB loop ring.
+    """
+
+    def __init__(self, kind: str, config: Config, arm: ArmDescription, J: np.ndarray, every: int):
+        self.kind = kind
+        self.J = J
+        self.every = max(1, int(every))
+        self._dyn = None
+        if kind == "dynamics":
+            try:
+                from crane_io.dynamics import ArmDynamics
+            except ImportError:
+                warnings.warn("crane_io.dynamics is not available; using constant nominal inertias",
+                              stacklevel=2)
+                self.kind = "constant"
+            else:
+                names = arm.joint_names
+                joints = tuple(arm.bilateral_joints)
+                locked = {n: config.held.get(n, 0.0) for n in names if n not in joints}
+                self._dyn = ArmDynamics(joints=joints, locked=locked)
+                self._idx = np.array([names.index(n) for n in self._dyn.joint_names])
+                self._m0 = np.diag(self._dyn.mass_matrix(np.zeros(len(joints))))
+
+    def __call__(self, q: np.ndarray) -> np.ndarray:
+        if self._dyn is None:
+            return self.J
+        J = self.J.copy()
+        i = self._idx
+        m = np.diag(self._dyn.mass_matrix(q[i]))
+        J[i] = np.maximum(0.5 * self.J[i], self.J[i] + m - self._m0)
+        return J
+
+
 class _Observer:
     """Pseudo-derivative + DOB + RFOB state of one arm."""
 
@@ -109,17 +148,22 @@ class _Observer:
         self.z = None  # pseudo-derivative integrator (n,)
         self.y = None  # DOB low-pass state (n,)
         self.applied = None  # torque applied in the previous cycle (n,)
+        self.J = ctl.J
+        self._k = 0
 
     def update(self, q: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         c = self.ctl
         grav = c.gravity(q)
+        if self._k % c.inertia.every == 0:
+            self.J = c.inertia(q)
+        self._k += 1
         if self.z is None:
             self.z = q.copy()
             self.y = grav * c.bil  # DOB starts at the gravity torque: no sag when control engages
             self.applied = self.y.copy()
         w = c.g * (q - self.z)
         self.z += w * dt
-        gjw = c.gJ * w
+        gjw = c.g * self.J * w
         a = np.exp(-c.g * dt)
         self.y = a * self.y + (1.0 - a) * (self.applied + gjw)
         tau_dis = self.y - gjw
@@ -147,12 +191,13 @@ class BilateralController:
         self.kf = np.array([gains[n].kf for n in names])
         self.g = np.array([gains[n].cutoff for n in names])
         self.D = np.array([gains[n].viscous for n in names])
-        self.gJ = self.g * self.J
         self.bil = np.array([n in self.arm.bilateral_joints for n in names], dtype=float)
         self.bil_mask = self.bil.astype(bool)
         self.kt = np.array([j.torque_constant for j in self.arm.joints])
         self.deadband = config.controller.position_deadband
         self.gravity = GravityModel(config.controller.gravity_model, config, self.arm)
+        self.inertia = InertiaModel(config.controller.inertia_model, config, self.arm, self.J,
+                                    config.controller.inertia_update_cycles)
         self._nan_held = np.where(self.bil_mask, 0.0, np.nan)
         self.reset()
 
@@ -170,7 +215,8 @@ class BilateralController:
         e = ql - qf
         if self.deadband > 0:
             e = np.sign(e) * np.maximum(np.abs(e) - self.deadband, 0.0)
-        tau_p = 0.5 * self.J * (self.kp * e + self.kd * (wl - wf))
+        J = 0.5 * (self._obs_l.J + self._obs_f.J)
+        tau_p = 0.5 * J * (self.kp * e + self.kd * (wl - wf))
         tau_f = -0.5 * self.kf * (res_l + res_f)
         tau_l = (-tau_p + tau_f + dis_l) * self.bil
         tau_f_ref = (tau_p + tau_f + dis_f) * self.bil
@@ -192,7 +238,7 @@ class BilateralController:
         for obs, sig, (q_ref, dq_ref) in pairs:
             q = np.asarray(sig.q, dtype=float)
             w, dis, res = obs.update(q, dt)
-            tau = (0.5 * self.J * (self.kp * (q_ref - q) + self.kd * (dq_ref - w)) + dis) * self.bil
+            tau = (0.5 * obs.J * (self.kp * (q_ref - q) + self.kd * (dq_ref - w)) + dis) * self.bil
             obs.applied = tau
             out.append((tau, ArmEstimates(w, dis + self._nan_held, res + self._nan_held)))
         (tau_l, est_l), (tau_f, est_f) = out

@@ -35,6 +35,7 @@ def _setup(gravity_model="none", inertia_scale=1.1):
     cfg = load_config()
     values = cfg.values
     values["controller"]["gravity_model"] = gravity_model
+    values["controller"]["inertia_model"] = "constant"  # the ideal plants have constant inertia
     from collect.config import _build
 
     cfg = _build(values, "test")
@@ -135,3 +136,15 @@ def test_hold_brings_both_arms_to_their_references():
         foll.step(cmd.follower_tau)
     assert lead.q[BIL] == pytest.approx(target[BIL], abs=5e-3)
     assert foll.q[BIL] == pytest.approx(target[BIL], abs=5e-3)
+
+
+def test_pose_dependent_inertia_follows_the_arm():
+    pytest.importorskip("crane_io.dynamics")
+    ctl = BilateralController(load_config(), ARM)
+    assert ctl.inertia.kind == "dynamics"
+    upright = ctl.inertia(np.zeros(8))
+    stretched = ctl.inertia(np.array([0, np.pi / 2, 0, 0, 0, 0, 0, 0]))
+    assert upright == pytest.approx(ctl.J)  # the configured J is the zero-pose inertia
+    i1 = ARM.index("joint1")
+    assert stretched[i1] > 10 * upright[i1]  # joint 1 carries the whole outstretched arm
+    assert np.all(stretched[~BIL] == upright[~BIL])
