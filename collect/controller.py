@@ -1,7 +1,7 @@
 """4-channel bilateral control of a leader and a follower CRANE-X7 (pure numpy, no I/O).
 
-Per bilateral joint, with nominal inertia J (constant, or following the pose: InertiaModel), gains Kp, Kd, Kf and cutoff g (shared/crane_x7_facts.md
-section 6a; the Sakaino/Tsuji-lab structure):
+Per bilateral joint, with nominal inertia J (constant, or following the pose: InertiaModel), gains
+Kp, Kd, Kf and cutoff g (shared/crane_x7_facts.md section 6a; the Sakaino/Tsuji-lab structure):
 
 - pseudo-derivative velocity: w = g (q - z),  z <- z + w dt  (a first-order filtered derivative);
 - disturbance observer (DOB): tau_dis = LPF_g(tau_ref + g J w) - g J w, with tau_ref the torque
