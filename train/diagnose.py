@@ -48,7 +48,7 @@ from crane_io.errors import CraneError
 from .dataset import Dataset
 
 DEFAULT_FOLDS = 5
-DEFAULT_MIN_REDUCTION = 0.10
+DEFAULT_MIN_REDUCTION = 0.15
 DEFAULT_MIN_FOLD_FRACTION = 1.0
 MIN_SAMPLES_PER_JOINT = 50
 
