@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import collections
 import logging
+import struct
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -39,7 +40,6 @@ from dynamixel_sdk import (
     COMM_TX_FAIL,
     GroupSyncRead,
     GroupSyncWrite,
-    PacketHandler,
 )
 from dynamixel_sdk.robotis_def import BROADCAST_ID
 
@@ -67,6 +67,7 @@ from .faults import (
     servo_label,
     status_alert,
 )
+from .packets import CranePacketHandler
 from .port import CranePortHandler, open_port
 
 log = logging.getLogger(__name__)
@@ -75,6 +76,7 @@ _PKT_ID = 4
 _PKT_FIRST_PARAM = 8  # fast sync read: the first servo's error byte
 _REPORT_BLOCK = 147  # addresses 0..146: everything servo_report shows, in one read per servo
 _FAST_TRIES_BEFORE_FALLBACK = 2
+_PRESENT = struct.Struct("<hii")  # Present Current, Velocity, Position (addresses 126, 128, 132)
 
 
 class CommandError(CraneError):
@@ -201,7 +203,7 @@ class DynamixelBus:
         self.lower = np.array([j.lower for j in joints])
         self.upper = np.array([j.upper for j in joints])
 
-        self._ph = PacketHandler(2.0)
+        self._ph = CranePacketHandler()
         self._port: CranePortHandler | None = None
         self._reader: _StatusSyncRead | None = None
         self._current_writer: GroupSyncWrite | None = None
@@ -467,15 +469,8 @@ class DynamixelBus:
             log.warning("%s: %s", self.name, self.stats.fallback_note)
 
     def _state_from(self, reader: _StatusSyncRead, t: float, fast: bool, check_faults: bool) -> BusState:
-        n = len(self.ids)
-        cur = np.empty(n)
-        vel = np.empty(n)
-        pos = np.empty(n)
-        for j, sid in enumerate(self.ids):
-            data = reader.data_dict[sid]
-            cur[j] = int.from_bytes(data[0:2], "little", signed=True)
-            vel[j] = int.from_bytes(data[2:6], "little", signed=True)
-            pos[j] = int.from_bytes(data[6:10], "little", signed=True)
+        data = reader.data_dict
+        cur, vel, pos = np.array([_PRESENT.unpack_from(data[sid]) for sid in self.ids], dtype=float).T
         self.stats.reads += 1
         self._update_byte_stats()
         if check_faults and any(status_alert(e) for e in reader.errors.values()):
@@ -498,13 +493,14 @@ class DynamixelBus:
         self._need_port()
         amps = self._command_array(amps, "goal current", self.current_joints)
         sent = np.zeros(len(self.ids))
-        limits = self.current_limits
-        for i in self.current_joints:
-            raw = int(units.ampere_to_current(np.clip(amps[i], -limits[i], limits[i])))
-            lim_raw = int(np.floor(limits[i] / units.AMPERE_PER_CURRENT_LSB + 1e-9))
-            raw = max(-lim_raw, min(lim_raw, raw))
-            sent[i] = raw * units.AMPERE_PER_CURRENT_LSB
-            self._current_writer.changeParam(self.ids[i], list((raw & 0xFFFF).to_bytes(2, "little")))
+        joints = list(self.current_joints)
+        limits = self.current_limits[joints]
+        raw = units.ampere_to_current(np.clip(amps[joints], -limits, limits))
+        lim_raw = np.floor(limits / units.AMPERE_PER_CURRENT_LSB + 1e-9).astype(np.int64)
+        raw = np.clip(raw, -lim_raw, lim_raw)
+        sent[joints] = raw * units.AMPERE_PER_CURRENT_LSB
+        for i, value in zip(joints, raw.tolist()):
+            self._current_writer.changeParam(self.ids[i], [value & 0xFF, (value >> 8) & 0xFF])
         self._send(self._current_writer, "goal current")
         return sent
 

@@ -32,6 +32,7 @@ from .servo import EmulatedServo
 
 GOAL_CURRENT_ADDRESS = 102
 GOAL_POSITION_ADDRESS = 116
+_ID_ADDRESS = 7
 MAX_CATCHUP_S = 5.0  # wall clock: longer idle gaps are skipped instead of simulated
 
 
@@ -137,18 +138,20 @@ class SimulatedChain:
 
     def actuator_command(self) -> ActuatorCommand:
         cmds = [s.command() for s in self._order]
+        driving, mode, goal_cur, goal_pos, gains, limit = zip(*cmds)
         return ActuatorCommand(
-            torque_enabled=np.array([c[0] for c in cmds], dtype=bool),
-            operating_mode=np.array([c[1] for c in cmds], dtype=int),
-            goal_current=np.array([c[2] for c in cmds], dtype=float),
-            goal_position=np.array([c[3] for c in cmds], dtype=float),
-            position_gains=np.array([c[4] for c in cmds], dtype=float).reshape(len(cmds), 3),
-            current_limit=np.array([c[5] for c in cmds], dtype=float),
+            torque_enabled=np.array(driving, dtype=bool),
+            operating_mode=np.array(mode, dtype=int),
+            goal_current=np.array(goal_cur, dtype=float),
+            goal_position=np.array(goal_pos, dtype=float),
+            position_gains=np.array(gains, dtype=float).reshape(len(cmds), 3),
+            current_limit=np.array(limit, dtype=float),
         )
 
     def _step(self, dt: float) -> None:
+        now = self.time
         for s in self._order:
-            s.check_watchdog(self.time)
+            s.check_watchdog(now)
         self.plant.step(self.actuator_command(), dt)
         self.time += dt
         self.stats.plant_steps += 1
@@ -156,16 +159,22 @@ class SimulatedChain:
 
     def _read_plant(self) -> None:
         reading = self.plant.read()
+        now = self.time
+        position = np.asarray(reading.position, dtype=float).tolist()
+        velocity = np.asarray(reading.velocity, dtype=float).tolist()
+        current = np.asarray(reading.current, dtype=float).tolist()
+        n = len(self._order)
+        voltage = [None] * n if reading.voltage is None else np.asarray(reading.voltage, dtype=float).tolist()
+        temperature = ([None] * n if reading.temperature is None
+                       else np.asarray(reading.temperature, dtype=float).tolist())
         for i, s in enumerate(self._order):
-            s.set_sensors(
-                float(reading.position[i]), float(reading.velocity[i]), float(reading.current[i]), self.time,
-                None if reading.voltage is None else float(reading.voltage[i]),
-                None if reading.temperature is None else float(reading.temperature[i]),
-            )
-        for sid, bits in (self.plant.hardware_errors() or {}).items():
-            for s in self._order:
-                if s.id == sid and bits:
-                    s.raise_hardware_error(bits)
+            s.set_sensors(position[i], velocity[i], current[i], now, voltage[i], temperature[i])
+        errors = self.plant.hardware_errors()
+        if errors:
+            for sid, bits in errors.items():
+                for s in self._order:
+                    if s.id == sid and bits:
+                        s.raise_hardware_error(bits)
 
     # ---- the wire ------------------------------------------------------------------------------
     def feed(self, data: bytes, baudrate: int | None = None) -> bytes:
@@ -198,7 +207,9 @@ class SimulatedChain:
             return bytes(out)
 
     def _hearing(self, baudrate: int | None) -> list[EmulatedServo]:
-        return [s for s in self._order if s.on_bus and (baudrate is None or s.baudrate == baudrate)]
+        if baudrate is None:
+            return [s for s in self._order if s.on_bus]
+        return [s for s in self._order if s.on_bus and s.baudrate == baudrate]
 
     def _handle(self, pkt: p.Packet, baudrate: int | None) -> Iterable[tuple[bytes, float]]:
         servos = self._hearing(baudrate)
@@ -297,6 +308,14 @@ class SimulatedChain:
                 return s
         return None
 
+    @staticmethod
+    def _index(servos) -> dict[int, EmulatedServo]:
+        """ID -> servo among `servos`; with duplicate IDs the first one wins (as in _by_id)."""
+        index: dict[int, EmulatedServo] = {}
+        for s in servos:
+            index.setdefault(s.id, s)
+        return index
+
     def _sync_read(self, servos, params, now):
         if len(params) < 5:
             return []
@@ -316,8 +335,9 @@ class SimulatedChain:
     def _fast_blocks(self, servos, requests, now):
         """(blocks, complete) of a fast read; the chain breaks at the first silent servo."""
         blocks = []
+        index = self._index(servos)
         for sid, address, length in requests:
-            s = self._by_id(servos, sid)
+            s = index.get(sid)
             if s is None or not s.supports_fast_sync_read:
                 return blocks, False
             s.contact(now)
@@ -377,12 +397,14 @@ class SimulatedChain:
         body = params[4:]
         if length == 0:
             return []
+        index = self._index(servos)
         for k in range(0, len(body) - len(body) % (1 + length), 1 + length):
-            s = self._by_id(servos, body[k])
+            s = index.get(body[k])
             if s is not None:
                 s.contact(now)
                 s.write(address, body[k + 1:k + 1 + length], now)
-        self._rekey()
+        if address <= _ID_ADDRESS < address + length:  # an ID may have changed
+            self._rekey()
         self._lockstep_tick([(address, length)])
         return []
 

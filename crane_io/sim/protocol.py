@@ -17,6 +17,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ..crc import crc16, crc16_append
+
 HEADER = b"\xff\xff\xfd\x00"
 BROADCAST_ID = 0xFE
 MAX_ID = 0xFC
@@ -53,30 +55,13 @@ ERR_ALERT = 0x80
 MAX_LENGTH = 1024
 
 
-def _crc_table() -> list[int]:
-    """The 256-entry table of the CRC-16 the e-manual specifies (polynomial 0x8005, MSB first)."""
-    table = []
-    for i in range(256):
-        crc = i << 8
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x8005) if crc & 0x8000 else (crc << 1)
-        table.append(crc & 0xFFFF)
-    return table
-
-
-_CRC_TABLE = _crc_table()
-
-
-def crc16(data: bytes | bytearray, crc: int = 0) -> int:
-    """CRC-16 of `data` (initial value 0, no reflection, no final xor), optionally continuing `crc`."""
-    table = _CRC_TABLE
-    for b in data:
-        crc = ((crc << 8) ^ table[((crc >> 8) ^ b) & 0xFF]) & 0xFFFF
-    return crc
+_STUFF_MARK = b"\xff\xff\xfd"
 
 
 def stuff(body: bytes | bytearray) -> bytes:
     """Byte-stuff the INST..params region: after every "FF FF FD" insert one more FD."""
+    if _STUFF_MARK not in body:
+        return bytes(body)
     out = bytearray()
     for b in body:
         out.append(b)
@@ -87,6 +72,8 @@ def stuff(body: bytes | bytearray) -> bytes:
 
 def unstuff(body: bytes | bytearray) -> bytes:
     """Undo `stuff`: drop the FD that follows every "FF FF FD"."""
+    if _STUFF_MARK not in body:
+        return bytes(body)
     out = bytearray()
     i, n = 0, len(body)
     while i < n:
@@ -133,10 +120,12 @@ def fast_status_packet(blocks: list[tuple[int, int, bytes]]) -> bytes:
     extra = sum(len(s) - len(p) for s, p in zip(stuffed_parts, parts))
     length = raw_len + extra
     packet = bytearray(HEADER + bytes((BROADCAST_ID, length & 0xFF, (length >> 8) & 0xFF, INST_STATUS)))
+    crc = crc16(packet)
     for s in stuffed_parts:
         packet += s
-        crc = crc16(packet)
+        crc = crc16(s, crc)  # running CRC of the packet so far
         packet += bytes((crc & 0xFF, crc >> 8))
+        crc = crc16_append(crc)
     return bytes(packet)
 
 
@@ -148,10 +137,13 @@ def fast_status_prefix(blocks: list[tuple[int, int, bytes]], n_total: int, data_
     """
     length = 1 + n_total * (data_length + 4)
     packet = bytearray(HEADER + bytes((BROADCAST_ID, length & 0xFF, (length >> 8) & 0xFF, INST_STATUS)))
+    crc = crc16(packet)
     for error, servo_id, data in blocks:
-        packet += stuff(bytes((error & 0xFF, servo_id & 0xFF)) + bytes(data))
-        crc = crc16(packet)
+        part = stuff(bytes((error & 0xFF, servo_id & 0xFF)) + bytes(data))
+        packet += part
+        crc = crc16(part, crc)
         packet += bytes((crc & 0xFF, crc >> 8))
+        crc = crc16_append(crc)
     return bytes(packet)
 
 

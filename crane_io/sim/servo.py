@@ -24,6 +24,7 @@ Time comes from the chain (`now`, seconds of simulated or wall time); this class
 from __future__ import annotations
 
 import math
+import struct
 
 from ..control_table import (
     MODE_CURRENT_BASED_POSITION,
@@ -40,9 +41,7 @@ from ..units import (
     RAD_PER_PULSE,
     RADS_PER_VELOCITY_LSB,
     SECONDS_PER_WATCHDOG_LSB,
-    position_to_rad,
     to_signed,
-    to_unsigned,
 )
 from . import protocol as p
 
@@ -54,6 +53,31 @@ VALID_MODES = (0, 1, 3, 4, 5, 16)
 POSITION_MODES = (MODE_POSITION, MODE_EXTENDED_POSITION, MODE_CURRENT_BASED_POSITION)
 GOAL_ITEMS = ("goal_pwm", "goal_current", "goal_velocity", "goal_position", "profile_acceleration",
               "profile_velocity")
+_I16, _U16, _I32, _U32 = struct.Struct("<h"), struct.Struct("<H"), struct.Struct("<i"), struct.Struct("<I")
+# (size, signed) -> how a register is stored
+_STRUCTS = {(1, False): struct.Struct("<B"), (1, True): struct.Struct("<b"), (2, False): _U16,
+            (2, True): _I16, (4, False): _U32, (4, True): _I32}
+_PRESENT = struct.Struct("<hii")  # Present Current, Velocity, Position
+_TICK_MOVING = struct.Struct("<HB")  # Realtime Tick, Moving
+_SUPPLY = struct.Struct("<HB")  # Present Input Voltage, Present Temperature
+_GAINS = struct.Struct("<HHH")  # Position D, I, P Gain
+# value ranges the servo accepts (e-manual); Current Limit's depends on the model, gains are 0..16383
+_RANGES = {
+    "id": (0, 252),
+    "baud_rate": (0, 7),
+    "return_delay_time": (0, 254),
+    "torque_enable": (0, 1),
+    "status_return_level": (0, 2),
+    "bus_watchdog": (0, 127),
+    "protocol_type": (1, 2),
+    "temperature_limit": (0, 100),
+    "pwm_limit": (0, 885),
+    "moving_threshold": (0, 1023),
+    "max_position_limit": (0, 4095),
+    "min_position_limit": (0, 4095),
+}
+_GAIN_ITEMS = ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "position_i_gain", "position_p_gain")
+_MASKS = {1: 0xFF, 2: 0xFFFF, 4: 0xFFFFFFFF}
 MODE_RESET_ITEMS = ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "position_i_gain",
                     "position_p_gain", "feedforward_2nd_gain", "feedforward_1st_gain",
                     "profile_acceleration", "profile_velocity")
@@ -81,6 +105,31 @@ class EmulatedServo:
         for r in self.registers.values():
             for a in range(r.address, r.address + r.size):
                 self._owner[a] = r
+        # name -> (address, signed view, unsigned view, mask): register access is one struct call
+        self._access: dict[str, tuple[int, struct.Struct, struct.Struct, int]] = {
+            r.name: (r.address, _STRUCTS[r.size, r.signed], _STRUCTS[r.size, False], _MASKS[r.size])
+            for r in self.registers.values()
+        }
+        a = self._access
+        at = {name: entry[0] for name, entry in a.items()}
+        # addresses of the items the chain reads and writes every control step
+        self._moving_at, self._threshold_at = at["moving"], at["moving_threshold"]
+        self._torque_at, self._hw_error_at = at["torque_enable"], at["hardware_error_status"]
+        self._watchdog_at, self._baud_at = at["bus_watchdog"], at["baud_rate"]
+        self._srl_at = at["status_return_level"]
+        self._command_at = tuple(at[n] for n in (
+            "torque_enable", "operating_mode", "goal_current", "goal_position", "position_p_gain",
+            "position_i_gain", "position_d_gain", "current_limit"))
+        # X-series layout: Present Current, Velocity, Position are one block at 126 (as the bus reads
+        # them), Realtime Tick and Moving one at 120, Present Input Voltage and Temperature one at 144
+        self._present_at = at["present_current"]
+        self._tick_at = at["realtime_tick"]
+        self._supply_at = at["present_input_voltage"]
+        pa = self._present_at
+        if not (at["present_velocity"] == pa + 2 and at["present_position"] == pa + 6
+                and self._moving_at == self._tick_at + 2
+                and at["present_temperature"] == self._supply_at + 2):
+            raise ValueError(f"{self.model.name}: control table is not laid out like the X series")
         self.firmware_version = firmware_version
         self.supports_fast_sync_read = supports_fast_sync_read
         self.memory = bytearray(MEMORY_SIZE)
@@ -105,16 +154,23 @@ class EmulatedServo:
         return self.memory[7]
 
     def read_register(self, name: str) -> int:
-        r = self._register(name)
-        value = int.from_bytes(self.memory[r.address:r.address + r.size], "little")
+        try:
+            address, view, _unsigned, _mask = self._access[name]
+        except KeyError:
+            self._register(name)  # raises the KeyError naming the model
+            raise
         if name == "bus_watchdog" and self.watchdog_expired:
             return -1
-        return to_signed(value, r.size) if r.signed else value
+        return view.unpack_from(self.memory, address)[0]
 
     def write_register(self, name: str, value: int) -> None:
         """Set an item directly, bypassing access rules and side effects (tests, the chain)."""
-        r = self._register(name)
-        self.memory[r.address:r.address + r.size] = to_unsigned(int(value), r.size).to_bytes(r.size, "little")
+        try:
+            address, _view, unsigned, mask = self._access[name]
+        except KeyError:
+            self._register(name)
+            raise
+        unsigned.pack_into(self.memory, address, int(value) & mask)
 
     def _register(self, name: str) -> Register:
         try:
@@ -136,7 +192,7 @@ class EmulatedServo:
     # ---- state the chain and the plant need ---------------------------------------------------
     @property
     def baudrate(self) -> int:
-        return BAUD_CODES.get(self.read_register("baud_rate"), 0)
+        return BAUD_CODES.get(self.memory[self._baud_at], 0)
 
     @property
     def return_delay_s(self) -> float:
@@ -144,7 +200,7 @@ class EmulatedServo:
 
     @property
     def torque_enabled(self) -> bool:
-        return self.read_register("torque_enable") == 1
+        return self.memory[self._torque_at] == 1
 
     @property
     def driving(self) -> bool:
@@ -153,46 +209,52 @@ class EmulatedServo:
 
     @property
     def alert(self) -> bool:
-        return self.read_register("hardware_error_status") != 0
+        return self.memory[self._hw_error_at] != 0
 
     def status_error(self, error_number: int = p.ERR_NONE) -> int:
         """The error byte of a status packet: the error number plus the alert bit when needed."""
-        return error_number | (p.ERR_ALERT if self.alert else 0)
+        return error_number | (p.ERR_ALERT if self.memory[self._hw_error_at] else 0)
 
     def command(self) -> tuple[bool, int, float, float, tuple[int, int, int], float]:
         """(driving, operating mode, goal current A, goal position rad, (P, I, D) gains, current limit A)."""
+        m = self.memory
+        torque, mode, goal_cur, goal_pos, kp, ki, kd, limit = self._command_at
         return (
-            self.driving,
-            self.read_register("operating_mode"),
-            self.read_register("goal_current") * AMPERE_PER_CURRENT_LSB,
-            float(position_to_rad(self.read_register("goal_position"))),
-            (self.read_register("position_p_gain"), self.read_register("position_i_gain"),
-             self.read_register("position_d_gain")),
-            self.read_register("current_limit") * AMPERE_PER_CURRENT_LSB,
+            m[torque] == 1 and not self.watchdog_expired,
+            m[mode],
+            _I16.unpack_from(m, goal_cur)[0] * AMPERE_PER_CURRENT_LSB,
+            (_I32.unpack_from(m, goal_pos)[0] - POSITION_CENTER) * RAD_PER_PULSE,
+            (_U16.unpack_from(m, kp)[0], _U16.unpack_from(m, ki)[0], _U16.unpack_from(m, kd)[0]),
+            _U16.unpack_from(m, limit)[0] * AMPERE_PER_CURRENT_LSB,
         )
 
     def set_sensors(self, position: float, velocity: float, current: float, now: float,
                     voltage: float | None = None, temperature: float | None = None) -> None:
         """Quantise what the plant measured into the Present items; update Moving and Realtime Tick."""
-        self._set_present(position, velocity, current)
-        if voltage is not None:
-            self.write_register("present_input_voltage", max(0, round(voltage * 10)))
-        if temperature is not None:
-            self.write_register("present_temperature", max(0, round(temperature)))
-        moving = abs(self.read_register("present_velocity")) > self.read_register("moving_threshold")
-        self.write_register("moving", int(moving))
-        self.write_register("realtime_tick", int(now * 1000) % 32768)
+        m = self.memory
+        if math.isfinite(position) and math.isfinite(velocity) and math.isfinite(current):
+            vel = self._set_present(position, velocity, current)
+        else:  # a plant that blew up leaves the last finite reading in place
+            vel = _PRESENT.unpack_from(m, self._present_at)[1]
+        if voltage is not None or temperature is not None:
+            supply, temp = _SUPPLY.unpack_from(m, self._supply_at)
+            if voltage is not None:
+                supply = max(0, round(voltage * 10)) & 0xFFFF
+            if temperature is not None:
+                temp = max(0, round(temperature)) & 0xFF
+            _SUPPLY.pack_into(m, self._supply_at, supply, temp)
+        moving = abs(vel) > _U32.unpack_from(m, self._threshold_at)[0]
+        _TICK_MOVING.pack_into(m, self._tick_at, int(now * 1000) % 32768, moving)
 
-    def _set_present(self, position: float, velocity: float, current: float) -> None:
-        if not all(math.isfinite(v) for v in (position, velocity, current)):
-            return  # a plant that blew up leaves the last finite reading in place
-        # same rounding as crane_io.units (rad_to_position etc.), in scalar arithmetic for speed
+    def _set_present(self, position: float, velocity: float, current: float) -> int:
+        """Write the Present block (quantised like crane_io.units.rad_to_position etc., in scalar
+        arithmetic for speed); returns the raw Present Velocity. The values must be finite."""
         pos = round(position / RAD_PER_PULSE) + POSITION_CENTER
-        self.write_register("present_position", max(-(2**31), min(2**31 - 1, pos)))
-        vel = round(velocity / RADS_PER_VELOCITY_LSB)
-        self.write_register("present_velocity", max(-(2**31), min(2**31 - 1, vel)))
+        vel = max(-(2**31), min(2**31 - 1, round(velocity / RADS_PER_VELOCITY_LSB)))
         cur = round(current / AMPERE_PER_CURRENT_LSB)
-        self.write_register("present_current", max(-32768, min(32767, cur)))
+        _PRESENT.pack_into(self.memory, self._present_at, max(-32768, min(32767, cur)), vel,
+                           max(-(2**31), min(2**31 - 1, pos)))
+        return vel
 
     # ---- faults --------------------------------------------------------------------------------
     def set_hardware_error(self, bits: int) -> None:
@@ -216,10 +278,10 @@ class EmulatedServo:
         self.last_contact = now
 
     def check_watchdog(self, now: float) -> None:
-        if self.watchdog_expired or not self.torque_enabled:
+        if self.watchdog_expired or self.memory[self._torque_at] != 1:
             return
-        raw = self.read_register("bus_watchdog")
-        if raw > 0 and now - self.last_contact > raw * SECONDS_PER_WATCHDOG_LSB + 1e-9:
+        raw = self.memory[self._watchdog_at]  # signed; only 1..127 arm the watchdog
+        if 0 < raw < 128 and now - self.last_contact > raw * SECONDS_PER_WATCHDOG_LSB + 1e-9:
             self.watchdog_expired = True
 
     # ---- instruction semantics -----------------------------------------------------------------
@@ -227,25 +289,30 @@ class EmulatedServo:
         """(error number, data) of a Read; an impossible range answers Access Error with zeros."""
         if length < 0 or address < 0 or address + length > MEMORY_SIZE:
             return p.ERR_ACCESS, bytes(max(0, min(length, p.MAX_LENGTH)))
-        data = bytearray(self.memory[address:address + length])
-        wd = self.registers["bus_watchdog"].address
+        wd = self._watchdog_at
         if self.watchdog_expired and address <= wd < address + length:
+            data = bytearray(self.memory[address:address + length])
             data[wd - address] = 0xFF
-        return p.ERR_NONE, bytes(data)
+            return p.ERR_NONE, bytes(data)
+        return p.ERR_NONE, bytes(self.memory[address:address + length])
 
     def check_write(self, address: int, data: bytes) -> int:
         """The error number a Write of `data` at `address` would get (0 when it is allowed)."""
         end = address + len(data)
         if not data or address < 0 or end > MEMORY_SIZE:
             return p.ERR_ACCESS
-        touched = []
-        for r in {self._owner[a] for a in range(address, end)} - {None}:
-            if r.address < address or r.address + r.size > end:
-                return p.ERR_DATA_LENGTH
-            touched.append(r)
-        if not touched:
-            return p.ERR_ACCESS
-        torque = self.torque_enabled
+        exact = self._at.get(address)
+        if exact is not None and address + exact.size == end:
+            touched = [exact]  # the usual write: exactly one item
+        else:
+            touched = []
+            for r in {self._owner[a] for a in range(address, end)} - {None}:
+                if r.address < address or r.address + r.size > end:
+                    return p.ERR_DATA_LENGTH
+                touched.append(r)
+            if not touched:
+                return p.ERR_ACCESS
+        torque = self.memory[self._torque_at] == 1
         for r in touched:
             if r.access != "RW":
                 return p.ERR_ACCESS
@@ -260,27 +327,13 @@ class EmulatedServo:
         return p.ERR_NONE
 
     def _in_range(self, name: str, value: int) -> bool:
-        ranges = {
-            "id": (0, 252),
-            "baud_rate": (0, 7),
-            "return_delay_time": (0, 254),
-            "current_limit": (0, self.model.current_limit_max),
-            "torque_enable": (0, 1),
-            "status_return_level": (0, 2),
-            "bus_watchdog": (0, 127),
-            "protocol_type": (1, 2),
-            "temperature_limit": (0, 100),
-            "pwm_limit": (0, 885),
-            "moving_threshold": (0, 1023),
-            "max_position_limit": (0, 4095),
-            "min_position_limit": (0, 4095),
-        }
         if name == "operating_mode":
             return value in VALID_MODES
-        if name in ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "position_i_gain",
-                    "position_p_gain"):
+        if name in _GAIN_ITEMS:
             return 0 <= value <= 16383
-        lo, hi = ranges.get(name, (-(2**31), 2**32))
+        if name == "current_limit":
+            return 0 <= value <= self.model.current_limit_max
+        lo, hi = _RANGES.get(name, (-(2**31), 2**32))
         return lo <= value <= hi
 
     def write(self, address: int, data: bytes, now: float = 0.0) -> int:
@@ -289,7 +342,11 @@ class EmulatedServo:
         if error:
             return error
         end = address + len(data)
-        touched = sorted({self._owner[a] for a in range(address, end)} - {None}, key=lambda r: r.address)
+        exact = self._at.get(address)
+        if exact is not None and address + exact.size == end:
+            touched = [exact]
+        else:
+            touched = sorted({self._owner[a] for a in range(address, end)} - {None}, key=lambda r: r.address)
         for r in touched:
             raw = int.from_bytes(data[r.address - address:r.address - address + r.size], "little")
             value = to_signed(raw, r.size) if r.signed else raw

@@ -1,0 +1,63 @@
+"""The CRC-16 of Dynamixel Protocol 2.0 (polynomial 0x8005, initial value 0, MSB first, no final xor),
+shared by the bus client (crane_io.packets) and the simulated servos (crane_io.sim.protocol).
+
+Pure Python with a 65536-entry table so the loop runs once per 16-bit word instead of once per byte:
+for a 16-bit CRC, shifting in the big-endian word w gives crc' = TABLE16[crc ^ w]. About 4x faster
+than the byte-wise loop of the e-manual (and of dynamixel-sdk), same results.
+"""
+
+from __future__ import annotations
+
+import array
+import sys
+
+
+def _byte_table() -> list[int]:
+    """The e-manual's 256-entry table: CRC register after shifting byte i through a zero register."""
+    table = []
+    for i in range(256):
+        crc = i << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x8005) if crc & 0x8000 else (crc << 1)
+        table.append(crc & 0xFFFF)
+    return table
+
+
+def _word_table(table: list[int]) -> list[int]:
+    """Entry (hi << 8 | lo): the register after shifting the bytes hi, lo through a zero register."""
+    out = []
+    for hi in range(256):
+        th = table[hi]
+        base, sub = (th << 8) & 0xFFFF, th >> 8
+        out.extend([base ^ table[sub ^ lo] for lo in range(256)])
+    return out
+
+
+CRC_TABLE = _byte_table()
+CRC_TABLE16 = _word_table(CRC_TABLE)
+_SWAP = sys.byteorder == "little"
+
+
+def crc16(data, crc: int = 0) -> int:
+    """CRC-16 of `data` (bytes-like, or a sequence of ints 0..255), optionally continuing `crc`."""
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        data = bytes(data)
+    n = len(data)
+    if n & 1:
+        crc = ((crc << 8) & 0xFF00) ^ CRC_TABLE[(crc >> 8) ^ data[0]]
+        data = memoryview(data)[1:]
+    if n < 2:
+        return crc
+    words = array.array("H")
+    words.frombytes(data)
+    if _SWAP:
+        words.byteswap()
+    table = CRC_TABLE16
+    for w in words:
+        crc = table[crc ^ w]
+    return crc
+
+
+def crc16_append(crc: int) -> int:
+    """The CRC after the two bytes of `crc` itself (low byte first) have been appended to the data."""
+    return CRC_TABLE16[crc ^ (((crc & 0xFF) << 8) | (crc >> 8))]
