@@ -165,10 +165,12 @@ def test_operator_is_seeded_smooth_and_stays_in_the_workspace():
 
 
 def test_operator_joints_move_about_70_percent_and_together_a_third():
+    # the reference moves a little more than the paper's ~70 % / ~1/3: stiction holds the simulated arm
+    # at the start of each push, so the arm itself moves about 65-70 % of the time (docs/collect.md)
     _, _, dq = _reference(1, 600, step=0.02)
     moving = np.abs(dq) > 0.05
-    assert moving.mean(0) == pytest.approx([0.7, 0.7, 0.7], abs=0.08)
-    assert moving.all(1).mean() == pytest.approx(1 / 3, abs=0.08)
+    assert moving.mean(0) == pytest.approx([0.75, 0.75, 0.75], abs=0.07)
+    assert moving.all(1).mean() == pytest.approx(0.4, abs=0.08)
     # the pauses differ per joint: the on/off patterns are not the same
     assert (moving[:, 0] != moving[:, 1]).mean() > 0.2
 
