@@ -128,3 +128,22 @@ def test_option_parsing():
     assert parse_effect("stribeck:joint=joint2,stribeck_velocity=0.05") == (
         "stribeck", "joint2", {"stribeck_velocity": 0.05})
     assert parse_effect("coulomb") == ("coulomb", None, None)
+
+
+def test_config_file_overrides_defaults_and_bad_config_is_one_sentence(session, tmp_path):
+    from train.cli_options import load_config
+
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[splits]\nn_pool = 1200\nn_val = 120\nn_test = 120\n[mlp]\nepochs = 2\n")
+    loaded = load_config(cfg)
+    assert loaded["splits"].n_pool == 1200 and loaded["mlp"].epochs == 2 and loaded["mlp"].hidden == 64
+    assert loaded["preprocess"].cutoff_rad_s == 25.0
+    out = tmp_path / "o"
+    result = CliRunner().invoke(main, ["sweep", str(session), "-o", str(out), "--config", str(cfg),
+                                       "--sizes", "300", "--trials", "2", "--methods", "mlp-masked",
+                                       "--no-progress"])
+    assert result.exit_code == 0, result.output
+    assert json.loads((out / "results.json").read_text())["meta"]["splits"]["pool"] == 1200
+    cfg.write_text("[mlp]\nepochz = 3\n")
+    result = CliRunner().invoke(main, ["sweep", str(session), "-o", str(out), "--config", str(cfg)])
+    assert result.exit_code != 0 and "unknown key(s) epochz in [mlp]" in result.output

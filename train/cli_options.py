@@ -2,12 +2,57 @@
 
 from __future__ import annotations
 
+import sys
+from dataclasses import fields
+from pathlib import Path
+
 import click
 
 from crane_io.errors import ConfigError
 
+from .batched import MLPSettings
 from .preprocess import PreprocessConfig, preprocess
 from .session import read_sessions
+from .splits import SplitConfig
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+DEFAULT_CONFIG = Path(__file__).parent / "config" / "train.toml"
+SECTIONS = {"preprocess": PreprocessConfig, "splits": SplitConfig, "mlp": MLPSettings}
+
+
+def load_config(path=None) -> dict:
+    """{'preprocess': PreprocessConfig, 'splits': SplitConfig, 'mlp': MLPSettings} from the defaults
+    file overlaid with `path` (TOML, sections as in train/config/train.toml)."""
+    data = {}
+    for p in [DEFAULT_CONFIG] + ([Path(path)] if path else []):
+        try:
+            doc = tomllib.loads(p.read_text())
+        except FileNotFoundError:
+            raise ConfigError(f"configuration file {p} does not exist") from None
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"configuration file {p} is not valid TOML ({exc})") from None
+        for section, values in doc.items():
+            if section not in SECTIONS or not isinstance(values, dict):
+                raise ConfigError(f"{p}: unknown section [{section}] (known: {', '.join(SECTIONS)})")
+            known = {f.name for f in fields(SECTIONS[section])}
+            unknown = sorted(set(values) - known)
+            if unknown:
+                raise ConfigError(f"{p}: unknown key(s) {', '.join(unknown)} in [{section}]")
+            data.setdefault(section, {}).update(values)
+    out = {}
+    for section, cls in SECTIONS.items():
+        values = data.get(section, {})
+        if "betas" in values:
+            values["betas"] = tuple(values["betas"])
+        try:
+            out[section] = cls(**values)
+        except TypeError as exc:
+            raise ConfigError(f"bad [{section}] configuration: {exc}") from None
+    return out
 
 
 def data_options(func):
@@ -17,17 +62,27 @@ def data_options(func):
                              "instead of stopping with an error.")(func)
     func = click.option("--zero-phase", is_flag=True,
                         help="Filter forward and backward (no delay), not the paper's causal filters.")(func)
-    func = click.option("--alpha", default=0.1, show_default=True, type=float,
-                        help="Dead-zone threshold: a joint moves when |dq| > alpha * std(dq).")(func)
-    func = click.option("--joints", default="joint1,joint2,joint4", show_default=True,
-                        help="Comma-separated learning joints.")(func)
+    func = click.option("--alpha", default=None, type=float,
+                        help="Dead-zone threshold: a joint moves when |dq| > alpha * std(dq) [0.1].")(func)
+    func = click.option("--joints", default=None,
+                        help="Comma-separated learning joints [joint1,joint2,joint4].")(func)
+    func = click.option("--config", "config_path", default=None, type=click.Path(dir_okay=False),
+                        help="TOML overriding train/config/train.toml.")(func)
     return func
 
 
-def load_dataset(sessions, joints: str, alpha: float, zero_phase: bool):
-    names = tuple(j.strip() for j in joints.split(",") if j.strip())
-    config = PreprocessConfig(joints=names, alpha=alpha, zero_phase=zero_phase)
-    return preprocess(read_sessions(sessions), config)
+def load_dataset(sessions, joints: str | None, alpha: float | None, zero_phase: bool,
+                 config: PreprocessConfig | None = None):
+    """Read and preprocess; explicit options win over `config` (default: PreprocessConfig())."""
+    config = config or PreprocessConfig()
+    values = config.to_dict()
+    if joints:
+        values["joints"] = tuple(j.strip() for j in joints.split(",") if j.strip())
+    if alpha is not None:
+        values["alpha"] = alpha
+    if zero_phase:
+        values["zero_phase"] = True
+    return preprocess(read_sessions(sessions), PreprocessConfig.from_dict(values))
 
 
 def parse_sizes(text: str) -> list[int]:

@@ -12,19 +12,21 @@ from tqdm import tqdm
 
 from crane_io.errors import ConfigError, cli_errors
 
-from .cli_options import data_options, load_dataset, parse_effect
+from .cli_options import data_options, load_config, load_dataset, parse_effect
 from .metrics import metrics_table
 from .models.registry import METHODS, make_model
 from .splits import make_splits
 
 
 def fit_model(sessions, method: str, out_dir, train_size: int | None = None, seed: int = 0,
-              effects=(), effect_files=(), joints="joint1,joint2,joint4", alpha=0.1, zero_phase=False,
-              scale_to_data=False, epochs: int | None = None, progress: bool = True) -> dict:
+              effects=(), effect_files=(), joints=None, alpha=None, zero_phase=False,
+              scale_to_data=False, epochs: int | None = None, progress: bool = True,
+              config_path=None) -> dict:
     """Preprocess, split, fit on `train_size` samples of the pool (all of it by default), score on the
     test set, save to out_dir. Returns the metrics document (also written as fit_metrics.json)."""
-    ds = load_dataset(sessions, joints, alpha, zero_phase)
-    splits = make_splits(ds, seed=seed, scale_to_data=scale_to_data)
+    cfg = load_config(config_path)
+    ds = load_dataset(sessions, joints, alpha, zero_phase, cfg["preprocess"])
+    splits = make_splits(ds, cfg["splits"], seed=seed, scale_to_data=scale_to_data)
     pool = splits.pool
     if train_size is not None:
         if not 0 < train_size <= len(pool):
@@ -39,9 +41,9 @@ def fit_model(sessions, method: str, out_dir, train_size: int | None = None, see
         options["effects"] = [list(e) for e in effects]
         options["effect_files"] = list(effect_files)
     if method.startswith("mlp-"):
-        options["seed"] = seed
-        if epochs is not None:
-            options["epochs"] = epochs
+        m = cfg["mlp"]
+        options.update(seed=seed, hidden=m.hidden, lr=m.lr, batch_size=m.batch_size,
+                       epochs=epochs if epochs is not None else m.epochs)
     torch.set_num_threads(1)
     model = make_model(method, ds.joint_names, preprocessing=ds.meta["preprocessing"], **options)
     if method.startswith("mlp-"):
@@ -76,11 +78,12 @@ def fit_model(sessions, method: str, out_dir, train_size: int | None = None, see
 @data_options
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 @cli_errors
-def fit(sessions, method, out_dir, train_size, seed, effects, effect_files, epochs, joints, alpha, zero_phase,
-        scale_to_data, no_progress):
+def fit(sessions, method, out_dir, train_size, seed, effects, effect_files, epochs, config_path, joints,
+        alpha, zero_phase, scale_to_data, no_progress):
     """Train one model on session files and save it."""
     doc = fit_model(sessions, method, out_dir, train_size, seed, [parse_effect(e) for e in effects],
-                    effect_files, joints, alpha, zero_phase, scale_to_data, epochs, not no_progress)
+                    effect_files, joints, alpha, zero_phase, scale_to_data, epochs, not no_progress,
+                    config_path)
     click.echo(f"{method}: trained on {doc['train_samples']} samples "
                f"({doc['train_samples_all_moving']} with every joint moving); "
                f"test on {doc['test_samples']} samples")

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import click
 
 from crane_io.errors import ConfigError, cli_errors
 
-from .batched import MLPSettings
-from .cli_options import data_options, load_dataset, parse_sizes
+from .cli_options import data_options, load_config, load_dataset, parse_sizes
 from .sweep import SWEEP_METHODS, format_table, run_sweep, write_results
 
 
@@ -21,22 +22,27 @@ from .sweep import SWEEP_METHODS, format_table, run_sweep, write_results
 @click.option("--methods", default=",".join(SWEEP_METHODS), show_default=True,
               help="Comma-separated methods to compare.")
 @click.option("--seed", default=0, show_default=True, type=int, help="Seed of splits, draws and weights.")
-@click.option("--epochs", default=100, show_default=True, type=int, help="MLP training epochs.")
-@click.option("--batch-size", default=32, show_default=True, type=int, help="MLP minibatch size.")
+@click.option("--epochs", default=None, type=int, help="MLP training epochs [100].")
+@click.option("--batch-size", default=None, type=int, help="MLP minibatch size [32].")
 @data_options
 @click.option("--no-progress", is_flag=True, help="No progress bars.")
 @cli_errors
-def sweep(sessions, out_dir, sizes, trials, methods, seed, epochs, batch_size, joints, alpha, zero_phase,
-          scale_to_data, no_progress):
+def sweep(sessions, out_dir, sizes, trials, methods, seed, epochs, batch_size, config_path, joints, alpha,
+          zero_phase, scale_to_data, no_progress):
     """Test MSE against the number of training samples for each method (mean and 95 % CI)."""
     size_list = parse_sizes(sizes)
     method_list = [m.strip() for m in methods.split(",") if m.strip()]
-    if epochs < 1 or batch_size < 1:
-        raise ConfigError("--epochs and --batch-size must be at least 1")
-    ds = load_dataset(sessions, joints, alpha, zero_phase)
-    settings = MLPSettings(epochs=epochs, batch_size=batch_size)
+    cfg = load_config(config_path)
+    settings = cfg["mlp"]
+    if epochs is not None:
+        settings = replace(settings, epochs=epochs)
+    if batch_size is not None:
+        settings = replace(settings, batch_size=batch_size)
+    if settings.epochs < 1 or settings.batch_size < 1:
+        raise ConfigError("the number of epochs and the batch size must be at least 1")
+    ds = load_dataset(sessions, joints, alpha, zero_phase, cfg["preprocess"])
     result = run_sweep(ds, size_list, trials, method_list, seed, progress=not no_progress,
-                       scale_to_data=scale_to_data, mlp_settings=settings)
+                       split_config=cfg["splits"], scale_to_data=scale_to_data, mlp_settings=settings)
     paths = write_results(result, out_dir)
     click.echo(format_table(result))
     click.echo(f"\nsweep took {result.meta['timing']['total_s']:.1f} s; wrote "
