@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import collections
 import logging
+import math
 import struct
 import time
 import warnings
@@ -470,7 +471,12 @@ class DynamixelBus:
 
     def _state_from(self, reader: _StatusSyncRead, t: float, fast: bool, check_faults: bool) -> BusState:
         data = reader.data_dict
-        cur, vel, pos = np.array([_PRESENT.unpack_from(data[sid]) for sid in self.ids], dtype=float).T
+        cur, vel, pos = [], [], []
+        for sid in self.ids:
+            c, v, p = _PRESENT.unpack_from(data[sid])
+            cur.append(c)
+            vel.append(v)
+            pos.append(p)
         self.stats.reads += 1
         self._update_byte_stats()
         if check_faults and any(status_alert(e) for e in reader.errors.values()):
@@ -481,8 +487,10 @@ class DynamixelBus:
                     f"hardware error on {self.port_name}: {where}"
                     "; the servo switched its torque off (remove the cause, then power-cycle or reboot it)",
                     faults=faults)
-        return BusState(position=units.position_to_rad(pos), velocity=units.velocity_to_rads(vel),
-                        current=units.current_to_ampere(cur), t=t, fast=fast)
+        # units.position_to_rad etc., written out (same arithmetic) to skip their asarray calls
+        return BusState(position=(np.array(pos, dtype=float) - units.POSITION_CENTER) * units.RAD_PER_PULSE,
+                        velocity=np.array(vel, dtype=float) * units.RADS_PER_VELOCITY_LSB,
+                        current=np.array(cur, dtype=float) * units.AMPERE_PER_CURRENT_LSB, t=t, fast=fast)
 
     def write_goal_current(self, amps) -> np.ndarray:
         """Send the goal current of every current-mode joint in ONE sync write.
@@ -493,14 +501,16 @@ class DynamixelBus:
         self._need_port()
         amps = self._command_array(amps, "goal current", self.current_joints)
         sent = np.zeros(len(self.ids))
-        joints = list(self.current_joints)
-        limits = self.current_limits[joints]
-        raw = units.ampere_to_current(np.clip(amps[joints], -limits, limits))
-        lim_raw = np.floor(limits / units.AMPERE_PER_CURRENT_LSB + 1e-9).astype(np.int64)
-        raw = np.clip(raw, -lim_raw, lim_raw)
-        sent[joints] = raw * units.AMPERE_PER_CURRENT_LSB
-        for i, value in zip(joints, raw.tolist()):
-            self._current_writer.changeParam(self.ids[i], [value & 0xFF, (value >> 8) & 0xFF])
+        lsb = units.AMPERE_PER_CURRENT_LSB
+        values, limits = amps.tolist(), self.current_limits.tolist()
+        for i in self.current_joints:
+            # scalar form of units.ampere_to_current(np.clip(...)): same rounding (half to even)
+            lim = limits[i]
+            raw = round(min(max(values[i], -lim), lim) / lsb)
+            lim_raw = math.floor(lim / lsb + 1e-9)
+            raw = max(-lim_raw, min(lim_raw, raw))
+            sent[i] = raw * lsb
+            self._current_writer.changeParam(self.ids[i], [raw & 0xFF, (raw >> 8) & 0xFF])
         self._send(self._current_writer, "goal current")
         return sent
 
@@ -522,7 +532,8 @@ class DynamixelBus:
         if arr.shape != (len(self.ids),):
             raise CommandError(f"{what} needs {len(self.ids)} values in joint order "
                                f"({', '.join(self.joint_names)}), got shape {arr.shape}")
-        bad = [self.joint_names[i] for i in used if not np.isfinite(arr[i])]
+        values = arr.tolist()
+        bad = [self.joint_names[i] for i in used if not math.isfinite(values[i])]
         if bad:
             raise CommandError(f"{what} for {', '.join(bad)} is not a finite number; nothing was sent")
         return arr

@@ -61,3 +61,30 @@ def crc16(data, crc: int = 0) -> int:
 def crc16_append(crc: int) -> int:
     """The CRC after the two bytes of `crc` itself (low byte first) have been appended to the data."""
     return CRC_TABLE16[crc ^ (((crc & 0xFF) << 8) | (crc >> 8))]
+
+
+def crc16_chain(head, parts) -> list[int]:
+    """Running CRCs of a Fast Sync Read status packet: the CRC of `head` + parts[0], then of everything
+    so far plus that CRC (low byte first) + parts[1], and so on; one CRC per part."""
+    crc = crc16(head)
+    out = []
+    if len(head) % 2 or any(len(p) % 2 for p in parts):
+        for p in parts:
+            crc = crc16(p, crc)
+            out.append(crc)
+            crc = crc16_append(crc)
+        return out
+    words = array.array("H")
+    words.frombytes(b"".join(parts))
+    if _SWAP:
+        words.byteswap()
+    table = CRC_TABLE16
+    k = 0
+    for p in parts:
+        end = k + (len(p) >> 1)
+        for w in words[k:end]:
+            crc = table[crc ^ w]
+        k = end
+        out.append(crc)
+        crc = table[crc ^ (((crc & 0xFF) << 8) | (crc >> 8))]
+    return out

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..crc import crc16, crc16_append
+from ..crc import crc16, crc16_append, crc16_chain
 
 HEADER = b"\xff\xff\xfd\x00"
 BROADCAST_ID = 0xFE
@@ -111,21 +111,16 @@ def fast_status_packet(blocks: list[tuple[int, int, bytes]]) -> bytes:
     ERR ID DATA and then the CRC of the whole packet so far (the last servo's CRC is the packet's
     CRC); the packet ID is the broadcast ID and LEN = 1 + sum(4 + len(data)).
     """
-    parts = []
-    for error, servo_id, data in blocks:
-        parts.append(bytes((error & 0xFF, servo_id & 0xFF)) + bytes(data))
-    # LEN must be known before stuffing; stuffing of the data is rare (FF FF FD in the payload).
-    raw_len = 1 + sum(len(p) + 2 for p in parts)
-    stuffed_parts = [stuff(p) for p in parts]
-    extra = sum(len(s) - len(p) for s, p in zip(stuffed_parts, parts))
-    length = raw_len + extra
-    packet = bytearray(HEADER + bytes((BROADCAST_ID, length & 0xFF, (length >> 8) & 0xFF, INST_STATUS)))
-    crc = crc16(packet)
-    for s in stuffed_parts:
+    # LEN counts the stuffed bytes; stuffing of the data is rare (FF FF FD in the payload).
+    stuffed_parts = [stuff(bytes((error & 0xFF, servo_id & 0xFF)) + bytes(data))
+                     for error, servo_id, data in blocks]
+    length = 1 + sum(len(s) + 2 for s in stuffed_parts)
+    head = HEADER + bytes((BROADCAST_ID, length & 0xFF, (length >> 8) & 0xFF, INST_STATUS))
+    packet = bytearray(head)
+    for s, crc in zip(stuffed_parts, crc16_chain(head, stuffed_parts)):
         packet += s
-        crc = crc16(s, crc)  # running CRC of the packet so far
-        packet += bytes((crc & 0xFF, crc >> 8))
-        crc = crc16_append(crc)
+        packet.append(crc & 0xFF)
+        packet.append(crc >> 8)
     return bytes(packet)
 
 

@@ -77,6 +77,7 @@ _RANGES = {
     "min_position_limit": (0, 4095),
 }
 _GAIN_ITEMS = ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "position_i_gain", "position_p_gain")
+_I32_MIN, _I32_MAX = -(2**31), 2**31 - 1
 _MASKS = {1: 0xFF, 2: 0xFFFF, 4: 0xFFFFFFFF}
 MODE_RESET_ITEMS = ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "position_i_gain",
                     "position_p_gain", "feedforward_2nd_gain", "feedforward_1st_gain",
@@ -118,8 +119,8 @@ class EmulatedServo:
         self._watchdog_at, self._baud_at = at["bus_watchdog"], at["baud_rate"]
         self._srl_at = at["status_return_level"]
         self._command_at = tuple(at[n] for n in (
-            "torque_enable", "operating_mode", "goal_current", "goal_position", "position_p_gain",
-            "position_i_gain", "position_d_gain", "current_limit"))
+            "torque_enable", "operating_mode", "goal_current", "goal_position", "position_d_gain",
+            "current_limit"))
         # X-series layout: Present Current, Velocity, Position are one block at 126 (as the bus reads
         # them), Realtime Tick and Moving one at 120, Present Input Voltage and Temperature one at 144
         self._present_at = at["present_current"]
@@ -128,7 +129,9 @@ class EmulatedServo:
         pa = self._present_at
         if not (at["present_velocity"] == pa + 2 and at["present_position"] == pa + 6
                 and self._moving_at == self._tick_at + 2
-                and at["present_temperature"] == self._supply_at + 2):
+                and at["present_temperature"] == self._supply_at + 2
+                and at["position_i_gain"] == at["position_d_gain"] + 2
+                and at["position_p_gain"] == at["position_d_gain"] + 4):
             raise ValueError(f"{self.model.name}: control table is not laid out like the X series")
         self.firmware_version = firmware_version
         self.supports_fast_sync_read = supports_fast_sync_read
@@ -145,7 +148,7 @@ class EmulatedServo:
         self.write_register("baud_rate", baud_code)
         if return_delay_time is not None:
             self.write_register("return_delay_time", return_delay_time)
-        self._set_present(0.0, 0.0, 0.0)
+        _PRESENT.pack_into(self.memory, self._present_at, 0, 0, POSITION_CENTER)  # at 0 rad, at rest
         self.write_register("goal_position", self.read_register("present_position"))
 
     # ---- raw register access (no access rules; for the chain and for tests) ---------------------
@@ -218,13 +221,14 @@ class EmulatedServo:
     def command(self) -> tuple[bool, int, float, float, tuple[int, int, int], float]:
         """(driving, operating mode, goal current A, goal position rad, (P, I, D) gains, current limit A)."""
         m = self.memory
-        torque, mode, goal_cur, goal_pos, kp, ki, kd, limit = self._command_at
+        torque, mode, goal_cur, goal_pos, gains, limit = self._command_at
+        kd, ki, kp = _GAINS.unpack_from(m, gains)
         return (
             m[torque] == 1 and not self.watchdog_expired,
             m[mode],
             _I16.unpack_from(m, goal_cur)[0] * AMPERE_PER_CURRENT_LSB,
             (_I32.unpack_from(m, goal_pos)[0] - POSITION_CENTER) * RAD_PER_PULSE,
-            (_U16.unpack_from(m, kp)[0], _U16.unpack_from(m, ki)[0], _U16.unpack_from(m, kd)[0]),
+            (kp, ki, kd),
             _U16.unpack_from(m, limit)[0] * AMPERE_PER_CURRENT_LSB,
         )
 
@@ -233,10 +237,20 @@ class EmulatedServo:
         """Quantise what the plant measured into the Present items; update Moving and Realtime Tick."""
         m = self.memory
         if math.isfinite(position) and math.isfinite(velocity) and math.isfinite(current):
-            vel = self._set_present(position, velocity, current)
+            # the Present block, quantised like crane_io.units (rad_to_position etc.) in scalar arithmetic
+            pos = round(position / RAD_PER_PULSE) + POSITION_CENTER
+            vel = round(velocity / RADS_PER_VELOCITY_LSB)
+            cur = round(current / AMPERE_PER_CURRENT_LSB)
+            pos = _I32_MIN if pos < _I32_MIN else _I32_MAX if pos > _I32_MAX else pos
+            vel = _I32_MIN if vel < _I32_MIN else _I32_MAX if vel > _I32_MAX else vel
+            cur = -32768 if cur < -32768 else 32767 if cur > 32767 else cur
+            _PRESENT.pack_into(m, self._present_at, cur, vel, pos)
         else:  # a plant that blew up leaves the last finite reading in place
             vel = _PRESENT.unpack_from(m, self._present_at)[1]
-        if voltage is not None or temperature is not None:
+        if voltage is not None and temperature is not None:
+            _SUPPLY.pack_into(m, self._supply_at, max(0, round(voltage * 10)) & 0xFFFF,
+                              max(0, round(temperature)) & 0xFF)
+        elif voltage is not None or temperature is not None:
             supply, temp = _SUPPLY.unpack_from(m, self._supply_at)
             if voltage is not None:
                 supply = max(0, round(voltage * 10)) & 0xFFFF
@@ -245,16 +259,6 @@ class EmulatedServo:
             _SUPPLY.pack_into(m, self._supply_at, supply, temp)
         moving = abs(vel) > _U32.unpack_from(m, self._threshold_at)[0]
         _TICK_MOVING.pack_into(m, self._tick_at, int(now * 1000) % 32768, moving)
-
-    def _set_present(self, position: float, velocity: float, current: float) -> int:
-        """Write the Present block (quantised like crane_io.units.rad_to_position etc., in scalar
-        arithmetic for speed); returns the raw Present Velocity. The values must be finite."""
-        pos = round(position / RAD_PER_PULSE) + POSITION_CENTER
-        vel = max(-(2**31), min(2**31 - 1, round(velocity / RADS_PER_VELOCITY_LSB)))
-        cur = round(current / AMPERE_PER_CURRENT_LSB)
-        _PRESENT.pack_into(self.memory, self._present_at, max(-32768, min(32767, cur)), vel,
-                           max(-(2**31), min(2**31 - 1, pos)))
-        return vel
 
     # ---- faults --------------------------------------------------------------------------------
     def set_hardware_error(self, bits: int) -> None:
