@@ -38,5 +38,6 @@ class Dataset:
 
     def subset(self, index) -> Dataset:
         index = np.asarray(index)
-        return Dataset(self.joint_names, self.t[index], self.q[index], self.dq[index], self.ddq[index],
-                       self.tau[index], self.moving[index], self.rate_hz, self.segment[index], dict(self.meta))
+        return Dataset(self.joint_names, self.t[index], self.q[index], self.dq[index],
+                       self.ddq[index], self.tau[index], self.moving[index], self.rate_hz,
+                       self.segment[index], dict(self.meta))

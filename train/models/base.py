@@ -52,10 +52,12 @@ class Model(abc.ABC):
         return {}
 
     def _save_extra(self, directory: Path) -> None:
-        """Write method-specific files (weights, arrays)."""
+        """Write method-specific files (weights, arrays); nothing by default."""
+        return None
 
     def _load_extra(self, directory: Path, state: dict) -> None:
-        """Read what _save_extra wrote."""
+        """Read what _save_extra wrote; nothing by default."""
+        return None
 
     def save(self, directory) -> Path:
         directory = Path(directory)
