@@ -165,6 +165,16 @@ def _label(s: ModelScore, i: int) -> str:
     return f"{i + 1}. {name}"
 
 
+def _what(s: ModelScore, first: ModelScore, i: int) -> str:
+    """'rigid-body (6 effects)' for the first model, then what each later one adds or drops."""
+    if i == 0:
+        return s.method + (f" ({len(s.effects)} effects)" if s.effects else "")
+    added = [e for e in s.effects if e not in first.effects]
+    dropped = [e for e in first.effects if e not in s.effects]
+    text = s.method + "".join(f" +{e}" for e in added) + "".join(f" -{e}" for e in dropped)
+    return text if (added or dropped or s.method != first.method) else s.method + " (same effects)"
+
+
 def table_text(c: Comparison, metric: str = "mse") -> str:
     """A plain-text table: one row per model, one column per joint (test-set metric), with the change
     against the first model."""
@@ -172,7 +182,7 @@ def table_text(c: Comparison, metric: str = "mse") -> str:
     rows = []
     base = c.models[0].test[metric]
     for i, s in enumerate(c.models):
-        cells = [_label(s, i), s.method + (f" +{','.join(s.effects)}" if s.effects else "")]
+        cells = [_label(s, i), _what(s, c.models[0], i)]
         for j in c.joints:
             v = s.test[metric][j]
             change = "" if i == 0 or not base[j] else f" ({100 * (v / base[j] - 1):+.0f}%)"
@@ -209,8 +219,7 @@ def plot(c: Comparison, path) -> Path:
         ax.set_xlabel("model")
         ax.set_ylim(0, max(v.max() * 1.15, 1e-12))
     axes[0][0].set_ylabel("test MSE [N m²]")
-    legend = "   ".join(f"{_label(s, i)} ({s.method}{' +' + ','.join(s.effects) if s.effects else ''})"
-                       for i, s in enumerate(c.models))
+    legend = "   ".join(f"{_label(s, i)}: {_what(s, c.models[0], i)}" for i, s in enumerate(c.models))
     fig.text(0.5, -0.02, legend, ha="center", va="top", fontsize=8, wrap=True)
     fig.suptitle("Held-out error per joint, model by model", fontsize=11)
     fig.tight_layout()

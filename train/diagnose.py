@@ -51,6 +51,7 @@ DEFAULT_FOLDS = 5
 DEFAULT_MIN_REDUCTION = 0.15
 DEFAULT_MIN_FOLD_FRACTION = 1.0
 MIN_SAMPLES_PER_JOINT = 50
+PARSIMONY_TOLERANCE = 0.01  # a simpler candidate within 1 percentage point of the best one goes first
 
 
 class DiagnosisError(CraneError):
@@ -477,7 +478,9 @@ def _rank(cands: list[Candidate]) -> list[Candidate]:
     """By error reduction, except that the simplest candidate whose held-out error is not clearly worse
     than the best one's goes first (the one-standard-error rule of cross-validation, on the paired
     per-fold differences): a candidate that contains another as a special case (asymmetric Coulomb vs
-    Coulomb, stiction vs Coulomb) gains a little on noise and must not win on that alone."""
+    Coulomb, stiction vs Coulomb) gains a little on noise and must not win on that alone. When the
+    per-fold differences are nearly identical the standard error is tiny, so a gap below
+    PARSIMONY_TOLERANCE also counts as "not clearly worse"."""
     ranked = sorted(cands, key=lambda c: -c.error_reduction)
     if len(ranked) < 2:
         return ranked
@@ -490,7 +493,7 @@ def _rank(cands: list[Candidate]) -> list[Candidate]:
         d = np.array(best.fold_reductions) - np.array(c.fold_reductions)
         se = float(d.std(ddof=1) / math.sqrt(k)) if k > 1 else 0.0
         gap = best.error_reduction - c.error_reduction
-        if gap <= se and c.error_reduction > 0:
+        if gap <= max(se, PARSIMONY_TOLERANCE) and c.error_reduction > 0:
             choice = c
     if choice is not best:
         ranked.remove(choice)
