@@ -47,6 +47,8 @@ from .sim.plant_api import ActuatorCommand, SensorReading
 from .sim.simple_plant import DEFAULT_INERTIA, DEFAULT_VISCOUS, SimplePlant
 from .units import AMPERE_PER_CURRENT_LSB, RAD_PER_PULSE, RADS_PER_VELOCITY_LSB
 
+_PULSE_SIGNS = np.array((-RAD_PER_PULSE, RAD_PER_PULSE))  # one-pulse position noise
+
 OVERLOAD_BIT = 0x20
 _HELD_OMEGA = 30.0  # rad/s: held joints follow their goal as a critically damped 2nd-order system
 _STOP_MARGIN = math.radians(2.0)  # end stops sit this far beyond the software limits
@@ -100,6 +102,8 @@ class ArmPlant:
         self._held_visc = np.array([DEFAULT_VISCOUS[i] for i in self._held])
         self._held_lo = np.array([arm.joint(n).lower - _STOP_MARGIN for n in self._held_names])
         self._held_hi = np.array([arm.joint(n).upper + _STOP_MARGIN for n in self._held_names])
+        self._held_lo_l, self._held_hi_l = self._held_lo.tolist(), self._held_hi.tolist()
+        self._held_inertia_l, self._held_visc_l = self._held_inertia.tolist(), self._held_visc.tolist()
         self._held_cache: dict[float, np.ndarray] = {}
         self.external = np.zeros(3)
         self.motor_torque = np.zeros(3)
@@ -315,32 +319,40 @@ class ArmPlant:
 
     def _step_held(self, enabled, mode, goal_current, goal_position, limit, dt) -> None:
         """Held joints: position modes -> a critically damped second-order response to the goal
-        (exact discretisation); current mode -> inertia + viscous friction; torque off -> at rest."""
-        q, dq = self._held_q, self._held_dq
-        pos = enabled & (mode != 0)
-        cur = enabled & (mode == 0)
+        (exact discretisation); current mode -> inertia + viscous friction; torque off -> at rest.
+
+        Scalar Python over the five joints (cheaper than numpy on arrays this small); the arithmetic
+        is the element-wise arithmetic of the array form, in the same order."""
         a = self._held_matrix(dt)
-        if pos.any():
-            e = q - goal_position
-            new_e = a[0, 0] * e + a[0, 1] * dq
-            new_dq = a[1, 0] * e + a[1, 1] * dq
-            w = _HELD_OMEGA
-            torque = self._held_inertia * (-(w * w) * e - 2 * w * dq)
-            self._held_current = np.where(pos, np.clip(torque / self.kt[self._held], -limit, limit), 0.0)
-            q = np.where(pos, goal_position + new_e, q)
-            dq = np.where(pos, new_dq, dq)
-        else:
-            self._held_current = np.zeros(len(q))
-        if cur.any():
-            tau = self.kt[self._held] * goal_current + self._held_ext - self._held_visc * dq
-            acc = tau / self._held_inertia
-            dq = np.where(cur, dq + dt * acc, dq)
-            q = np.where(cur, q + dt * dq, q)
-            self._held_current = np.where(cur, goal_current, self._held_current)
-        off = ~enabled
-        dq = np.where(off, 0.0, dq)
-        self._held_q = np.clip(q, self._held_lo, self._held_hi)
-        self._held_dq = dq
+        a00, a01, a10, a11 = float(a[0, 0]), float(a[0, 1]), float(a[1, 0]), float(a[1, 1])
+        w = _HELD_OMEGA
+        q_out, dq_out, cur_out = [], [], []
+        for on, m, gc, gp, lim, q, dq, kt, inertia, visc, ext, lo, hi in zip(
+                enabled.tolist(), mode.tolist(), goal_current.tolist(), goal_position.tolist(),
+                limit.tolist(), self._held_q.tolist(), self._held_dq.tolist(), self.kt[self._held].tolist(),
+                self._held_inertia_l, self._held_visc_l, self._held_ext.tolist(), self._held_lo_l,
+                self._held_hi_l):
+            current = 0.0
+            if on and m != 0:  # position modes
+                e = q - gp
+                new_e = a00 * e + a01 * dq
+                new_dq = a10 * e + a11 * dq
+                torque = inertia * (-(w * w) * e - 2 * w * dq)
+                current = _clip(torque / kt, -lim, lim)
+                q, dq = gp + new_e, new_dq
+            elif on:  # current mode
+                tau = kt * gc + ext - visc * dq
+                dq = dq + dt * (tau / inertia)
+                q = q + dt * dq
+                current = gc
+            else:  # torque off
+                dq = 0.0
+            q_out.append(_clip(q, lo, hi))
+            dq_out.append(dq)
+            cur_out.append(current)
+        self._held_q = np.array(q_out)
+        self._held_dq = np.array(dq_out)
+        self._held_current = np.array(cur_out)
 
     def _held_matrix(self, dt: float) -> np.ndarray:
         a = self._held_cache.get(dt)
@@ -372,7 +384,9 @@ class ArmPlant:
         rng = self.rng
         if s.position_noise_probability > 0:
             flip = rng.random(n) < s.position_noise_probability
-            pos = pos + flip * rng.choice((-RAD_PER_PULSE, RAD_PER_PULSE), n)
+            # = rng.choice((-RAD_PER_PULSE, RAD_PER_PULSE), n): Generator.choice draws exactly these
+            # integers (same random stream) but costs twice as much
+            pos = pos + flip * _PULSE_SIGNS.take(rng.integers(0, 2, size=n, dtype=np.int64))
         if s.velocity_noise_lsb > 0:
             vel = vel + rng.normal(0.0, s.velocity_noise_lsb * RADS_PER_VELOCITY_LSB, n)
         if s.current_noise_lsb > 0:
@@ -431,6 +445,13 @@ class ArmPlant:
     def write_truth(self, path) -> Path:
         return write_truth(self.config, path)
 
+
+
+def _clip(x: float, lo: float, hi: float) -> float:
+    """np.clip for one float, exactly (NaN passes through; on a tie the bound wins, so signed zeros
+    come out as numpy's do)."""
+    x = x if (x != x or x > lo) else lo
+    return x if (x != x or x < hi) else hi
 
 def _solve(a: list, b: list) -> list:
     """Solve a small (1..3) symmetric positive-definite system by Gaussian elimination, in floats."""
