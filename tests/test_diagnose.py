@@ -163,3 +163,32 @@ def test_residual_diagnosis_names_a_planted_term_and_stays_quiet_on_noise():
     assert best.effect == "coulomb" and best.significant
     assert best.parameters["coulomb"]["value"] == pytest.approx(0.2, abs=3 * best.parameters["coulomb"]["std"]
                                                                 + 0.01)
+
+
+def test_effects_command_lists_the_library_with_units_and_signatures(tmp_path, monkeypatch):
+    import crane_io.effects as fx
+
+    monkeypatch.setattr(fx, "_REGISTRY", dict(fx._REGISTRY))  # the user effect leaves with the test
+    r = CliRunner().invoke(main, ["effects"])
+    assert r.exit_code == 0
+    for name in ("coulomb", "viscous", "stribeck", "spring", "payload", "rotor-inertia", "cogging", "offset"):
+        assert f"{name}  —" in r.output
+    assert "[N m]" in r.output and "{joint}" not in r.output
+    user = tmp_path / "mine.py"
+    user.write_text(
+        "import numpy as np\n"
+        "from crane_io.effects.base import Effect, Param, joint_columns\n"
+        "class Squeal(Effect):\n"
+        "    name = 'squeal-test'\n"
+        "    title = 'test squeal'\n"
+        "    signature = 'the residual of {joint} squeals'\n"
+        "    params = (Param('gain', 'N m s^2/rad^2', 0.1, 'squeal per (rad/s)^2'),)\n"
+        "    def _columns(self, q, dq, ddq, joint, shape):\n"
+        "        return joint_columns(len(q), q.shape[1], joint, dq[:, joint] * np.abs(dq[:, joint]))\n")
+    r = CliRunner().invoke(main, ["effects", "--effect-file", str(user), "--json"])
+    assert r.exit_code == 0, r.output
+    doc = json.loads(r.output)
+    mine = [e for e in doc["effects"] if e["name"] == "squeal-test"]
+    assert mine and mine[0]["parameters"][0]["unit"] == "N m s^2/rad^2"
+    r = CliRunner().invoke(main, ["effects", "--effect-file", str(tmp_path / "nope.py")])
+    assert r.exit_code != 0 and r.output.startswith("Error: ")

@@ -21,11 +21,17 @@ def effect_rows(effect_files=()) -> list[dict]:
     for e in list_effects():
         e = e() if isinstance(e, type) else e
         params = [{"name": p.name, "unit": getattr(p, "unit", ""), "default": getattr(p, "default", None),
-                   "linear": bool(getattr(p, "linear", True)), "description": getattr(p, "description", "")}
+                   "linear": bool(getattr(p, "linear", True)), "description": getattr(p, "description", ""),
+                   "model": bool(getattr(p, "model", True))}
                   for p in getattr(e, "params", ())]
+        signature = str(getattr(e, "signature", "") or "")
+        try:
+            signature = signature.format(joint="the joint")
+        except (KeyError, IndexError, ValueError):
+            pass
         rows.append({"name": e.name, "title": getattr(e, "title", e.name),
                      "scope": getattr(e, "scope", "joint"),
-                     "description": getattr(e, "description", ""), "signature": getattr(e, "signature", ""),
+                     "description": getattr(e, "description", ""), "signature": signature,
                      "parameters": params,
                      "shape_grid": {k: list(v) for k, v in (getattr(e, "shape_grid", None) or {}).items()}})
     return rows
@@ -50,7 +56,8 @@ def effects(effect_files, as_json):
         if r["signature"]:
             click.echo(f"    residual signature when missing: {r['signature']}")
         for p in r["parameters"]:
-            kind = "fitted linearly" if p["linear"] else "chosen from a grid"
+            kind = ("simulated plant only" if not p["model"] else
+                    "fitted linearly" if p["linear"] else "chosen from a grid")
             unit = f" [{p['unit']}]" if p["unit"] else ""
             desc = f": {p['description']}" if p["description"] else ""
             click.echo(f"    - {p['name']}{unit} ({kind}){desc}")
