@@ -608,8 +608,7 @@ def _make_recorder(opts: RunOptions, output: Path, config: Config, arm: ArmDescr
                                                        for i in arm.servo_ids])
     attrs["firmware_versions"] = attrs["follower_firmware_versions"]
     if opts.sim:
-        attrs["seed"] = int(opts.seed)
-        attrs["plant"] = str(opts.plant or "crane-x7")
+        attrs["seed"] = int(opts.seed)  # the plant preset is not stored: "hidden-*" names give it away
     return SessionRecorder(output, joint_names=arm.joint_names, rate_hz=config.loop.rate_hz,
                            source="sim" if opts.sim else "hardware", attrs=attrs, force=opts.force)
 

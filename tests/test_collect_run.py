@@ -97,7 +97,8 @@ def test_sim_session_tracks_the_leader_and_meets_the_format(tmp_path, cfg):
         states = [e["message"] for e in read_events(f) if e["kind"] == "torque_state"]
         assert states == ["leader: torque off on 8 of 8 servos", "follower: torque off on 8 of 8 servos"]
         # a simulated session never stores the plant's truth
-        assert not [k for k in f.attrs if "truth" in k or "hidden" in k or "effect" in k]
+        assert not [k for k in f.attrs if "truth" in k or "hidden" in k or "effect" in k or k == "plant"]
+        assert "simple" not in str(dict(f.attrs).get("config_toml", ""))
     assert _torque_off_everywhere(seen["sims"])
 
 
