@@ -397,13 +397,14 @@ class SimulatedChain:
         body = params[4:]
         if length == 0:
             return []
-        index = self._index(servos)
+        writes_id = address <= _ID_ADDRESS < address + length  # IDs may change within this packet
+        index = None if writes_id else self._index(servos)
         for k in range(0, len(body) - len(body) % (1 + length), 1 + length):
-            s = index.get(body[k])
+            s = self._by_id(servos, body[k]) if writes_id else index.get(body[k])
             if s is not None:
                 s.contact(now)
                 s.write(address, body[k + 1:k + 1 + length], now)
-        if address <= _ID_ADDRESS < address + length:  # an ID may have changed
+        if writes_id:
             self._rekey()
         self._lockstep_tick([(address, length)])
         return []

@@ -310,7 +310,10 @@ class EmulatedServo:
             touched = [exact]  # the usual write: exactly one item
         else:
             touched = []
-            for r in {self._owner[a] for a in range(address, end)} - {None}:
+            # items in address order, so that a write breaking several rules always gets the same
+            # error (a set of Registers iterates in an order that depends on the string hash seed)
+            owners = {self._owner[a] for a in range(address, end)} - {None}
+            for r in sorted(owners, key=lambda r: r.address):
                 if r.address < address or r.address + r.size > end:
                     return p.ERR_DATA_LENGTH
                 touched.append(r)
