@@ -3,13 +3,12 @@ them into one click group. Bad input ends with one sentence on stderr and a non-
 
 from __future__ import annotations
 
-import importlib
-import importlib.util
-
 import click
 
+from crane_io.cli_support import LazyGroup
+
 # (module, attribute) of every subcommand; imported lazily so `--help` stays fast.
-_COMMANDS = {
+COMMANDS = {
     "info": ("train.cmd_info", "info"),
     "fit": ("train.cmd_fit", "fit"),
     "sweep": ("train.cmd_sweep", "sweep"),
@@ -20,18 +19,7 @@ _COMMANDS = {
 }
 
 
-class _LazyGroup(click.Group):
-    def list_commands(self, ctx):
-        return sorted(n for n, (mod, _) in _COMMANDS.items() if importlib.util.find_spec(mod))
-
-    def get_command(self, ctx, name):
-        if name not in _COMMANDS:
-            return None
-        module, attr = _COMMANDS[name]
-        return getattr(importlib.import_module(module), attr)
-
-
-@click.group(cls=_LazyGroup)
+@click.group(cls=LazyGroup, commands=COMMANDS)
 @click.version_option(package_name="crane-x7")
 def main():
     """Turn CRANE-X7 session files into inverse-dynamics models, compare and diagnose them."""

@@ -1,0 +1,26 @@
+"""Pieces shared by the two command lines (crane-collect, crane-train)."""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+
+import click
+
+
+class LazyGroup(click.Group):
+    """A click group whose subcommands live in their own modules and are imported only when used,
+    so `--help` and every command start fast. `commands` maps a command name to (module, attribute)."""
+
+    def __init__(self, *args, commands: dict[str, tuple[str, str]], **kwargs):
+        super().__init__(*args, **kwargs)
+        self.lazy_commands = dict(commands)
+
+    def list_commands(self, ctx):
+        return sorted(n for n, (mod, _) in self.lazy_commands.items() if importlib.util.find_spec(mod))
+
+    def get_command(self, ctx, name):
+        if name not in self.lazy_commands:
+            return None
+        module, attr = self.lazy_commands[name]
+        return getattr(importlib.import_module(module), attr)
