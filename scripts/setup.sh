@@ -13,7 +13,11 @@ stamp=.venv/.crane-x7-installed
 want=$(cat pyproject.toml constraints.txt | sha256sum | cut -d' ' -f1)
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
     echo "== installing crane-x7 and its dependencies (CPU torch pinned by constraints.txt)"
-    .venv/bin/python -m pip install --quiet --upgrade pip
-    .venv/bin/python -m pip install --quiet -c constraints.txt -e ".[dev]"
+    log=.venv/install.log
+    if ! .venv/bin/python -m pip install -c constraints.txt -e ".[dev]" > "$log" 2>&1; then
+        tail -n 40 "$log"
+        echo "Error: installing the dependencies failed (full log: $log)" >&2
+        exit 1
+    fi
     echo "$want" > "$stamp"
 fi
