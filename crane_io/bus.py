@@ -20,6 +20,12 @@ them means the link is unusable and the bus raises even if retries kept succeedi
 with the alert bit set makes `read_state` read the Hardware Error Status registers and raise
 `ServoFaultError` naming each joint's faults.
 
+Bus Watchdog: a sync write gets no reply, so a servo stopped by its watchdog (the host was silent
+longer than `configure(watchdog_s=...)`) would go unnoticed. The bus therefore (1) reads the Bus
+Watchdog register (-1 after expiry) in `read_hardware_errors`, which the collect loop polls, and
+(2) re-checks it whenever the host paused longer than half the watchdog time between two transfers:
+`read_state` / `write_goal_*` then raise `WatchdogExpiredError` naming the stopped joints.
+
 The object is not thread-safe: use one bus per thread (one per arm).
 """
 
@@ -56,11 +62,13 @@ from .control_table import (
 from .description import ArmDescription, default_arm
 from .errors import ConfigError, CraneError
 from .faults import (
+    WATCHDOG_EXPIRED,
     CommunicationError,
     ConfigurationMismatchError,
     ServoFaultError,
     ServoMissingError,
     ServoRejectedError,
+    WatchdogExpiredError,
     WrongModelError,
     decode_hardware_error,
     decode_status_error,
@@ -78,6 +86,10 @@ _PKT_FIRST_PARAM = 8  # fast sync read: the first servo's error byte
 _REPORT_BLOCK = 147  # addresses 0..146: everything servo_report shows, in one read per servo
 _FAST_TRIES_BEFORE_FALLBACK = 2
 _PRESENT = struct.Struct("<hii")  # Present Current, Velocity, Position (addresses 126, 128, 132)
+# the hardware-error poll: ONE sync read of Hardware Error Status (70) .. Bus Watchdog (98)
+_POLL_ADDRESS, _POLL_WATCHDOG = 70, 98
+_POLL_SIZE = _POLL_WATCHDOG - _POLL_ADDRESS + 1
+_STALL_FRACTION = 0.5  # a pause longer than this share of the watchdog time makes the bus check it
 
 
 class CommandError(CraneError):
@@ -192,6 +204,7 @@ class DynamixelBus:
         self.servos: dict[str, ServoInfo] = {}
         self.stop_failures: dict[str, str] = {}
         self.torque_enabled = False
+        self.watchdog_s: float | None = None  # the Bus Watchdog armed by configure (None: off)
 
         joints = self.arm.joints
         self.joint_names = tuple(j.name for j in joints)
@@ -212,6 +225,8 @@ class DynamixelBus:
         self._closed = False
         self._fast_misses = 0
         self._last_port_error = ""
+        self._poll_reader: _StatusSyncRead | None = None
+        self._last_tx: float | None = None  # time.monotonic() of the latest transfer
 
     # ---- life cycle ----------------------------------------------------------------------------
     @property
@@ -234,6 +249,9 @@ class DynamixelBus:
         self._position_writer = GroupSyncWrite(self._port, self._ph, 116, 4)
         for i in self.position_joints:
             self._position_writer.addParam(self.ids[i], [0, 0, 0, 0])
+        self._poll_reader = _StatusSyncRead(self._port, self._ph, _POLL_ADDRESS, _POLL_SIZE)
+        for sid in self.ids:
+            self._poll_reader.addParam(sid)
         return self
 
     def close(self) -> None:
@@ -343,6 +361,7 @@ class DynamixelBus:
                         f"servo {servo_label(joint, sid)} on {self.port_name} holds {reg} = {got} after "
                         f"{value} was written; is its torque on or its firmware too old?")
             self.current_limits[j] = float(units.current_to_ampere(self._read(sid, "current_limit", joint)))
+        self.watchdog_s = float(units.watchdog_to_seconds(watchdog_raw)) if watchdog_raw else None
 
     def _current_limit_raw(self, current_limits) -> list[int | None]:
         out: list[int | None] = [None] * len(self.ids)
@@ -422,9 +441,11 @@ class DynamixelBus:
         """Present current, velocity and position of every servo in ONE (fast) sync read.
 
         Retries within the budget; raises CommunicationError / ServoMissingError when the read finally
-        fails, and ServoFaultError when a servo reports a hardware error (unless check_faults=False)."""
+        fails, and ServoFaultError when a servo reports a hardware error (unless check_faults=False);
+        WatchdogExpiredError when the host paused long enough for the Bus Watchdog to stop servos."""
         self._need_port()
         self._last_port_error = ""
+        self._check_stall()
         reader = self._reader
         last = "no reply"
         for attempt in range(1 + self.retries):
@@ -482,11 +503,7 @@ class DynamixelBus:
         if check_faults and any(status_alert(e) for e in reader.errors.values()):
             faults = self.read_hardware_errors()
             if faults:
-                where = describe_faults(faults, dict(zip(self.joint_names, self.ids)))
-                raise ServoFaultError(
-                    f"hardware error on {self.port_name}: {where}"
-                    "; the servo switched its torque off (remove the cause, then power-cycle or reboot it)",
-                    faults=faults)
+                raise self._fault_error(faults)
         # units.position_to_rad etc., written out (same arithmetic) to skip their asarray calls
         return BusState(position=(np.array(pos, dtype=float) - units.POSITION_CENTER) * units.RAD_PER_PULSE,
                         velocity=np.array(vel, dtype=float) * units.RADS_PER_VELOCITY_LSB,
@@ -539,6 +556,7 @@ class DynamixelBus:
         return arr
 
     def _send(self, writer: GroupSyncWrite, what: str) -> None:
+        self._check_stall()
         for attempt in range(1 + self.retries):
             if attempt:
                 self.stats.retries += 1
@@ -551,19 +569,72 @@ class DynamixelBus:
 
     # ---- diagnostics ---------------------------------------------------------------------------
     def read_hardware_errors(self) -> dict[str, list[str]]:
-        """Joint -> named Hardware Error Status faults, for the joints that have any. A servo that
+        """Joint -> named faults, for the joints that have any: the Hardware Error Status bits
+        (overload, overheating, ...) and "bus watchdog expired" (Bus Watchdog reads -1). ONE sync
+        read of addresses 70..98 of every servo; when that fails, servo by servo, and a servo that
         does not answer is listed as ['not answering']."""
         self._need_port()
+        reader = self._poll_reader
+        for attempt in range(1 + self.retries):
+            if attempt:
+                self.stats.retries += 1
+            if self._transfer(reader.txRxPacket) == COMM_SUCCESS:
+                blocks = {sid: bytes(reader.data_dict[sid]) for sid in self.ids}
+                break
+        else:
+            blocks = {}
+            for joint, sid in zip(self.joint_names, self.ids):
+                try:
+                    blocks[sid] = self._read_block(sid, _POLL_ADDRESS, _POLL_SIZE, joint)
+                except CommunicationError:
+                    blocks[sid] = None
+        self._update_byte_stats()
         faults = {}
         for joint, sid in zip(self.joint_names, self.ids):
-            try:
-                bits = self._read(sid, "hardware_error_status", joint)
-            except CommunicationError:
+            block = blocks[sid]
+            if block is None:
                 faults[joint] = ["not answering"]
                 continue
-            if bits:
-                faults[joint] = decode_hardware_error(bits)
+            names = decode_hardware_error(block[0])
+            if block[_POLL_WATCHDOG - _POLL_ADDRESS] == 0xFF:  # Bus Watchdog = -1: expired
+                names.append(WATCHDOG_EXPIRED)
+            if names:
+                faults[joint] = names
         return faults
+
+    def check_watchdog(self) -> None:
+        """Raise WatchdogExpiredError if the Bus Watchdog stopped any servo (one sync read)."""
+        faults = self.read_hardware_errors()
+        expired = {j: [WATCHDOG_EXPIRED] for j, f in faults.items() if WATCHDOG_EXPIRED in f}
+        if expired:
+            raise self._fault_error(expired)
+
+    def _check_stall(self) -> None:
+        """After a pause longer than half the watchdog time, confirm the servos are still running."""
+        wd, last = self.watchdog_s, self._last_tx
+        if wd and self.torque_enabled and last is not None:
+            gap = time.monotonic() - last
+            if gap > _STALL_FRACTION * wd:
+                faults = self.read_hardware_errors()
+                expired = {j: [WATCHDOG_EXPIRED] for j, f in faults.items() if WATCHDOG_EXPIRED in f}
+                if expired:
+                    raise self._fault_error(expired, gap)
+
+    def _fault_error(self, faults: dict[str, list[str]], gap: float | None = None) -> ServoFaultError:
+        ids = dict(zip(self.joint_names, self.ids))
+        if all(f == [WATCHDOG_EXPIRED] for f in faults.values()):
+            names = ", ".join(servo_label(j, ids[j]) for j in faults)
+            wd = f"{self.watchdog_s:g} s " if self.watchdog_s else ""
+            pause = f" (the host paused {gap:.3f} s)" if gap is not None else ""
+            return WatchdogExpiredError(
+                f"the Bus Watchdog ({wd}without an instruction) stopped {names} on {self.port_name}{pause}; "
+                "they hold no torque until configure() re-arms them (keep the control loop from stalling)",
+                faults=faults)
+        where = describe_faults(faults, ids)
+        return ServoFaultError(
+            f"hardware error on {self.port_name}: {where}"
+            "; the servo switched its torque off (remove the cause, then power-cycle or reboot it)",
+            faults=faults)
 
     def servo_report(self) -> list[dict]:
         """One dict per servo (for `crane-collect check`): id, joint, answering, model, firmware, mode,
@@ -620,6 +691,7 @@ class DynamixelBus:
     def _transfer(self, fn, *args):
         """Run one SDK transfer; a serial-level exception counts as a failed transfer."""
         self.stats.attempts += 1
+        self._last_tx = time.monotonic()
         try:
             out = fn(*args)
         except (serial.SerialException, OSError) as exc:
@@ -651,6 +723,7 @@ class DynamixelBus:
     def _call(self, fn, *args):
         """SDK call returning a tuple whose second item is the result; port errors become failures."""
         self.stats.attempts += 1
+        self._last_tx = time.monotonic()
         try:
             return fn(self._port, *args)
         except (serial.SerialException, OSError) as exc:
@@ -697,6 +770,7 @@ class DynamixelBus:
 
     def _call_write(self, sid, address, size, payload):
         self.stats.attempts += 1
+        self._last_tx = time.monotonic()
         try:
             return self._ph.writeTxRx(self._port, sid, address, size, payload)
         except (serial.SerialException, OSError) as exc:

@@ -104,6 +104,14 @@ class ServoFaultError(HardwareError):
         self.faults = dict(faults or {})  # joint -> fault names
 
 
+class WatchdogExpiredError(ServoFaultError):
+    """The servos' Bus Watchdog expired: the host was silent too long, and those servos stopped
+    (Bus Watchdog reads -1, goal items refuse writes) until `DynamixelBus.configure` clears it."""
+
+
+WATCHDOG_EXPIRED = "bus watchdog expired"  # the fault name read_hardware_errors gives an expired servo
+
+
 class ServoRejectedError(HardwareError):
     """A servo answered an instruction with an error number (access, data range, ...)."""
 

@@ -1,6 +1,7 @@
 """DynamixelBus (the real dynamixel-sdk client) against the simulated CRANE-X7 chain."""
 
 import gc
+import time
 import warnings
 
 import numpy as np
@@ -10,7 +11,7 @@ from crane_io import units
 from crane_io.bus import BusState, CommandError, DynamixelBus
 from crane_io.description import default_arm
 from crane_io.errors import ConfigError, HardwareError
-from crane_io.faults import ServoMissingError, WrongModelError
+from crane_io.faults import ServoMissingError, WatchdogExpiredError, WrongModelError
 from crane_io.sim import simulated_arm
 from crane_io.sim.transport import PtyServer
 
@@ -245,6 +246,9 @@ def test_servo_report_and_hardware_errors(sim, bus):
     assert bus.read_hardware_errors() == {}
     sim.chain.servos[7].set_hardware_error(0b100100)
     assert bus.read_hardware_errors() == {"joint6": ["overheating", "overload"]}
+    sim.chain.remove_servo(4)  # the one sync read fails: servo by servo, naming the silent one
+    assert bus.read_hardware_errors() == {"joint3": ["not answering"], "joint6": ["overheating", "overload"]}
+    sim.chain.restore_servo(4)
 
 
 def test_the_watchdog_stops_servos_whose_host_went_silent(sim, bus):
@@ -252,6 +256,56 @@ def test_the_watchdog_stops_servos_whose_host_went_silent(sim, bus):
     sim.chain.advance(0.3)  # 300 ms without a packet: longer than the 100 ms watchdog
     assert all(sim.chain.servos[sid].watchdog_expired for sid in range(2, 10))
     assert all(row["watchdog_expired"] for row in bus.servo_report())
+    # the hardware-error poll (what crane-collect polls) names the stopped servos
+    assert bus.read_hardware_errors() == {j: ["bus watchdog expired"] for j in ARM.joint_names}
+    with pytest.raises(WatchdogExpiredError, match=r"stopped joint1 \(ID 2\), .*gripper \(ID 9\)") as exc:
+        bus.check_watchdog()
+    assert set(exc.value.faults) == set(ARM.joint_names)
+    # configure re-arms the watchdog: the servos take goal currents again
+    bus.configure(watchdog_s=0.1)
+    bus.torque_on()
+    bus.check_watchdog()
+    bus.write_goal_current(np.full(8, 0.2))
+    assert reg(sim, 2, "goal_current") == round(0.2 / units.AMPERE_PER_CURRENT_LSB)
+
+
+def test_a_stalled_loop_learns_that_the_watchdog_stopped_the_arm():
+    """Wall clock: the host stalls longer than the watchdog; its next read names the stopped servos
+    (a sync write alone would never tell), and leaving the block still turns torque off."""
+    sim = simulated_arm(clock="wall", return_delay_time=0)
+    try:
+        with pytest.raises(WatchdogExpiredError, match="Bus Watchdog .*paused") as exc:
+            with DynamixelBus(sim.url) as bus:
+                bus.ping_all()
+                bus.configure(watchdog_s=0.04)
+                bus.torque_on()
+                bus.read_state()
+                bus.write_goal_current(np.full(8, 0.1))
+                time.sleep(0.15)  # the loop stalls
+                bus.read_state()
+        assert set(exc.value.faults) == set(ARM.joint_names)
+        assert isinstance(exc.value, HardwareError)
+        assert all(reg(sim, sid, "torque_enable") == 0 for sid in range(2, 10))
+    finally:
+        sim.close()
+
+
+def test_a_pause_shorter_than_the_watchdog_is_checked_but_not_an_error():
+    sim = simulated_arm(clock="wall", return_delay_time=0)
+    try:
+        with DynamixelBus(sim.url) as bus:
+            bus.ping_all()
+            bus.configure(watchdog_s=1.0)
+            bus.torque_on()
+            bus.read_state()
+            before = bus.stats.attempts
+            time.sleep(0.55)  # over half the watchdog time: the bus confirms, the servos still run
+            bus.read_state()
+            assert bus.stats.attempts == before + 2  # the watchdog check, then the read itself
+            bus.write_goal_current(np.full(8, 0.1))
+            assert not any(s.watchdog_expired for s in sim.chain.servos.values())
+    finally:
+        sim.close()
 
 
 def test_the_bus_runs_over_a_real_pty(tmp_path):
