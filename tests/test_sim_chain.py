@@ -329,6 +329,33 @@ def test_lockstep_runs_are_deterministic():
     assert a[-1] != a[0]  # and something actually moved
 
 
+def test_set_clock_switches_a_running_chain_without_a_time_jump(sim):
+    from crane_io.errors import ConfigError
+
+    ph, port, chain = sim.ph, sim.port, sim.chain
+    write = GroupSyncWrite(port, ph, GOAL_CURRENT, 2)
+    write.addParam(2, [0, 0])
+    time.sleep(0.05)  # wall time passes while in lockstep: it must not count later
+    for _ in range(10):
+        write.txPacket()
+    assert chain.time == pytest.approx(0.02)  # ten lockstep periods of 2 ms
+    chain.set_clock("wall")
+    chain.touch()
+    assert chain.clock == "wall" and chain.time == pytest.approx(0.02, abs=0.01)  # continues, no jump
+    time.sleep(0.05)
+    chain.touch()
+    assert chain.time >= 0.02 + 0.05 - 1e-6  # now it follows the wall clock
+    chain.set_clock("lockstep")
+    t = chain.time
+    time.sleep(0.02)
+    chain.touch()
+    assert chain.time == t  # lockstep again: only goal writes advance time
+    write.txPacket()
+    assert chain.time == pytest.approx(t + 0.002)
+    with pytest.raises(ConfigError, match="clock must be"):
+        chain.set_clock("fast")
+
+
 def test_fast_sync_read_can_be_unsupported(tmp_path):
     arm, server, port = _open("dxlsim", tmp_path, fast_sync_read=False)
     try:
@@ -427,6 +454,65 @@ def test_sim_serve_serves_a_pty_until_sigterm(tmp_path):
     assert proc.returncode == 0, err
     assert str(link) in out and "Stopped" in out
     assert not link.exists() and not link.is_symlink()
+
+
+def test_sim_serve_serves_the_arm_plant_from_a_toml_file_to_the_bus(tmp_path):
+    """`sim-serve --plant PATH.toml` end to end: the real SDK (through DynamixelBus) over the pty
+    drives the pinocchio arm plant that the user's TOML file describes."""
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from crane_io.bus import DynamixelBus
+
+    plant = tmp_path / "my_arm.toml"
+    plant.write_text('base = "crane-x7"\nname = "my-arm"\n[initial]\njoint2 = 0.3\njoint4 = -0.6\n')
+    link = tmp_path / "crane_x7"
+    exe = Path(sys.executable).parent / "crane-collect"
+    proc = subprocess.Popen([str(exe), "sim-serve", "--link", str(link), "--plant", str(plant),
+                             "--clock", "lockstep", "--return-delay", "0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for _ in range(400):
+            if link.is_symlink() or proc.poll() is not None:
+                break
+            time.sleep(0.05)
+        assert link.is_symlink(), proc.stderr.read() if proc.poll() is not None else "no link"
+        with DynamixelBus(str(link)) as bus:
+            assert len(bus.ping_all()) == 8
+            bus.configure(watchdog_s=0.5)
+            bus.torque_on()
+            first = bus.read_state()
+            for _ in range(150):  # 0.3 s of lockstep time with zero current: gravity pulls
+                state = bus.read_state()
+                bus.write_goal_current(np.zeros(8))
+        assert first.fast and first.position[1] == pytest.approx(0.3, abs=0.01)  # the file's pose
+        assert first.position[3] == pytest.approx(-0.6, abs=0.01)
+        assert state.position[3] < -0.7  # joint4 falls under gravity (the arm plant, not SimplePlant)
+        assert state.position[2] == pytest.approx(0.0, abs=0.01)  # joint3 held by its position servo
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    assert "ArmPlant" in out and "lockstep" in out and "Stopped" in out
+
+
+def test_sim_serve_plant_names_pick_presets():
+    from collect.cmd_sim_serve import build_plant
+    from crane_io.arm_plant import ArmPlant
+    from crane_io.description import default_arm
+    from crane_io.errors import ConfigError
+    from crane_io.sim.simple_plant import SimplePlant
+
+    arm = default_arm()
+    assert isinstance(build_plant("simple", 0, arm), SimplePlant)
+    assert build_plant(None, 0, arm).config.name == "crane-x7"
+    for name in ("baseline", "hidden-coulomb", "hidden-payload"):
+        plant = build_plant(name, 3, arm)
+        assert isinstance(plant, ArmPlant) and plant.config.name == name and plant.seed == 3
+    with pytest.raises(ConfigError):
+        build_plant("hidden-nothing", 0, arm)
 
 
 def test_sim_serve_reports_a_bad_link_in_one_sentence(tmp_path):

@@ -8,6 +8,7 @@ Two clocks:
 - "lockstep": the plant advances exactly `period_s` each time a Sync Write (or Bulk Write) of Goal
   Current or Goal Position arrives, after the written values are applied. Deterministic and as fast
   as the host can talk. `advance(seconds)` lets time pass without a write (a host that stalls).
+  `set_clock("wall")` switches a running chain to the wall clock (and back) without a time jump.
 - "wall": whenever the chain is touched, the plant is stepped (substeps of at most `max_substep_s`)
   up to time.monotonic(); replies wait each servo's Return Delay Time with a real sleep.
 The bus watchdogs and the Realtime Tick count the chain's time in both modes.
@@ -118,6 +119,15 @@ class SimulatedChain:
         with self._lock:
             if self.clock == "wall":
                 self._advance_to(time.monotonic() - self._t0)
+
+    def set_clock(self, clock: str) -> None:
+        """Switch between "lockstep" and "wall" while running; simulated time continues from where it
+        is (wall: from now on the chain follows time.monotonic(), starting at `self.time`)."""
+        if clock not in ("lockstep", "wall"):
+            raise ConfigError(f"clock must be 'lockstep' or 'wall', not {clock!r}")
+        with self._lock:
+            self._t0 = time.monotonic() - self.time
+            self.clock = clock
 
     def advance(self, seconds: float) -> None:
         """Let `seconds` of simulated time pass in control periods without any instruction."""
