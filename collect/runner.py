@@ -142,12 +142,8 @@ def make_sim_arms(opts: RunOptions, config: Config, arm: ArmDescription) -> dict
 
 def _switch_to_wall_clock(sims: dict) -> None:
     """From now on the simulated arms follow real time, continuing from their present simulated time."""
-    now = time.monotonic()
     for sim in sims.values():
-        chain = sim.chain
-        chain.clock = "wall"
-        if hasattr(chain, "_t0"):
-            chain._t0 = now - chain.time  # noqa: SLF001 - no public re-anchoring in SimulatedChain yet
+        sim.chain.set_clock("wall")
 
 
 class _Loop:
