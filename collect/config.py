@@ -40,6 +40,7 @@ class LoopConfig:
     rate_hz: float
     spin_s: float
     status_hz: float
+    status_log_s: float  # s of wall time between status lines when stderr is not a terminal
 
     @property
     def period_s(self) -> float:
@@ -184,6 +185,7 @@ def _build(values: dict, where: str) -> Config:
         rate_hz=_pos(where, "loop.rate_hz", lp["rate_hz"]),
         spin_s=_nonneg(where, "loop.spin_s", lp["spin_s"]),
         status_hz=_nonneg(where, "loop.status_hz", lp["status_hz"]),
+        status_log_s=_nonneg(where, "loop.status_log_s", lp["status_log_s"]),
     )
     _need(loop.rate_hz <= 2000, where, "loop.rate_hz", "at most 2000 Hz", loop.rate_hz)
 

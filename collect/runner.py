@@ -22,6 +22,7 @@ from __future__ import annotations
 import concurrent.futures
 import datetime as _dt
 import os
+import signal
 import sys
 import time
 from collections.abc import Callable
@@ -42,6 +43,7 @@ from .recorder import SessionRecorder
 from .safety import Breach, SafetyMonitor
 
 ARMS = ("leader", "follower")
+_STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP", "SIGINT") if hasattr(signal, n))
 
 
 class SafetyStop(HardwareError):
@@ -167,6 +169,8 @@ class _Loop:
         # GIL). Simulated arms live in this process and are pure CPU work: threads would only fight for
         # the GIL (5 ms switch interval), so they are driven one after the other, deterministically.
         self.pool = None if sims else concurrent.futures.ThreadPoolExecutor(2, "crane-bus")
+        self._inflight: list = []  # bus transfers a signal may have left running in the pool
+        self.tty = hasattr(out, "isatty") and out.isatty()
         self.recorder: SessionRecorder | None = None
         self.operator: SimulatedOperator | None = None
         self.timer = CycleTimer(config.loop.rate_hz, lockstep=self.lockstep, spin_s=config.loop.spin_s)
@@ -176,6 +180,11 @@ class _Loop:
         self.errors = 0
         self.breach: Breach | None = None
         self.ctx = RunContext(config, arm, buses, sims)
+
+    def attach(self, buses: dict) -> None:
+        """The opened, configured buses (torque on) this loop drives."""
+        self.buses = buses
+        self.ctx.buses = buses
 
     # -- bus access (concurrent on hardware, sequential and deterministic in lockstep) --
     def _timed(self, fn, *args):
@@ -189,6 +198,7 @@ class _Loop:
         if self.pool is None:
             return [self._timed(*c) for c in calls]
         futures = [self.pool.submit(self._timed, *c) for c in calls]
+        self._inflight = futures
         return [f.result() for f in futures]
 
     def read_both(self):
@@ -285,6 +295,8 @@ class _Loop:
         kt = self.kt
         bil = self.bil
         status_every = 1.0 / cfg.loop.status_hz if (cfg.loop.status_hz > 0 and self.opts.status) else None
+        if status_every is not None and not self.tty:  # a pipe or a log file: do not flood it
+            status_every = max(status_every, cfg.loop.status_log_s)
         next_status = time.perf_counter() + (status_every or 0.0)
         hooks = self.opts.on_cycle
         sim_leader = self.sims.get("leader")
@@ -413,6 +425,11 @@ class _Loop:
         return "safety_stop"
 
     def safe_stop(self) -> dict:
+        # A signal raised in the main thread while it waited for the bus threads: let their transfers
+        # end first, so the stop packets do not collide with a read still on the wire.
+        if self._inflight:
+            concurrent.futures.wait(self._inflight, timeout=2.0)
+            self._inflight = []
         failures = {}
         for name in ARMS:
             bus = self.buses.get(name)
@@ -459,8 +476,7 @@ class _Loop:
         text = (f"{t_session:7.1f} s | {r['rate_hz']:6.0f} Hz{speed} | jitter {r['jitter_s'] * 1e3:.3f} ms | "
                 f"max {r['max_s'] * 1e3:.2f} ms | overruns {self.timer.overruns} | errors {self.errors} | "
                 f"track rms {' '.join(f'{x:.2f}' for x in err)} deg")
-        tty = hasattr(self.out, "isatty") and self.out.isatty()
-        print(("\r" + text) if tty else text, end="" if tty else "\n", file=self.out, flush=True)
+        print(("\r" + text) if self.tty else text, end="" if self.tty else "\n", file=self.out, flush=True)
 
     def close(self) -> None:
         if self.pool is not None:
@@ -531,12 +547,17 @@ def run_session(opts: RunOptions) -> RunResult:
     wall0 = time.perf_counter()
     buses: dict = {}
     try:
-        with handle_termination():
+        # SIGINT too: the first Ctrl+C / SIGTERM / SIGHUP ends the run, any further one while the arms
+        # are being stopped and the file closed is ignored (a second Ctrl+C must not cut the safe stop).
+        with handle_termination(_STOP_SIGNALS):
             try:
+                # The slow set-up (the dynamics model: ~0.4 s) comes before any torque is on: on hardware a
+                # pause between torque-on and the first cycle would trip the servos' Bus Watchdog.
+                loop = _Loop(opts, config, arm, {}, sims, out)
                 buses, hw = _open_buses(opts, arm, config, ports, out)
+                loop.attach(buses)
                 if sims and opts.realtime:
                     _switch_to_wall_clock(sims)
-                loop = _Loop(opts, config, arm, buses, sims, out)
                 loop.align()
                 if sims:
                     loop.operator = SimulatedOperator(opts.seed, arm, config.loop.rate_hz, config)
@@ -554,10 +575,11 @@ def run_session(opts: RunOptions) -> RunResult:
                     loop.safe_stop()
                     loop.event(loop.t_session, "end", f"duration of {opts.duration:g} s reached")
             except KeyboardInterrupt as exc:
-                end_reason = "terminated" if isinstance(exc, Terminated) else "interrupted"
+                signum = exc.signum if isinstance(exc, Terminated) else signal.SIGINT
+                end_reason = "interrupted" if signum == signal.SIGINT else "terminated"
                 if loop is not None:
                     loop.safe_stop()
-                    what = str(exc) if isinstance(exc, Terminated) else "Ctrl+C (SIGINT)"
+                    what = "Ctrl+C (SIGINT)" if signum == signal.SIGINT else signal.Signals(signum).name
                     loop.event(loop.t_session, "interrupted", f"stopped by {what}")
             except BaseException as exc:
                 end_reason = "error"
@@ -611,7 +633,10 @@ def _make_recorder(opts: RunOptions, output: Path, config: Config, arm: ArmDescr
 
 def _finish(loop, opts, output, end_reason, wall0, out) -> RunResult:
     wall = time.perf_counter() - wall0
-    if loop is None:
+    if loop is None or loop.recorder is None:  # ended before recording started: no session file
+        stopped = end_reason in ("interrupted", "terminated")
+        if loop is not None and stopped and opts.status and out is not None:
+            print(f"{end_reason} before recording started; no session file was written", file=out, flush=True)
         return RunResult(output, 0, 0.0, wall, end_reason, None, {})
     summary = loop.timer.summary() if loop.timer.t0 is not None else {}
     rms = {}

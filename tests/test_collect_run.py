@@ -1,5 +1,6 @@
 """crane-collect run end to end in simulation: tracking, the session format, faults, signals, crashes."""
 
+import io
 import os
 import signal
 import subprocess
@@ -24,6 +25,7 @@ CLI = str(Path(sys.executable).parent / "crane-collect")
 TEST_CONFIG = """
 [loop]
 status_hz = {status}
+status_log_s = {log}
 [operator.start_deg]
 joint2 = 0.0
 joint4 = -20.0
@@ -40,7 +42,7 @@ TIMING = ("cycle_start", "period", "bus_time_leader", "bus_time_follower", "comp
 @pytest.fixture
 def cfg(tmp_path):
     p = tmp_path / "test.toml"
-    p.write_text(TEST_CONFIG.format(status=0))
+    p.write_text(TEST_CONFIG.format(status=0, log=10))
     return p
 
 
@@ -102,6 +104,29 @@ def test_sim_session_tracks_the_leader_and_meets_the_format(tmp_path, cfg):
     assert _torque_off_everywhere(seen["sims"])
 
 
+class _Terminal(io.StringIO):
+    def isatty(self):
+        return True
+
+
+@pytest.mark.parametrize("tty", [True, False])
+def test_status_line_rewrites_a_terminal_and_spares_a_log(tmp_path, tty):
+    """On a terminal the status line is rewritten in place as often as status_hz asks; into a pipe or a
+    log file at most one line per status_log_s of wall time (here: none in a short run), and the final
+    summary always comes."""
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(TEST_CONFIG.format(status=1000, log=3600))
+    stream = _Terminal() if tty else io.StringIO()
+    run_session(_opts(tmp_path, cfg, duration=0.5, status=True, stream=stream))
+    text = stream.getvalue()
+    assert "session " in text and "tracking rms" in text  # the summary
+    status = text.count(" s |")
+    if tty:
+        assert status >= 1 and "\r" in text
+    else:
+        assert status == 0 and "\r" not in text
+
+
 def test_refuses_to_overwrite_a_session(tmp_path, cfg):
     out = tmp_path / "s.h5"
     out.write_bytes(b"keep me")
@@ -138,9 +163,9 @@ def test_injected_fault_ends_in_a_safe_stop_with_an_event(tmp_path, cfg, fault, 
     assert _torque_off_everywhere(seen["sims"])
 
 
-def _start(tmp_path, status=2, duration=60):
+def _start(tmp_path, status=2, duration=60, log=10):
     cfg = tmp_path / "sub.toml"
-    cfg.write_text(TEST_CONFIG.format(status=status))
+    cfg.write_text(TEST_CONFIG.format(status=status, log=log))
     out = tmp_path / "sub.h5"
     proc = subprocess.Popen([CLI, "run", "--sim", "--plant", "simple", "--duration", str(duration),
                              "--config", str(cfg), "-o", str(out)],
@@ -185,7 +210,7 @@ def test_ctrl_c_and_sigterm_leave_a_complete_file_and_torque_off(tmp_path, sig):
 
 
 def test_sigkill_loses_at_most_the_last_second(tmp_path):
-    proc, out = _start(tmp_path, status=20)
+    proc, out = _start(tmp_path, status=20, log=0)  # a status line every 50 ms even into the pipe
     _wait_rows(proc, out, 1500)
     time.sleep(0.3)
     os.kill(proc.pid, signal.SIGKILL)
