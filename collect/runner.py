@@ -589,7 +589,7 @@ def run_session(opts: RunOptions) -> RunResult:
                 raise
             finally:
                 if loop is not None:
-                    if loop.recorder is not None and end_reason != "error":
+                    if loop.recorder is not None:
                         for _name, msg in loop.torque_report():
                             loop.event(loop.t_session, "torque_state", msg)
                     loop.close()

@@ -163,6 +163,26 @@ def test_injected_fault_ends_in_a_safe_stop_with_an_event(tmp_path, cfg, fault, 
     assert _torque_off_everywhere(seen["sims"])
 
 
+def test_an_exception_mid_run_stops_both_arms_and_closes_the_file(tmp_path, cfg):
+    seen = {}
+
+    def boom(k, ctx):
+        seen["sims"] = ctx.sims
+        if k == 200:
+            raise RuntimeError("a bug in the loop")
+
+    with pytest.raises(RuntimeError, match="a bug in the loop"):
+        run_session(_opts(tmp_path, cfg, on_cycle=boom))
+    assert _torque_off_everywhere(seen["sims"])
+    with h5py.File(tmp_path / "s.h5", "r") as f:
+        assert f.attrs["complete"] and f.attrs["end_reason"] == "error"
+        errors = [e["message"] for e in read_events(f) if e["kind"] == "error"]
+        assert errors == ["RuntimeError: a bug in the loop"]
+        states = [e["message"] for e in read_events(f) if e["kind"] == "torque_state"]
+        assert states == ["leader: torque off on 8 of 8 servos", "follower: torque off on 8 of 8 servos"]
+        assert f["follower/t"].shape[0] <= 200
+
+
 def _start(tmp_path, status=2, duration=60, log=10):
     cfg = tmp_path / "sub.toml"
     cfg.write_text(TEST_CONFIG.format(status=status, log=log))
