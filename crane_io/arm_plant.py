@@ -18,6 +18,10 @@ effects (crane_io.effects), plus the actuator, plus the external torque (an oper
   whose velocity would change sign in a substep stops at zero and is tested for sticking again.
   Several joints may stick at once; the coupled system is solved with the stuck joints' accelerations
   held at zero (semi-implicit Euler: velocity first, then position).
+- Backlash (optional, per joint): the motor side (its own inertia `motor_inertia`, in link-side units)
+  and the link are coupled only when the gear gap of `width` rad has closed, by a stiff unilateral
+  spring-damper; inside the gap the motor torque moves only the motor, and the link coasts. The
+  servo's encoder is on the output shaft, so Present Position is the link angle.
 - Joint limits are stiff end stops (spring-damper) just beyond the description's limits.
 - Held joints (joint3, joint5..7, gripper) follow their servos with crane_io.sim.simple_plant
   (position controller or current, no gravity: they are locked in the 3-DOF dynamics).
@@ -52,6 +56,8 @@ _PULSE_SIGNS = np.array((-RAD_PER_PULSE, RAD_PER_PULSE))  # one-pulse position n
 OVERLOAD_BIT = 0x20
 _HELD_OMEGA = 30.0  # rad/s: held joints follow their goal as a critically damped 2nd-order system
 _STOP_MARGIN = math.radians(2.0)  # end stops sit this far beyond the software limits
+_CONTACT_OMEGA_H = 0.25  # backlash contact: natural frequency on the motor inertia x substep
+_CONTACT_DAMPING_RATIO = 1.5
 _SKL_INERTIA = dict(zip(("joint1", "joint2", "joint3", "joint4", "joint5", "joint6", "joint7", "gripper"),
                         DEFAULT_INERTIA))
 
@@ -87,6 +93,9 @@ class ArmPlant:
         init = np.array([config.initial.get(n, 0.0) for n in names])
         self.q = init[self._bi].copy()
         self.dq = np.zeros(3)
+        # motor side of the joints with backlash (link-side units: motor angle / gear ratio), centred
+        # in the gap
+        self.motor_q, self.motor_dq = self.q.tolist(), [0.0, 0.0, 0.0]
         self.h = config.substep_s
         # PD controller of the bilateral servos in position modes (SimplePlant's servo model)
         self._pd = SimplePlant(servo_ids=tuple(self.servo_ids[i] for i in self._bi),
@@ -127,6 +136,7 @@ class ArmPlant:
         self._armature = np.zeros(3)
         self._payload = 0.0
         self._generic: list[tuple] = []  # (effect, joint index or None, values)
+        backlash: dict[int, tuple[float, float]] = {}  # joint index -> (gap width rad, motor inertia)
         for spec in self.config.all_effects:
             eff = get_effect(spec.effect)
             v = eff.check_values(spec.values)
@@ -169,8 +179,13 @@ class ArmPlant:
                 i = self.arm.joint_names.index(spec.joint)
                 self.kt[i] = self.kt[i] / (1.0 + v["scale_error"])
             elif name == "backlash":
-                raise ConfigError("the arm plant does not simulate backlash yet (the library's backlash is "
-                                  "model-side only); remove it from the plant configuration")
+                if k in backlash:
+                    raise ConfigError(f"backlash is configured twice for {spec.joint}; give one gap per "
+                                      "joint")
+                if not (v["width"] >= 0 and v["motor_inertia"] > 0):
+                    raise ConfigError(f"backlash on {spec.joint} needs width >= 0 rad and motor_inertia > 0 "
+                                      f"kg m^2, got {v['width']} and {v['motor_inertia']}")
+                backlash[k] = (v["width"], v["motor_inertia"])
             else:  # a user's effect: evaluated generically each substep
                 self._generic.append((eff, k, v))
             if eff.friction and k is not None:
@@ -186,6 +201,17 @@ class ArmPlant:
         self._strib_l = [[(float(a[i]), float(v[i])) for a, v in pairs if a[i] != 0] for i in range(3)]
         self._visc_l, self._offset_l = self._visc.tolist(), self._offset.tolist()
         self._spring_k_l, self._spring_q0k_l = self._spring_k.tolist(), self._spring_q0k.tolist()
+        # backlash: (joint, half gap, motor inertia, contact stiffness, contact damping). The contact is
+        # a stiff unilateral spring-damper sized to the substep h: natural frequency x h = 0.25 on the
+        # motor inertia, damping ratio 1.5 (stable for semi-implicit Euler; a torque step through a
+        # closed gear overshoots by < 9 %). It yields 1e-4 rad per N m for J_m = 0.01 kg m^2 at
+        # h = 0.25 ms (2 % of the 0.0044 rad gap).
+        h = self.config.substep_s
+        self._backlash = []
+        for k, (width, jm) in sorted(backlash.items()):
+            stiffness = jm * (_CONTACT_OMEGA_H / h) ** 2
+            self._backlash.append((k, 0.5 * width, jm, stiffness,
+                                   2 * _CONTACT_DAMPING_RATIO * math.sqrt(stiffness * jm)))
 
     # ---- forces (the hot path: plain Python floats for the 3 joints, pinocchio for the arm) ------------
     def _kinetic(self, i: int, v: float) -> float:
@@ -261,6 +287,8 @@ class ArmPlant:
         self.time += dt
 
     def _substep(self, q: list, dq: list, tau_m: list, ext: list, h: float) -> tuple[list, list]:
+        if self._backlash:
+            tau_m = self._gear_gap(q, dq, tau_m, h)
         other = self._other_torque(q, dq)
         gen_fr = None
         if self._generic:
@@ -284,6 +312,25 @@ class ArmPlant:
             dq_new[i] = v
             q_new[i] = q[i] + h * v
         return q_new, dq_new
+
+    def _gear_gap(self, q: list, dq: list, tau_m: list, h: float) -> list:
+        """Backlash: the motor drives its own inertia; the link only gets the torque the gear passes
+        on once the gap has closed (unilateral contact). Steps the motor side by one substep and
+        returns the torques that reach the links."""
+        tau = list(tau_m)
+        mq, mdq = self.motor_q, self.motor_dq
+        for i, half, jm, stiffness, damping in self._backlash:
+            d = mq[i] - q[i]
+            if d > half:
+                tc = max(0.0, stiffness * (d - half) + damping * (mdq[i] - dq[i]))
+            elif d < -half:
+                tc = min(0.0, stiffness * (d + half) + damping * (mdq[i] - dq[i]))
+            else:
+                tc = 0.0
+            mdq[i] += h * (tau_m[i] - tc) / jm
+            mq[i] += h * mdq[i]
+            tau[i] = tc
+        return tau
 
     def _stick_slip(self, qa, dqa, dq: list, drive: list, gen_fr) -> list:
         m = pin.crba(self.model, self.data, qa).tolist()
@@ -430,10 +477,12 @@ class ArmPlant:
             q = np.asarray(q, dtype=float)
             self.q = q[self._bi].copy()
             self._held_q = q[self._held].copy()
+            self.motor_q = self.q.tolist()  # the motor side centred in its gap
         if dq is not None:
             dq = np.asarray(dq, dtype=float)
             self.dq = dq[self._bi].copy()
             self._held_dq = dq[self._held].copy()
+            self.motor_dq = self.dq.tolist()
 
     def truth(self) -> dict:
         """The plant's hidden truth (effects, parameters, true torque constants). Never in a session."""

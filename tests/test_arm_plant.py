@@ -168,3 +168,71 @@ def test_bad_plant_configurations_raise_one_sentence_errors(tmp_path):
         load_plant_config(bad)
     with pytest.raises(ConfigError, match="does not exist"):
         load_plant_config(tmp_path / "missing.toml")
+
+
+# ---- backlash ----------------------------------------------------------------------------------------
+
+def _backlash_plant(tmp_path, width, name="bl"):
+    """Baseline, upright (no gravity on joint1), noise off, plus a gear gap on joint1."""
+    path = tmp_path / f"{name}.toml"
+    path.write_text(
+        'base = "baseline"\nname = "bl"\n[initial]\njoint4 = 0.0\n'
+        "[sensor]\nposition_noise_probability = 0\ncurrent_noise_lsb = 0\nvelocity_noise_lsb = 0\n"
+        + ("" if width is None else
+           f'[hidden]\neffect = "backlash"\njoint = "joint1"\nwidth = {width}\nmotor_inertia = 0.01\n'))
+    return ArmPlant(load_plant_config(path))
+
+
+def _push_and_reverse(plant, amps=0.15, cycles=300):
+    trace = []
+    for k in range(cycles):
+        cur = np.zeros(N)
+        cur[0] = amps if k < cycles // 3 else -amps
+        plant.step(command(cur, mode=np.array([0, 0, 3, 0, 3, 3, 3, 3])), 0.002)
+        trace.append((plant.q[0], plant.dq[0], plant.motor_q[0] - plant.q[0]))
+    return np.array(trace)
+
+
+def test_backlash_of_zero_width_is_the_motor_inertia_rigidly_geared(tmp_path):
+    rigid = _backlash_plant(tmp_path, None)
+    rigid.model.armature[0] += 0.01  # the same motor inertia, no gap
+    closed = _backlash_plant(tmp_path, 0.0, "closed")
+    a, b = _push_and_reverse(rigid), _push_and_reverse(closed)
+    assert np.abs(a[:, 1]).max() > 0.5  # it really moved, both ways
+    np.testing.assert_allclose(b[:, :2], a[:, :2], atol=0.01)
+
+
+def test_backlash_opens_a_gap_at_each_reversal_that_the_link_coasts_through(tmp_path):
+    width = 0.01
+    gap, rigid = _push_and_reverse(_backlash_plant(tmp_path, width, "gap")), \
+        _push_and_reverse(_backlash_plant(tmp_path, 0.0, "closed"))
+    # while driven, the motor leads the link by half the gap (plus a tiny contact compression)
+    assert gap[99, 2] == pytest.approx(width / 2, abs=2e-4)
+    assert gap[-1, 2] == pytest.approx(-width / 2, abs=2e-4)
+    # right after the reversal the link only feels its friction: it slows down less than the rigid
+    # gear would make it; once the gap has closed it goes the other way like the rigid one
+    decel_gap = (gap[104, 1] - gap[100, 1]) / 0.008
+    decel_rigid = (rigid[104, 1] - rigid[100, 1]) / 0.008
+    assert decel_rigid < 1.3 * decel_gap < 0
+    assert gap[-1, 1] < -0.5 and gap[-1, 1] == pytest.approx(rigid[-1, 1], rel=0.1)
+
+
+def test_a_closed_gap_passes_a_push_below_breakaway_without_moving_the_link(tmp_path):
+    plant = _backlash_plant(tmp_path, 0.0044)
+    plant.motor_q[0] = plant.q[0] + 0.0022  # gap closed on the positive side, at rest
+    cur = np.zeros(N)
+    cur[0] = 0.9 * 0.21 / plant.kt[0]  # 90 % of joint1's breakaway torque
+    for _ in range(300):
+        plant.step(command(cur, mode=np.array([0, 0, 3, 0, 3, 3, 3, 3])), 0.002)
+    assert plant.q[0] == 0.0 and plant.dq[0] == 0.0  # stiction still holds through the gear
+
+
+def test_bad_backlash_configurations_are_refused(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('base = "baseline"\n[hidden]\neffect = "backlash"\njoint = "joint1"\nmotor_inertia = 0\n')
+    with pytest.raises(ConfigError, match="motor_inertia > 0"):
+        ArmPlant(load_plant_config(bad))
+    bad.write_text('[[effects]]\neffect = "backlash"\njoint = "joint2"\n'
+                   '[hidden]\neffect = "backlash"\njoint = "joint2"\n')
+    with pytest.raises(ConfigError, match="backlash is configured twice for joint2"):
+        ArmPlant(load_plant_config(bad))
