@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The main job on the simulated arm, end to end: set up, collect a 10-minute bilateral session from two
-# simulated CRANE-X7s, reproduce the paper's sample-size sweep, then the modelling loop (fit a
-# rigid-body model, report where it fails, diagnose what is missing). Results land in out/.
-# Options (environment): DURATION (simulated seconds, default 600), SEED (default 1), OUT (default out).
+# simulated CRANE-X7s, reproduce the paper's sample-size sweep, then the modelling loop: fit a
+# rigid-body model, report where it fails, diagnose what is missing, add it, and compare the models.
+# Results land in out/ (or $OUT). Environment: DURATION (simulated s, default 600), SEED (default 1).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -10,28 +10,37 @@ BIN=.venv/bin
 OUT=${OUT:-out}
 DURATION=${DURATION:-600}
 SEED=${SEED:-1}
+S="$OUT/session.h5"
 mkdir -p "$OUT"
 
-echo "== 1/6 collect: ${DURATION} s of 4-channel bilateral control on two simulated arms"
-$BIN/crane-collect run --sim --seed "$SEED" --duration "$DURATION" -o "$OUT/session.h5" --force
+echo "== 1/7 collect: ${DURATION} s of 4-channel bilateral control on two simulated arms (lockstep)"
+$BIN/crane-collect run --sim --seed "$SEED" --duration "$DURATION" -o "$S" --force
 
-echo "== 2/6 what the session holds"
-$BIN/crane-train info "$OUT/session.h5"
+echo "== 2/7 what the session holds"
+$BIN/crane-train info "$S"
 
-echo "== 3/6 the paper's sweep: rigid-body, mlp-mse, mlp-masked over 300..3000 samples, 10 trials"
-$BIN/crane-train sweep "$OUT/session.h5" -o "$OUT/sweep" --seed "$SEED"
+echo "== 3/7 the paper's sweep: rigid-body, mlp-mse, mlp-masked over 300..3000 samples, 10 trials"
+$BIN/crane-train sweep "$S" -o "$OUT/sweep" --seed "$SEED"
 
-echo "== 4/6 fit a rigid-body model on the session"
-$BIN/crane-train fit "$OUT/session.h5" --model rigid-body -o "$OUT/models/rigid-body" --seed "$SEED"
+echo "== 4/7 a rigid-body (Newton-Euler) model of the follower"
+$BIN/crane-train fit "$S" --model rigid-body -o "$OUT/models/1-rigid-body" --seed "$SEED"
 
-echo "== 5/6 where does it fail? (report) and what is missing? (diagnose)"
-$BIN/crane-train report "$OUT/models/rigid-body" "$OUT/session.h5" -o "$OUT/report-rigid-body.html"
-$BIN/crane-train diagnose "$OUT/models/rigid-body" "$OUT/session.h5"
+echo "== 5/7 where does it fail? (HTML report) and which physical effect is missing? (diagnose)"
+$BIN/crane-train report "$OUT/models/1-rigid-body" "$S" -o "$OUT/report-rigid-body.html"
+$BIN/crane-train diagnose "$OUT/models/1-rigid-body" "$S"
+$BIN/crane-train diagnose "$OUT/models/1-rigid-body" "$S" --json > "$OUT/diagnosis.json"
 
-echo "== 6/6 the masked network for comparison"
-$BIN/crane-train fit "$OUT/session.h5" --model mlp-masked -o "$OUT/models/mlp-masked" --seed "$SEED"
-$BIN/crane-train compare "$OUT/models/rigid-body" "$OUT/models/mlp-masked" --session "$OUT/session.h5" \
-    -o "$OUT/compare.png"
+echo "== 6/7 add what the diagnosis names (Coulomb and viscous friction), and the networks"
+$BIN/crane-train fit "$S" --model rigid-body --effect coulomb --effect viscous \
+    -o "$OUT/models/2-rigid-body+friction" --seed "$SEED"
+$BIN/crane-train fit "$S" --model mlp-masked -o "$OUT/models/3-mlp-masked" --seed "$SEED"
+$BIN/crane-train fit "$S" --model hybrid --effect coulomb --effect viscous \
+    -o "$OUT/models/4-hybrid" --seed "$SEED"
+
+echo "== 7/7 watch the error fall"
+$BIN/crane-train compare "$OUT/models/1-rigid-body" "$OUT/models/2-rigid-body+friction" \
+    "$OUT/models/3-mlp-masked" "$OUT/models/4-hybrid" -o "$OUT/compare.png"
 
 echo
-echo "Done. Open $OUT/sweep/ (results.json, figures) and $OUT/report-rigid-body.html."
+echo "Done. In $OUT/: sweep/ (results.json, results.csv, mse_vs_samples.png, window_torque.png),"
+echo "report-rigid-body.html, diagnosis.json, models/, compare.png."
