@@ -52,8 +52,11 @@ def build_plant(name: str | None, seed: int, arm):
 @click.option("--no-fast-sync-read", is_flag=True, help="Servos ignore Fast Sync Read (old firmware).")
 @click.option("--return-delay", type=click.IntRange(0, 254), default=None,
               help="Return Delay Time register of every servo (2 us/LSB). Default: factory 250.")
+@click.option("--truth", "truth_path", type=click.Path(dir_okay=False), default=None, metavar="JSON",
+              help="Also write the arm plant's hidden truth (effects, parameters, seed) to this file. "
+                   "Nothing else ever records it.")
 @cli_errors
-def sim_serve(link, plant_name, clock, period_s, seed, no_fast_sync_read, return_delay):
+def sim_serve(link, plant_name, clock, period_s, seed, no_fast_sync_read, return_delay, truth_path):
     """Serve a simulated CRANE-X7 on a pseudo-terminal linked at LINK until Ctrl+C or SIGTERM."""
     from crane_io.description import default_arm
     from crane_io.sim.chain import SimulatedChain
@@ -63,6 +66,13 @@ def sim_serve(link, plant_name, clock, period_s, seed, no_fast_sync_read, return
         raise ConfigError(f"--period must be positive, got {period_s}")
     arm = default_arm()
     plant = build_plant(plant_name, seed, arm)
+    if truth_path is not None:
+        if not hasattr(plant, "write_truth"):
+            raise ConfigError("--truth needs an arm plant (a preset or TOML file), not --plant simple")
+        try:
+            plant.write_truth(truth_path)
+        except OSError as exc:
+            raise ConfigError(f"cannot write the truth file {truth_path}: {exc.strerror or exc}") from None
     chain = SimulatedChain.for_arm(arm, plant, clock=clock, period_s=period_s,
                                    fast_sync_read=not no_fast_sync_read, return_delay_time=return_delay)
     stop = threading.Event()

@@ -36,6 +36,7 @@ The truth (effects and parameters) is available as `truth()` / `write_truth(path
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -46,7 +47,7 @@ from .description import default_arm
 from .dynamics import ArmDynamics
 from .effects import get_effect
 from .errors import ConfigError
-from .plant_config import BILATERAL_JOINTS, PlantConfig, load_plant_config, write_truth
+from .plant_config import BILATERAL_JOINTS, PlantConfig, load_plant_config
 from .sim.plant_api import ActuatorCommand, SensorReading
 from .sim.simple_plant import DEFAULT_INERTIA, DEFAULT_VISCOUS, SimplePlant
 from .units import AMPERE_PER_CURRENT_LSB, RAD_PER_PULSE, RADS_PER_VELOCITY_LSB
@@ -492,7 +493,10 @@ class ArmPlant:
         return t
 
     def write_truth(self, path) -> Path:
-        return write_truth(self.config, path)
+        """Write `truth()` (including the seed this plant runs with) as JSON to `path`."""
+        path = Path(path)
+        path.write_text(json.dumps(self.truth(), indent=2) + "\n")
+        return path
 
 
 

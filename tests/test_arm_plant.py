@@ -147,7 +147,8 @@ def test_truth_is_only_written_when_asked(tmp_path):
     truth = plant.truth()
     assert truth["hidden"] == {"effect": "coulomb", "joint": "joint2", "coulomb": 0.25}
     path = plant.write_truth(tmp_path / "truth.json")
-    assert json.loads(path.read_text())["hidden"]["effect"] == "coulomb"
+    written = json.loads(path.read_text())
+    assert written["hidden"]["effect"] == "coulomb" and written["seed"] == 5  # the seed it runs with
 
 
 def test_bad_plant_configurations_raise_one_sentence_errors(tmp_path):

@@ -470,8 +470,10 @@ def test_sim_serve_serves_the_arm_plant_from_a_toml_file_to_the_bus(tmp_path):
     plant.write_text('base = "crane-x7"\nname = "my-arm"\n[initial]\njoint2 = 0.3\njoint4 = -0.6\n')
     link = tmp_path / "crane_x7"
     exe = Path(sys.executable).parent / "crane-collect"
+    truth = tmp_path / "truth.json"
     proc = subprocess.Popen([str(exe), "sim-serve", "--link", str(link), "--plant", str(plant),
-                             "--clock", "lockstep", "--return-delay", "0"],
+                             "--clock", "lockstep", "--return-delay", "0", "--seed", "7",
+                             "--truth", str(truth)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         for _ in range(400):
@@ -496,6 +498,10 @@ def test_sim_serve_serves_the_arm_plant_from_a_toml_file_to_the_bus(tmp_path):
         out, err = proc.communicate(timeout=20)
     assert proc.returncode == 0, err
     assert "ArmPlant" in out and "lockstep" in out and "Stopped" in out
+    import json
+
+    written = json.loads(truth.read_text())  # asked for: the truth, with the seed it ran with
+    assert written["plant"] == "my-arm" and written["seed"] == 7 and written["effects"]
 
 
 def test_sim_serve_plant_names_pick_presets():
@@ -526,6 +532,12 @@ def test_sim_serve_reports_a_bad_link_in_one_sentence(tmp_path):
     assert "Traceback" not in result.output
     result = CliRunner().invoke(sim_serve, ["--link", str(tmp_path / "x"), "--plant", "no-such-plant"])
     assert result.exit_code != 0 and result.output.startswith("Error: ")
+    result = CliRunner().invoke(sim_serve, ["--link", str(tmp_path / "x"), "--plant", "simple",
+                                            "--truth", str(tmp_path / "t.json")])
+    assert result.exit_code != 0 and "--truth needs an arm plant" in result.output
+    result = CliRunner().invoke(sim_serve, ["--link", str(tmp_path / "x"), "--plant", "baseline",
+                                            "--truth", str(tmp_path / "no" / "t.json")])
+    assert result.output.startswith("Error: cannot write the truth file") and "Traceback" not in result.output
 
 
 # ---- the simple plant ----------------------------------------------------------------------------------
