@@ -20,10 +20,10 @@ echo "== 2/7 what the session holds"
 $BIN/crane-train info "$S"
 
 echo "== 3/7 the paper's sweep: rigid-body, mlp-mse, mlp-masked over 300..3000 samples, 10 trials"
-$BIN/crane-train sweep "$S" -o "$OUT/sweep" --seed "$SEED"
+$BIN/crane-train sweep "$S" -o "$OUT/sweep" --seed "$SEED" --scale-to-data
 
 echo "== 4/7 a rigid-body (Newton-Euler) model of the follower"
-$BIN/crane-train fit "$S" --model rigid-body -o "$OUT/models/1-rigid-body" --seed "$SEED"
+$BIN/crane-train fit "$S" --model rigid-body -o "$OUT/models/1-rigid-body" --seed "$SEED" --scale-to-data
 
 echo "== 5/7 where does it fail? (HTML report) and which physical effect is missing? (diagnose)"
 $BIN/crane-train report "$OUT/models/1-rigid-body" "$S" -o "$OUT/report-rigid-body.html"
@@ -32,10 +32,10 @@ $BIN/crane-train diagnose "$OUT/models/1-rigid-body" "$S" --json > "$OUT/diagnos
 
 echo "== 6/7 add what the diagnosis names (Coulomb and viscous friction), and the networks"
 $BIN/crane-train fit "$S" --model rigid-body --effect coulomb --effect viscous \
-    -o "$OUT/models/2-rigid-body+friction" --seed "$SEED"
-$BIN/crane-train fit "$S" --model mlp-masked -o "$OUT/models/3-mlp-masked" --seed "$SEED"
+    -o "$OUT/models/2-rigid-body+friction" --seed "$SEED" --scale-to-data
+$BIN/crane-train fit "$S" --model mlp-masked -o "$OUT/models/3-mlp-masked" --seed "$SEED" --scale-to-data
 $BIN/crane-train fit "$S" --model hybrid --effect coulomb --effect viscous \
-    -o "$OUT/models/4-hybrid" --seed "$SEED"
+    -o "$OUT/models/4-hybrid" --seed "$SEED" --scale-to-data
 
 echo "== 7/7 watch the error fall"
 $BIN/crane-train compare "$OUT/models/1-rigid-body" "$OUT/models/2-rigid-body+friction" \
