@@ -612,7 +612,6 @@ def _make_recorder(opts: RunOptions, output: Path, config: Config, arm: ArmDescr
                        for n in arm.joint_names],
         "torque_constants": np.array([j.torque_constant for j in arm.joints]),
         "servo_ids": np.array(arm.servo_ids),
-        "servo_models": [j.model for j in arm.joints],
         "bilateral_joints": list(arm.bilateral_joints),
         "software_version": software_version(),
         "start_time": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
@@ -625,6 +624,10 @@ def _make_recorder(opts: RunOptions, output: Path, config: Config, arm: ArmDescr
         attrs[f"{name}_firmware_versions"] = np.array([by_id[i].firmware if i in by_id else -1
                                                        for i in arm.servo_ids])
     attrs["firmware_versions"] = attrs["follower_firmware_versions"]
+    # the models the servos reported when pinged (start-up refused any other than the description's)
+    reported = infos.get("follower", {})
+    attrs["servo_models"] = [reported[i].model if i in reported else j.model
+                             for i, j in zip(arm.servo_ids, arm.joints)]
     if opts.sim:
         attrs["seed"] = int(opts.seed)  # the plant preset is not stored: "hidden-*" names give it away
     return SessionRecorder(output, joint_names=arm.joint_names, rate_hz=config.loop.rate_hz,
