@@ -24,8 +24,9 @@ from crane_io.errors import cli_errors
 def compare(model_dirs, sessions, as_json, output, metric):
     """Compare MODEL_DIR(s), in the given order, on the same held-out samples."""
     from .compare import compare_models, plot, table_text
+    from .progress import show_progress
 
-    result = compare_models(list(model_dirs), list(sessions), progress=not as_json)
+    result = compare_models(list(model_dirs), list(sessions), progress=show_progress(not as_json))
     if output:
         plot(result, output)
     if as_json:

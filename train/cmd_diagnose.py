@@ -1,7 +1,9 @@
 """`crane-train diagnose MODEL_DIR SESSION...`: which physical effect is the model missing?
 
-The sessions are preprocessed as the model's training did; the model's residual on all samples is
-explained, effect by effect, with cross-validation over contiguous time blocks (train.diagnose).
+The sessions are preprocessed as the model's training did; the model's error is explained, effect by
+effect, with cross-validation over contiguous time blocks (train.diagnose): a physics model is refitted
+per fold on all samples, any other model is judged only on the samples it never trained on
+(train.heldout.diagnosis_data).
 """
 
 from __future__ import annotations
@@ -39,23 +41,26 @@ def diagnose(model_dir, sessions, as_json, folds, min_reduction, top, effect_fil
     """Rank the library's effects by how much of MODEL_DIR's error on SESSION(s) each one removes."""
     from crane_io.effects import load_effect_file
 
-    from .heldout import model_settings
+    from .heldout import diagnosis_data, model_settings
     from .models.registry import load_model
     from .preprocess import preprocess
+    from .progress import show_progress
     from .session import read_sessions
 
     for path in effect_files:
         load_effect_file(path)
     model = load_model(model_dir)
     pconf = model_settings(model, model_dir)[0]
-    ds = preprocess(read_sessions(list(sessions)), pconf)
-    result = run_diagnosis(model, ds, folds=folds, min_reduction=min_reduction, progress=not as_json)
+    ds, judged = diagnosis_data(model, preprocess(read_sessions(list(sessions)), pconf), model_dir)
+    result = run_diagnosis(model, ds, folds=folds, min_reduction=min_reduction,
+                           progress=show_progress(not as_json))
+    result.settings["judged_on"] = judged
     if as_json:
         doc = result.to_json()
         doc.update(model=str(model_dir), sessions=list(sessions))
         click.echo(json.dumps(doc, indent=2))
         return
-    click.echo(f"Diagnosis of {model_dir} ({model.method}) on {len(ds)} samples of {', '.join(sessions)}; "
+    click.echo(f"Diagnosis of {model_dir} ({model.method}) on {judged} of {', '.join(sessions)}; "
                f"{folds}-fold cross-validation over contiguous time blocks of each joint's moving samples.")
     for joint in result.joints:
         click.echo("")

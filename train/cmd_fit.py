@@ -15,6 +15,7 @@ from crane_io.errors import ConfigError, cli_errors
 from .cli_options import data_options, load_config, load_dataset, parse_effect
 from .metrics import metrics_table
 from .models.registry import METHODS, make_model
+from .progress import show_progress
 from .splits import make_splits
 
 
@@ -76,14 +77,15 @@ def fit_model(sessions, method: str, out_dir, train_size: int | None = None, see
               help="Python file defining extra effects (see crane_io.effects).")
 @click.option("--epochs", type=int, default=None, help="MLP epochs [100].")
 @data_options
-@click.option("--no-progress", is_flag=True, help="No progress bar.")
+@click.option("--no-progress", is_flag=True,
+              help="No progress bar (there is none anyway when stderr is not a terminal).")
 @cli_errors
 def fit(sessions, method, out_dir, train_size, seed, effects, effect_files, epochs, config_path, joints,
         alpha, zero_phase, scale_to_data, no_progress):
     """Train one model on session files and save it."""
     doc = fit_model(sessions, method, out_dir, train_size, seed, [parse_effect(e) for e in effects],
-                    effect_files, joints, alpha, zero_phase, scale_to_data, epochs, not no_progress,
-                    config_path)
+                    effect_files, joints, alpha, zero_phase, scale_to_data, epochs,
+                    show_progress(not no_progress), config_path)
     click.echo(f"{method}: trained on {doc['train_samples']} samples "
                f"({doc['train_samples_all_moving']} with every joint moving); "
                f"test on {doc['test_samples']} samples")

@@ -31,7 +31,8 @@ def report(model_dir, sessions, output, diagnosis, seed):
     diag = None
     if diagnosis:
         from .diagnose import diagnose as run_diagnosis
+        from .heldout import diagnosis_data
 
-        diag = run_diagnosis(model, ds)
+        diag = run_diagnosis(model, diagnosis_data(model, ds, model_dir, seed)[0])
     path = write_report(output, report_html(model, model_dir, held, sessions, diag))
     click.echo(f"Wrote {path} ({path.stat().st_size / 1e3:.0f} kB); open it in a browser (works offline).")

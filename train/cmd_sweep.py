@@ -9,6 +9,7 @@ import click
 from crane_io.errors import ConfigError, cli_errors
 
 from .cli_options import data_options, load_config, load_dataset, parse_sizes
+from .progress import show_progress
 from .sweep import SWEEP_METHODS, format_table, run_sweep, write_results
 
 
@@ -25,7 +26,8 @@ from .sweep import SWEEP_METHODS, format_table, run_sweep, write_results
 @click.option("--epochs", default=None, type=int, help="MLP training epochs [100].")
 @click.option("--batch-size", default=None, type=int, help="MLP minibatch size [32].")
 @data_options
-@click.option("--no-progress", is_flag=True, help="No progress bars.")
+@click.option("--no-progress", is_flag=True,
+              help="No progress bars (there are none anyway when stderr is not a terminal).")
 @cli_errors
 def sweep(sessions, out_dir, sizes, trials, methods, seed, epochs, batch_size, config_path, joints, alpha,
           zero_phase, scale_to_data, no_progress):
@@ -41,7 +43,7 @@ def sweep(sessions, out_dir, sizes, trials, methods, seed, epochs, batch_size, c
     if settings.epochs < 1 or settings.batch_size < 1:
         raise ConfigError("the number of epochs and the batch size must be at least 1")
     ds = load_dataset(sessions, joints, alpha, zero_phase, cfg["preprocess"])
-    result = run_sweep(ds, size_list, trials, method_list, seed, progress=not no_progress,
+    result = run_sweep(ds, size_list, trials, method_list, seed, progress=show_progress(not no_progress),
                        split_config=cfg["splits"], scale_to_data=scale_to_data, mlp_settings=settings)
     paths = write_results(result, out_dir)
     click.echo(format_table(result))

@@ -76,6 +76,10 @@ class Candidate:
     sentence: str
     other_joints: dict[str, float] = field(default_factory=dict)  # arm scope: reduction on other joints
     n_parameters: int = 1  # parameters the candidate estimates (linear + shape)
+    # spill-over check: set when this candidate was significant alone but no longer is once the
+    # strongest significant candidate of another joint is in the model ("coulomb on joint2")
+    explained_by: str | None = None
+    reduction_given_leader: float | None = None  # its error reduction with that candidate added
 
 
 @dataclass
@@ -234,6 +238,7 @@ class _Fit:
     count: np.ndarray  # (J,) held-out rows per joint
     fold_values: list[dict[str, float]]
     shape_all: dict | None
+    shape_index: int = 0  # index into columns_by_shape of shape_all
 
 
 def _cross_validate(engine: _Engine, effect, columns_by_shape, baseline) -> _Fit:
@@ -257,7 +262,7 @@ def _cross_validate(engine: _Engine, effect, columns_by_shape, baseline) -> _Fit
     count = engine.W.sum(axis=0)
     every = list(range(K))
     shape_all = min(((engine.fit(C, every)[2], i) for i, (_, C) in enumerate(columns_by_shape)))[1]
-    return _Fit(sse_before, sse_after, count, fold_values, columns_by_shape[shape_all][0])
+    return _Fit(sse_before, sse_after, count, fold_values, columns_by_shape[shape_all][0], shape_all)
 
 
 # ---- sentences ----------------------------------------------------------------------------------------
@@ -417,6 +422,7 @@ def _run(ds: Dataset, X, y, residual, effects=None, *, exclude=(), folds: int = 
         iterator = tqdm(work, desc="diagnose", unit="candidate", leave=False)
 
     results: dict[int, list[Candidate]] = {j: [] for j in range(J)}
+    kept: dict[int, tuple] = {}  # id(candidate) -> (effect, j, columns_by_shape, fit): the spill-over check
     for effect, j in iterator:
         name = _effect_name(effect)
         units = _param_units(effect)
@@ -456,6 +462,9 @@ def _run(ds: Dataset, X, y, residual, effects=None, *, exclude=(), folds: int = 
             n_parameters=_complexity(effect))
         cand.sentence = _candidate_sentence(effect, cand)
         results[home].append(cand)
+        kept[id(cand)] = (effect, j, columns_by_shape, fit)
+
+    _spill_over_check(engine, X, y, ds, fold, folds, results, kept, min_reduction, min_fold_fraction)
 
     candidates, summary, correlations = [], {}, {}
     for j in range(J):
@@ -472,6 +481,54 @@ def _run(ds: Dataset, X, y, residual, effects=None, *, exclude=(), folds: int = 
                 "samples": len(ds), "moving_samples": {ds.joint_names[j]: int(ds.moving[:, j].sum())
                                                        for j in range(J)}}
     return Diagnosis(tuple(ds.joint_names), candidates, summary, correlations, settings)
+
+
+def _spill_over_check(engine, X, y, ds, fold, folds, results, kept, min_reduction, min_fold_fraction):
+    """A missing effect on one joint can make a candidate on ANOTHER joint look significant: the refit
+    bends the rigid-body parameters the joints share towards the missing effect, and a column that acts
+    on the other joint alone (a torque-constant error, a spring ...) buys back what that cost there.
+    Forward selection, one step (SINDy's sequential idea): the significant candidate that removes the
+    most held-out squared error over all joints (N m^2, not a fraction) is put into the model, and every
+    significant candidate of the other joints is cross-validated again on top of it. One that is no
+    longer significant is demoted, with the reason in its sentence: add the leading effect first and
+    diagnose again."""
+    gains = []
+    for cands in results.values():
+        for c in cands:
+            if c.significant:
+                fit = kept[id(c)][3]
+                gains.append((float((fit.sse_before - fit.sse_after).sum()), c))
+    if not gains:
+        return
+    leader = max(gains, key=lambda g: g[0])[1]
+    others = [c for _, c in gains if c.joint != leader.joint]
+    if not others:
+        return
+    _, _, lead_cols, lead_fit = kept[id(leader)]
+    X2 = np.concatenate([X, lead_cols[lead_fit.shape_index][1]], axis=2)
+    engine2 = _Engine(X2, y, ds.moving, fold, folds)
+    baseline2 = []
+    for k in range(folds):
+        th_x, _, _ = engine2.fit(None, [i for i in range(folds) if i != k])
+        baseline2.append(engine2.heldout_sse(None, th_x, None, k))
+    label = f"{leader.effect} on {leader.joint}"
+    for c in others:
+        effect, j, cols, _ = kept[id(c)]
+        fit = _cross_validate(engine2, effect, cols, baseline2)
+        home = ds.joint_names.index(c.joint)
+        before = fit.sse_before[home].sum()
+        red = 0.0 if before == 0 else float(1.0 - fit.sse_after[home].sum() / before)
+        improved = int(sum(a < b for a, b in zip(fit.sse_after[home], fit.sse_before[home])))
+        c.reduction_given_leader = red
+        if red >= min_reduction and improved >= math.ceil(min_fold_fraction * folds):
+            continue
+        c.significant = False
+        c.explained_by = label
+        c.sentence = (f"{c.joint}: {c.title} explains {_pct(c.error_reduction)} of the remaining error on "
+                      f"its own but only {_pct(max(red, 0.0))} once {label} is added: most likely "
+                      f"{leader.joint}'s missing effect leaking into {c.joint} through the rigid-body "
+                      f"parameters the joints share; add {leader.effect} to {leader.joint} first and "
+                      "diagnose again.")
 
 
 def _rank(cands: list[Candidate]) -> list[Candidate]:
@@ -548,8 +605,15 @@ def _joint_summary(joint: str, ranked: list[Candidate], corr: list[dict]) -> str
         return text
     if ranked:
         best = ranked[0]
-        lead = (f"{joint}: no candidate effect explains a significant part of the remaining error "
-                f"(best: {best.effect}, {_pct(max(best.error_reduction, 0.0))})")
+        if best.explained_by:
+            lead = (f"{joint}: no candidate effect explains a significant part of the remaining error "
+                    f"once {best.explained_by} is added (best: {best.effect}, "
+                    f"{_pct(max(best.error_reduction, 0.0))} on its own, "
+                    f"{_pct(max(best.reduction_given_leader or 0.0, 0.0))} with {best.explained_by}: "
+                    f"spill-over through the shared rigid-body parameters)")
+        else:
+            lead = (f"{joint}: no candidate effect explains a significant part of the remaining error "
+                    f"(best: {best.effect}, {_pct(max(best.error_reduction, 0.0))})")
     else:
         lead = f"{joint}: no candidate effects to try"
     return f"{lead}; {_correlation_sentence(corr)}."

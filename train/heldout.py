@@ -114,3 +114,29 @@ def evaluation_data(model, session_paths, seed: int | None = None,
     seed = model_seed if seed is None else seed
     splits = make_splits(ds, sconf, seed=seed, scale_to_data=True)
     return ds, splits, held_out(ds, splits, session_paths, seed)
+
+
+def diagnosis_data(model, ds: Dataset, model_dir=None, seed: int | None = None) -> tuple[Dataset, str]:
+    """The rows `crane-train diagnose` judges `model` on, and one sentence saying which.
+
+    A physics model (rigid-body: linear in its parameters) is refitted from scratch on K-1 time blocks
+    and scored on the K-th (train.diagnose), so its own training rows are no advantage: every row of the
+    sessions is used - cross-validation proper, and the most data. Any other model (an MLP, the hybrid)
+    is kept as trained and only the candidate is fitted to its residual; on the rows it was trained or
+    early-stopped on (its pool and validation rows) that residual is optimistically small (the network
+    may have bent itself towards the missing effect there), so those rows are left out and only rows its
+    training never saw remain.
+    """
+    from .diagnose import physics_basis
+
+    if physics_basis(model, ds.subset(np.arange(min(len(ds), 2)))) is not None:
+        return ds, (f"all {len(ds)} samples (the physics model is refitted on each fold's training blocks, "
+                    "so none of them is scored by a fit that saw it)")
+    _, sconf, model_seed = model_settings(model, model_dir)
+    splits = make_splits(ds, sconf, seed=model_seed if seed is None else seed, scale_to_data=True)
+    seen = np.zeros(len(ds), bool)
+    for key in ("pool", "val"):
+        seen[np.asarray(splits.index[key], dtype=int)] = True
+    rows = np.flatnonzero(~seen)
+    return ds.subset(rows), (f"the {len(rows)} of {len(ds)} samples the model was neither trained nor "
+                             "validated on")
