@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from crane_io.description import ArmDescription, default_arm
-from crane_io.errors import ConfigError, CraneError, HardwareError
+from crane_io.errors import ConfigError, CraneError, HardwareError, SessionFileError
 from crane_io.shutdown import Terminated, handle_termination
 
 from .config import Config, load_config
@@ -528,6 +528,7 @@ def run_session(opts: RunOptions) -> RunResult:
     output = Path(opts.output)
     if output.exists() and not opts.force:
         raise CraneError(f"{output} already exists; pass --force to overwrite it")
+    _check_output_folder(output)
     sims: dict = {}
     if opts.sim:
         if opts.leader_port or opts.follower_port:
@@ -603,6 +604,19 @@ def run_session(opts: RunOptions) -> RunResult:
     if loop is not None and loop.breach is not None:
         raise SafetyStop(f"safety stop: {loop.breach.message} (session saved in {output})")
     return result
+
+
+def _check_output_folder(output: Path) -> None:
+    """A session file that cannot be written is found out before any torque is on, not after the
+    alignment. Missing folders are created."""
+    folder = output.parent
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SessionFileError(f"cannot create session file {output}: folder {folder} cannot be created "
+                               f"({exc.strerror or exc})") from None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise SessionFileError(f"cannot create session file {output}: folder {folder} is not writable")
 
 
 def _make_recorder(opts: RunOptions, output: Path, config: Config, arm: ArmDescription, hw: dict):

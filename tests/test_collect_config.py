@@ -89,3 +89,14 @@ def test_cli_missing_port_is_one_error_line(tmp_path):
 def test_cli_hardware_run_needs_both_ports(tmp_path):
     r = CliRunner().invoke(main, ["run", "-o", str(tmp_path / "s.h5")])
     assert r.exit_code != 0 and "--leader-port" in r.output
+
+
+def test_cli_unwritable_output_is_refused_before_the_arms_move(tmp_path):
+    not_a_folder = tmp_path / "notes.txt"
+    not_a_folder.write_text("keep me")
+    r = CliRunner().invoke(main, ["run", "--sim", "--plant", "simple", "--duration", "1",
+                                  "-o", str(not_a_folder / "s.h5")])
+    assert r.exit_code != 0
+    assert r.output.startswith("Error: cannot create session file") and r.output.count("\n") == 1
+    assert "aligning" not in r.output  # found out before start-up, not after the alignment
+    assert not_a_folder.read_text() == "keep me"
