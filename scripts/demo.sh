@@ -23,23 +23,23 @@ echo "== 3/7 the paper's sweep: rigid-body, mlp-mse, mlp-masked over 300..3000 s
 $BIN/crane-train sweep "$S" -o "$OUT/sweep" --seed "$SEED" --scale-to-data
 
 echo "== 4/7 a rigid-body (Newton-Euler) model of the follower"
-$BIN/crane-train fit "$S" --model rigid-body -o "$OUT/models/1-rigid-body" --seed "$SEED" --scale-to-data
+$BIN/crane-train fit "$S" --model rigid-body -o "$OUT/models/rigid-body" --seed "$SEED" --scale-to-data
 
 echo "== 5/7 where does it fail? (HTML report) and which physical effect is missing? (diagnose)"
-$BIN/crane-train report "$OUT/models/1-rigid-body" "$S" -o "$OUT/report-rigid-body.html"
-$BIN/crane-train diagnose "$OUT/models/1-rigid-body" "$S"
-$BIN/crane-train diagnose "$OUT/models/1-rigid-body" "$S" --json > "$OUT/diagnosis.json"
+$BIN/crane-train report "$OUT/models/rigid-body" "$S" -o "$OUT/report-rigid-body.html"
+$BIN/crane-train diagnose "$OUT/models/rigid-body" "$S"
+$BIN/crane-train diagnose "$OUT/models/rigid-body" "$S" --json > "$OUT/diagnosis.json"
 
 echo "== 6/7 add what the diagnosis names (Coulomb and viscous friction), and the networks"
 $BIN/crane-train fit "$S" --model rigid-body --effect coulomb --effect viscous \
-    -o "$OUT/models/2-rigid-body+friction" --seed "$SEED" --scale-to-data
-$BIN/crane-train fit "$S" --model mlp-masked -o "$OUT/models/3-mlp-masked" --seed "$SEED" --scale-to-data
+    -o "$OUT/models/rigid-body+friction" --seed "$SEED" --scale-to-data
+$BIN/crane-train fit "$S" --model mlp-masked -o "$OUT/models/mlp-masked" --seed "$SEED" --scale-to-data
 $BIN/crane-train fit "$S" --model hybrid --effect coulomb --effect viscous \
-    -o "$OUT/models/4-hybrid" --seed "$SEED" --scale-to-data
+    -o "$OUT/models/hybrid" --seed "$SEED" --scale-to-data
 
 echo "== 7/7 watch the error fall"
-$BIN/crane-train compare "$OUT/models/1-rigid-body" "$OUT/models/2-rigid-body+friction" \
-    "$OUT/models/3-mlp-masked" "$OUT/models/4-hybrid" -o "$OUT/compare.png"
+$BIN/crane-train compare "$OUT/models/rigid-body" "$OUT/models/rigid-body+friction" \
+    "$OUT/models/mlp-masked" "$OUT/models/hybrid" -o "$OUT/compare.png"
 
 echo
 echo "Done. In $OUT/: sweep/ (results.json, results.csv, mse_vs_samples.png, window_torque.png),"
