@@ -147,3 +147,35 @@ def test_config_file_overrides_defaults_and_bad_config_is_one_sentence(session, 
     cfg.write_text("[mlp]\nepochz = 3\n")
     result = CliRunner().invoke(main, ["sweep", str(session), "-o", str(out), "--config", str(cfg)])
     assert result.exit_code != 0 and "unknown key(s) epochz in [mlp]" in result.output
+
+
+def test_fit_with_a_custom_effect_from_the_users_file(session, tmp_path, monkeypatch):
+    """`fit --effect-file mine.py --effect NAME:joint=...`: the user's effect becomes a fitted column, and
+    the saved model re-loads the file by itself (a fresh process knows nothing of the effect)."""
+    import crane_io.effects as fx
+
+    monkeypatch.setattr(fx, "_REGISTRY", dict(fx._REGISTRY))  # the user effect leaves with the test
+    user = tmp_path / "mine.py"
+    user.write_text(
+        "from crane_io.effects.base import Effect, Param, joint_columns\n"
+        "class Drag(Effect):\n"
+        "    name = 'drag-test'\n"
+        "    title = 'quadratic drag'\n"
+        "    signature = 'the residual of {joint} grows with the square of its velocity'\n"
+        "    params = (Param('drag', 'N m s^2/rad^2', 0.01, 'drag per (rad/s)^2'),)\n"
+        "    def _columns(self, q, dq, ddq, joint, shape):\n"
+        "        return joint_columns(len(q), q.shape[1], joint, dq[:, joint] * abs(dq[:, joint]))\n")
+    out = tmp_path / "rb"
+    result = CliRunner().invoke(main, ["fit", str(session), "--model", "rigid-body", "-o", str(out),
+                                       "--effect-file", str(user), "--effect", "drag-test:joint=joint2",
+                                       "--scale-to-data", "--no-progress"])
+    assert result.exit_code == 0, result.output
+    monkeypatch.setattr(fx, "_REGISTRY", {k: v for k, v in fx._REGISTRY.items() if k != "drag-test"})
+    model = load_model(out)  # loads mine.py again
+    assert [(v["effect"], v["joint"]) for v in model.effect_values()] == [("drag-test", "joint2")]
+    assert "drag-test" in fx._REGISTRY
+    q = np.zeros((2, 3))
+    assert np.isfinite(model.predict(q, q + 0.5, q)).all()
+    bad = CliRunner().invoke(main, ["fit", str(session), "--model", "rigid-body", "-o", str(tmp_path / "x"),
+                                    "--effect", "nonexistent-effect", "--scale-to-data", "--no-progress"])
+    assert bad.exit_code != 0 and bad.output.startswith("Error: ") and "Traceback" not in bad.output
