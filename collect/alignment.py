@@ -1,0 +1,114 @@
+"""The alignment before bilateral control: both arms under independent position control
+(DOB-compensated) while the follower is moved slowly (homing speed, minimum-jerk) to the leader's pose
+and the held joints to their held pose. On hardware arms that differ by more than
+`safety.max_start_difference` are refused; in simulation the leader is first brought to
+`operator.start`. Nothing of it is recorded.
+
+    message = align(pair, ctl, safety, config, arm, simulated=True, lockstep=True, say=print)
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from crane_io.description import ArmDescription
+from crane_io.errors import HardwareError
+
+from .arm_pair import ARMS, ArmPair
+from .config import Config
+from .controller import ArmSignals, BilateralController
+from .operator import minimum_jerk
+from .pacing import CycleTimer
+from .safety import SafetyMonitor
+
+SETTLE_S = 0.3  # s of holding the target after the move
+
+
+class SafetyStop(HardwareError):
+    """The run ended in a safety stop (the session file is valid and says why)."""
+
+
+class StartRefused(HardwareError):
+    """The arms could not be brought into agreement safely."""
+
+
+def _states(results):
+    """The two states of a read_both / write result, or its first error raised."""
+    for _value, exc, _ in results:
+        if exc is not None:
+            raise exc
+    return [value for value, _, _ in results]
+
+
+def _targets(q_l0, q_f0, config: Config, arm: ArmDescription, simulated: bool):
+    """Where both arms go: the leader's pose (hardware) or operator.start (simulation) on the bilateral
+    joints, the held pose on the others. Hardware arms too far apart are refused."""
+    bil = np.array([n in arm.bilateral_joints for n in arm.joint_names])
+    held_goal = np.array([config.held.get(n, 0.0) for n in arm.joint_names])
+    s = config.safety
+    if simulated:
+        start = config.operator.start
+        target = np.array([start.get(n, 0.0) for n in arm.joint_names])
+    else:
+        target = q_l0.copy()
+        diff = np.abs(q_l0 - q_f0) * bil
+        if diff.max() > s.max_start_difference:
+            i = int(np.argmax(diff))
+            raise StartRefused(
+                f"leader and follower {arm.joint_names[i]} differ by {np.degrees(diff[i]):.0f} deg, "
+                f"more than the {np.degrees(s.max_start_difference):.0f} deg allowed at start; bring the "
+                "arms closer by hand (torque is off) and start again")
+    return np.where(bil, target, held_goal)
+
+
+def align(pair: ArmPair, ctl: BilateralController, safety: SafetyMonitor, config: Config,
+          arm: ArmDescription, *, simulated: bool, lockstep: bool, say: Callable[[str], None]) -> str:
+    """Bring both arms to their start pose; returns the sentence for the session's start event.
+    Raises StartRefused, SafetyStop (a breach while aligning) or the first bus error."""
+    s = config.safety
+    kt = np.array([j.torque_constant for j in arm.joints])
+    bil = np.array([n in arm.bilateral_joints for n in arm.joint_names])
+    first_l, first_f = _states(pair.read_both())
+    q_l0, q_f0 = first_l.position, first_f.position
+    target_l = _targets(q_l0, q_f0, config, arm, simulated)
+    target_f = target_l.copy()
+    dist = max(np.abs(target_l - q_l0).max(), np.abs(target_f - q_f0).max())
+    move_s = max(0.5, 1.875 * dist / s.homing_speed) if dist > s.agree_tolerance else 0.0
+    say(f"aligning the arms: {np.degrees(dist):.1f} deg at most, {move_s + SETTLE_S:.1f} s")
+    period = config.loop.period_s
+    ticks = 2 if lockstep else 1  # in lockstep each goal sync write advances the plant
+    t = 0.0
+    timer = CycleTimer(config.loop.rate_hz, lockstep=lockstep, spin_s=config.loop.spin_s)
+    timer.start()
+    last = time.perf_counter()
+    while t < move_s + SETTLE_S:
+        if move_s > 0:
+            sj, dsj = minimum_jerk(np.array(min(t / move_s, 1.0)))
+            ds = float(dsj) / move_s if t < move_s else 0.0
+        else:
+            sj, ds = np.array(1.0), 0.0
+        ref_l = (q_l0 + (target_l - q_l0) * float(sj), (target_l - q_l0) * ds)
+        ref_f = (q_f0 + (target_f - q_f0) * float(sj), (target_f - q_f0) * ds)
+        sl, sf = _states(pair.read_both())
+        for name, st in zip(ARMS, (sl, sf)):
+            b = safety.check(name, st.position, st.velocity)
+            if b is not None:
+                raise SafetyStop(f"safety stop while aligning: {b.message}")
+        now = time.perf_counter()
+        dt = ticks * period if lockstep else max(now - last, 1e-4)
+        last = now
+        cmd = ctl.hold(ArmSignals(sl.position), ArmSignals(sf.position), ref_l, ref_f, dt)
+        tau_l = safety.limit_torque(sl.position, cmd.leader_tau, sl.velocity, spring=False)
+        tau_f = safety.limit_torque(sf.position, cmd.follower_tau, sf.velocity, spring=False)
+        ctl.applied(tau_l, tau_f)
+        _states(pair.write_positions(ref_l[0], ref_f[0]))
+        _states(pair.write_currents(tau_l / kt, tau_f / kt))
+        timer.wait()
+        t += dt
+    final = pair.read_both()
+    ql, qf = final[0][0].position, final[1][0].position
+    gap = float(np.abs(ql - qf)[bil].max())
+    return f"arms aligned in {t:.1f} s; largest leader-follower difference {np.degrees(gap):.2f} deg"

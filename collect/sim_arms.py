@@ -1,0 +1,73 @@
+"""The two simulated arms of `crane-collect run --sim`: their plants, their in-process servo chains
+(dxlsim://), the switch from lockstep to the wall clock, and the follower plant's truth on request.
+
+    sims = make_sim_arms(opts, config, arm)        # {"leader": SimulatedArm, "follower": SimulatedArm}
+    ports = {name: sims[name].url for name in ARMS}
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from crane_io.description import ArmDescription
+from crane_io.errors import ConfigError
+
+from .arm_pair import ARMS
+from .config import Config
+
+if TYPE_CHECKING:
+    from .runner import RunOptions
+
+
+def make_plant(spec: str | None, seed: int, arm: ArmDescription):
+    """The plant behind a simulated arm: ArmPlant from a preset/TOML (default "crane-x7"), or
+    "simple" for the light SimplePlant."""
+    from crane_io.sim.simple_plant import SimplePlant
+
+    if spec == "simple":
+        return SimplePlant.from_arm(arm)
+    try:
+        from crane_io.arm_plant import ArmPlant
+        from crane_io.plant_config import load_plant_config
+    except ImportError:
+        if spec is None:
+            return SimplePlant.from_arm(arm)
+        raise ConfigError(f"--plant {spec} needs crane_io.arm_plant, which is not installed; "
+                          "use --plant simple") from None
+    return ArmPlant(load_plant_config(spec or "crane-x7"), seed=seed)
+
+
+def make_sim_arms(opts: RunOptions, config: Config, arm: ArmDescription) -> dict:
+    """Leader and follower simulated arms (plant seeds 2 seed and 2 seed + 1), in lockstep."""
+    from crane_io.sim import simulated_arm
+
+    # Start-up (ping, configure, torque on) always runs in lockstep so the simulated arms do not fall
+    # under gravity while their torque is off; --realtime switches them to the wall clock afterwards.
+    clock = "lockstep"
+    sims = {}
+    tag = f"{os.getpid()}-{id(opts) & 0xFFFF:x}"
+    for k, name in enumerate(ARMS):
+        plant = make_plant(opts.plant, opts.seed * 2 + k, arm)
+        sims[name] = simulated_arm(name=f"{name}-{tag}", plant=plant, clock=clock,
+                                   period_s=config.loop.period_s, arm=arm, return_delay_time=0)
+    return sims
+
+
+def switch_to_wall_clock(sims: dict) -> None:
+    """From now on the simulated arms follow real time, continuing from their present simulated time."""
+    for sim in sims.values():
+        sim.chain.set_clock("wall")
+
+
+def write_truth(sims: dict, path: str | Path) -> Path:
+    """Write the follower plant's truth (effects, parameters, seed) to `path`, a file of its own: the
+    session never holds it. One sentence (ConfigError) for a plant without truth or an unwritable path."""
+    plant = sims["follower"].plant
+    if not hasattr(plant, "write_truth"):
+        raise ConfigError("--truth needs an arm plant (a preset or TOML file), not --plant simple")
+    try:
+        return plant.write_truth(path)
+    except OSError as exc:
+        raise ConfigError(f"cannot write the truth file {path}: {exc.strerror or exc}") from None

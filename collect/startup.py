@@ -1,0 +1,138 @@
+"""Start-up of `crane-collect run`, everything before the alignment that can refuse a run:
+
+- the options, the output file and its folder (made if missing), the ports: checked before anything
+  starts;
+- the two ports (simulated or the user's), both buses opened, latency timers checked (a warning),
+  every servo pinged and its model checked, servos configured (return delay 0, modes, Bus Watchdog),
+  torque on; a failure closes what was opened;
+- the session file opened with what the run knows about itself (its attributes), after the alignment.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from crane_io.description import ArmDescription
+from crane_io.errors import ConfigError, CraneError, SessionFileError
+
+from .arm_pair import ARMS
+from .config import Config
+from .recorder import SessionRecorder
+
+if TYPE_CHECKING:
+    from .runner import RunOptions
+
+
+def software_version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("crane-x7")
+    except Exception:  # noqa: BLE001 - not installed: still record something
+        return "unknown"
+
+
+def check_options(opts: RunOptions) -> None:
+    """One sentence (ConfigError) for options that do not go together, before anything starts."""
+    if opts.duration is not None and not opts.duration > 0:
+        raise ConfigError(f"--duration must be positive, got {opts.duration}")
+    if opts.realtime and not opts.sim:
+        raise ConfigError("--realtime only applies to --sim (hardware always runs in real time)")
+    if opts.truth is not None and not opts.sim:
+        raise ConfigError("--truth only applies to --sim (real arms have no truth to write)")
+
+
+def check_ports(opts: RunOptions) -> None:
+    """--sim and the ports exclude each other; hardware needs two different ports."""
+    if opts.sim:
+        if opts.leader_port or opts.follower_port:
+            raise ConfigError("--leader-port/--follower-port cannot be combined with --sim")
+    else:
+        if not opts.leader_port or not opts.follower_port:
+            raise ConfigError("without --sim both --leader-port and --follower-port are needed "
+                              "(see `crane-collect ports`)")
+        if opts.leader_port == opts.follower_port:
+            raise ConfigError("--leader-port and --follower-port must be different ports")
+
+
+def check_output(output: Path, force: bool) -> None:
+    """A session file that cannot be written is found out before any torque is on, not after the
+    alignment. An existing file needs --force. Missing folders are created."""
+    if output.exists() and not force:
+        raise CraneError(f"{output} already exists; pass --force to overwrite it")
+    folder = output.parent
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SessionFileError(f"cannot create session file {output}: folder {folder} cannot be created "
+                               f"({exc.strerror or exc})") from None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise SessionFileError(f"cannot create session file {output}: folder {folder} is not writable")
+
+
+def open_buses(opts: RunOptions, arm: ArmDescription, config: Config, ports: dict, out) -> tuple[dict, dict]:
+    """Both buses open, every servo checked and configured, torque on: (buses, {"infos", "warnings"})."""
+    from crane_io.bus import DynamixelBus
+    from crane_io.ports import port_warnings
+
+    buses: dict = {}
+    infos: dict = {}
+    warnings_: list[str] = []
+    try:
+        for name in ARMS:
+            port = ports[name]
+            if not opts.sim:
+                for w in port_warnings(port):
+                    warnings_.append(w)
+                    print(f"Warning: {w}", file=out or sys.stderr, flush=True)
+            bus = DynamixelBus(port, arm, name=name)
+            buses[name] = bus
+            bus.open()
+        for name in ARMS:
+            infos[name] = buses[name].ping_all()
+        for name in ARMS:
+            buses[name].configure(watchdog_s=config.safety.watchdog_s)
+        for name in ARMS:
+            buses[name].torque_on()
+    except BaseException:
+        for bus in buses.values():
+            bus.close()
+        raise
+    return buses, {"infos": infos, "warnings": warnings_}
+
+
+def make_recorder(opts: RunOptions, output: Path, config: Config, arm: ArmDescription,
+                  hw: dict) -> SessionRecorder:
+    """The session file, with the run's attributes (never the simulated plants' truth)."""
+    infos = hw["infos"]
+    attrs = {
+        "tau_source": ["goal_current" if n in arm.bilateral_joints else "present_current"
+                       for n in arm.joint_names],
+        "torque_constants": np.array([j.torque_constant for j in arm.joints]),
+        "servo_ids": np.array(arm.servo_ids),
+        "bilateral_joints": list(arm.bilateral_joints),
+        "software_version": software_version(),
+        "start_time": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "config_toml": config.to_toml(),
+        "gravity_model": config.controller.gravity_model,
+        "lockstep": bool(opts.sim and not opts.realtime),
+    }
+    for name in ARMS:
+        by_id = infos.get(name, {})
+        attrs[f"{name}_firmware_versions"] = np.array([by_id[i].firmware if i in by_id else -1
+                                                       for i in arm.servo_ids])
+    attrs["firmware_versions"] = attrs["follower_firmware_versions"]
+    # the models the servos reported when pinged (start-up refused any other than the description's)
+    reported = infos.get("follower", {})
+    attrs["servo_models"] = [reported[i].model if i in reported else j.model
+                             for i, j in zip(arm.servo_ids, arm.joints)]
+    if opts.sim:
+        attrs["seed"] = int(opts.seed)  # the plant preset is not stored: "hidden-*" names give it away
+    return SessionRecorder(output, joint_names=arm.joint_names, rate_hz=config.loop.rate_hz,
+                           source="sim" if opts.sim else "hardware", attrs=attrs, force=opts.force)
