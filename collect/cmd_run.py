@@ -15,6 +15,9 @@ from crane_io.errors import cli_errors
 @click.option("--plant", default=None, metavar="PRESET_OR_TOML",
               help="Physics of the simulated arms: an arm-plant preset (default crane-x7), a plant TOML, "
                    "or 'simple'. Only with --sim.")
+@click.option("--truth", "truth_path", type=click.Path(dir_okay=False), default=None, metavar="JSON",
+              help="With --sim and an arm plant: also write the follower plant's truth (effects, "
+                   "parameters, seed) to this JSON file, overwriting it. Never stored in the session.")
 @click.option("--seed", type=int, default=0, show_default=True,
               help="Seed of the simulated operator and plants (--sim).")
 @click.option("--duration", type=float, default=None, metavar="S",
@@ -31,8 +34,8 @@ from crane_io.errors import cli_errors
 @click.option("--force", is_flag=True, help="Overwrite the output file if it exists.")
 @click.option("--quiet", is_flag=True, help="No live status line and no summary.")
 @cli_errors
-def run(output, sim, plant, seed, duration, rate, config_path, realtime, leader_port, follower_port,
-        force, quiet):
+def run(output, sim, plant, truth_path, seed, duration, rate, config_path, realtime, leader_port,
+        follower_port, force, quiet):
     """Drive leader and follower under 4-channel bilateral control and record a session.
 
     Start-up checks both ports, every servo's model and the latency timers, brings the arms into
@@ -45,4 +48,4 @@ def run(output, sim, plant, seed, duration, rate, config_path, realtime, leader_
         raise click.UsageError("--plant only applies to --sim")
     run_session(RunOptions(output=output, sim=sim, plant=plant, seed=seed, duration=duration, rate=rate,
                            config=config_path, realtime=realtime, leader_port=leader_port,
-                           follower_port=follower_port, force=force, status=not quiet))
+                           follower_port=follower_port, force=force, status=not quiet, truth=truth_path))

@@ -277,3 +277,50 @@ def test_hardware_path_over_ptys_refuses_arms_that_disagree(tmp_path):
             s.stop()
     assert not (tmp_path / "s.h5").exists()  # nothing recorded
     assert all(s.read_register("torque_enable") == 0 for c in chains.values() for s in c.servos.values())
+
+
+def _session_attrs(path) -> dict:
+    with h5py.File(path, "r") as f:
+        return {k: str(v) for k, v in f.attrs.items() if k != "start_time"}
+
+
+def test_truth_of_the_follower_plant_goes_to_its_own_file_only_when_asked(tmp_path, cfg):
+    import json
+
+    from click.testing import CliRunner
+
+    from collect.cli import main
+    from crane_io.arm_plant import ArmPlant
+    from crane_io.plant_config import load_plant_config
+
+    common = ["run", "--sim", "--plant", "hidden-coulomb", "--seed", "3", "--duration", "0.2",
+              "--config", str(cfg), "--quiet"]
+    truth = tmp_path / "truth.json"
+    asked = CliRunner().invoke(main, [*common, "-o", str(tmp_path / "a.h5"), "--truth", str(truth)])
+    assert asked.exit_code == 0, asked.output
+    written = json.loads(truth.read_text())
+    follower = ArmPlant(load_plant_config("hidden-coulomb"), seed=2 * 3 + 1)  # the leader's seed is 6
+    assert written == json.loads(json.dumps(follower.truth()))
+    assert written["seed"] == 7 and written["hidden"]["effect"] == "coulomb"
+    # the session is the same as without --truth: nothing of the truth went into it
+    plain = CliRunner().invoke(main, [*common, "-o", str(tmp_path / "b.h5")])
+    assert plain.exit_code == 0, plain.output
+    assert _session_attrs(tmp_path / "a.h5") == _session_attrs(tmp_path / "b.h5")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.h5", "b.h5", "test.toml", "truth.json"]
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--leader-port", "/dev/null", "--follower-port", "/dev/zero"], "Error: --truth only applies to --sim"),
+    (["--sim", "--plant", "simple"], "Error: --truth needs an arm plant"),
+])
+def test_truth_is_refused_in_one_sentence_before_anything_starts(tmp_path, cfg, args, words):
+    from click.testing import CliRunner
+
+    from collect.cli import main
+
+    out = tmp_path / "s.h5"
+    r = CliRunner().invoke(main, ["run", *args, "--truth", str(tmp_path / "t.json"), "-o", str(out),
+                                  "--config", str(cfg), "--duration", "1"])
+    assert r.exit_code != 0 and r.output.startswith(words), r.output
+    assert r.output.count("\n") == 1 and "Traceback" not in r.output
+    assert not out.exists() and not (tmp_path / "t.json").exists()
