@@ -21,6 +21,7 @@ from crane_io.errors import CraneError
 
 from .heldout import HeldOut, evaluation_data, fit_record, model_settings
 from .metrics import metrics_table, mse
+from .model_effects import effect_labels
 
 
 class CompareError(CraneError):
@@ -51,19 +52,6 @@ class Comparison:
     def to_json(self) -> dict:
         return {"joints": list(self.joints), "evaluated_on": self.evaluated_on,
                 "models": [m.to_json() for m in self.models]}
-
-
-def effect_labels(model) -> list[str]:
-    out = []
-    for e in (getattr(model, "options", {}) or {}).get("effects") or []:
-        if isinstance(e, dict):
-            name, joint = e.get("name"), e.get("joint")
-        elif isinstance(e, str):
-            name, joint = e, None
-        else:
-            name, joint = e[0], (e[1] if len(e) > 1 else None)
-        out.append(f"{name}:joint={joint}" if joint else str(name))
-    return out
 
 
 def model_sessions(model, model_dir=None) -> list[str]:

@@ -45,6 +45,7 @@ from .diagnosis_effects import bind, candidate_columns, complexity, effect_name,
 from .diagnosis_ranking import is_significant, rank, spill_over_check
 from .diagnosis_result import Candidate, Diagnosis, DiagnosisError
 from .diagnosis_text import candidate_sentence, joint_summary, residual_correlations
+from .model_effects import effect_entries
 
 __all__ = ["DEFAULT_FOLDS", "DEFAULT_MIN_FOLD_FRACTION", "DEFAULT_MIN_REDUCTION", "Candidate", "Diagnosis",
            "DiagnosisError", "diagnose", "diagnose_residual", "model_effects", "physics_basis",
@@ -58,16 +59,7 @@ MIN_SAMPLES_PER_JOINT = 50
 
 def model_effects(model) -> set[tuple[str, str | None]]:
     """(effect name, joint name or None) pairs a model already contains (rigid-body / hybrid)."""
-    out = set()
-    for entry in (getattr(model, "options", {}) or {}).get("effects", []) or []:
-        if isinstance(entry, dict):
-            name, joint = entry.get("name"), entry.get("joint")
-        elif isinstance(entry, str):
-            name, joint = entry, None
-        else:
-            name, joint = entry[0], (entry[1] if len(entry) > 1 else None)
-        out.add((str(name), None if joint is None else str(joint)))
-    return out
+    return {(str(name), None if joint is None else str(joint)) for name, joint in effect_entries(model)}
 
 
 def physics_basis(model, ds: Dataset) -> np.ndarray | None:

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from .heldout import HeldOut
+from .model_effects import effect_labels
 
 CSS = """
 body { font-family: -apple-system, "Segoe UI", Helvetica, Arial, sans-serif; margin: 2em auto;
@@ -218,13 +219,12 @@ def report_html(model, model_dir, held: HeldOut, sessions=(), diagnosis=None) ->
     """The report page as a string."""
     ds = held.data
     pred = np.asarray(model.predict(ds.q, ds.dq, ds.ddq), float)
-    effects = (getattr(model, "options", {}) or {}).get("effects") or []
     parts = [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
              f"<title>crane-x7 model report: {html.escape(str(model_dir))}</title><style>{CSS}</style>"
              f"</head><body>"]
     parts.append(f"<h1>Model report: {html.escape(str(model_dir))}</h1>")
     meta = [["method", model.method], ["joints", ", ".join(ds.joint_names)],
-            ["effects in the model", ", ".join(_effect_label(e) for e in effects) or "none"],
+            ["effects in the model", ", ".join(effect_labels(model)) or "none"],
             ["sessions", ", ".join(str(s) for s in sessions) or "–"],
             ["generated", _dt.datetime.now().isoformat(timespec="seconds")]]
     parts.append("<table class='meta'>" + "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(str(v))}"
@@ -262,16 +262,6 @@ def report_html(model, model_dir, held: HeldOut, sessions=(), diagnosis=None) ->
                               f"{100 * r['share']:.0f} %"] for r in reg]))
     parts.append("</body></html>")
     return "\n".join(parts)
-
-
-def _effect_label(entry) -> str:
-    if isinstance(entry, dict):
-        name, joint = entry.get("name"), entry.get("joint")
-    elif isinstance(entry, str):
-        return entry
-    else:
-        name, joint = entry[0], (entry[1] if len(entry) > 1 else None)
-    return f"{name}:joint={joint}" if joint else str(name)
 
 
 def write_report(path, page: str) -> Path:
