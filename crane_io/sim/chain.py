@@ -330,8 +330,12 @@ class SimulatedChain:
         if len(params) < 5:
             return []
         address, length = params[0] | params[1] << 8, params[2] | params[3] << 8
+        return self._read_each(servos, [(sid, address, length) for sid in params[4:]], now)
+
+    def _read_each(self, servos, requests, now):
+        """One status packet per (id, address, length) request, in order, from the servos that answer."""
         replies = []
-        for sid in params[4:]:
+        for sid, address, length in requests:
             s = self._by_id(servos, sid)
             if s is None:
                 continue
@@ -377,17 +381,7 @@ class SimulatedChain:
                 for i in range(0, len(params) - len(params) % 5, 5)]
 
     def _bulk_read(self, servos, params, now):
-        replies = []
-        for sid, address, length in self._bulk_requests(params):
-            s = self._by_id(servos, sid)
-            if s is None:
-                continue
-            s.contact(now)
-            if s.read_register("status_return_level") < 1:
-                continue
-            error, data = s.read(address, length)
-            replies.append((p.status_packet(sid, s.status_error(error), data), s.return_delay_s))
-        return replies
+        return self._read_each(servos, self._bulk_requests(params), now)
 
     def _fast_bulk_read(self, servos, params, now):
         if not self.fast_sync_read:
