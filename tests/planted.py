@@ -17,7 +17,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import h5py
 import numpy as np
 
 from crane_io.arm_plant import ArmPlant
@@ -26,6 +25,7 @@ from crane_io.dynamics import ArmDynamics
 from crane_io.plant_config import load_plant_config
 from crane_io.sim.plant_api import ActuatorCommand
 from crane_io.units import RAD_PER_PULSE
+from tests.sessions import write_minimal_session
 
 LEARN = ("joint1", "joint2", "joint4")
 CENTER = {"joint1": 0.0, "joint2": 0.5, "joint4": -1.3}  # rad: middle of each joint's working range
@@ -105,17 +105,4 @@ def simulate_session(path, preset: str, duration_s: float = 60.0, seed: int = 0,
         TAU[i] = goal_current * kt_cfg
         plant.step(ActuatorCommand(enabled, mode, goal_current.copy(), goal_position, gains, limit), dt)
         q_prev, dq_b_prev = q_b, dq_b
-    path = Path(path)
-    with h5py.File(path, "w") as f:
-        f.attrs["format"] = "crane-session"
-        f.attrs["format_version"] = 1
-        f.attrs["rate_hz"] = float(rate_hz)
-        f.attrs["joint_names"] = np.array(names, dtype=h5py.string_dtype())
-        f.attrs["source"] = "sim"
-        f.attrs["complete"] = True
-        f.attrs["seed"] = int(seed)
-        g = f.create_group("follower")
-        g.create_dataset("t", data=t)
-        g.create_dataset("q", data=Q)
-        g.create_dataset("tau", data=TAU)
-    return path
+    return write_minimal_session(path, t, Q, TAU, names, rate_hz, source="sim", seed=seed)

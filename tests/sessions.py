@@ -19,6 +19,27 @@ ALL_JOINTS = ("joint1", "joint2", "joint3", "joint4", "joint5", "joint6", "joint
 LEARN = ("joint1", "joint2", "joint4")
 
 
+def write_minimal_session(path, t, q, tau, joint_names, rate_hz, *, source="sim", seed=0, attrs=None) -> Path:
+    """A session file with only the contract's required part (docs/session-format.md), as another rig
+    might export it, plus `complete`, `seed` and any extra root attributes."""
+    path = Path(path)
+    with h5py.File(path, "w") as f:
+        f.attrs["format"] = "crane-session"
+        f.attrs["format_version"] = 1
+        f.attrs["rate_hz"] = float(rate_hz)
+        f.attrs["joint_names"] = np.array(list(joint_names), dtype=h5py.string_dtype())
+        f.attrs["source"] = source
+        f.attrs["complete"] = True
+        f.attrs["seed"] = int(seed)
+        for k, v in (attrs or {}).items():
+            f.attrs[k] = v
+        g = f.create_group("follower")
+        g.create_dataset("t", data=t)
+        g.create_dataset("q", data=q)
+        g.create_dataset("tau", data=tau)
+    return path
+
+
 def analytic_dynamics(q, dq, ddq):
     """A small stand-in 3-joint arm: inertia, gravity on joints 2 and 4, no coupling beyond that."""
     tau = np.empty_like(q)
@@ -91,19 +112,6 @@ def write_synthetic_session(path, duration_s, rate_hz=500, seed=0, dynamics=None
         if name not in LEARN:
             q[:, c] = 0.1 * c + rng.normal(0, 1e-4, n)
             tau[:, c] = rng.normal(0, 0.01, n)
-    path = Path(path)
-    with h5py.File(path, "w") as f:
-        f.attrs["format"] = "crane-session"
-        f.attrs["format_version"] = 1
-        f.attrs["rate_hz"] = float(rate_hz)
-        f.attrs["joint_names"] = np.array(joint_names, dtype=h5py.string_dtype())
-        f.attrs["source"] = source
-        f.attrs["complete"] = True
-        f.attrs["seed"] = seed
-        for k, v in (attrs or {}).items():
-            f.attrs[k] = v
-        g = f.create_group("follower")
-        g.create_dataset("t", data=t)
-        g.create_dataset("q", data=q)
-        g.create_dataset("tau", data=tau)
+    path = write_minimal_session(path, t, q, tau, joint_names, rate_hz, source=source, seed=seed,
+                                 attrs=attrs)
     return path, {"t": t, "q": q_l, "dq": dq_l, "ddq": ddq_l, "tau": tau_l, "moving": moving}
