@@ -1,4 +1,4 @@
-"""Crash-safe HDF5 session recording (docs/session-format.md, format "crane-session").
+"""Crash-safe HDF5 session recording (format "crane-session", documented in the README).
 
 All datasets are created up front (chunked, resizable along N, gzip level 1 + shuffle) and all
 metadata is written as root attributes; then the file switches to SWMR mode (`libver="latest"`) so a

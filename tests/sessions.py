@@ -1,6 +1,6 @@
 """Shared test helper: write small synthetic crane-session files with known dynamics.
 
-`write_synthetic_session(path, duration_s)` writes the contract minimum of docs/session-format.md
+`write_synthetic_session(path, duration_s)` writes the contract minimum of the session format (README)
 (plus `complete`) for an 8-column arm (joint1..joint7, gripper). Joints 1, 2 and 4 move in strokes
 separated by stick phases (each joint independently, about `stick_fraction` of the time still); the
 other columns are held. The torque of the moving joints is the arm's inverse dynamics (crane_io.dynamics
@@ -20,8 +20,8 @@ LEARN = ("joint1", "joint2", "joint4")
 
 
 def write_minimal_session(path, t, q, tau, joint_names, rate_hz, *, source="sim", seed=0, attrs=None) -> Path:
-    """A session file with only the contract's required part (docs/session-format.md), as another rig
-    might export it, plus `complete`, `seed` and any extra root attributes."""
+    """A session file with only the contract's required part (README, "The session file"), as another
+    rig might export it, plus `complete`, `seed` and any extra root attributes."""
     path = Path(path)
     with h5py.File(path, "w") as f:
         f.attrs["format"] = "crane-session"

@@ -1,4 +1,4 @@
-"""Read crane-session HDF5 files (docs/session-format.md) into plain numpy arrays.
+"""Read crane-session HDF5 files (format documented in the README) into plain numpy arrays.
 
 Only the contract minimum is needed: root attributes `format`, `format_version`, `rate_hz`,
 `joint_names`, `source`, and `/<arm>/t`, `/<arm>/q`, `/<arm>/tau`. Files are opened read-only (SWMR
