@@ -21,6 +21,11 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 DEG = math.pi / 180.0
+# The controller's default gains and observer cutoffs need at least this rate: at 50 Hz the simulated
+# arms already oscillate into the velocity guard during the alignment. The servos' bus cannot go faster
+# than the top.
+MIN_RATE_HZ = 100.0
+MAX_RATE_HZ = 2000.0
 GRAVITY_MODELS = ("dynamics", "coefficients", "none")
 INERTIA_MODELS = ("dynamics", "constant")
 
@@ -104,6 +109,9 @@ class Config:
         return dump_toml(self.values)
 
     def with_rate(self, rate_hz: float) -> Config:
+        if not (math.isfinite(rate_hz) and MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ):
+            raise ConfigError(f"--rate must be between {MIN_RATE_HZ:g} and {MAX_RATE_HZ:g} Hz, "
+                              f"got {rate_hz:g}")
         values = _deep_copy(self.values)
         values["loop"]["rate_hz"] = float(rate_hz)
         return _build(values, "--rate")
@@ -159,8 +167,9 @@ def _merge(base: dict, user: dict, where: str, prefix: str) -> None:
         else:
             ok = isinstance(value, type(default))
         if not ok:
-            raise ConfigError(
-                f"{name!r} in {where} must be a {type(default).__name__}, got {value!r}")
+            what = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}.get(
+                type(default), f"a {type(default).__name__}")
+            raise ConfigError(f"{name!r} in {where} must be {what}, got {value!r}")
         base[key] = value
 
 
@@ -179,6 +188,11 @@ def _nonneg(where, key, value):
     return value
 
 
+def _finite(where, key, value):
+    _need(math.isfinite(value), where, key, "a finite number", value)
+    return value
+
+
 def _build(values: dict, where: str) -> Config:
     lp = values["loop"]
     loop = LoopConfig(
@@ -187,7 +201,8 @@ def _build(values: dict, where: str) -> Config:
         status_hz=_nonneg(where, "loop.status_hz", lp["status_hz"]),
         status_log_s=_nonneg(where, "loop.status_log_s", lp["status_log_s"]),
     )
-    _need(loop.rate_hz <= 2000, where, "loop.rate_hz", "at most 2000 Hz", loop.rate_hz)
+    _need(MIN_RATE_HZ <= loop.rate_hz <= MAX_RATE_HZ, where, "loop.rate_hz",
+          f"between {MIN_RATE_HZ:g} and {MAX_RATE_HZ:g} Hz", loop.rate_hz)
 
     c = values["controller"]
     _need(c["gravity_model"] in GRAVITY_MODELS, where, "controller.gravity_model",
@@ -202,6 +217,8 @@ def _build(values: dict, where: str) -> Config:
         for key in ("kd", "kf", "viscous"):
             gains[key] = _nonneg(where, f"controller.{name}.{key}", table[key])
         joints[name] = JointGains(**gains)
+    for key in ("gravity_m0", "gravity_m1", "gravity_m2"):
+        _need(math.isfinite(c[key]), where, f"controller.{key}", "a finite number", c[key])
     controller = ControllerConfig(
         gravity_model=c["gravity_model"],
         gravity_m0=c["gravity_m0"], gravity_m1=c["gravity_m1"], gravity_m2=c["gravity_m2"],
@@ -260,7 +277,7 @@ def _build(values: dict, where: str) -> Config:
         stiffness=_pos(where, "operator.stiffness", o["stiffness"]),
         damping=_nonneg(where, "operator.damping", o["damping"]),
         max_torque=_pos(where, "operator.max_torque", o["max_torque"]),
-        start={k: v * DEG for k, v in o["start_deg"].items()},
+        start={k: _finite(where, f"operator.start_deg.{k}", v) * DEG for k, v in o["start_deg"].items()},
     )
     _need(operator.min_move_s <= operator.max_move_s, where, "operator.min_move_s",
           "at most operator.max_move_s", operator.min_move_s)

@@ -299,7 +299,7 @@ def run_session(opts: RunOptions) -> RunResult:
     config = load_config(opts.config)
     if opts.rate is not None:
         config = config.with_rate(opts.rate)
-    check_options(opts)
+    check_options(opts, config.loop.period_s)
     arm = default_arm()
     output = Path(opts.output)
     check_output(output, opts.force)
@@ -395,5 +395,5 @@ def _finish(loop, opts, output, end_reason, wall0, out) -> RunResult:
                         group_attrs={"timing": timing_attrs})
     result = RunResult(output, loop.cycles, loop.t_session, wall, end_reason, loop.breach, summary, rms)
     if opts.status and out is not None:
-        print_summary(result, loop.errors, out)
+        print_summary(result, loop.errors, out, lockstep=loop.lockstep)
     return result

@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import datetime as _dt
+import math
 import os
 import sys
 from pathlib import Path
@@ -38,10 +39,15 @@ def software_version() -> str:
         return "unknown"
 
 
-def check_options(opts: RunOptions) -> None:
+def check_options(opts: RunOptions, period_s: float) -> None:
     """One sentence (ConfigError) for options that do not go together, before anything starts."""
-    if opts.duration is not None and not opts.duration > 0:
-        raise ConfigError(f"--duration must be positive, got {opts.duration}")
+    if opts.duration is not None:
+        if not (math.isfinite(opts.duration) and opts.duration > 0):
+            raise ConfigError(f"--duration must be a positive number of seconds, got {opts.duration} "
+                              "(leave it out to record until Ctrl+C)")
+        if round(opts.duration / period_s) < 1:
+            raise ConfigError(f"--duration {opts.duration:g} s is shorter than one control period "
+                              f"({period_s:g} s): nothing would be recorded")
     if opts.realtime and not opts.sim:
         raise ConfigError("--realtime only applies to --sim (hardware always runs in real time)")
     if opts.truth is not None and not opts.sim:
@@ -63,17 +69,29 @@ def check_ports(opts: RunOptions) -> None:
 
 def check_output(output: Path, force: bool) -> None:
     """A session file that cannot be written is found out before any torque is on, not after the
-    alignment. An existing file needs --force. Missing folders are created."""
+    alignment. An existing file needs --force. Missing folders are not made here (a run refused later
+    must not leave them behind): the nearest existing folder must be a writable folder; the session
+    file's creation makes the rest."""
+    if str(output) in ("", ".") or output.name in ("", ".", ".."):
+        raise ConfigError("-o needs the name of a session file, e.g. -o session.h5")
+    if output.is_dir():
+        raise SessionFileError(f"{output} is a folder, not a session file; give a file name inside it")
     if output.exists() and not force:
         raise CraneError(f"{output} already exists; pass --force to overwrite it")
     folder = output.parent
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
+    existing = folder
+    while not existing.exists() and existing != existing.parent:
+        if existing.is_symlink():  # a dangling link in the way
+            break
+        existing = existing.parent
+    if not existing.is_dir():
+        what = "a file" if existing.exists() else "a broken link"
+        raise SessionFileError(f"cannot create session file {output}: {existing} is {what}, not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        if existing == folder:
+            raise SessionFileError(f"cannot create session file {output}: folder {folder} is not writable")
         raise SessionFileError(f"cannot create session file {output}: folder {folder} cannot be created "
-                               f"({exc.strerror or exc})") from None
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise SessionFileError(f"cannot create session file {output}: folder {folder} is not writable")
+                               f"({existing} is not writable)")
 
 
 def open_buses(opts: RunOptions, arm: ArmDescription, config: Config, ports: dict, out) -> tuple[dict, dict]:

@@ -61,13 +61,21 @@ class StatusLine:
         print(("\r" + text) if self.tty else text, end="" if self.tty else "\n", file=self.out, flush=True)
 
 
-def print_summary(r, bus_errors: int, out) -> None:
-    """The summary of a finished run (r: RunResult)."""
+def print_summary(r, bus_errors: int, out, lockstep: bool = False) -> None:
+    """The summary of a finished run (r: RunResult). In lockstep the loop's own rate is the nominal one
+    (one period of simulated time per cycle); the wall-clock rate is how fast the machine simulated."""
     s = r.summary
     lines = [("\n" if is_terminal(out) else "") + f"session {r.path}: {r.end_reason}, {r.cycles} cycles, "
              f"{r.duration_s:.1f} s recorded in {r.wall_s:.1f} s wall"]
     if s.get("period_mean_s"):
-        lines.append(f"  loop: {s['rate_hz']:.0f} Hz achieved, "
+        if lockstep:
+            nominal = 1.0 / s["nominal_period_s"]
+            rate = (f"lockstep, {nominal:.0f} Hz of simulated time at "
+                    f"x{s['rate_hz'] / nominal:.1f} real time "
+                    f"({s['rate_hz']:.0f} cycles per wall second); wall ")
+        else:
+            rate = f"{s['rate_hz']:.0f} Hz achieved, "
+        lines.append(f"  loop: {rate}"
                      f"period mean {s['period_mean_s'] * 1e3:.3f} ms, "
                      f"std {s['period_std_s'] * 1e3:.3f} ms, p99 {s['period_p99_s'] * 1e3:.3f} ms, "
                      f"max {s['period_max_s'] * 1e3:.3f} ms, overruns {int(s['overruns'])}")

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import copy
 import json
+import math
 import sys
 from dataclasses import dataclass, field
 from importlib import resources
@@ -132,9 +133,16 @@ def _raw(preset_or_path: str | Path, depth: int = 0) -> tuple[dict, str]:
         text = (resources.files("crane_io") / "plants" / f"{key}.toml").read_text()
         where = f"preset {key!r}"
     elif key.endswith(".toml") or path.exists():
-        if not path.is_file():
+        if not path.exists():
             raise ConfigError(f"plant configuration file {path} does not exist")
-        text, where = path.read_text(), str(path)
+        if not path.is_file():
+            raise ConfigError(f"plant configuration {path} is not a file")
+        try:
+            text = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            why = "not UTF-8 text" if isinstance(exc, UnicodeDecodeError) else (exc.strerror or str(exc))
+            raise ConfigError(f"plant configuration file {path} cannot be read ({why})") from None
+        where = str(path)
     else:
         raise ConfigError(f"unknown plant preset {key!r}; presets: {', '.join(presets())} "
                           f"(or give a .toml path)")
@@ -168,27 +176,35 @@ def _float_table(data, key: str, where: str, joints=None) -> dict[str, float]:
     for name, value in table.items():
         if name not in names:
             raise ConfigError(f"{where}: [{key}] names unknown joint {name!r}")
-        try:
-            out[name] = float(value)
-        except (TypeError, ValueError):
-            raise ConfigError(f"{where}: [{key}] {name} must be a number, got {value!r}") from None
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise ConfigError(f"{where}: [{key}] {name} must be a finite number, got {value!r}")
+        out[name] = float(value)
     return out
 
 
 def _dataclass_table(cls, data, key: str, where: str):
     table = data.get(key, {}) or {}
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where}: {key} must be a table ([{key}]), got {table!r}")
     fields = cls.__dataclass_fields__
     unknown = sorted(set(table) - set(fields))
     if unknown:
         raise ConfigError(f"{where}: [{key}] has unknown key(s) {', '.join(unknown)}")
-    try:
-        obj = cls(**{k: type(getattr(cls(), k))(v) for k, v in table.items()})
-    except (TypeError, ValueError):
-        raise ConfigError(f"{where}: [{key}] has a value of the wrong type") from None
-    for k in fields:
-        v = getattr(obj, k)
-        if not isinstance(v, bool) and v < 0:
-            raise ConfigError(f"{where}: [{key}] {k} must not be negative, got {v}")
+    defaults = cls()
+    values = {}
+    for k, v in table.items():
+        if isinstance(getattr(defaults, k), bool):
+            if not isinstance(v, bool):
+                raise ConfigError(f"{where}: [{key}] {k} must be true or false, got {v!r}")
+        elif isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+            raise ConfigError(f"{where}: [{key}] {k} must be a finite number, zero or more, got {v!r}")
+        else:
+            v = float(v)
+        values[k] = v
+    obj = cls(**values)
+    if getattr(obj, "position_noise_probability", 0.0) > 1:
+        raise ConfigError(f"{where}: [{key}] position_noise_probability must be at most 1, "
+                          f"got {obj.position_noise_probability}")
     return obj
 
 
@@ -219,11 +235,12 @@ def load_plant_config(preset_or_path: str | Path = "crane-x7") -> PlantConfig:
     cfg = PlantConfig(source=str(preset_or_path))
     cfg.name = str(data.get("name", Path(str(preset_or_path)).stem))
     cfg.description = str(data.get("description", ""))
-    try:
-        cfg.seed = int(data.get("seed", 0))
-        cfg.substep_s = float(data.get("substep_s", cfg.substep_s))
-    except (TypeError, ValueError):
-        raise ConfigError(f"{where}: seed must be an integer and substep_s a number") from None
+    seed, substep = data.get("seed", 0), data.get("substep_s", cfg.substep_s)
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        raise ConfigError(f"{where}: seed must be an integer, got {seed!r}")
+    if isinstance(substep, bool) or not isinstance(substep, (int, float)):
+        raise ConfigError(f"{where}: substep_s must be a number, got {substep!r}")
+    cfg.seed, cfg.substep_s = seed, float(substep)
     if not 1e-5 <= cfg.substep_s <= 0.002:
         raise ConfigError(f"{where}: substep_s must be between 1e-05 and 0.002 s, got {cfg.substep_s}")
     files = data.get("effect_files", []) or []
@@ -252,7 +269,12 @@ def load_plant_config(preset_or_path: str | Path = "crane-x7") -> PlantConfig:
     cfg.effects = [_effect_spec(e, where) for e in effects]
     if data.get("hidden"):
         cfg.hidden = _effect_spec(data["hidden"], where + " [hidden]")
-    known = (data.get("known") or {}).get("effects", [])
+    known_table = data.get("known") or {}
+    if not isinstance(known_table, dict):
+        raise ConfigError(f"{where}: known must be a table ([known] with effects = [...])")
+    known = known_table.get("effects", [])
+    if not isinstance(known, list):
+        raise ConfigError(f"{where}: [known] effects must be a list of tables with an 'effect' name")
     from .effects import get_effect
 
     for k in known:

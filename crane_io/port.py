@@ -15,6 +15,7 @@ from __future__ import annotations
 import errno
 import os
 import select
+import stat
 
 import serial
 from dynamixel_sdk import PortHandler
@@ -139,8 +140,12 @@ def _open_serial(port: str, baudrate: int):
     url = is_url(port)
     if port.startswith("dxlsim://"):
         from .sim import transport  # noqa: F401 - registers the dxlsim:// URL handler with pyserial
-    if not url and port.startswith("/") and not os.path.exists(port):
+    if not url and not os.path.exists(port):
         raise HardwareError(f"port {port} does not exist (is the U2D2 plugged in? see `crane-collect ports`)")
+    if not url and not stat.S_ISCHR(os.stat(port).st_mode):
+        what = "a folder" if os.path.isdir(port) else "a regular file"
+        raise HardwareError(f"{port} is {what}, not a serial port (a U2D2 is a device such as /dev/ttyUSB0; "
+                            "see `crane-collect ports`)")
     try:
         ser = serial.serial_for_url(port, do_not_open=True)
     except ValueError as exc:  # unknown URL scheme
@@ -165,6 +170,9 @@ def _open_failure(port: str, exc: Exception) -> str:
     if code == errno.EACCES:
         return (f"no permission to open {port} (add yourself to the dialout group: "
                 "`sudo usermod -aG dialout $USER`, then log in again; or install udev/99-crane-x7.rules)")
+    if code == errno.ENOTTY or f"({errno.ENOTTY}," in text:
+        return (f"{port} is not a serial port (a U2D2 is a device such as /dev/ttyUSB0; "
+                "see `crane-collect ports`)")
     if code == errno.EBUSY or "exclusively lock" in text or "busy" in text.lower():
         return f"port {port} is busy: another program (another crane-collect?) has it open; close that first"
     return f"cannot open {port}: {text}"

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import serial
 
-from ..errors import HardwareError
+from ..errors import ConfigError, HardwareError
 from .chain import SimulatedChain
 
 URL_SCHEME = "dxlsim"
@@ -84,11 +84,15 @@ class PtyServer:
         if self._thread is not None:
             return self
         if self.link.is_symlink():
+            target = os.readlink(self.link)
+            if not target.startswith("/dev/pts/"):  # only a stale link to a pty is ours to replace
+                raise ConfigError(f"{self.link} already exists and links to {target}, not to a "
+                                  "pseudo-terminal; choose another --link path")
             self.link.unlink()
         elif self.link.exists():
-            raise HardwareError(f"{self.link} already exists and is not a link; choose another --link path")
+            raise ConfigError(f"{self.link} already exists and is not a link; choose another --link path")
         if not self.link.parent.is_dir():
-            raise HardwareError(f"cannot create {self.link}: folder {self.link.parent} does not exist")
+            raise ConfigError(f"cannot create {self.link}: folder {self.link.parent} does not exist")
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)  # no echo, no newline translation: the line carries binary packets
         os.set_blocking(self._master, False)
@@ -97,7 +101,7 @@ class PtyServer:
             os.symlink(os.ttyname(self._slave), self.link)
         except OSError as exc:
             self._close_fds()
-            raise HardwareError(f"cannot create the link {self.link}: {exc.strerror}") from None
+            raise ConfigError(f"cannot create the link {self.link}: {exc.strerror}") from None
         self._stop.clear()
         self._thread = threading.Thread(target=self._serve, name=f"pty-server {self.link}", daemon=True)
         self._thread.start()
