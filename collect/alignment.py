@@ -25,6 +25,11 @@ from .pacing import CycleTimer
 from .safety import SafetyMonitor
 
 SETTLE_S = 0.3  # s of holding the target after the move
+# A simulated arm that cannot be held still during the alignment is almost always a plant TOML without
+# the damping every real joint has: with no viscous friction or rotor inertia on joints 1, 2, 4 the
+# default gains make the arm oscillate into the velocity guard.
+SIM_HINT = ("; with --sim this usually means the plant lacks damping: give joints 1, 2 and 4 viscous "
+            "friction and rotor inertia (start a plant TOML from base = \"baseline\")")
 
 
 class SafetyStop(HardwareError):
@@ -96,7 +101,7 @@ def align(pair: ArmPair, ctl: BilateralController, safety: SafetyMonitor, config
         for name, st in zip(ARMS, (sl, sf)):
             b = safety.check(name, st.position, st.velocity)
             if b is not None:
-                raise SafetyStop(f"safety stop while aligning: {b.message}")
+                raise SafetyStop(f"safety stop while aligning: {b.message}" + (SIM_HINT if simulated else ""))
         now = time.perf_counter()
         dt = ticks * period if lockstep else max(now - last, 1e-4)
         last = now

@@ -193,3 +193,13 @@ def test_lockstep_summary_gives_the_simulated_rate_not_the_wall_rate_as_achieved
     out = io.StringIO()
     print_summary(r, 0, out, lockstep=False)
     assert "1176 Hz achieved" in out.getvalue()
+
+
+def test_a_plant_without_damping_stops_in_the_alignment_with_a_hint_and_no_file(tmp_path):
+    plant = tmp_path / "mine.toml"
+    plant.write_text('name = "mine"\n[[effects]]\neffect = "coulomb"\njoint = "joint2"\ncoulomb = 0.3\n')
+    out = tmp_path / "s.h5"
+    r = _run("--sim", "--plant", str(plant), "--duration", "1", "--quiet", "-o", str(out))
+    assert r.exit_code == 3
+    assert r.output.startswith("Error: safety stop while aligning") and "lacks damping" in r.output
+    assert 'base = "baseline"' in r.output and not out.exists()
