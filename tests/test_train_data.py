@@ -229,3 +229,32 @@ def test_masked_loss_is_mse_when_all_move_and_ignores_masked_joints():
     # normalised by J (=3), not by the number of moving joints
     expected = ((pred - target) ** 2)[:, [0, 2]].sum() / (40 * 3)
     assert masked_loss(pred, target, mask).item() == pytest.approx(expected.item())
+
+
+def _swmr_session(path, n=20000, rate=500.0):
+    """A session written the way crane-collect writes one (libver latest, SWMR mode), cleanly closed."""
+    t = np.arange(n) / rate
+    q = np.stack([np.sin(0.7 * t + j) for j in range(3)], axis=1)
+    with h5py.File(path, "w", libver="latest") as f:
+        f.attrs.update({"format": "crane-session", "format_version": 1, "rate_hz": rate, "source": "sim"})
+        f.attrs["joint_names"] = np.array(["joint1", "joint2", "joint4"], dtype=h5py.string_dtype())
+        g = f.create_group("follower")
+        for name, data in (("t", t), ("q", q), ("tau", 0.3 * q)):
+            g.create_dataset(name, data=data, maxshape=(None,) + data.shape[1:], chunks=True)
+        f.swmr_mode = True
+    return path
+
+
+def test_cut_off_copy_of_a_session_is_one_sentence_not_a_hang(tmp_path):
+    # `head -c` of a recording (an interrupted copy): an SWMR read skips HDF5's length check and then
+    # retries its checksums for many minutes; the reader must say at once that the file is cut off.
+    whole = _swmr_session(tmp_path / "whole.h5")
+    assert read_session(whole).q.shape == (20000, 3)
+    half = tmp_path / "half.h5"
+    half.write_bytes(whole.read_bytes()[: whole.stat().st_size // 2])
+    before = _digest(half)
+    with pytest.raises(SessionFileError, match=r"half\.h5 is cut off: it has \d+ bytes but its HDF5 header"):
+        read_session(half)
+    result = CliRunner().invoke(main, ["info", str(half)])
+    assert result.exit_code == 2 and result.output.startswith("Error: ") and "cut off" in result.output
+    assert _digest(half) == before

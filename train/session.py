@@ -8,6 +8,7 @@ is never modified. Every problem is a `SessionFileError` whose one sentence name
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -20,6 +21,7 @@ FORMAT = "crane-session"
 FORMAT_VERSION = 1  # newest version this reader understands
 MIN_SAMPLES = 100  # fewer raw samples than this cannot be filtered and split meaningfully
 REQUIRED_ATTRS = ("format", "format_version", "rate_hz", "joint_names", "source")
+_TRUNCATED = re.compile(r"truncated file: eof = (?P<eof>\d+).*stored_eof = (?P<stored>\d+)")
 
 
 @dataclass
@@ -63,13 +65,21 @@ def _open(path: Path) -> h5py.File:
         raise SessionFileError(f"{path} is not a file")
     if not h5py.is_hdf5(str(path)):
         raise SessionFileError(f"{path} is not an HDF5 file, so it cannot be a crane-session")
+    # A plain read first: it checks the file's length against its header, which an SWMR read skips (a
+    # cut-off copy read in SWMR mode makes HDF5 retry its checksums for many minutes). A recording still
+    # being written, or one whose writer crashed, refuses the plain read and is read in SWMR mode.
+    try:
+        return h5py.File(str(path), "r")
+    except OSError as exc:
+        cut = _TRUNCATED.search(str(exc))
+        if cut:
+            raise SessionFileError(f"{path} is cut off: it has {int(cut['eof'])} bytes but its HDF5 header "
+                                   f"says {int(cut['stored'])} (an incomplete copy or download); copy it "
+                                   f"again") from None
     try:
         return h5py.File(str(path), "r", swmr=True)
-    except (OSError, ValueError):
-        try:  # files not written with libver="latest" cannot be opened in SWMR mode
-            return h5py.File(str(path), "r")
-        except OSError as exc:
-            raise SessionFileError(f"{path} cannot be opened as HDF5 ({exc})") from None
+    except (OSError, ValueError) as exc:
+        raise SessionFileError(f"{path} cannot be opened as HDF5 ({exc})") from None
 
 
 def read_session(path, arm: str = "follower") -> RawSession:
