@@ -41,14 +41,15 @@ def fit_model(sessions, method: str, out_dir, train_size: int | None = None, see
             raise ConfigError(f"--effect and --effect-file apply to rigid-body and hybrid, not {method}")
         options["effects"] = [list(e) for e in effects]
         options["effect_files"] = list(effect_files)
-    if method.startswith("mlp-"):
+    has_net = method.startswith("mlp-") or method == "hybrid"  # hybrid: a masked net on the residual
+    if has_net:
         m = cfg["mlp"]
         options.update(seed=seed, hidden=m.hidden, lr=m.lr, batch_size=m.batch_size,
                        epochs=epochs if epochs is not None else m.epochs)
     torch.set_num_threads(1)
     model = make_model(method, ds.joint_names, preprocessing=ds.meta["preprocessing"], **options)
-    if method.startswith("mlp-"):
-        bar = tqdm(total=model.settings.epochs, desc=method, unit="epoch", disable=not progress, leave=False)
+    if has_net:
+        bar = tqdm(total=options["epochs"], desc=method, unit="epoch", disable=not progress, leave=False)
         model.fit(pool, splits.val, progress=lambda done, total: bar.update(1))
         bar.close()
     else:
@@ -75,7 +76,8 @@ def fit_model(sessions, method: str, out_dir, train_size: int | None = None, see
                    "joint effect goes on every learning joint.")
 @click.option("--effect-file", "effect_files", multiple=True, type=click.Path(dir_okay=False, exists=True),
               help="Python file defining extra effects (see crane_io.effects).")
-@click.option("--epochs", type=int, default=None, help="MLP epochs [100].")
+@click.option("--epochs", type=click.IntRange(min=1), default=None,
+              help="Epochs of the network (mlp-mse, mlp-masked, hybrid) [100].")
 @data_options
 @click.option("--no-progress", is_flag=True,
               help="No progress bar (there is none anyway when stderr is not a terminal).")
