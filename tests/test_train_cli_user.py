@@ -40,3 +40,38 @@ def test_fit_refuses_a_number_of_epochs_below_one(session, tmp_path, epochs):
                  "-o", tmp_path / "m")
     assert result.exit_code == 2 and "Error:" in result.output and "--epochs" in result.output
     assert not (tmp_path / "m").exists()
+
+
+CABLE_DRAG = '''
+import numpy as np
+from crane_io.effects import Effect, Param
+from crane_io.effects.base import joint_columns
+
+class CableDrag(Effect):
+    name = "cable-drag-user-test"
+    title = "cable drag"
+    description = "A cable that pulls harder the further the joint turns: c q |q|."
+    signature = "the residual of {joint} grows with the square of its angle"
+    params = (Param("drag", "N m/rad^2", 0.1, "drag per rad squared"),)
+
+    def _columns(self, q, dq, ddq, joint, shape):
+        return joint_columns(len(q), q.shape[1], joint, q[:, joint] * np.abs(q[:, joint]))
+'''
+
+
+def test_a_model_with_a_user_effect_file_given_relative_loads_from_any_directory(session, tmp_path,
+                                                                                 monkeypatch):
+    work = tmp_path / "work"
+    work.mkdir()
+    (work / "my_effects.py").write_text(CABLE_DRAG)
+    monkeypatch.chdir(work)
+    result = run("fit", session, "--model", "rigid-body", "--scale-to-data", "--effect-file", "my_effects.py",
+                 "--effect", "cable-drag-user-test:joint=joint1", "-o", "models/drag")
+    assert result.exit_code == 0, result.output
+    monkeypatch.chdir(tmp_path)  # elsewhere, as a later session in another terminal would be
+    result = run("compare", "work/models/drag", "--session", session)
+    assert result.exit_code == 0, result.output
+    (work / "my_effects.py").unlink()
+    result = run("compare", "work/models/drag", "--session", session)
+    assert result.exit_code == 2 and result.output.startswith("Error: ")
+    assert "my_effects.py" in result.output and "fit the model again" in result.output

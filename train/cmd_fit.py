@@ -4,6 +4,7 @@ test metrics and save it (with its preprocessing and normalisation)."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import click
 import numpy as np
@@ -40,7 +41,8 @@ def fit_model(sessions, method: str, out_dir, train_size: int | None = None, see
         if method not in ("rigid-body", "hybrid"):
             raise ConfigError(f"--effect and --effect-file apply to rigid-body and hybrid, not {method}")
         options["effects"] = [list(e) for e in effects]
-        options["effect_files"] = list(effect_files)
+        # absolute, so that the saved model loads from any working directory
+        options["effect_files"] = [str(Path(f).resolve()) for f in effect_files]
     has_net = method.startswith("mlp-") or method == "hybrid"  # hybrid: a masked net on the residual
     if has_net:
         m = cfg["mlp"]

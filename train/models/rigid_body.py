@@ -238,4 +238,7 @@ class RigidBodyModel(Model):
             raise ModelFileError(f"{directory} lacks or has a corrupt {ARRAYS} ({exc})") from None
         self.fit_info = state.get("fit_info", {})
         for f in self.options["effect_files"]:
+            if not Path(f).is_file():
+                raise ModelFileError(f"{directory} was fitted with the effects defined in {f}, which does "
+                                     f"not exist (any more); put that file back or fit the model again")
             _effect_registry().load_effect_file(f)
