@@ -75,3 +75,24 @@ def test_a_model_with_a_user_effect_file_given_relative_loads_from_any_directory
     result = run("compare", "work/models/drag", "--session", session)
     assert result.exit_code == 2 and result.output.startswith("Error: ")
     assert "my_effects.py" in result.output and "fit the model again" in result.output
+
+
+def test_compare_from_another_directory_prints_each_models_notes(session, tmp_path, monkeypatch):
+    other, _ = write_synthetic_session(tmp_path / "other.h5", 60, seed=6)
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    (work / "s.h5").write_bytes(session.read_bytes())
+    fits = {"base": [], "zp": ["--zero-phase"], "seed4": ["--seed", "4"], "both": [other]}
+    for name, extra in fits.items():
+        result = run("fit", "s.h5", *extra, "--model", "rigid-body", "--scale-to-data",
+                     "-o", f"models/{name}")
+        assert result.exit_code == 0, result.output
+    monkeypatch.chdir(tmp_path)  # the sessions default to those of the first model, found from here too
+    result = run("compare", *(f"work/models/{name}" for name in fits))
+    assert result.exit_code == 0, result.output
+    out = result.output
+    assert "Note on 2. zp: preprocessed with its own settings (zero_phase True instead of False)" in out
+    assert "Note on 3. seed4: trained with split seed 4, not 0" in out
+    assert "Note on 4. both: trained on s.h5, other.h5, not on exactly the evaluated sessions" in out
+    assert "Note on 1." not in out

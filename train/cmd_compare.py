@@ -23,7 +23,7 @@ from crane_io.errors import cli_errors
 @cli_errors
 def compare(model_dirs, sessions, as_json, output, metric):
     """Compare MODEL_DIR(s), in the given order, on the same held-out samples."""
-    from .compare import compare_models, plot, table_text
+    from .compare import compare_models, notes_text, plot, table_text
     from .progress import show_progress
 
     result = compare_models(list(model_dirs), list(sessions), progress=show_progress(not as_json))
@@ -36,6 +36,8 @@ def compare(model_dirs, sessions, as_json, output, metric):
         click.echo(json.dumps(doc, indent=2))
         return
     click.echo(table_text(result, metric))
+    if notes_text(result):
+        click.echo(notes_text(result))
     click.echo(f"Evaluated on: {result.evaluated_on}")
     if output:
         click.echo(f"Wrote the plot to {output}")

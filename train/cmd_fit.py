@@ -60,7 +60,8 @@ def fit_model(sessions, method: str, out_dir, train_size: int | None = None, see
     doc = {"method": method, "joints": list(ds.joint_names), "train_samples": len(pool),
            "train_samples_all_moving": int(pool.all_moving.sum()), "test_samples": len(test), "seed": seed,
            "test": metrics_table(test.tau, model.predict_dataset(test), ds.joint_names),
-           "usable_fraction": ds.meta["usable_fraction"], "sources": ds.meta["sources"]}
+           "usable_fraction": ds.meta["usable_fraction"],
+           "sources": [str(Path(f).resolve()) for f in ds.meta["sources"]]}  # found from any directory
     path = model.save(out_dir)
     (path / "fit_metrics.json").write_text(json.dumps(doc, indent=2))
     return doc

@@ -118,14 +118,39 @@ def compare_models(model_dirs, sessions=None, progress: bool = False) -> Compari
         if seed != ref_seed:
             notes.append(f"trained with split seed {seed}, not {ref_seed}: some held-out samples may have "
                          "been in its training data")
+        trained_on = model_sessions(m, d)
+        if trained_on and not _same_files(trained_on, sessions) and _overlap(trained_on, sessions):
+            notes.append(f"trained on {', '.join(Path(x).name for x in trained_on)}, not on exactly the "
+                         f"evaluated sessions: its split differs, so some held-out samples may have been in "
+                         f"its training data")
         if pconf != ref_settings:
             ds_m = preprocess(read_sessions(sessions), pconf)
             held = _align(reference, held_out(ds_m, _reindex(splits, ds_m, reference)))
-            notes.append("preprocessed with its own settings; scored at the same instants")
+            mine, ref = pconf.to_dict(), ref_settings.to_dict()
+            diff = ", ".join(f"{k} {mine[k]} instead of {ref[k]}" for k in mine if mine[k] != ref.get(k))
+            notes.append(f"preprocessed with its own settings ({diff}); scored at the same instants")
         s = score(m, held, str(d))
         s.notes = notes
         out.append(s)
     return Comparison(tuple(joints), out, reference.description)
+
+
+def _file_key(path) -> str:
+    p = Path(path)
+    return str(p.resolve()) if p.exists() else str(path)
+
+
+def _same_files(a, b) -> bool:
+    return sorted(map(_file_key, a)) == sorted(map(_file_key, b))
+
+
+def _overlap(a, b) -> bool:
+    return bool(set(map(_file_key, a)) & set(map(_file_key, b)))
+
+
+def notes_text(c: Comparison) -> str:
+    """One line per note a model carries ('' when none): what makes its score less comparable."""
+    return "\n".join(f"Note on {_label(s, i)}: {note}" for i, s in enumerate(c.models) for note in s.notes)
 
 
 def _reindex(splits, ds_other, reference):
@@ -160,7 +185,7 @@ def _what(s: ModelScore, first: ModelScore, i: int) -> str:
     added = [e for e in s.effects if e not in first.effects]
     dropped = [e for e in first.effects if e not in s.effects]
     text = s.method + "".join(f" +{e}" for e in added) + "".join(f" -{e}" for e in dropped)
-    return text if (added or dropped or s.method != first.method) else s.method + " (same effects)"
+    return text if (added or dropped or s.method != first.method) else s.method + " (same effects as 1)"
 
 
 def table_text(c: Comparison, metric: str = "mse") -> str:
