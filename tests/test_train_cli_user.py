@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 
+import h5py
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -96,3 +98,31 @@ def test_compare_from_another_directory_prints_each_models_notes(session, tmp_pa
     assert "Note on 3. seed4: trained with split seed 4, not 0" in out
     assert "Note on 4. both: trained on s.h5, other.h5, not on exactly the evaluated sessions" in out
     assert "Note on 1." not in out
+    assert "Split seed 0. None of these samples" in out
+
+
+def test_the_same_session_twice_is_refused(session):
+    result = run("info", session, session.parent / "." / session.name)
+    assert result.exit_code == 2 and result.output.startswith("Error: ") and "is given twice" in result.output
+
+
+def test_a_session_too_short_to_preprocess_says_how_long_it_must_be(tmp_path):
+    path, _ = write_synthetic_session(tmp_path / "short.h5", 0.2, seed=1)  # 100 samples at 500 Hz
+    result = run("info", path)
+    assert result.exit_code == 2 and result.output.startswith("Error: ")
+    assert "short.h5 is too short to preprocess" in result.output and "0.24 s are needed" in result.output
+
+
+def test_a_held_joint_that_only_jitters_by_an_encoder_count_never_moves(tmp_path):
+    # joint3 is held in position mode by crane-collect: its angle toggles between -1, 0 and +1 encoder
+    # counts, so its velocity has a tiny but non-zero spread that the dead-zone mask would call motion
+    path, _ = write_synthetic_session(tmp_path / "s.h5", 30, seed=2)
+    with h5py.File(path, "a") as f:
+        q = f["follower/q"][()]
+        q[:, 2] = np.random.default_rng(0).integers(-1, 2, len(q)) * 2 * np.pi / 4096
+        f["follower/q"][...] = q
+    result = run("info", path, "--joints", "joint3")
+    assert result.exit_code == 2 and result.output.startswith("Error: joint3 never moves in the data")
+    result = run("fit", path, "--joints", "joint1,joint3", "--model", "rigid-body", "--scale-to-data",
+                 "-o", tmp_path / "m")
+    assert result.exit_code == 2 and "joint3 never moves" in result.output

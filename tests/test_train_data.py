@@ -131,8 +131,10 @@ def test_zero_phase_option_has_no_delay():
     assert np.abs(pseudo_diff(x, 25, rate) - w * np.cos(w * t))[keep].max() > 0.5  # the causal one lags
 
 
-def test_preprocess_downsamples_selects_joints_and_keeps_segments(session_path):
-    sessions = read_sessions([session_path, session_path])
+def test_preprocess_downsamples_selects_joints_and_keeps_segments(session_path, tmp_path):
+    copy = tmp_path / "copy.h5"  # a second recording (the same file twice is refused)
+    copy.write_bytes(session_path.read_bytes())
+    sessions = read_sessions([session_path, copy])
     ds = preprocess(sessions, PreprocessConfig(joints=("joint4", "joint1")))
     assert ds.joint_names == ("joint4", "joint1") and ds.rate_hz == 50
     assert set(np.unique(ds.segment)) == {0, 1}

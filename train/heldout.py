@@ -67,7 +67,7 @@ def held_out(ds: Dataset, splits: Splits, sessions=(), seed: int | None = None) 
             f"{int((~test & ~window).sum())} more samples of the same blocks (some joint stands still), "
             f"in {len(starts) - 1} contiguous blocks; plus the continuous {splits.config.window_s:g} s "
             f"plotting window (t = {ds.t[w[0]]:.1f}–{ds.t[w[-1]]:.1f} s, piece {int(ds.segment[w[0]])}). "
-            + (f"Split seed {seed}; " if seed is not None else "") +
+            + (f"Split seed {seed}. " if seed is not None else "") +
             "None of these samples was used for training or validation.")
     if sessions:
         desc += f" Sessions: {', '.join(str(s) for s in sessions)}."

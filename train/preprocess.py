@@ -25,8 +25,12 @@ from crane_io.errors import ConfigError
 
 from .dataset import Dataset
 from .filters import lowpass, pseudo_diff
-from .masks import dead_zone_mask, moving_fractions
+from .masks import DeadZoneError, dead_zone_mask, moving_fractions
 from .session import RawSession
+
+# A joint whose (filtered) angle spans less than this never moved: a joint held in position mode only
+# jitters by an encoder count or two (0.0015 rad each), and its velocity's spread is that jitter.
+MIN_TRAVEL_RAD = 0.01
 
 
 @dataclass
@@ -102,6 +106,7 @@ def preprocess(sessions: list[RawSession] | RawSession, config: PreprocessConfig
     parts = {k: [] for k in ("t", "q", "dq", "ddq", "tau", "segment")}
     seg = 0
     dropped = 0
+    longest = 0.0  # s, of the pieces too short to use
     for s in sessions:
         missing = [n for n in config.joints if n not in s.joint_names]
         if missing:
@@ -113,6 +118,7 @@ def preprocess(sessions: list[RawSession] | RawSession, config: PreprocessConfig
             t, q, tau = s.t[piece], s.q[piece][:, cols], s.tau[piece][:, cols]
             if len(t) <= settle + 2 * s.rate_hz / config.downsample_hz:
                 dropped += 1
+                longest = max(longest, len(t) / s.rate_hz)
                 continue
             q, dq, ddq, tau = filter_signals(q, tau, s.rate_hz, config)
             keep = slice(settle, None)
@@ -123,8 +129,19 @@ def preprocess(sessions: list[RawSession] | RawSession, config: PreprocessConfig
             parts["segment"].append(np.full(len(t), seg, dtype=int))
             seg += 1
     if not parts["t"]:
-        raise ConfigError("no session piece is long enough to preprocess")
+        need = config.settle_s + 2.0 / config.downsample_hz
+        names = ", ".join(str(x.path or "the session") for x in sessions)
+        verb, its = ("is", "its") if len(sessions) == 1 else ("are", "their")
+        raise ConfigError(f"{names} {verb} too short to preprocess: {its} longest continuous piece lasts "
+                          f"{longest:.2g} s, and more than {need:.2g} s are needed (the "
+                          f"{config.settle_s:g} s the filters settle in, plus two output samples)")
     cat = {k: np.concatenate(v) for k, v in parts.items()}
+    travel = np.ptp(cat["q"], axis=0)
+    for name, span in zip(config.joints, travel):
+        if span < MIN_TRAVEL_RAD:  # its velocity is jitter, which the mask would call motion
+            raise DeadZoneError(f"{name} never moves in the data (its angle stays within "
+                                f"{np.degrees(span):.2g} deg), so it cannot be learned; record motion of it "
+                                f"or leave it out with --joints")
     moving, sigma = dead_zone_mask(cat["dq"], config.alpha, joint_names=config.joints)
     rate = min(config.downsample_hz, min(s.rate_hz for s in sessions))
     meta = {"preprocessing": config.to_dict(), "sigma": sigma.tolist(), "alpha": config.alpha,

@@ -148,6 +148,12 @@ def read_sessions(paths, arm: str = "follower") -> list[RawSession]:
     paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
     if not paths:
         raise SessionFileError("no session files were given")
+    seen = {}
+    for p in paths:  # the same recording twice would put copies of test samples into the training data
+        key = Path(p).resolve()
+        if key in seen:
+            raise SessionFileError(f"{p} is given twice (as {seen[key]} and {p}); name each session once")
+        seen[key] = p
     sessions = [read_session(p, arm) for p in paths]
     first = sessions[0]
     for s in sessions[1:]:
