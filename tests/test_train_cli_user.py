@@ -126,3 +126,36 @@ def test_a_held_joint_that_only_jitters_by_an_encoder_count_never_moves(tmp_path
     result = run("fit", path, "--joints", "joint1,joint3", "--model", "rigid-body", "--scale-to-data",
                  "-o", tmp_path / "m")
     assert result.exit_code == 2 and "joint3 never moves" in result.output
+
+
+@pytest.fixture(scope="module")
+def models(session, tmp_path_factory):
+    root = tmp_path_factory.mktemp("models")
+    for method in ("rigid-body", "mlp-masked"):
+        result = run("fit", session, "--model", method, "--scale-to-data", "--epochs", 2, "-o", root / method)
+        assert result.exit_code == 0, result.output
+    return root
+
+
+DAMAGE = {  # what a damaged model directory looks like -> what the sentence must say
+    "junk weights": ("mlp-masked", "mlp.pt", b"junk\n", "mlp.pt is corrupt"),
+    "empty weights": ("mlp-masked", "mlp.pt", b"", "mlp.pt is corrupt"),
+    "junk parameters": ("rigid-body", "rigid_body.npz", b"junk\n", "rigid_body.npz is corrupt"),
+    "model.json without joints": ("rigid-body", "model.json",
+                                  b'{"format": "crane-model", "format_version": 1, "method": "rigid-body"}',
+                                  "model.json lacks 'joint_names'"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(DAMAGE))
+def test_a_damaged_model_directory_is_one_plain_sentence(models, tmp_path, case):
+    import shutil
+
+    method, name, content, fragment = DAMAGE[case]
+    broken = tmp_path / "broken"
+    shutil.copytree(models / method, broken)
+    (broken / name).write_bytes(content)
+    result = run("compare", broken)
+    assert result.exit_code == 2 and result.output.startswith("Error: ") and fragment in result.output
+    # no library internals (pickle advice, a torch magic number, a KeyError repr in parentheses)
+    assert "pickle" not in result.output and "(" not in result.output, result.output

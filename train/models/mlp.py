@@ -97,9 +97,17 @@ class MLPModel(Model):
             raise ModelFileError(f"{directory} lacks its network weights {WEIGHTS}")
         try:
             weights = torch.load(path, map_location="cpu", weights_only=True)
+        except Exception:  # torch.load of a damaged file fails in many ways (pickle, zip, EOF, key, runtime)
+            raise ModelFileError(f"{path} is corrupt, not a readable PyTorch weights file; fit the model "
+                                 f"again") from None
+        try:
             self.params = {k: weights[k].numpy()[None].astype(np.float32) for k in ("W1", "b1", "W2", "b2")}
             self.norm = {k: np.asarray(state["norm"][k], dtype=np.float32)[None]
                          for k in ("x_mean", "x_std", "y_mean", "y_std")}
-        except (KeyError, RuntimeError, OSError) as exc:
-            raise ModelFileError(f"{path} is corrupt or incomplete ({exc})") from None
+        except KeyError as exc:
+            raise ModelFileError(f"{directory} is incomplete: its weights or normalisation lack "
+                                 f"{exc.args[0]!r}; fit the model again") from None
+        except (TypeError, AttributeError):
+            raise ModelFileError(f"{path} is corrupt, not the weights crane-train fit writes; fit the model "
+                                 f"again") from None
         self.history = state.get("history", {})

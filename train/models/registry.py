@@ -62,7 +62,10 @@ def load_model(directory) -> Model:
     try:
         model = cls(doc["joint_names"], preprocessing=doc.get("preprocessing") or {},
                     **doc.get("options", {}))
-    except (TypeError, KeyError) as exc:
+    except KeyError as exc:
+        raise ModelFileError(f"{Path(directory) / 'model.json'} lacks {exc.args[0]!r}; it is damaged or "
+                             f"not written by crane-train fit") from None
+    except TypeError as exc:
         raise ModelFileError(f"{Path(directory)} has an unusable model.json ({exc})") from None
     model._load_extra(Path(directory), doc.get("state", {}))
     return model

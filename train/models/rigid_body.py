@@ -234,8 +234,14 @@ class RigidBodyModel(Model):
                 self.theta, self.stderr = z["theta"], z["stderr"]
             self.terms = state["terms"]
             self.names = state["names"]
-        except (OSError, KeyError, ValueError) as exc:
-            raise ModelFileError(f"{directory} lacks or has a corrupt {ARRAYS} ({exc})") from None
+        except FileNotFoundError:
+            raise ModelFileError(f"{directory} lacks its parameters {ARRAYS}; fit the model again") from None
+        except KeyError as exc:
+            raise ModelFileError(f"{directory} is incomplete: {exc.args[0]!r} is missing from its "
+                                 f"{ARRAYS} or model.json; fit the model again") from None
+        except (OSError, ValueError, EOFError):
+            raise ModelFileError(f"{path} is corrupt, not a readable numpy .npz file; fit the model "
+                                 f"again") from None
         self.fit_info = state.get("fit_info", {})
         for f in self.options["effect_files"]:
             if not Path(f).is_file():
