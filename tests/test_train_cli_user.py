@@ -159,3 +159,13 @@ def test_a_damaged_model_directory_is_one_plain_sentence(models, tmp_path, case)
     assert result.exit_code == 2 and result.output.startswith("Error: ") and fragment in result.output
     # no library internals (pickle advice, a torch magic number, a KeyError repr in parentheses)
     assert "pickle" not in result.output and "(" not in result.output, result.output
+
+
+@pytest.mark.parametrize("velocity", ["-1", "0"])
+def test_an_effect_shape_that_adds_nothing_is_refused_not_silently_ignored(session, tmp_path, velocity):
+    # a Stribeck velocity <= 0 makes the effect's column zero: the "model with Stribeck" was the plain one
+    result = run("fit", session, "--model", "rigid-body", "--scale-to-data", "-o", tmp_path / "m",
+                 "--effect", f"stribeck:joint=joint2,stribeck_velocity={velocity}")
+    assert result.exit_code == 2 and result.output.startswith("Error: effect stribeck on joint2 with "
+                                                             f"stribeck_velocity={velocity} adds nothing")
+    assert not (tmp_path / "m").exists()

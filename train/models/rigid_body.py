@@ -155,6 +155,20 @@ class RigidBodyModel(Model):
         stderr = np.sqrt(np.clip(np.diag(P_s), 0, None) * s2) / scale
         return theta, stderr, s2
 
+    def _check_given_shape(self, term, ds: Dataset) -> None:
+        """A shape given on the command line (`--effect stribeck:stribeck_velocity=...`) must make the
+        effect's columns finite and not all zero on the data, or the fit would silently ignore it."""
+        cols = self._term_columns(term, ds.q, ds.dq, ds.ddq)
+        if np.all(np.isfinite(cols)) and np.abs(cols).max(initial=0.0) > 0:
+            return
+        where = "" if term["joint"] is None else f" on {self.joint_names[term['joint']]}"
+        given = ", ".join(f"{k}={v:g}" for k, v in term["shape"].items())
+        grid = _effect_registry().get_effect(term["name"]).shape_grid
+        hint = "; ".join(f"{k} is tried among {', '.join(f'{x:g}' for x in v)}" for k, v in grid.items())
+        raise ConfigError(f"effect {term['name']}{where} with {given} adds "
+                          f"{'nothing' if np.all(np.isfinite(cols)) else 'non-finite torque'} on this data; "
+                          f"give another value or none{f' ({hint} when none is given)' if hint else ''}")
+
     def fit(self, train: Dataset, val: Dataset | None = None) -> RigidBodyModel:
         if tuple(train.joint_names) != self.joint_names:
             raise CraneError(f"the data has joints {', '.join(train.joint_names)} but the model was made "
@@ -169,6 +183,9 @@ class RigidBodyModel(Model):
                              f"the training data has {len(rows)}")
         fit_ds = train.subset(rows)
         val_ds = val.subset(np.flatnonzero(val.all_moving)) if val is not None else fit_ds
+        for term in terms:
+            if term["shape"] is not None:
+                self._check_given_shape(term, fit_ds)
         tuned = []
         for i, term in enumerate(terms):
             effect = _effect_registry().get_effect(term["name"])
