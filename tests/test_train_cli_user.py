@@ -169,3 +169,12 @@ def test_an_effect_shape_that_adds_nothing_is_refused_not_silently_ignored(sessi
     assert result.exit_code == 2 and result.output.startswith("Error: effect stribeck on joint2 with "
                                                              f"stribeck_velocity={velocity} adds nothing")
     assert not (tmp_path / "m").exists()
+
+
+def test_an_arm_wide_effect_given_a_joint_is_refused(session, tmp_path):
+    result = run("fit", session, "--model", "rigid-body", "--scale-to-data", "-o", tmp_path / "m",
+                 "--effect", "payload:joint=joint1")
+    assert result.exit_code == 2 and "payload acts on the whole arm" in result.output
+    result = run("fit", session, "--model", "rigid-body", "--scale-to-data", "-o", tmp_path / "m",
+                 "--effect", "payload")
+    assert result.exit_code == 0, result.output

@@ -110,6 +110,9 @@ class RigidBodyModel(Model):
         for name, joint, shape in self.options["effects"]:
             effect = fx.get_effect(name)
             if effect.scope == "arm":
+                if joint is not None:
+                    raise ConfigError(f"effect {name} acts on the whole arm (one parameter for all joints); "
+                                      f"give it without joint=")
                 terms.append({"name": name, "joint": None, "shape": shape})
                 continue
             if joint is None:
