@@ -178,3 +178,21 @@ def test_an_arm_wide_effect_given_a_joint_is_refused(session, tmp_path):
     result = run("fit", session, "--model", "rigid-body", "--scale-to-data", "-o", tmp_path / "m",
                  "--effect", "payload")
     assert result.exit_code == 0, result.output
+
+
+def test_an_output_under_a_file_is_one_sentence_before_any_work(session, models, tmp_path):
+    blocker = tmp_path / "notes.txt"
+    blocker.write_text("a file where a folder was meant")
+    commands = {
+        "fit": ["fit", session, "--model", "rigid-body", "--scale-to-data", "-o", blocker / "model"],
+        "sweep": ["sweep", session, "--sizes", "50", "--trials", "2", "--epochs", "1", "--scale-to-data",
+                  "-o", blocker / "sweep"],
+        "report": ["report", models / "rigid-body", session, "-o", blocker / "r.html"],
+        "compare": ["compare", models / "rigid-body", "-o", blocker / "c.png"],
+    }
+    for name, args in commands.items():
+        result = run(*args)
+        assert result.exit_code == 2, (name, result.output)
+        assert result.output.startswith(f"Error: cannot write {blocker}/"), (name, result.output)
+        assert "is a file, not a folder" in result.output, (name, result.output)
+    assert blocker.read_text() == "a file where a folder was meant"

@@ -23,9 +23,12 @@ from crane_io.errors import cli_errors
 @cli_errors
 def compare(model_dirs, sessions, as_json, output, metric):
     """Compare MODEL_DIR(s), in the given order, on the same held-out samples."""
+    from .cli_options import writable_output
     from .compare import compare_models, notes_text, plot, table_text
     from .progress import show_progress
 
+    if output:
+        writable_output(output, "file")
     result = compare_models(list(model_dirs), list(sessions), progress=show_progress(not as_json))
     if output:
         plot(result, output)

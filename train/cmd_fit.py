@@ -13,7 +13,7 @@ from tqdm import tqdm
 
 from crane_io.errors import ConfigError, cli_errors
 
-from .cli_options import data_options, load_config, load_dataset, parse_effect
+from .cli_options import data_options, load_config, load_dataset, parse_effect, writable_output
 from .metrics import metrics_table
 from .models.registry import METHODS, make_model
 from .progress import show_progress
@@ -26,6 +26,7 @@ def fit_model(sessions, method: str, out_dir, train_size: int | None = None, see
               config_path=None) -> dict:
     """Preprocess, split, fit on `train_size` samples of the pool (all of it by default), score on the
     test set, save to out_dir. Returns the metrics document (also written as fit_metrics.json)."""
+    writable_output(out_dir, "dir")
     cfg = load_config(config_path)
     ds = load_dataset(sessions, joints, alpha, zero_phase, cfg["preprocess"])
     splits = make_splits(ds, cfg["splits"], seed=seed, scale_to_data=scale_to_data)

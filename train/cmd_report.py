@@ -20,10 +20,12 @@ from crane_io.errors import cli_errors
 @cli_errors
 def report(model_dir, sessions, output, diagnosis, seed):
     """Write an HTML report of MODEL_DIR's error on the held-out part of SESSION(s)."""
+    from .cli_options import writable_output
     from .heldout import evaluation_data
     from .models.registry import load_model
     from .report import report_html, write_report
 
+    writable_output(output, "file")
     model = load_model(model_dir)
     click.echo(f"Evaluating {model_dir} ({model.method}) on the held-out part of {', '.join(sessions)} ...",
                err=True)

@@ -8,7 +8,7 @@ import click
 
 from crane_io.errors import ConfigError, cli_errors
 
-from .cli_options import data_options, load_config, load_dataset, parse_sizes
+from .cli_options import data_options, load_config, load_dataset, parse_sizes, writable_output
 from .progress import show_progress
 from .sweep import SWEEP_METHODS, format_table, run_sweep, write_results
 
@@ -33,6 +33,7 @@ def sweep(sessions, out_dir, sizes, trials, methods, seed, epochs, batch_size, c
           zero_phase, scale_to_data, no_progress):
     """Test MSE against the number of training samples for each method (mean and 95 % CI)."""
     size_list = parse_sizes(sizes)
+    writable_output(out_dir, "dir")
     method_list = [m.strip() for m in methods.split(",") if m.strip()]
     cfg = load_config(config_path)
     settings = cfg["mlp"]
