@@ -61,11 +61,18 @@ class StatusLine:
         print(("\r" + text) if self.tty else text, end="" if self.tty else "\n", file=self.out, flush=True)
 
 
+# How the summary's first line says why the run ended (RunResult.end_reason).
+_END_WORDS = {"duration": "ended after the requested duration", "interrupted": "stopped by Ctrl+C",
+              "terminated": "stopped by SIGTERM", "safety_stop": "safety stop",
+              "error": "stopped by an error"}
+
+
 def print_summary(r, bus_errors: int, out, lockstep: bool = False) -> None:
     """The summary of a finished run (r: RunResult). In lockstep the loop's own rate is the nominal one
     (one period of simulated time per cycle); the wall-clock rate is how fast the machine simulated."""
     s = r.summary
-    lines = [("\n" if is_terminal(out) else "") + f"session {r.path}: {r.end_reason}, {r.cycles} cycles, "
+    ended = _END_WORDS.get(r.end_reason, r.end_reason.replace("_", " "))
+    lines = [("\n" if is_terminal(out) else "") + f"session {r.path}: {ended}; {r.cycles} cycles, "
              f"{r.duration_s:.1f} s recorded in {r.wall_s:.1f} s wall"]
     if s.get("period_mean_s"):
         if lockstep:
