@@ -2,6 +2,7 @@
 coefficients, the registry, and a user's effect file."""
 
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -120,23 +121,12 @@ def test_unknown_effect_and_bad_arguments_raise_config_errors(states):
         get_effect("payload").columns(q[:, :2], dq[:, :2], ddq[:, :2], None)
 
 
+EXAMPLE_EFFECT_FILE = Path(__file__).parents[1] / "docs" / "examples" / "cable_drag.py"
+
+
 def test_a_user_effect_file_registers_without_editing_the_package(tmp_path, states):
     path = tmp_path / "my_effects.py"
-    path.write_text(textwrap.dedent('''
-        import numpy as np
-        from crane_io.effects import Effect, Param
-        from crane_io.effects.base import joint_columns
-
-        class CableDrag(Effect):
-            name = "cable-drag"
-            title = "cable drag"
-            description = "A cable that pulls harder the further the joint turns: c q |q|."
-            signature = "the residual of {joint} grows with the square of its angle"
-            params = (Param("drag", "N m/rad^2", 0.1, "drag per rad squared"),)
-
-            def _columns(self, q, dq, ddq, joint, shape):
-                return joint_columns(len(q), q.shape[1], joint, q[:, joint] * np.abs(q[:, joint]))
-    '''))
+    path.write_text(EXAMPLE_EFFECT_FILE.read_text())
     assert load_effect_file(path) == ["cable-drag"]
     eff = get_effect("cable-drag")
     q, dq, ddq = states

@@ -4,6 +4,7 @@ recorded and hand-made files (options that must take effect, errors that must be
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -44,21 +45,9 @@ def test_fit_refuses_a_number_of_epochs_below_one(session, tmp_path, epochs):
     assert not (tmp_path / "m").exists()
 
 
-CABLE_DRAG = '''
-import numpy as np
-from crane_io.effects import Effect, Param
-from crane_io.effects.base import joint_columns
-
-class CableDrag(Effect):
-    name = "cable-drag-user-test"
-    title = "cable drag"
-    description = "A cable that pulls harder the further the joint turns: c q |q|."
-    signature = "the residual of {joint} grows with the square of its angle"
-    params = (Param("drag", "N m/rad^2", 0.1, "drag per rad squared"),)
-
-    def _columns(self, q, dq, ddq, joint, shape):
-        return joint_columns(len(q), q.shape[1], joint, q[:, joint] * np.abs(q[:, joint]))
-'''
+# the documented example effect under its own name (the effect registry is shared within the run)
+CABLE_DRAG = (Path(__file__).parents[1] / "docs" / "examples" / "cable_drag.py").read_text().replace(
+    'name = "cable-drag"', 'name = "cable-drag-user-test"')
 
 
 def test_a_model_with_a_user_effect_file_given_relative_loads_from_any_directory(session, tmp_path,
