@@ -28,6 +28,7 @@ from crane_io.errors import CraneError
 from crane_io.sim.chain import SimulatedChain
 from crane_io.sim.simple_plant import SimplePlant
 from crane_io.sim.transport import PtyServer
+from tests.recording import wait_for_rows
 
 ARM = default_arm()
 CLI = str(Path(sys.executable).parent / "crane-collect")
@@ -62,20 +63,6 @@ def _signed16(raw: int) -> int:
     return raw - 0x10000 if raw >= 0x8000 else raw
 
 
-def _rows(out: Path) -> int:
-    try:
-        with h5py.File(out, "r", libver="latest", swmr=True) as f:
-            return f["follower/t"].shape[0]
-    except (OSError, KeyError):
-        return 0
-
-
-def _wait_rows(proc, out, rows):
-    end = time.monotonic() + 60
-    while _rows(out) < rows:
-        assert proc.poll() is None, proc.communicate()
-        assert time.monotonic() < end, "the run did not record"
-        time.sleep(0.1)
 
 
 def _start(tmp_path, arms):
@@ -88,12 +75,12 @@ def _start(tmp_path, arms):
                              "--follower-port", str(tmp_path / "follower"), "--duration", "60",
                              "--config", str(cfg), "-o", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    _wait_rows(proc, out, 50)
+    wait_for_rows(proc, out, 50)
     load = np.zeros(8)
     load[JOINT2] = 0.3  # N m
     arms["leader"].plant.set_external_torque(-load)
     arms["follower"].plant.set_external_torque(load)
-    _wait_rows(proc, out, 200)
+    wait_for_rows(proc, out, 200)
     return proc, out
 
 

@@ -16,6 +16,7 @@ import tomllib
 from collect.recorder import read_events
 from collect.runner import RunOptions, SafetyStop, run_session
 from crane_io.description import default_arm
+from tests.recording import wait_for_rows
 
 ARM = default_arm()
 BIL = np.array([n in ARM.bilateral_joints for n in ARM.joint_names])
@@ -198,26 +199,12 @@ def _start(tmp_path, status=2, duration=60, log=10):
     return proc, out
 
 
-def _rows(out: Path) -> int:
-    try:
-        with h5py.File(out, "r", libver="latest", swmr=True) as f:
-            return f["follower/t"].shape[0]
-    except (OSError, KeyError):
-        return 0
-
-
-def _wait_rows(proc, out, rows, timeout=60):
-    end = time.monotonic() + timeout
-    while _rows(out) < rows:
-        assert proc.poll() is None, proc.communicate()
-        assert time.monotonic() < end, "the run did not start recording"
-        time.sleep(0.1)
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_ctrl_c_and_sigterm_leave_a_complete_file_and_torque_off(tmp_path, sig):
     proc, out = _start(tmp_path)
-    _wait_rows(proc, out, 300)
+    wait_for_rows(proc, out, 300)
     proc.send_signal(sig)
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 0, stderr
@@ -236,7 +223,7 @@ def test_ctrl_c_and_sigterm_leave_a_complete_file_and_torque_off(tmp_path, sig):
 
 def test_sigkill_loses_at_most_the_last_second(tmp_path):
     proc, out = _start(tmp_path, status=20, log=0)  # a status line every 50 ms even into the pipe
-    _wait_rows(proc, out, 1500)
+    wait_for_rows(proc, out, 1500)
     time.sleep(0.3)
     os.kill(proc.pid, signal.SIGKILL)
     stdout, stderr = proc.communicate(timeout=30)
