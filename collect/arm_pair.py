@@ -20,10 +20,14 @@ ARMS = ("leader", "follower")
 
 
 class ArmPair:
-    def __init__(self, concurrent_io: bool):
+    def __init__(self, concurrent_io: bool, checkpoint=None):
         self.buses: dict = {}
+        # called before every read of both arms (the alignment's and the loop's cycles): raises to end
+        # the run when a stop was requested (crane_io.shutdown.StopRequest.check)
+        self.checkpoint = checkpoint
         self.pool = concurrent.futures.ThreadPoolExecutor(2, "crane-bus") if concurrent_io else None
         self._inflight: list = []  # bus transfers a signal may have left running in the pool
+        self.stopped = False  # both arms confirmed stopped (goal current 0, torque off)
 
     def attach(self, buses: dict) -> None:
         """The opened, configured buses (torque on) to drive."""
@@ -46,6 +50,8 @@ class ArmPair:
 
     def read_both(self):
         """[(ServoState | None, CraneError | None, s)] for leader, follower."""
+        if self.checkpoint is not None:
+            self.checkpoint()
         return self._both([(self.buses[a].read_state,) for a in ARMS])
 
     def write_currents(self, amps_l, amps_f):
@@ -58,7 +64,10 @@ class ArmPair:
 
     # -- stopping -----------------------------------------------------------------------------------------
     def safe_stop(self) -> dict:
-        """Goal current 0 and torque off on both arms; {arm: failures} of the stop itself."""
+        """Goal current 0 and torque off on both arms; {arm: failures} of the stop itself. Once both
+        arms confirmed the stop, a further call does nothing."""
+        if self.stopped:
+            return {}
         # A signal raised in the main thread while it waited for the bus threads: let their transfers
         # end first, so the stop packets do not collide with a read still on the wire.
         if self._inflight:
@@ -72,6 +81,7 @@ class ArmPair:
                     failures[name] = bus.safe_stop()
                 except Exception as exc:  # noqa: BLE001 - the other arm must still stop
                     failures[name] = {"*": str(exc)}
+        self.stopped = bool(self.buses) and not any(failures.values())
         return failures
 
     def torque_report(self) -> list[tuple[str, str]]:

@@ -35,7 +35,7 @@ import numpy as np
 
 from crane_io.description import ArmDescription, default_arm
 from crane_io.errors import CraneError
-from crane_io.shutdown import Terminated, handle_termination
+from crane_io.shutdown import handle_termination
 
 from .alignment import SafetyStop, StartRefused, align
 from .arm_pair import ARMS, ArmPair
@@ -101,8 +101,9 @@ class RunContext:
 class _Loop:
     """The bilateral loop and what it keeps between cycles; built before any torque is on."""
 
-    def __init__(self, opts: RunOptions, config: Config, arm: ArmDescription, sims: dict, out):
+    def __init__(self, opts: RunOptions, config: Config, arm: ArmDescription, sims: dict, out, stop=None):
         self.opts = opts
+        self.stop = stop  # crane_io.shutdown.StopRequest: checked at the top of every cycle
         self.config = config
         self.arm = arm
         self.sims = sims
@@ -114,7 +115,8 @@ class _Loop:
         self.bil = np.array([n in arm.bilateral_joints for n in arm.joint_names])
         held_goal = np.array([config.held.get(n, 0.0) for n in arm.joint_names])
         self.q_goal_row = np.where(self.bil, np.nan, held_goal)
-        self.pair = ArmPair(concurrent_io=not sims)  # hardware: one thread per bus
+        # hardware: one thread per bus; every read of both arms is a checkpoint for a stop request
+        self.pair = ArmPair(concurrent_io=not sims, checkpoint=stop.check if stop is not None else None)
         self.status = StatusLine(out, config.loop, opts.status)
         self.recorder: SessionRecorder | None = None
         self.operator: SimulatedOperator | None = None
@@ -126,6 +128,7 @@ class _Loop:
         self.err_sq = np.zeros(len(arm.joints))
         self.errors = 0
         self.breach: Breach | None = None
+        self.last_event_t = 0.0
         self.ctx = RunContext(config, arm, {}, sims)
 
     def attach(self, buses: dict) -> None:
@@ -134,8 +137,29 @@ class _Loop:
         self.ctx.buses = buses
 
     def event(self, t: float, kind: str, message: str, joint: str = "") -> None:
+        """Record an event; event times never go backwards (an event caused by another comes after it)."""
         if self.recorder is not None:
+            t = max(float(t), self.last_event_t)
+            self.last_event_t = t
             self.recorder.event(t, kind, message, joint)
+
+    def now(self) -> float:
+        """Session time now: the simulated time reached in lockstep, else the leader's clock since the
+        first cycle (never before the last recorded cycle)."""
+        if self.lockstep or self.t_start_mono is None:
+            return self.t_session
+        return max(self.t_session, time.monotonic() - self.t_start_mono)
+
+    def end_event(self, reason: str, exc: BaseException | None, duration: float | None) -> None:
+        """The event that says why the run ended (a safety stop wrote its own when it happened)."""
+        if reason == "duration":
+            self.event(self.now(), "end", f"duration of {duration:g} s reached")
+        elif reason in ("interrupted", "terminated"):
+            signum = getattr(exc, "signum", None) or getattr(self.stop, "signum", None) or signal.SIGINT
+            what = "Ctrl+C (SIGINT)" if signum == signal.SIGINT else signal.Signals(signum).name
+            self.event(self.now(), "interrupted", f"stopped by {what}")
+        elif reason == "error" and exc is not None:
+            self.event(self.now(), "error", f"{exc.__class__.__name__}: {exc}")
 
     def align(self) -> str:
         return align(self.pair, self.ctl, self.safety, self.config, self.arm, simulated=bool(self.sims),
@@ -149,7 +173,10 @@ class _Loop:
         self.status.start()
         self.timer.start()
         k = 0
+        stop = self.stop
         while n_total is None or k < n_total:
+            if stop is not None and stop.requested:
+                return "interrupted" if stop.signum == signal.SIGINT else "terminated"
             if hooks is not None:
                 hooks(k, self.ctx)
             breach, t = self._cycle(k)
@@ -292,9 +319,18 @@ class _Loop:
         return "safety_stop"
 
 
+STOP_NOTICE = ("crane-collect: a stop is in progress (goal current 0, torque off, session file closed); "
+               "please wait")
+
+
 def run_session(opts: RunOptions) -> RunResult:
     """Run one collection session (see the module docstring). Raises CraneError subclasses with one
-    sentence for bad input and hardware problems; SafetyStop after a safety stop (file valid)."""
+    sentence for bad input and hardware problems; SafetyStop after a safety stop (file valid).
+
+    Stop signals (Ctrl+C, SIGTERM, SIGHUP) are recorded, never lost (crane_io.shutdown): during the
+    start-up they raise at once; during the alignment and the loop the first one is taken between two
+    cycles; the clean-up (safe stop, torque read-back, file close, summary) always runs to its end, and a
+    signal meanwhile only prints that the stop is in progress."""
     out = opts.stream if opts.stream is not None else sys.stderr
     config = load_config(opts.config)
     if opts.rate is not None:
@@ -304,76 +340,121 @@ def run_session(opts: RunOptions) -> RunResult:
     output = Path(opts.output)
     check_output(output, opts.force)
     check_ports(opts)
-    sims: dict = {}
-    if opts.sim:
-        sims = make_sim_arms(opts, config, arm)
-        ports = {name: sims[name].url for name in ARMS}
-    else:
-        ports = {"leader": opts.leader_port, "follower": opts.follower_port}
-
-    loop = None
-    end_reason = "error"
-    wall0 = time.perf_counter()
-    buses: dict = {}
-    try:
-        # SIGINT too: the first Ctrl+C / SIGTERM / SIGHUP ends the run, any further one while the arms
-        # are being stopped and the file closed is ignored (a second Ctrl+C must not cut the safe stop).
-        with handle_termination(_STOP_SIGNALS):
+    with handle_termination(_STOP_SIGNALS, notice=STOP_NOTICE) as stop:
+        session = _Session(opts, config, arm, output, out, stop)
+        try:
             try:
-                if opts.truth is not None:  # its own file, asked for; before any torque is on
-                    write_truth(sims, opts.truth)
-                # The slow set-up (the dynamics model: ~0.4 s) comes before any torque is on: on hardware a
-                # pause between torque-on and the first cycle would trip the servos' Bus Watchdog.
-                loop = _Loop(opts, config, arm, sims, out)
-                buses, hw = open_buses(opts, arm, config, ports, out)
-                loop.attach(buses)
-                if sims and opts.realtime:
-                    switch_to_wall_clock(sims)
-                align_message = loop.align()
-                if sims:
-                    loop.operator = SimulatedOperator(opts.seed, arm, config.loop.rate_hz, config)
-                    loop.operator.start(loop.pair.read_both()[0][0].position, 0.0)
-                loop.recorder = make_recorder(opts, output, config, arm, hw)
-                loop.ctx.recorder = loop.recorder
-                for w in hw["warnings"]:
-                    loop.event(0.0, "warning", w)
-                loop.event(0.0, "start", align_message)
-                mode = "lockstep simulation" if loop.lockstep else "real time"
-                loop.status.say(f"recording to {output} ({mode}, {config.loop.rate_hz:g} Hz); "
-                                "Ctrl+C ends the session")
-                end_reason = loop.run(opts.duration)
-                if end_reason == "duration":
-                    loop.pair.safe_stop()
-                    loop.event(loop.t_session, "end", f"duration of {opts.duration:g} s reached")
-            except KeyboardInterrupt as exc:
-                signum = exc.signum if isinstance(exc, Terminated) else signal.SIGINT
-                end_reason = "interrupted" if signum == signal.SIGINT else "terminated"
-                if loop is not None:
-                    loop.pair.safe_stop()
-                    what = "Ctrl+C (SIGINT)" if signum == signal.SIGINT else signal.Signals(signum).name
-                    loop.event(loop.t_session, "interrupted", f"stopped by {what}")
+                session.start_and_run()
             except BaseException as exc:
-                end_reason = "error"
-                if loop is not None:
-                    loop.pair.safe_stop()
-                    loop.event(loop.t_session, "error", f"{exc.__class__.__name__}: {exc}")
+                session.exc = exc
                 raise
             finally:
-                if loop is not None:
-                    if loop.recorder is not None:
-                        for _name, msg in loop.pair.torque_report():
-                            loop.event(loop.t_session, "torque_state", msg)
-                    loop.pair.close()
-                for bus in buses.values():
-                    bus.close()
-                result = _finish(loop, opts, output, end_reason, wall0, out)
-                for sim in sims.values():
-                    sim.close()
-    except Terminated:  # a second signal while closing: the file is already safe
-        pass
+                session.clean_up()
+        except KeyboardInterrupt:
+            pass  # a stop signal: both arms are stopped and the file is closed
+    if session.exc is not None and not isinstance(session.exc, KeyboardInterrupt):
+        raise session.exc
+    if session.clean_up_error is not None:
+        raise session.clean_up_error
+    loop = session.loop
     if loop is not None and loop.breach is not None:
         raise SafetyStop(f"safety stop: {loop.breach.message} (session saved in {output})")
-    return result
+    return session.result
+
+
+class _Session:
+    """One run: start-up, alignment and loop (`start_and_run`), then the clean-up that always runs to its
+    end (`clean_up`)."""
+
+    def __init__(self, opts: RunOptions, config: Config, arm: ArmDescription, output: Path, out, stop):
+        self.opts, self.config, self.arm, self.output, self.out = opts, config, arm, output, out
+        self.stop = stop
+        self.sims: dict = {}
+        self.buses: dict = {}
+        self.loop: _Loop | None = None
+        self.end_reason: str | None = None  # set by the loop when it ends by itself
+        self.exc: BaseException | None = None  # what ended start_and_run by raising
+        self.result: RunResult | None = None
+        self.clean_up_error: Exception | None = None
+        self.wall0 = time.perf_counter()
+
+    def start_and_run(self) -> None:
+        opts, config, arm, stop = self.opts, self.config, self.arm, self.stop
+        if opts.sim:
+            self.sims = make_sim_arms(opts, config, arm)
+            ports = {name: self.sims[name].url for name in ARMS}
+        else:
+            ports = {"leader": opts.leader_port, "follower": opts.follower_port}
+        stop.check()
+        if opts.truth is not None:  # its own file, asked for; before any torque is on
+            write_truth(self.sims, opts.truth)
+        # The slow set-up (the dynamics model: ~0.4 s) comes before any torque is on: on hardware a
+        # pause between torque-on and the first cycle would trip the servos' Bus Watchdog.
+        loop = _Loop(opts, config, arm, self.sims, self.out, stop)
+        self.loop = loop
+        stop.check()
+        self.buses, hw = open_buses(opts, arm, config, ports, self.out, checkpoint=stop.check)
+        loop.attach(self.buses)
+        with stop.deferred():  # from here a stop is taken between two cycles (ArmPair.read_both)
+            if self.sims and opts.realtime:
+                switch_to_wall_clock(self.sims)
+            align_message = loop.align()
+            if self.sims:
+                loop.operator = SimulatedOperator(opts.seed, arm, config.loop.rate_hz, config)
+                loop.operator.start(loop.pair.read_both()[0][0].position, 0.0)
+            loop.recorder = make_recorder(opts, self.output, config, arm, hw)
+            loop.ctx.recorder = loop.recorder
+            for w in hw["warnings"]:
+                loop.event(0.0, "warning", w)
+            loop.event(0.0, "start", align_message)
+            mode = "lockstep simulation" if loop.lockstep else "real time"
+            loop.status.say(f"recording to {self.output} ({mode}, {config.loop.rate_hz:g} Hz); "
+                            "Ctrl+C ends the session")
+            self.end_reason = loop.run(opts.duration)
+
+    def _reason(self) -> str:
+        if self.end_reason is not None:
+            return self.end_reason
+        if isinstance(self.exc, KeyboardInterrupt) or (self.exc is None and self.stop.requested):
+            signum = getattr(self.exc, "signum", None) or self.stop.signum or signal.SIGINT
+            return "interrupted" if signum == signal.SIGINT else "terminated"
+        return "error"
+
+    def clean_up(self) -> None:
+        """Both arms stopped, the events written, buses and file closed, the summary printed: every step
+        runs whatever arrives meanwhile (a stop signal only prints that the stop is in progress) and
+        whatever an earlier step raised (the first such error is kept in `clean_up_error`)."""
+        while True:  # a stop signal that lands before the shield is up: raise it again
+            try:
+                self.stop.begin_stop()
+                break
+            except KeyboardInterrupt:
+                continue
+        if self.result is not None:
+            return
+        loop, reason = self.loop, self._reason()
+        if loop is not None:
+            self._step(loop.pair.safe_stop)
+            self._step(loop.end_event, reason, self.exc, self.opts.duration)
+            if loop.recorder is not None:
+                for _name, msg in self._step(loop.pair.torque_report) or []:
+                    self._step(loop.event, loop.now(), "torque_state", msg)
+            self._step(loop.pair.close)
+        for bus in self.buses.values():
+            self._step(bus.close)
+        self.result = self._step(_finish, loop, self.opts, self.output, reason, self.wall0, self.out)
+        if self.result is None:
+            self.result = RunResult(self.output, 0, 0.0, time.perf_counter() - self.wall0, reason, None, {})
+        for sim in self.sims.values():
+            self._step(sim.close)
+
+    def _step(self, fn, *args):
+        try:
+            return fn(*args)
+        except Exception as exc:  # noqa: BLE001 - the remaining steps must still run
+            if self.clean_up_error is None and self.exc is None:
+                self.clean_up_error = exc
+            return None
 
 
 def _finish(loop, opts, output, end_reason, wall0, out) -> RunResult:
