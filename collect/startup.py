@@ -94,8 +94,11 @@ def check_output(output: Path, force: bool) -> None:
                                f"({existing} is not writable)")
 
 
-def open_buses(opts: RunOptions, arm: ArmDescription, config: Config, ports: dict, out) -> tuple[dict, dict]:
-    """Both buses open, every servo checked and configured, torque on: (buses, {"infos", "warnings"})."""
+def open_buses(opts: RunOptions, arm: ArmDescription, config: Config, ports: dict, out,
+               checkpoint=None) -> tuple[dict, dict]:
+    """Both buses open, every servo checked and configured, torque on: (buses, {"infos", "warnings"}).
+    `checkpoint()` is called between the steps (it raises to abandon the start-up: a stop request)."""
+    checkpoint = checkpoint or (lambda: None)
     from crane_io.bus import DynamixelBus
     from crane_io.ports import port_warnings
 
@@ -113,9 +116,12 @@ def open_buses(opts: RunOptions, arm: ArmDescription, config: Config, ports: dic
             buses[name] = bus
             bus.open()
         for name in ARMS:
+            checkpoint()
             infos[name] = buses[name].ping_all()
         for name in ARMS:
+            checkpoint()
             buses[name].configure(watchdog_s=config.safety.watchdog_s)
+        checkpoint()
         for name in ARMS:
             buses[name].torque_on()
     except BaseException:

@@ -50,7 +50,7 @@ from dynamixel_sdk import (
 )
 from dynamixel_sdk.robotis_def import BROADCAST_ID
 
-from . import units
+from . import shutdown, units
 from .control_table import (
     MODE_CURRENT,
     MODE_POSITION,
@@ -263,15 +263,16 @@ class DynamixelBus:
         port = self._port
         if port is None:
             return
-        try:
-            if port.is_open:
-                self.safe_stop()
-        finally:
-            self._update_byte_stats()
+        with shutdown.stopping():  # a stop signal meanwhile must not skip a torque-off write
             try:
-                port.closePort()
-            except Exception as exc:  # noqa: BLE001 - closing must not raise
-                log.warning("closing %s: %s", self.port_name, exc)
+                if port.is_open:
+                    self.safe_stop()
+            finally:
+                self._update_byte_stats()
+                try:
+                    port.closePort()
+                except Exception as exc:  # noqa: BLE001 - closing must not raise
+                    log.warning("closing %s: %s", self.port_name, exc)
 
     def __enter__(self) -> DynamixelBus:
         return self.open()
@@ -408,6 +409,10 @@ class DynamixelBus:
     def safe_stop(self) -> dict[str, str]:
         """Goal current 0 on every current-mode servo, then torque off on each servo individually.
         Never raises for a servo that does not answer: returns (and logs) joint -> reason instead."""
+        with shutdown.stopping():  # a stop signal meanwhile must not skip a torque-off write
+            return self._safe_stop()
+
+    def _safe_stop(self) -> dict[str, str]:
         failures: dict[str, str] = {}
         port = self._port
         if port is None or not port.is_open:
