@@ -1,12 +1,24 @@
 """Crash-safe HDF5 session recording (format "crane-session", documented in the README).
 
-All datasets are created up front (chunked, resizable along N, gzip level 1 + shuffle) and all
-metadata is written as root attributes; then the file switches to SWMR mode (`libver="latest"`) so a
-reader can follow it live and a crash leaves a file that opens. Rows are buffered in memory and
-appended when half a second of samples has accumulated or half a second of wall time has passed,
-whichever comes first, so a crash (even SIGKILL) loses at most the last second. Events are written
-at once. On close the file is reopened normally to set `complete = True`, the achieved rate and the
-loop's timing summary; a crashed recording keeps `complete = False`.
+All datasets are created up front (chunked, resizable along N, gzip level 1 + shuffle + fletcher32
+checksums, float fill NaN) and all metadata is written as root attributes, including placeholders for
+the end-of-run attributes (`end_reason`, `rate_hz_achieved`, the `/timing` summary); then the file
+switches to SWMR mode (`libver="latest"`) so a reader can follow it live and a crash leaves a file that
+`h5py.File(path, "r", swmr=True)` opens (`crane-collect recover` makes it an ordinary file).
+
+Rows are buffered and written in whole chunks: a chunk holds `flush_interval_s` (0.5 s) of recorded
+rows and is written once, when it is full. In real time a partly filled chunk is also written when its
+oldest row is `max_unsaved_s` (0.9 s) old by the wall clock, so a crash (even SIGKILL) loses at most
+the last second of recorded time; in lockstep (simulated time) only full chunks are written, which
+also lose at most 0.5 s of recorded time however slowly the loop runs. A chunk written twice leaves its
+first copy behind (an SWMR writer never reuses file space); the recorder counts those bytes and, when
+they exceed `compact_above` of the file, rewrites the file compactly after closing it. Events are
+written at once (their chunks are uncompressed, so a rewrite keeps its place).
+
+Close never reopens the file (a live reader would make a second open fail): the end-of-run values are
+written into the attributes created before the SWMR switch, `complete = True` last, then the file is
+closed. A recorder holds an advisory lock while it writes (collect/session_lock.py) so that
+`crane-collect recover` can tell a live recording from a crashed one.
 """
 
 from __future__ import annotations
@@ -17,7 +29,9 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from crane_io.errors import SessionFileError
+from crane_io.errors import SessionCloseError, SessionFileError
+
+from .pacing import SECTIONS
 
 FORMAT = "crane-session"
 FORMAT_VERSION = 1
@@ -43,6 +57,13 @@ TIMING_MEMBERS = {
     "compute_time": np.float32,
     "overrun": np.bool_,
 }
+FILTERS = {"compression": "gzip", "compression_opts": 1, "shuffle": True, "fletcher32": True}
+# end-of-run attributes written by close(), created with placeholders before the SWMR switch
+SUMMARY_KEYS = ("cycles", "overruns", "skipped_deadlines", "nominal_period_s", "period_mean_s",
+                "period_std_s", "period_p99_s", "period_max_s", "rate_hz",
+                *(f"{s}_{w}_s" for s in SECTIONS for w in ("mean", "max")))
+DEFAULT_END_ATTRS = {"/": {"end_reason": str, "rate_hz_achieved": float},
+                     "timing": {**dict.fromkeys(SUMMARY_KEYS, float), "lockstep": bool}}
 EVENT_DTYPE = np.dtype([("t", "<f8"), ("kind", "S24"), ("joint", "S16"), ("message", "S240")])
 
 
@@ -51,13 +72,28 @@ def _enc(text: str, size: int) -> bytes:
     return raw.decode("utf-8", "ignore").encode("utf-8")
 
 
+def event_row(t: float, kind: str, message: str, joint: str = "") -> np.void:
+    """One record of `/events` (strings cut to their fixed widths on a UTF-8 character boundary)."""
+    return np.array([(float(t), _enc(kind, 24), _enc(joint, 16), _enc(message, 240))], dtype=EVENT_DTYPE)[0]
+
+
 class SessionRecorder:
     """Write one session. `append(row)` once per cycle with a dict "arm/member" or "timing/member"
-    -> value; `event(t, kind, message, joint="")`; `close(...)`. A context manager."""
+    -> value; `event(t, kind, message, joint="")`; `close(...)`. A context manager.
+
+    `lockstep`: rows carry simulated time; only whole chunks are written (no wall-clock flushes).
+    `end_attrs`: the end-of-run attributes `close()` will write, {group: {name: type}} with "/" for
+    the root and types float, int, bool or str (default `DEFAULT_END_ATTRS`: `end_reason`,
+    `rate_hz_achieved` and the keys of `CycleTimer.summary()` plus `lockstep` in `/timing`). They are
+    created before the SWMR switch with placeholders (NaN, -1, False, "") and overwritten in place at
+    close; a key given to close() that was not declared is created then (HDF5 accepts it, but a
+    reader that has the file open sees it only after reopening; declare keys to be safe)."""
 
     def __init__(self, path: str | Path, *, joint_names, rate_hz: float, source: str,
                  attrs: dict | None = None, arms=("leader", "follower"), force: bool = False,
-                 flush_interval_s: float = 0.5, chunk_rows: int = 1024, clock=time.monotonic):
+                 flush_interval_s: float = 0.5, max_unsaved_s: float = 0.9, lockstep: bool = False,
+                 chunk_rows: int | None = None, end_attrs: dict | None = None, compact_above: float = 0.15,
+                 clock=time.monotonic):
         self.path = Path(path)
         if self.path.exists():
             if not force:
@@ -75,11 +111,18 @@ class SessionRecorder:
         self.rate_hz = float(rate_hz)
         self._clock = clock
         self.flush_interval_s = flush_interval_s
-        self._cap = max(1, int(round(rate_hz * flush_interval_s)))
+        self.max_unsaved_s = max_unsaved_s
+        self.lockstep = bool(lockstep)
+        self.compact_above = compact_above
+        self.chunk_rows = int(chunk_rows) if chunk_rows else max(1, int(round(rate_hz * flush_interval_s)))
+        self._cap = self.chunk_rows
         self._n = 0  # rows in the file
         self._k = 0  # rows in the buffer
-        self._last_flush = clock()
+        self._oldest = 0.0  # wall-clock time the oldest buffered row was appended
+        self.waste_bytes = 0  # bytes of chunks written and then superseded (never reused under SWMR)
+        self.compacted = False
         self.closed = False
+        self._lock = None
         f = self._f
         f.attrs["format"] = FORMAT
         f.attrs["format_version"] = FORMAT_VERSION
@@ -91,27 +134,33 @@ class SessionRecorder:
             f.attrs[key] = _attr(value)
         self._ds: dict[str, h5py.Dataset] = {}
         self._buf: dict[str, np.ndarray] = {}
-        gz = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
         for arm in arms:
             g = f.create_group(arm)
             for name, (dtype, per_joint) in ARM_MEMBERS.items():
-                shape = (0, J) if per_joint else (0,)
-                self._add(f"{arm}/{name}", g.create_dataset(
-                    name, shape=shape, maxshape=(None,) + shape[1:], dtype=dtype,
-                    chunks=(chunk_rows,) + shape[1:], **gz))
+                self._add(f"{arm}/{name}", g, name, dtype, (J,) if per_joint else ())
         g = f.create_group("timing")
         for name, dtype in TIMING_MEMBERS.items():
-            self._add(f"timing/{name}", g.create_dataset(
-                name, shape=(0,), maxshape=(None,), dtype=dtype, chunks=(chunk_rows * 4,), **gz))
+            self._add(f"timing/{name}", g, name, dtype, ())
         self._events = f.create_dataset("events", shape=(0,), maxshape=(None,), dtype=EVENT_DTYPE,
-                                        chunks=(64,))
+                                        chunks=(64,), fletcher32=True)
+        for group, keys in (DEFAULT_END_ATTRS if end_attrs is None else end_attrs).items():
+            obj = f if group in ("/", "") else f.require_group(group)
+            for key, kind in keys.items():
+                if key not in obj.attrs:
+                    obj.attrs[key] = _placeholder(kind)
         f.swmr_mode = True
         f.flush()
+        from .session_lock import WriterLock
 
-    def _add(self, key: str, ds: h5py.Dataset) -> None:
+        self._lock = WriterLock(self.path)
+
+    def _add(self, key: str, group: h5py.Group, name: str, dtype, row_shape: tuple) -> None:
+        floating = np.issubdtype(dtype, np.floating)
+        fill = np.nan if floating else 0
+        ds = group.create_dataset(name, shape=(0,) + row_shape, maxshape=(None,) + row_shape, dtype=dtype,
+                                  chunks=(self.chunk_rows,) + row_shape, fillvalue=fill, **FILTERS)
         self._ds[key] = ds
-        fill = np.nan if np.issubdtype(ds.dtype, np.floating) else 0
-        self._buf[key] = np.full((self._cap,) + ds.shape[1:], fill, dtype=ds.dtype)
+        self._buf[key] = np.full((self._cap,) + row_shape, fill, dtype=dtype)
 
     # ---- writing ------------------------------------------------------------------------------------
     @property
@@ -124,15 +173,25 @@ class SessionRecorder:
         buf = self._buf
         for key, value in row.items():
             buf[key][k] = value
-        self._k = k + 1
-        if self._k >= self._cap or self._clock() - self._last_flush >= self.flush_interval_s:
+        self._k = k = k + 1
+        if (self._n + k) % self.chunk_rows == 0:  # a chunk is full: write it whole
             self.flush()
+        elif not self.lockstep:
+            now = self._clock()
+            if k == 1:
+                self._oldest = now
+            elif now - self._oldest >= self.max_unsaved_s:
+                self.flush()
 
     def flush(self) -> None:
+        """Write the buffered rows now (whole chunks where they fall on chunk boundaries)."""
         k = self._k
         if k:
             n0, n1 = self._n, self._n + k
+            partial = n0 % self.chunk_rows
             for key, ds in self._ds.items():
+                if partial:  # the chunk on disk is superseded by the one written now
+                    self.waste_bytes += _chunk_size(ds, n0 - partial)
                 ds.resize(n1, axis=0)
                 b = self._buf[key]
                 ds[n0:n1] = b[:k]
@@ -141,34 +200,79 @@ class SessionRecorder:
             self._n = n1
             self._k = 0
         self._f.flush()
-        self._last_flush = self._clock()
 
     def event(self, t: float, kind: str, message: str, joint: str = "") -> None:
-        rec = np.array([(float(t), _enc(kind, 24), _enc(joint, 16), _enc(message, 240))], dtype=EVENT_DTYPE)
         n = self._events.shape[0]
         self._events.resize(n + 1, axis=0)
-        self._events[n] = rec[0]
+        self._events[n] = event_row(t, kind, message, joint)
         self._events.flush()
 
+    # ---- the end ------------------------------------------------------------------------------------
     def close(self, *, complete: bool = True, attrs: dict | None = None,
               group_attrs: dict[str, dict] | None = None) -> None:
-        """Write what is buffered and close. With complete=True the file is reopened to mark it
-        complete and to store `attrs` (root) and `group_attrs` ({"timing": {...}})."""
+        """Write what is buffered, the end-of-run attributes (`attrs` at the root, `group_attrs`
+        {"timing": {...}}) and, if `complete`, `complete = True`; then close the file. No second open:
+        readers may keep the file open meanwhile. Raises SessionCloseError (one sentence) if any of
+        it could not be written; the rows already written stay in the file."""
         if self.closed:
             return
         self.closed = True
+        failed: list[str] = []
+        lost = ""
         try:
-            self.flush()
+            try:
+                self.flush()
+            except Exception as exc:  # noqa: BLE001 - reported below, the rest must still run
+                lost = f"the last {self._k} rows could not be written ({exc}); "
+                failed.append("rows")
+            values = {"/": dict(attrs or {})}
+            for group, items in (group_attrs or {}).items():
+                values.setdefault(group.strip("/") or "/", {}).update(items)
+            for group, items in values.items():
+                for key, value in items.items():
+                    try:
+                        _set_end_attr(self._f if group == "/" else self._f[group], key, value)
+                    except Exception:  # noqa: BLE001 - named in the sentence below
+                        failed.append(f"{group.rstrip('/')}/{key}".lstrip("/") if group != "/" else key)
+            if complete and not failed:
+                self._f.attrs.modify("complete", True)
+                self._f.flush()
         finally:
-            self._f.close()
-        if complete:
-            with h5py.File(self.path, "r+", libver="latest") as f:
-                for key, value in (attrs or {}).items():
-                    f.attrs[key] = _attr(value)
-                for group, values in (group_attrs or {}).items():
-                    for key, value in values.items():
-                        f[group].attrs[key] = _attr(value)
-                f.attrs["complete"] = True
+            closed = True
+            try:
+                self._f.close()
+            except Exception:  # noqa: BLE001
+                closed = False
+            if self._lock is not None:
+                self._lock.release()
+        if not closed:
+            raise SessionCloseError(f"session file {self.path} could not be closed; {lost}the rows written "
+                                    f"before are kept: run `crane-collect recover {self.path}` to make it "
+                                    "an ordinary file")
+        if failed:
+            names = ", ".join(n for n in failed if n != "rows") or "none"
+            raise SessionCloseError(f"session file {self.path} was closed but {lost}its end-of-run "
+                                    f"attributes ({names}) could not be written, so it stays "
+                                    f"complete = False; its {self._n} rows are kept")
+        self._compact()
+
+    def _compact(self) -> None:
+        """Rewrite the closed file compactly if superseded chunks waste more than `compact_above` of it.
+        A failure keeps the (valid, larger) file as it is."""
+        try:
+            size = self.path.stat().st_size
+        except OSError:
+            return
+        if not size or self.waste_bytes <= self.compact_above * size:
+            return
+        from .session_copy import write_copy
+
+        try:
+            with h5py.File(self.path, "r") as src:
+                write_copy(src, self.path, source_path=self.path)
+        except (OSError, SessionFileError):
+            return
+        self.compacted = True
 
     def __enter__(self):
         return self
@@ -176,6 +280,48 @@ class SessionRecorder:
     def __exit__(self, exc_type, exc, tb):
         self.close(complete=exc_type is None)
         return False
+
+
+def _chunk_size(ds: h5py.Dataset, row: int) -> int:
+    """Stored bytes of the chunk starting at `row` (0 if it is not on disk)."""
+    try:
+        info = ds.id.get_chunk_info_by_coord((row,) + (0,) * (ds.ndim - 1))
+    except (OSError, ValueError, AttributeError):
+        return 0
+    return int(info.size or 0) if info.byte_offset is not None else 0
+
+
+def _placeholder(kind):
+    if kind is bool:
+        return False
+    if kind is int:
+        return np.int64(-1)
+    if kind is str:
+        return ""
+    return np.nan
+
+
+def _fits(dtype: np.dtype, value) -> bool:
+    """Can `value` be written into an existing scalar attribute of `dtype` without changing its type?"""
+    if h5py.check_string_dtype(dtype) is not None:
+        return isinstance(value, str)
+    if isinstance(value, (bool, np.bool_)):
+        return dtype.kind == "b"
+    if isinstance(value, (int, np.integer)):
+        return dtype.kind in "iuf"
+    if isinstance(value, (float, np.floating)):
+        return dtype.kind == "f"
+    return False
+
+
+def _set_end_attr(obj, key: str, value) -> None:
+    value = _attr(value)
+    if key in obj.attrs:
+        current = obj.attrs.get_id(key)
+        if current.shape == () and _fits(current.dtype, value):
+            obj.attrs.modify(key, value)  # in place: allowed while the file is in SWMR mode
+            return
+    obj.attrs[key] = value
 
 
 def _attr(value):

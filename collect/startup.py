@@ -158,5 +158,8 @@ def make_recorder(opts: RunOptions, output: Path, config: Config, arm: ArmDescri
                              for i, j in zip(arm.servo_ids, arm.joints)]
     if opts.sim:
         attrs["seed"] = int(opts.seed)  # the plant preset is not stored: "hidden-*" names give it away
+    # lockstep rows carry simulated time: they are written by recorded rows (whole chunks), never by
+    # the wall clock, which keeps the file compact however slowly the loop runs
     return SessionRecorder(output, joint_names=arm.joint_names, rate_hz=config.loop.rate_hz,
-                           source="sim" if opts.sim else "hardware", attrs=attrs, force=opts.force)
+                           source="sim" if opts.sim else "hardware", attrs=attrs, force=opts.force,
+                           lockstep=attrs["lockstep"])

@@ -3,7 +3,9 @@
 Only the contract minimum is needed: root attributes `format`, `format_version`, `rate_hz`,
 `joint_names`, `source`, and `/<arm>/t`, `/<arm>/q`, `/<arm>/tau`. Files are opened read-only (SWMR
 read when the file was written in SWMR mode, so a recording in progress can be read too); the input
-is never modified. Every problem is a `SessionFileError` whose one sentence names the file.
+is never modified. Every problem is a `SessionFileError` whose one sentence names the file; stored data
+that fail their fletcher32 checksum (written by crane-collect) name the damaged dataset
+(`SessionDamagedError`).
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from crane_io.errors import SessionFileError
+from crane_io.errors import SessionFileError, damaged_dataset
 
 FORMAT = "crane-session"
 FORMAT_VERSION = 1  # newest version this reader understands
@@ -82,6 +84,15 @@ def _open(path: Path) -> h5py.File:
         raise SessionFileError(f"{path} cannot be opened as HDF5 ({exc})") from None
 
 
+def _read(path: Path, ds: h5py.Dataset, n: int) -> np.ndarray:
+    """The first n rows as float; a chunk failing its fletcher32 checksum (or not decodable) is one
+    sentence naming the dataset."""
+    try:
+        return np.asarray(ds[:n], dtype=float)
+    except OSError as exc:
+        raise damaged_dataset(path, ds.name, exc) from None
+
+
 def read_session(path, arm: str = "follower") -> RawSession:
     """Read and validate one session file; see the module docstring for what is checked."""
     path = Path(path)
@@ -125,9 +136,7 @@ def read_session(path, arm: str = "follower") -> RawSession:
                                        f"{len(names)}) to match the {len(names)} joint_names")
         n = min(dt.shape[0], dq.shape[0], dtau.shape[0])
         truncated = len({dt.shape[0], dq.shape[0], dtau.shape[0]}) > 1
-        t = np.asarray(dt[:n], dtype=float)
-        q = np.asarray(dq[:n], dtype=float)
-        tau = np.asarray(dtau[:n], dtype=float)
+        t, q, tau = (_read(path, d, n) for d in (dt, dq, dtau))
     if n < MIN_SAMPLES:
         raise SessionFileError(f"{path} has only {n} samples; at least {MIN_SAMPLES} are needed")
     for name, arr in (("t", t), ("q", q), ("tau", tau)):
