@@ -70,9 +70,17 @@ def _targets(q_l0, q_f0, config: Config, arm: ArmDescription, simulated: bool):
 
 
 def align(pair: ArmPair, ctl: BilateralController, safety: SafetyMonitor, config: Config,
-          arm: ArmDescription, *, simulated: bool, lockstep: bool, say: Callable[[str], None]) -> str:
+          arm: ArmDescription, *, simulated: bool, lockstep: bool, say: Callable[[str], None],
+          paced: bool | None = None, between_cycles: Callable[[], None] | None = None) -> str:
     """Bring both arms to their start pose; returns the sentence for the session's start event.
-    Raises StartRefused, SafetyStop (a breach while aligning) or the first bus error."""
+    Raises StartRefused, SafetyStop (a breach while aligning) or the first bus error.
+
+    lockstep: the (simulated) arms advance one control period per goal sync write, so a cycle (goal
+    current + goal position) is two periods of their time and the controller's dt is exactly that.
+    paced: wait for the wall clock between cycles (default: not lockstep). Lockstep arms can be paced
+    too (`--sim --realtime`): the cycles then come every two periods of real time.
+    between_cycles: called after the writes, outside the timed part of the cycle (e.g. a small
+    garbage collection)."""
     s = config.safety
     kt = np.array([j.torque_constant for j in arm.joints])
     bil = np.array([n in arm.bilateral_joints for n in arm.joint_names])
@@ -85,8 +93,10 @@ def align(pair: ArmPair, ctl: BilateralController, safety: SafetyMonitor, config
     say(f"aligning the arms: {np.degrees(dist):.1f} deg at most, {move_s + SETTLE_S:.1f} s")
     period = config.loop.period_s
     ticks = 2 if lockstep else 1  # in lockstep each goal sync write advances the plant
+    if paced is None:
+        paced = not lockstep
     t = 0.0
-    timer = CycleTimer(config.loop.rate_hz, lockstep=lockstep, spin_s=config.loop.spin_s)
+    timer = CycleTimer(config.loop.rate_hz / ticks, lockstep=not paced, spin_s=config.loop.spin_s)
     timer.start()
     last = time.perf_counter()
     while t < move_s + SETTLE_S:
@@ -109,8 +119,12 @@ def align(pair: ArmPair, ctl: BilateralController, safety: SafetyMonitor, config
         tau_l = safety.limit_torque(sl.position, cmd.leader_tau, sl.velocity, spring=False)
         tau_f = safety.limit_torque(sf.position, cmd.follower_tau, sf.velocity, spring=False)
         ctl.applied(tau_l, tau_f)
-        _states(pair.write_positions(ref_l[0], ref_f[0]))
+        # Goal current first: it is what the current-mode joints act on, so it leaves right after the
+        # read; the held joints' goal positions follow.
         _states(pair.write_currents(tau_l / kt, tau_f / kt))
+        _states(pair.write_positions(ref_l[0], ref_f[0]))
+        if between_cycles is not None:
+            between_cycles()
         timer.wait()
         t += dt
     final = pair.read_both()

@@ -95,6 +95,21 @@ class OperatorConfig:
     start: dict[str, float]  # rad, sim start pose per joint
 
 
+SCHEDULING = ("fifo", "off")
+
+
+@dataclass(frozen=True)
+class RealtimeConfig:
+    """[realtime]: what a paced loop (hardware, --sim --realtime) asks the OS for (collect/realtime.py)."""
+
+    scheduling: str = "fifo"  # "fifo": SCHED_FIFO at `priority`; "off": normal scheduling
+    priority: int = 40  # 1..99
+    pin: bool = True  # pin the loop to `cpu` (only when SCHED_FIFO was granted)
+    cpu: int = -1  # -1: the last core the process may use
+    lock_memory: bool = True  # mlockall(MCL_CURRENT | MCL_FUTURE)
+    freeze_gc: bool = True  # no automatic garbage collection in the cycle
+
+
 @dataclass(frozen=True)
 class Config:
     loop: LoopConfig
@@ -103,6 +118,7 @@ class Config:
     safety: SafetyConfig
     operator: OperatorConfig
     values: dict  # the complete merged configuration as plain TOML data (degrees as written)
+    realtime: RealtimeConfig = RealtimeConfig()
 
     def to_toml(self) -> str:
         """The complete configuration used, as TOML text (stored in every session)."""
@@ -281,8 +297,16 @@ def _build(values: dict, where: str) -> Config:
     )
     _need(operator.min_move_s <= operator.max_move_s, where, "operator.min_move_s",
           "at most operator.max_move_s", operator.min_move_s)
+
+    r = values["realtime"]
+    _need(r["scheduling"] in SCHEDULING, where, "realtime.scheduling", "one of " + ", ".join(SCHEDULING),
+          r["scheduling"])
+    _need(1 <= r["priority"] <= 99, where, "realtime.priority", "between 1 and 99", r["priority"])
+    _need(r["cpu"] >= -1, where, "realtime.cpu", "a core number, or -1 for the last core", r["cpu"])
+    realtime = RealtimeConfig(scheduling=r["scheduling"], priority=r["priority"], pin=r["pin"],
+                              cpu=r["cpu"], lock_memory=r["lock_memory"], freeze_gc=r["freeze_gc"])
     return Config(loop=loop, controller=controller, held=held, safety=safety, operator=operator,
-                  values=values)
+                  values=values, realtime=realtime)
 
 
 def _deep_copy(d):

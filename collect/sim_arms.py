@@ -1,8 +1,20 @@
 """The two simulated arms of `crane-collect run --sim`: their plants, their in-process servo chains
-(dxlsim://), the switch from lockstep to the wall clock, and the follower plant's truth on request.
+(dxlsim://), and the follower plant's truth on request.
 
     sims = make_sim_arms(opts, config, arm)        # {"leader": SimulatedArm, "follower": SimulatedArm}
     ports = {name: sims[name].url for name in ARMS}
+
+The in-process arms always run on the lockstep clock (one control period per Goal Current or Goal
+Position sync write), also with `--realtime`, where the loop is paced by the wall clock. They run in
+the loop's own thread: on the wall clock their physics would be stepped inside every bus transfer of
+every cycle (three transfers per arm in the alignment, each forcing at least one plant step), about
+half of each 2 ms cycle on an idle machine. A machine a little slower, or busy, then stretches the
+cycles and the delay between reading an arm and its goal current taking effect until the 500 Hz
+controller oscillates into the velocity guard, or makes every slow cycle's catch-up slower still
+until the Bus Watchdog expires. In lockstep the physics costs the same, but it never runs between a
+read and the write that answers it, and a cycle that comes late delays the simulated time instead
+of breaking the control: the loop's overruns say how well the machine kept up. Arms that follow the
+wall clock beside the loop, as real arms do, are `crane-collect sim-serve` processes on ptys.
 """
 
 from __future__ import annotations
@@ -43,8 +55,8 @@ def make_sim_arms(opts: RunOptions, config: Config, arm: ArmDescription) -> dict
     """Leader and follower simulated arms (plant seeds 2 seed and 2 seed + 1), in lockstep."""
     from crane_io.sim import simulated_arm
 
-    # Start-up (ping, configure, torque on) always runs in lockstep so the simulated arms do not fall
-    # under gravity while their torque is off; --realtime switches them to the wall clock afterwards.
+    # Lockstep, also for --realtime (see the module docstring); start-up (ping, configure, torque on)
+    # then never lets the simulated arms fall under gravity while their torque is off.
     clock = "lockstep"
     sims = {}
     tag = f"{os.getpid()}-{id(opts) & 0xFFFF:x}"
@@ -56,8 +68,12 @@ def make_sim_arms(opts: RunOptions, config: Config, arm: ArmDescription) -> dict
 
 
 def switch_to_wall_clock(sims: dict) -> None:
-    """From now on the simulated arms follow real time, continuing from their present simulated time."""
+    """From now on the simulated arms follow real time, continuing from their present simulated time.
+    Not used by `run --sim --realtime` (see the module docstring); for callers that want in-process
+    arms on the wall clock anyway. Substeps of one control period (the lockstep step, which the plant
+    integrates stably) halve the plant's cost against the chain's default 1 ms."""
     for sim in sims.values():
+        sim.chain.max_substep_s = max(sim.chain.max_substep_s, sim.chain.period_s)
         sim.chain.set_clock("wall")
 
 
