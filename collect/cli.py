@@ -13,6 +13,7 @@ COMMANDS = {
     "check": ("collect.cmd_check", "check"),
     "ports": ("collect.cmd_ports", "ports"),
     "sim-serve": ("collect.cmd_sim_serve", "sim_serve"),
+    "recover": ("collect.cmd_recover", "recover"),
 }
 
 

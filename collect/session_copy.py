@@ -20,7 +20,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from crane_io.errors import damaged_dataset
+from crane_io.h5check import damaged_dataset
 
 BLOCK_BYTES = 8 << 20  # rows are copied in blocks of about this size (whole chunks)
 
@@ -44,7 +44,7 @@ def read_rows(ds: h5py.Dataset, start: int, stop: int, path) -> np.ndarray:
     try:
         return ds[start:stop]
     except OSError as exc:
-        raise damaged_dataset(path, ds.name, exc) from None
+        raise damaged_dataset(path, ds, exc) from None
 
 
 def _copy_attrs(src, dst, skip=()) -> None:

@@ -31,18 +31,6 @@ class SessionDamagedError(SessionFileError):
     """A session file whose stored data fail their checksum or cannot be decoded (names the dataset)."""
 
 
-def damaged_dataset(path, name: str, exc: Exception) -> SessionDamagedError:
-    """The one sentence for a dataset whose read failed (HDF5's OSError `exc`): a fletcher32 checksum
-    mismatch or data that cannot be decoded, naming the file and the dataset (e.g. /follower/q)."""
-    text = str(exc)
-    if "fletcher32" in text.lower() or "checksum" in text.lower():
-        why = "fails its fletcher32 checksum"
-    else:
-        why = f"cannot be read ({text})"
-    return SessionDamagedError(f"{path}: dataset {name} {why}, so the file is damaged (a disk or copy "
-                               "error); use another copy of the session")
-
-
 class SessionCloseError(SessionFileError):
     """The end of a recording (its end-of-run attributes or the file's close) could not be written;
     the rows already written are kept and the sentence says how to get an ordinary file."""

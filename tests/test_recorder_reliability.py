@@ -146,7 +146,8 @@ def _one_go_copy(path: Path, ref: Path) -> int:
     return ref.stat().st_size
 
 
-@pytest.mark.parametrize("lockstep,speed", [(True, 0.1), (True, 1.0), (True, 10.0), (False, 0.2), (False, 1.0)])
+@pytest.mark.parametrize("lockstep,speed",
+                         [(True, 0.1), (True, 1.0), (True, 10.0), (False, 0.2), (False, 1.0)])
 def test_a_finished_file_stays_within_1_3x_of_a_one_go_copy(tmp_path, lockstep, speed):
     """At any loop speed (a fake wall clock: 0.1 = ten times slower than real time). The old recorder
     (flushes every 0.5 s of wall time into 1024-row chunks) made 3x to 21x here."""

@@ -17,7 +17,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from crane_io.errors import SessionFileError, damaged_dataset
+from crane_io.errors import SessionFileError
+from crane_io.h5check import damaged_dataset
 
 FORMAT = "crane-session"
 FORMAT_VERSION = 1  # newest version this reader understands
@@ -90,7 +91,7 @@ def _read(path: Path, ds: h5py.Dataset, n: int) -> np.ndarray:
     try:
         return np.asarray(ds[:n], dtype=float)
     except OSError as exc:
-        raise damaged_dataset(path, ds.name, exc) from None
+        raise damaged_dataset(path, ds, exc) from None
 
 
 def read_session(path, arm: str = "follower") -> RawSession:
