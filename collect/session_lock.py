@@ -36,18 +36,22 @@ def _flock(kind: int) -> bytes:
 
 class WriterLock:
     """Held by the recorder while it writes `path` (acquire after the file exists, release after it is
-    closed). Without OFD locks it does nothing."""
+    closed). Without OFD locks (another system, a file system that refuses them) it does nothing: the
+    recording goes on unmarked."""
 
     def __init__(self, path):
         self._fd: int | None = None
         if not SUPPORTED:
             return
-        fd = os.open(path, os.O_RDWR | getattr(os, "O_CLOEXEC", 0))
+        try:
+            fd = os.open(path, os.O_RDWR | getattr(os, "O_CLOEXEC", 0))
+        except OSError:
+            return
         try:
             fcntl.fcntl(fd, _OFD_SET, _flock(fcntl.F_WRLCK))
-        except OSError:
+        except OSError:  # a file system without such locks: record anyway, unmarked
             os.close(fd)
-            raise
+            return
         self._fd = fd
 
     def release(self) -> None:
@@ -61,9 +65,14 @@ def is_being_written(path) -> bool | None:
     where this cannot be told (no OFD locks on this system)."""
     if not SUPPORTED:
         return None
-    fd = os.open(path, os.O_RDONLY | getattr(os, "O_CLOEXEC", 0))
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_CLOEXEC", 0))
+    except OSError:
+        return None
     try:
         answer = fcntl.fcntl(fd, _OFD_GET, _flock(fcntl.F_RDLCK))
+    except OSError:  # a file system without such locks
+        return None
     finally:
         os.close(fd)
     return struct.unpack(_FLOCK, answer)[0] != fcntl.F_UNLCK

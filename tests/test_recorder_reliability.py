@@ -204,3 +204,35 @@ def test_a_recording_is_marked_as_being_written_until_it_is_closed(tmp_path):
     rec.close()
     assert is_being_written(p) is False
     assert subprocess.run(probe, capture_output=True, text=True, cwd=ROOT).stdout.strip() == "False"
+
+
+def test_crane_collect_run_ends_cleanly_while_a_reader_follows_the_file(tmp_path):
+    """The issue as a user met it: `crane-collect run --sim` with h5py following the session in another
+    process ended in 'unable to lock file', a traceback and complete = False."""
+    from tests.recording import wait_for_rows
+
+    cli = str(Path(sys.executable).parent / "crane-collect")
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[loop]\nstatus_hz = 0\n[operator.start_deg]\njoint2 = 0.0\njoint4 = -20.0\n")
+    out = tmp_path / "s.h5"
+    run = subprocess.Popen([cli, "run", "--sim", "--plant", "simple", "--duration", "2", "--config", str(cfg),
+                            "-o", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    reader = None
+    try:
+        wait_for_rows(run, out, 250)
+        reader = subprocess.Popen([sys.executable, "-c", READER, str(out)], stdin=subprocess.PIPE,
+                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        assert int(reader.stdout.readline()) >= 250
+        _, err = run.communicate(timeout=120)  # the run ends while the reader has the file open
+        assert run.returncode == 0 and "Traceback" not in err, err
+        rows, rerr = reader.communicate("\n", timeout=60)
+        assert reader.returncode == 0, rerr
+        assert int(rows.split()[-1]) == 1000  # the reader saw every row
+    finally:
+        for proc in (run, reader):
+            if proc is not None and proc.poll() is None:
+                proc.kill()
+                proc.communicate()
+    with h5py.File(out, "r") as f:
+        assert f.attrs["complete"] and f.attrs["end_reason"] == "duration"
+        assert f["timing"].attrs["cycles"] >= 1000 and f["follower/t"].shape == (1000,)
