@@ -109,6 +109,7 @@ def write_copy(src: h5py.File, dest, *, rows: int | None = None, attrs: dict | N
                 out.attrs[key] = value
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
+        os.chmod(tmp, _mode_like(Path(path)))
         os.replace(tmp, dest)
         _fsync_dir(dest.parent)
     except BaseException:
@@ -117,6 +118,16 @@ def write_copy(src: h5py.File, dest, *, rows: int | None = None, attrs: dict | N
         except OSError:
             pass
         raise
+
+
+def _mode_like(source: Path) -> int:
+    """The copy gets the source's permissions (the temporary file was private), else the usual ones."""
+    try:
+        return source.stat().st_mode & 0o7777
+    except OSError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask
 
 
 def _fsync_dir(folder: Path) -> None:

@@ -84,6 +84,7 @@ def test_a_live_reader_in_another_process_does_not_break_the_end(tmp_path, locks
     case also rewrites the file compactly at close, under the reader's feet."""
     p = tmp_path / "s.h5"
     rec = _record(p, 1.0, lockstep=lockstep, speed=speed)
+    mode = p.stat().st_mode
     reader = subprocess.Popen([sys.executable, "-c", READER, str(p)], stdin=subprocess.PIPE,
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -91,7 +92,7 @@ def test_a_live_reader_in_another_process_does_not_break_the_end(tmp_path, locks
         for row in _rows(10):
             rec.append(row)
         rec.close(complete=True, **_runner_end(lockstep))
-        assert rec.compacted == (not lockstep)
+        assert rec.compacted == (not lockstep) and p.stat().st_mode == mode
         out, err = reader.communicate("\n", timeout=60)
         assert reader.returncode == 0, err
     finally:

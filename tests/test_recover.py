@@ -99,6 +99,7 @@ def test_a_sigkilled_session_becomes_an_ordinary_file_with_every_written_row(tmp
         assert all(f[n].fletcher32 for n in rows)
     # the original is kept, byte for byte, and crane-train reads the recovered file
     assert _digest(tmp_path / "s.h5.crashed") == before
+    assert (tmp_path / "s.h5.crashed").stat().st_mode == p.stat().st_mode  # same permissions
     assert len(read_session(p)) == 200
 
 
