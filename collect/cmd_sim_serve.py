@@ -16,6 +16,27 @@ import click
 from crane_io.errors import ConfigError, HardwareError, cli_errors
 
 
+def status_line(chain) -> str:
+    """The live status: simulated time, traffic, and how much simulated time slipped so far."""
+    s = chain.stats
+    line = (f"sim time {chain.time:9.2f} s  packets {s.packets_received:9d}  replies {s.replies_sent:9d}  "
+            f"CRC errors {s.crc_errors:5d}")
+    if chain.clock == "wall":
+        line += f"  slipped {s.slip_s:7.2f} s ({s.slips} times)"
+    return line
+
+
+def slip_summary(chain) -> str:
+    """One sentence on simulated time that was skipped because the plant could not keep up."""
+    s = chain.stats
+    if not s.slips:
+        return "Simulated time never slipped: the plant kept up with real time."
+    times = "once" if s.slips == 1 else f"{s.slips} times"
+    return (f"Simulated time slipped {times}, {s.slip_s:.2f} s in all (largest {s.max_slip_s:.3f} s): the "
+            "plant could not keep up with real time (a busy or slow machine), so it skipped ahead "
+            "instead of holding up the replies.")
+
+
 def _has_arm_plant() -> bool:
     return importlib.util.find_spec("crane_io.arm_plant") is not None and \
         importlib.util.find_spec("crane_io.plant_config") is not None
@@ -89,9 +110,7 @@ def sim_serve(link, plant_name, clock, period_s, seed, no_fast_sync_read, return
             if server.error is not None:
                 raise HardwareError(f"the simulator stopped unexpectedly: {server.error}")
             if live:
-                s = chain.stats
-                click.echo(f"\rsim time {chain.time:9.2f} s  packets {s.packets_received:9d}  "
-                           f"replies {s.replies_sent:9d}  CRC errors {s.crc_errors:5d}", nl=False)
+                click.echo("\r" + status_line(chain), nl=False)
     except KeyboardInterrupt:
         pass
     finally:
@@ -100,3 +119,5 @@ def sim_serve(link, plant_name, clock, period_s, seed, no_fast_sync_read, return
     s = chain.stats
     click.echo(f"\nStopped after {chain.time:.2f} s of simulated time: {s.packets_received} packets, "
                f"{s.replies_sent} replies, {s.crc_errors} CRC errors. Removed {link}.")
+    if clock == "wall":
+        click.echo(slip_summary(chain))

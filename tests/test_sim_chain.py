@@ -343,7 +343,8 @@ def test_set_clock_switches_a_running_chain_without_a_time_jump(sim):
     chain.touch()
     assert chain.clock == "wall" and chain.time == pytest.approx(0.02, abs=0.01)  # continues, no jump
     time.sleep(0.05)
-    chain.touch()
+    while chain.touch() >= chain.max_substep_s:  # each touch steps for a bounded time: repeat
+        pass
     assert chain.time >= 0.02 + 0.05 - 1e-6  # now it follows the wall clock
     chain.set_clock("lockstep")
     t = chain.time

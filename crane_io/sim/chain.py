@@ -10,8 +10,14 @@ Two clocks:
   as the host can talk. `advance(seconds)` lets time pass without a write (a host that stalls).
   `set_clock("wall")` switches a running chain to the wall clock (and back) without a time jump.
 - "wall": whenever the chain is touched, the plant is stepped (substeps of at most `max_substep_s`)
-  up to time.monotonic(); replies wait each servo's Return Delay Time with a real sleep.
-The bus watchdogs and the Realtime Tick count the chain's time in both modes.
+  toward time.monotonic(), for at most `step_budget_s` of real time per touch or packet, so a reply
+  never waits long for the physics. A plant that falls further than `max_lag_s` behind real time
+  (the machine is too slow or too busy, or nobody touched the chain for a while) is not caught up:
+  simulated time slips ahead to now, and `stats` counts the slips (`slips`, `slip_s`, `max_slip_s`).
+  Replies leave each servo's Return Delay Time after the instruction arrived (a real sleep).
+The bus watchdogs and the Realtime Tick count the chain's time in both modes; on the wall clock a
+servo's silence is measured from the real time each instruction arrived, so a slip never makes a
+watchdog expire while the host keeps talking, and a host that really went silent is still caught.
 
 Hooks for fault-injection tests: `servos`, `remove_servo`/`restore_servo`, `reply_filter`, `stats`.
 """
@@ -34,7 +40,8 @@ from .servo import EmulatedServo
 GOAL_CURRENT_ADDRESS = 102
 GOAL_POSITION_ADDRESS = 116
 _ID_ADDRESS = 7
-MAX_CATCHUP_S = 5.0  # wall clock: longer idle gaps are skipped instead of simulated
+STEP_BUDGET_S = 0.001  # wall clock: most real time spent stepping the plant per packet or touch
+MAX_LAG_S = 0.1  # wall clock: a plant further behind real time than this slips ahead to now
 
 
 @dataclass
@@ -49,6 +56,10 @@ class ChainStats:
     bytes_sent: int = 0
     plant_steps: int = 0
     ignored_fast_sync_reads: int = 0  # Fast Sync Reads left unanswered (fast_sync_read=False)
+    # wall clock: simulated time that was skipped because the plant could not keep up with real time
+    slips: int = 0  # how many times simulated time jumped ahead
+    slip_s: float = 0.0  # seconds skipped in all
+    max_slip_s: float = 0.0  # the largest single jump, seconds
 
 
 class SimulatedChain:
@@ -65,16 +76,23 @@ class SimulatedChain:
         baud_code: int = 5,
         return_delay_time: int | None = None,
         max_substep_s: float = 0.001,
+        step_budget_s: float = STEP_BUDGET_S,
+        max_lag_s: float = MAX_LAG_S,
     ):
         if clock not in ("lockstep", "wall"):
             raise ConfigError(f"clock must be 'lockstep' or 'wall', not {clock!r}")
         if not period_s > 0:
             raise ConfigError(f"the control period must be positive, got {period_s}")
+        if not step_budget_s > 0 or not max_lag_s >= 0:
+            raise ConfigError(f"step_budget_s must be positive and max_lag_s 0 or more, got "
+                              f"{step_budget_s} and {max_lag_s}")
         self.plant = plant
         self.clock = clock
         self.period_s = float(period_s)
         self.fast_sync_read = fast_sync_read
         self.max_substep_s = float(max_substep_s)
+        self.step_budget_s = float(step_budget_s)
+        self.max_lag_s = float(max_lag_s)
         models = dict(models or {})
         self._order: list[EmulatedServo] = [
             EmulatedServo(sid, models.get(sid, XM430_W350), baud_code=baud_code,
@@ -114,11 +132,23 @@ class SimulatedChain:
         self.servos = {s.id: s for s in self._order}
 
     # ---- time --------------------------------------------------------------------------------
-    def touch(self) -> None:
-        """Wall clock: bring the plant up to now (transports call this while idle)."""
+    def touch(self) -> float:
+        """Wall clock: step the plant toward now, for at most `step_budget_s` of real time (transports
+        call this while idle). Returns how far the plant is still behind real time, in seconds (0 on
+        the lockstep clock): call again soon when that is more than a substep."""
         with self._lock:
-            if self.clock == "wall":
-                self._advance_to(time.monotonic() - self._t0)
+            if self.clock != "wall":
+                return 0.0
+            target = self._wall_time()
+            self._catch_up(target)
+            return max(0.0, target - self.time)
+
+    @property
+    def lag_s(self) -> float:
+        """Wall clock: how far the plant is behind real time, in seconds (0 on the lockstep clock)."""
+        if self.clock != "wall":
+            return 0.0
+        return max(0.0, self._wall_time() - self.time)
 
     def set_clock(self, clock: str) -> None:
         """Switch between "lockstep" and "wall" while running; simulated time continues from where it
@@ -136,15 +166,33 @@ class SimulatedChain:
             for _ in range(steps):
                 self._step(self.period_s)
 
-    def _advance_to(self, target: float) -> None:
-        gap = target - self.time
-        if gap > MAX_CATCHUP_S:
-            self.time = target - MAX_CATCHUP_S
-            gap = MAX_CATCHUP_S
-        while gap > 1e-9:
-            dt = min(gap, self.max_substep_s)
-            self._step(dt)
-            gap = target - self.time
+    def _wall_time(self) -> float:
+        """Wall clock: the simulated time it is now, were the plant never behind."""
+        return time.monotonic() - self._t0
+
+    def _catch_up(self, target: float) -> None:
+        """Step toward `target` in substeps of at most max_substep_s until there or until the budget of
+        real time is spent (at least one substep); then, if the plant is still more than max_lag_s
+        behind, skip simulated time ahead to `target` (a slip) instead of making anyone wait."""
+        deadline = time.perf_counter() + self.step_budget_s
+        while target - self.time > 1e-9:
+            self._step(min(target - self.time, self.max_substep_s))
+            if time.perf_counter() >= deadline:
+                break
+        lag = target - self.time
+        if lag > self.max_lag_s:
+            self._slip(target)
+
+    def _slip(self, target: float) -> None:
+        jump = target - self.time
+        self.time = target
+        st = self.stats
+        st.slips += 1
+        st.slip_s += jump
+        st.max_slip_s = max(st.max_slip_s, jump)
+        for s in self._order:  # a host that was silent through the skipped time is still caught
+            s.check_watchdog(target)
+        self._read_plant()
 
     def actuator_command(self) -> ActuatorCommand:
         cmds = [s.command() for s in self._order]
@@ -194,18 +242,26 @@ class SimulatedChain:
         rate do not understand the host (and stay silent)."""
         with self._lock:
             wall = time.monotonic()
+            now = None
             if self.clock == "wall":
-                self._advance_to(wall - self._t0)
+                now = wall - self._t0
+                self._catch_up(now)
+                for s in self._order:  # a servo's silence ends when this packet arrived, not later
+                    s.check_watchdog(now)
             self.stats.bytes_received += len(data)
             crc_before = self.parser.crc_errors
             packets = self.parser.feed(data, now=wall)
             self.stats.crc_errors += self.parser.crc_errors - crc_before
             out = bytearray()
+            due = wall  # Return Delay Times count from the instruction's arrival, one reply after another
             for pkt in packets:
                 self.stats.packets_received += 1
-                for chunk, delay in self._handle(pkt, baudrate):
+                for chunk, delay in self._handle(pkt, baudrate, now):
                     if self.clock == "wall" and delay > 0:
-                        time.sleep(delay)
+                        due += delay
+                        wait = due - time.monotonic()
+                        if wait > 0:
+                            time.sleep(wait)
                     if self.reply_filter is not None:
                         chunk = self.reply_filter(chunk)
                         if chunk is None:
@@ -221,11 +277,14 @@ class SimulatedChain:
             return [s for s in self._order if s.on_bus]
         return [s for s in self._order if s.on_bus and s.baudrate == baudrate]
 
-    def _handle(self, pkt: p.Packet, baudrate: int | None) -> Iterable[tuple[bytes, float]]:
+    def _handle(self, pkt: p.Packet, baudrate: int | None,
+                now: float | None = None) -> Iterable[tuple[bytes, float]]:
+        """`now`: the chain time the packet arrived at (default: the plant's time, as in lockstep)."""
         servos = self._hearing(baudrate)
         if not servos or pkt.instruction == p.INST_STATUS:
             return []
-        now = self.time
+        if now is None:
+            now = self.time
         inst, params = pkt.instruction, pkt.params
         if pkt.id == p.BROADCAST_ID:
             handler = {

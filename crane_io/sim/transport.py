@@ -7,6 +7,9 @@
 2. A pseudo-terminal: `PtyServer(chain, link="/tmp/crane_x7")` opens a pty pair, links the slave
    side at `link` and serves the chain from a thread until `stop()` (or the `with` block ends).
    Any program that opens a serial port (Dynamixel Wizard, the SDK, `screen`) can use the link.
+   On the wall clock the server's one thread both answers the line and keeps the plant up to real
+   time, in slices of at most the chain's `step_budget_s` with a look at the line between them, so
+   an instruction never waits for more than one slice of physics (see SimulatedChain.touch).
 """
 
 from __future__ import annotations
@@ -108,9 +111,11 @@ class PtyServer:
         return self
 
     def _serve(self) -> None:
+        behind = False  # the plant is behind real time: look at the line, then keep stepping
         try:
             while not self._stop.is_set():
-                ready, _, _ = select.select([self._master, self._wake_r], [], [], self.idle_touch_s)
+                wait = 0.0 if behind else self.idle_touch_s
+                ready, _, _ = select.select([self._master, self._wake_r], [], [], wait)
                 if self._master in ready:
                     try:
                         data = os.read(self._master, 65536)
@@ -121,11 +126,16 @@ class PtyServer:
                     if data:
                         reply = self.chain.feed(data)
                         if reply:
-                            self._write_all(reply)
+                            self._send(reply)
+                    behind = self.chain.lag_s >= self.chain.max_substep_s
                 else:
-                    self.chain.touch()
+                    behind = self.chain.touch() >= self.chain.max_substep_s
         except BaseException as exc:  # reported through .error; the thread must not die silently
             self.error = exc
+
+    def _send(self, reply: bytes) -> None:
+        """Put a reply on the line (a hook for test fakes that deliver replies late)."""
+        self._write_all(reply)
 
     def _write_all(self, data: bytes) -> None:
         view = memoryview(data)

@@ -1,6 +1,9 @@
 """Test-only fakes built on the simulated servo chain (crane_io.sim): fault injectors that corrupt or
-drop replies, make a servo vanish, or raise hardware-error bits. See faults.py."""
+drop replies, make a servo vanish, or raise hardware-error bits (faults.py); a plant too slow for real
+time and a pty whose replies arrive late (timing.py)."""
 
 from .faults import DropReplies, FlipCrcByte, HardwareErrorBits, OverloadBit, VanishingServo
+from .timing import LateReplies, SlowPlant
 
-__all__ = ["DropReplies", "FlipCrcByte", "HardwareErrorBits", "OverloadBit", "VanishingServo"]
+__all__ = ["DropReplies", "FlipCrcByte", "HardwareErrorBits", "LateReplies", "OverloadBit", "SlowPlant",
+           "VanishingServo"]
