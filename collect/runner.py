@@ -472,9 +472,11 @@ def _finish(loop, opts, output, end_reason, wall0, out) -> RunResult:
     achieved = loop.cycles / loop.t_session if loop.t_session > 0 else 0.0
     timing_attrs = {k: float(v) for k, v in summary.items()}
     timing_attrs["lockstep"] = loop.lockstep
-    loop.recorder.close(complete=True, attrs={"rate_hz_achieved": achieved, "end_reason": end_reason},
-                        group_attrs={"timing": timing_attrs})
-    result = RunResult(output, loop.cycles, loop.t_session, wall, end_reason, loop.breach, summary, rms)
-    if opts.status and out is not None:
-        print_summary(result, loop.errors, out, lockstep=loop.lockstep)
+    try:
+        loop.recorder.close(complete=True, attrs={"rate_hz_achieved": achieved, "end_reason": end_reason},
+                            group_attrs={"timing": timing_attrs})
+    finally:  # the summary is printed even when the end of the file could not be written
+        result = RunResult(output, loop.cycles, loop.t_session, wall, end_reason, loop.breach, summary, rms)
+        if opts.status and out is not None:
+            print_summary(result, loop.errors, out, lockstep=loop.lockstep)
     return result
