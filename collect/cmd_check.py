@@ -11,10 +11,32 @@ from crane_io.errors import ConfigError, cli_errors
 _MODES = {0: "current", 1: "velocity", 3: "position", 4: "ext. position", 5: "current-based pos.", 16: "PWM"}
 
 
+def _not_answering(r: dict) -> str:
+    """Why a servo has no row: silence, or replies that come too late (and what to do about each)."""
+    expected = r["expected_model"]
+    late = r.get("late_reply_s")
+    if "tries" not in r:
+        return f"NOT ANSWERING (expected {expected})"
+    timeout_ms = r["timeout_s"] * 1e3
+    tries = r["tries"]
+    reads = "a read" if tries == 1 else f"{tries} reads"
+    if late is None:
+        return (f"NOT ANSWERING (expected {expected}): no reply at all, to {reads} nor in the "
+                f"{r['listen_s']:g} s after; check the arm's power and cable, the servo's ID "
+                "and baud rate (3 Mbps)")
+    if late * 1e3 <= timeout_ms:
+        return (f"ANSWERS ONLY SOMETIMES (expected {expected}): no reply to {reads}, then one after "
+                f"{late * 1e3:.1f} ms; check the cable and connectors, then retry")
+    return (f"REPLIES TOO LATE (expected {expected}): no reply to {reads} within the {timeout_ms:.1f} ms "
+            f"timeout, but a reply came after {late * 1e3:.0f} ms: the computer or the USB adapter is "
+            "slow (check the adapter's latency timer with `crane-collect ports`, close busy programs) "
+            "or the line is overloaded; retry")
+
+
 def _row(r: dict) -> str:
     head = f"ID {r['id']:>2} {r['joint']:<8}"
     if not r.get("answering"):
-        return f"{head} NOT ANSWERING (expected {r['expected_model']})"
+        return f"{head} {_not_answering(r)}"
     model = r["model"] + ("" if r["model"] == r["expected_model"] else f" (EXPECTED {r['expected_model']})")
     mode = _MODES.get(r["operating_mode"], str(r["operating_mode"]))
     errors = ", ".join(r["hardware_errors"]) or "none"

@@ -84,6 +84,10 @@ log = logging.getLogger(__name__)
 _PKT_ID = 4
 _PKT_FIRST_PARAM = 8  # fast sync read: the first servo's error byte
 _REPORT_BLOCK = 147  # addresses 0..146: everything servo_report shows, in one read per servo
+# servo_report's second look at a servo that did not answer in time: a read of Model Number (2 bytes),
+# whose short reply cannot be mistaken for a late reply to the report's own reads, and how long to wait
+_LATE_PROBE_ADDRESS, _LATE_PROBE_SIZE = 0, 2
+LATE_REPLY_LISTEN_S = 0.5
 _FAST_TRIES_BEFORE_FALLBACK = 2
 _PRESENT = struct.Struct("<hii")  # Present Current, Velocity, Position (addresses 126, 128, 132)
 # the hardware-error poll: ONE sync read of Hardware Error Status (70) .. Bus Watchdog (98)
@@ -641,17 +645,26 @@ class DynamixelBus:
             "; the servo switched its torque off (remove the cause, then power-cycle or reboot it)",
             faults=faults)
 
-    def servo_report(self) -> list[dict]:
+    def servo_report(self, late_listen_s: float | None = None) -> list[dict]:
         """One dict per servo (for `crane-collect check`): id, joint, answering, model, firmware, mode,
-        torque, return delay, limits (SI), watchdog, hardware errors, voltage, temperature, position."""
+        torque, return delay, limits (SI), watchdog, hardware errors, voltage, temperature, position.
+
+        A servo that does not answer in time gets `answering` False, `tries`, `timeout_s` (the reply
+        timeout of each try), `listen_s` and `late_reply_s`: it is asked once more and given
+        `late_listen_s` (default LATE_REPLY_LISTEN_S) to answer; the seconds its reply took, or None
+        when nothing came (silence)."""
         self._need_port()
+        if late_listen_s is None:
+            late_listen_s = LATE_REPLY_LISTEN_S
         rows = []
         for j, (joint, sid) in enumerate(zip(self.joint_names, self.ids)):
             row = {"id": sid, "joint": joint, "expected_model": self.arm.joints[j].model}
             try:
                 block = self._read_block(sid, 0, _REPORT_BLOCK, joint)
             except CommunicationError:
-                row["answering"] = False
+                row.update(answering=False, tries=1 + self.retries,
+                           timeout_s=self._reply_timeout_s(_REPORT_BLOCK), listen_s=late_listen_s,
+                           late_reply_s=self._late_reply_s(sid, late_listen_s))
                 rows.append(row)
                 continue
             model = model_by_number(int.from_bytes(block[0:2], "little"))
@@ -684,6 +697,38 @@ class DynamixelBus:
             )
             rows.append(row)
         return rows
+
+    def _reply_timeout_s(self, data_length: int) -> float:
+        """How long each try waits for the reply to a read of `data_length` bytes (as the SDK computes it)."""
+        self._port.setPacketTimeout(data_length + 11)  # the SDK's own arithmetic, with this port's latency
+        return self._port.packet_timeout / 1000.0
+
+    def _late_reply_s(self, sid: int, listen_s: float) -> float | None:
+        """Ask servo `sid` for its Model Number once and listen up to `listen_s` for that reply (late
+        replies to earlier reads, of another length, are skipped): the seconds it took, or None.
+        For reports only: it waits far longer than any control cycle may."""
+        port, ph = self._port, self._ph
+        self.stats.attempts += 1
+        sent = time.monotonic()
+        try:
+            if ph.readTx(port, sid, _LATE_PROBE_ADDRESS, _LATE_PROBE_SIZE) != COMM_SUCCESS:
+                port.is_using = False
+                return None
+            port.setPacketTimeoutMillis(listen_s * 1000.0)
+            while True:
+                packet, result = ph.rxPacket(port, False)
+                if result == COMM_SUCCESS:
+                    length = packet[5] | packet[6] << 8
+                    if packet[_PKT_ID] == sid and length == _LATE_PROBE_SIZE + 4:  # INST ERR DATA CRC
+                        return time.monotonic() - sent
+                elif port.isPacketTimeout():
+                    return None
+        except (serial.SerialException, OSError) as exc:
+            port.is_using = False
+            self._last_port_error = str(exc)
+            return None
+        finally:
+            self._update_byte_stats()
 
     # ---- low level -----------------------------------------------------------------------------
     def _need_port(self) -> CranePortHandler:
