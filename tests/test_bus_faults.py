@@ -147,7 +147,7 @@ CHILD = textwrap.dedent("""
     from crane_io.bus import DynamixelBus
     from crane_io.shutdown import handle_termination
 
-    with handle_termination(), DynamixelBus(sys.argv[1]) as bus:
+    with handle_termination(), DynamixelBus(sys.argv[1], latency_ms=250) as bus:  # patient: a busy CPU
         bus.ping_all()
         bus.configure(watchdog_s=1.0)
         bus.torque_on()
@@ -187,7 +187,7 @@ def test_a_port_that_goes_away_mid_run_is_one_clear_error_and_close_does_not_rai
     sim = simulated_arm()
     try:
         server = PtyServer(sim.chain, tmp_path / "arm").start()
-        bus = DynamixelBus(str(tmp_path / "arm")).open()
+        bus = DynamixelBus(str(tmp_path / "arm"), latency_ms=250).open()  # patient: a busy machine
         bus.configure()
         bus.torque_on()
         bus.read_state()
