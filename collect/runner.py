@@ -43,9 +43,10 @@ from .config import Config, load_config
 from .controller import ArmSignals, BilateralController
 from .operator import SimulatedOperator
 from .pacing import CycleTimer
+from .realtime import RealtimeState, enter_realtime
 from .recorder import SessionRecorder
 from .safety import Breach, SafetyMonitor
-from .sim_arms import make_plant, make_sim_arms, switch_to_wall_clock, write_truth
+from .sim_arms import make_plant, make_sim_arms, write_truth
 from .startup import check_options, check_output, check_ports, make_recorder, open_buses, software_version
 from .status import StatusLine, print_summary
 
@@ -64,7 +65,7 @@ class RunOptions:
     duration: float | None = None  # s of bilateral control; None: until Ctrl+C / SIGTERM
     rate: float | None = None  # Hz, overrides the configuration
     config: str | Path | None = None
-    realtime: bool = False  # sim only: wall-clock simulation paced in real time
+    realtime: bool = False  # sim only: the loop paced by the wall clock (the simulated arms stay lockstep)
     leader_port: str | None = None
     follower_port: str | None = None
     force: bool = False
@@ -107,7 +108,11 @@ class _Loop:
         self.config = config
         self.arm = arm
         self.sims = sims
-        self.lockstep = bool(sims) and not opts.realtime
+        # Simulated arms in this process advance one period per cycle, also with --realtime, which paces
+        # the loop by the wall clock (collect/sim_arms.py says why): their time is the session's time.
+        self.lockstep = bool(sims)
+        self.paced = not sims or opts.realtime  # wait for the wall clock between cycles
+        self.realtime: RealtimeState | None = None  # what the OS granted the paced loop
         self.period = config.loop.period_s
         self.ctl = BilateralController(config, arm)
         self.safety = SafetyMonitor(config, arm)
@@ -120,7 +125,7 @@ class _Loop:
         self.status = StatusLine(out, config.loop, opts.status)
         self.recorder: SessionRecorder | None = None
         self.operator: SimulatedOperator | None = None
-        self.timer = CycleTimer(config.loop.rate_hz, lockstep=self.lockstep, spin_s=config.loop.spin_s)
+        self.timer = CycleTimer(config.loop.rate_hz, lockstep=not self.paced, spin_s=config.loop.spin_s)
         self.cycles = 0
         self.t_session = 0.0
         self.t_start_mono: float | None = None  # hardware: the leader's clock at the first cycle
@@ -163,7 +168,13 @@ class _Loop:
 
     def align(self) -> str:
         return align(self.pair, self.ctl, self.safety, self.config, self.arm, simulated=bool(self.sims),
-                     lockstep=self.lockstep, say=self.status.say)
+                     lockstep=self.lockstep, paced=self.paced, say=self.status.say,
+                     between_cycles=self.between_cycles)
+
+    def between_cycles(self) -> None:
+        """After a cycle's writes, before the wait: the small garbage collection kept out of the cycle."""
+        if self.realtime is not None:
+            self.realtime.collect_garbage()
 
     # -- bilateral control --------------------------------------------------------------------------
     def run(self, duration: float | None) -> str:
@@ -182,6 +193,7 @@ class _Loop:
             breach, t = self._cycle(k)
             if breach is not None:
                 return self._stop(breach, t)
+            self.between_cycles()
             self.timer.wait()
             k += 1
         return "duration"
@@ -221,7 +233,8 @@ class _Loop:
         wall = self.status.due()
         if wall is not None:
             rms_deg = np.degrees(np.sqrt(self.err_sq / max(self.cycles, 1)))[self.bil]
-            self.status.show(self.t_session, wall, timer, rms_deg, self.errors, self.lockstep)
+            self.status.show(self.t_session, wall, timer, rms_deg, self.errors, not self.paced,
+                             self.realtime.short() if self.realtime is not None else "")
         return None, t
 
     def _session_time(self, k: int, leader_state) -> float:
@@ -393,11 +406,13 @@ class _Session:
         loop = _Loop(opts, config, arm, self.sims, self.out, stop)
         self.loop = loop
         stop.check()
+        if loop.paced:  # before any torque is on: freezing the collector and locking memory take ~0.3 s
+            loop.realtime = enter_realtime(config.realtime)
         self.buses, hw = open_buses(opts, arm, config, ports, self.out, checkpoint=stop.check)
         loop.attach(self.buses)
+        if loop.realtime is not None:  # said once the arms answered (a missing port stays one line)
+            loop.status.say(loop.realtime.sentence())
         with stop.deferred():  # from here a stop is taken between two cycles (ArmPair.read_both)
-            if self.sims and opts.realtime:
-                switch_to_wall_clock(self.sims)
             align_message = loop.align()
             if self.sims:
                 loop.operator = SimulatedOperator(opts.seed, arm, config.loop.rate_hz, config)
@@ -407,7 +422,7 @@ class _Session:
             for w in hw["warnings"]:
                 loop.event(0.0, "warning", w)
             loop.event(0.0, "start", align_message)
-            mode = "lockstep simulation" if loop.lockstep else "real time"
+            mode = "lockstep simulation" if not loop.paced else "real time"
             loop.status.say(f"recording to {self.output} ({mode}, {config.loop.rate_hz:g} Hz); "
                             "Ctrl+C ends the session")
             self.end_reason = loop.run(opts.duration)
@@ -447,6 +462,8 @@ class _Session:
             self.result = RunResult(self.output, 0, 0.0, time.perf_counter() - self.wall0, reason, None, {})
         for sim in self.sims.values():
             self._step(sim.close)
+        if loop is not None and loop.realtime is not None:  # normal scheduling, memory, collector again
+            self._step(loop.realtime.restore)
 
     def _step(self, fn, *args):
         try:
@@ -471,12 +488,15 @@ def _finish(loop, opts, output, end_reason, wall0, out) -> RunResult:
         rms = {n: float(err[i]) for i, n in enumerate(loop.arm.joint_names) if loop.bil[i]}
     achieved = loop.cycles / loop.t_session if loop.t_session > 0 else 0.0
     timing_attrs = {k: float(v) for k, v in summary.items()}
-    timing_attrs["lockstep"] = loop.lockstep
+    timing_attrs["lockstep"] = not loop.paced
+    if loop.realtime is not None:
+        timing_attrs.update(loop.realtime.attrs())
     try:
         loop.recorder.close(complete=True, attrs={"rate_hz_achieved": achieved, "end_reason": end_reason},
                             group_attrs={"timing": timing_attrs})
     finally:  # the summary is printed even when the end of the file could not be written
         result = RunResult(output, loop.cycles, loop.t_session, wall, end_reason, loop.breach, summary, rms)
         if opts.status and out is not None:
-            print_summary(result, loop.errors, out, lockstep=loop.lockstep)
+            print_summary(result, loop.errors, out, lockstep=not loop.paced,
+                          realtime=loop.realtime.sentence() if loop.realtime is not None else None)
     return result

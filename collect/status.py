@@ -52,12 +52,14 @@ class StatusLine:
         return now - self.wall0
 
     def show(self, t_session: float, wall: float, timer, tracking_rms_deg, errors: int,
-             lockstep: bool) -> None:
+             lockstep: bool, realtime: str = "") -> None:
         r = timer.recent()
         speed = f" x{t_session / wall:.1f} real time" if lockstep and wall > 0 else ""
         text = (f"{t_session:7.1f} s | {r['rate_hz']:6.0f} Hz{speed} | jitter {r['jitter_s'] * 1e3:.3f} ms | "
                 f"max {r['max_s'] * 1e3:.2f} ms | overruns {timer.overruns} | errors {errors} | "
                 f"track rms {' '.join(f'{x:.2f}' for x in tracking_rms_deg)} deg")
+        if realtime:  # what the OS granted the loop, e.g. "FIFO 40" or "no RT"
+            text += f" | {realtime}"
         print(("\r" + text) if self.tty else text, end="" if self.tty else "\n", file=self.out, flush=True)
 
 
@@ -67,7 +69,7 @@ _END_WORDS = {"duration": "ended after the requested duration", "interrupted": "
               "error": "stopped by an error"}
 
 
-def print_summary(r, bus_errors: int, out, lockstep: bool = False) -> None:
+def print_summary(r, bus_errors: int, out, lockstep: bool = False, realtime: str | None = None) -> None:
     """The summary of a finished run (r: RunResult). In lockstep the loop's own rate is the nominal one
     (one period of simulated time per cycle); the wall-clock rate is how fast the machine simulated."""
     s = r.summary
@@ -90,6 +92,8 @@ def print_summary(r, bus_errors: int, out, lockstep: bool = False) -> None:
                      f"{s.get('bus_follower_mean_s', 0) * 1e3:.3f} ms per cycle; compute "
                      f"{s.get('compute_mean_s', 0) * 1e6:.0f} us, "
                      f"record {s.get('record_mean_s', 0) * 1e6:.0f} us; bus errors {bus_errors}")
+    if realtime:
+        lines.append(f"  {realtime}")
     if r.tracking_rms:
         lines.append("  tracking rms (leader - follower): " + ", ".join(
             f"{n} {np.degrees(v):.2f} deg" for n, v in r.tracking_rms.items()))
