@@ -207,25 +207,46 @@ def test_sigterm_during_the_alignment_stops_the_arms_and_writes_no_file(tmp_path
         assert bus.torque_enabled is False and not bus.is_open
 
 
-def test_events_after_a_safety_stop_come_after_it_in_real_time(tmp_path, cfg):
-    """In real time the breaching cycle can start well after the last recorded one: the torque
-    read-back and the end events still carry later times than the safety stop that caused them."""
+def test_events_after_a_safety_stop_come_after_it_on_the_hardware_path(tmp_path, cfg):
+    """On hardware the session time is the leader's clock and the breaching cycle can start well after
+    the last recorded one: the torque read-back still carries a later time than the safety stop that
+    caused it. Two simulated arms on pseudo-terminals (lockstep chains, so load cannot trip them)."""
     import time
 
-    def hook(k, ctx):
-        if k == 200:
-            time.sleep(0.05)  # a late cycle: the breaching read comes 50 ms after the previous one
-            ctx.sims["leader"].chain.servos[5].set_hardware_error(0x20)
+    from crane_io.description import default_arm
+    from crane_io.sim.chain import SimulatedChain
+    from crane_io.sim.simple_plant import SimplePlant
+    from crane_io.sim.transport import PtyServer
 
-    with pytest.raises(SafetyStop):
-        run_session(_opts(tmp_path, cfg, realtime=True, on_cycle=hook))
+    arm = default_arm()
+    chains, servers = {}, []
+    try:
+        for name in ("leader", "follower"):
+            chains[name] = SimulatedChain.for_arm(arm, SimplePlant.from_arm(arm), clock="lockstep",
+                                                  return_delay_time=0)
+            servers.append(PtyServer(chains[name], link=tmp_path / name).start())
+
+        def hook(k, ctx):
+            if k == 100:
+                time.sleep(0.05)  # a late cycle: the breaching read comes 50 ms after the previous one
+                chains["leader"].servos[5].set_hardware_error(0x20)
+
+        with pytest.raises(SafetyStop):
+            run_session(RunOptions(output=tmp_path / "s.h5", leader_port=str(tmp_path / "leader"),
+                                   follower_port=str(tmp_path / "follower"), duration=60.0, config=cfg,
+                                   status=False, on_cycle=hook))
+    finally:
+        for server in servers:
+            server.stop()
     with h5py.File(tmp_path / "s.h5", "r") as f:
         events = read_events(f)
+        last_row_t = float(f["leader/t"][-1])
     times = [e["t"] for e in events]
     assert times == sorted(times), events
     stop = next(e for e in events if e["kind"] == "safety_stop")
     states = [e for e in events if e["kind"] == "torque_state"]
     assert len(states) == 2 and all(e["t"] >= stop["t"] for e in states)
+    assert stop["t"] >= last_row_t + 0.04  # the breaching cycle was the late one
     assert np.isfinite(times).all()
 
 
