@@ -57,7 +57,7 @@ def check(sim, ports):
     """Per servo: ID, joint, model, firmware, mode, torque, limits, errors, voltage, temperature.
 
     The check reads registers only; on the way out it leaves every servo with torque off."""
-    from crane_io.bus import DynamixelBus
+    from crane_io.bus import LATE_REPLY_LISTEN_S, DynamixelBus
     from crane_io.description import default_arm
     from crane_io.ports import port_warnings
 
@@ -80,7 +80,7 @@ def check(sim, ports):
                 for w in port_warnings(port):
                     click.echo(f"  Warning: {w}")
             with DynamixelBus(port, arm, name=str(port)) as bus:
-                for r in bus.servo_report():
+                for r in bus.servo_report(late_listen_s=LATE_REPLY_LISTEN_S):
                     click.echo("  " + _row(r))
                     bad = not r.get("answering") or r["model"] != r["expected_model"] or r["hardware_errors"]
                     problems += bool(bad)

@@ -87,7 +87,7 @@ _REPORT_BLOCK = 147  # addresses 0..146: everything servo_report shows, in one r
 # servo_report's second look at a servo that did not answer in time: a read of Model Number (2 bytes),
 # whose short reply cannot be mistaken for a late reply to the report's own reads, and how long to wait
 _LATE_PROBE_ADDRESS, _LATE_PROBE_SIZE = 0, 2
-LATE_REPLY_LISTEN_S = 0.5
+LATE_REPLY_LISTEN_S = 0.5  # what `crane-collect check` gives a servo that missed every try
 _FAST_TRIES_BEFORE_FALLBACK = 2
 _PRESENT = struct.Struct("<hii")  # Present Current, Velocity, Position (addresses 126, 128, 132)
 # the hardware-error poll: ONE sync read of Hardware Error Status (70) .. Bus Watchdog (98)
@@ -645,26 +645,25 @@ class DynamixelBus:
             "; the servo switched its torque off (remove the cause, then power-cycle or reboot it)",
             faults=faults)
 
-    def servo_report(self, late_listen_s: float | None = None) -> list[dict]:
+    def servo_report(self, late_listen_s: float = 0.0) -> list[dict]:
         """One dict per servo (for `crane-collect check`): id, joint, answering, model, firmware, mode,
         torque, return delay, limits (SI), watchdog, hardware errors, voltage, temperature, position.
 
         A servo that does not answer in time gets `answering` False, `tries`, `timeout_s` (the reply
-        timeout of each try), `listen_s` and `late_reply_s`: it is asked once more and given
-        `late_listen_s` (default LATE_REPLY_LISTEN_S) to answer; the seconds its reply took, or None
-        when nothing came (silence)."""
+        timeout of each try), `listen_s` and `late_reply_s`. With `late_listen_s` > 0 (a check, never a
+        stop that must be quick) it is asked once more and given that long to answer: `late_reply_s`
+        is the seconds its reply took, or None when nothing came (silence; also without a second look)."""
         self._need_port()
-        if late_listen_s is None:
-            late_listen_s = LATE_REPLY_LISTEN_S
         rows = []
         for j, (joint, sid) in enumerate(zip(self.joint_names, self.ids)):
             row = {"id": sid, "joint": joint, "expected_model": self.arm.joints[j].model}
             try:
                 block = self._read_block(sid, 0, _REPORT_BLOCK, joint)
             except CommunicationError:
+                late = self._late_reply_s(sid, late_listen_s) if late_listen_s > 0 else None
                 row.update(answering=False, tries=1 + self.retries,
                            timeout_s=self._reply_timeout_s(_REPORT_BLOCK), listen_s=late_listen_s,
-                           late_reply_s=self._late_reply_s(sid, late_listen_s))
+                           late_reply_s=late)
                 rows.append(row)
                 continue
             model = model_by_number(int.from_bytes(block[0:2], "little"))

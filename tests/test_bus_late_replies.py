@@ -45,6 +45,10 @@ def test_a_silent_servo_is_reported_as_not_answering_at_all(sim):
     with DropReplies(sim.chain, count=None, servo_id=6):
         with DynamixelBus(sim.url) as bus:
             rows = {r["id"]: r for r in bus.servo_report(late_listen_s=0.2)}
+            attempts = bus.stats.attempts
+            quick = bus.servo_report()[4]  # the stop's torque report: no second look, no waiting
+            assert quick["answering"] is False and quick["late_reply_s"] is None and quick["listen_s"] == 0
+            assert bus.stats.attempts - attempts == 8 + 2  # one read per servo, two retries for ID 6
     silent = rows[6]
     assert silent["answering"] is False and silent["late_reply_s"] is None and silent["listen_s"] == 0.2
     text = _row(silent)
