@@ -149,3 +149,28 @@ def test_sim_serve_reports_slip_in_its_status_and_summary():
     assert slip_summary(chain).startswith("Simulated time slipped 3 times, 1.25 s in all (largest 0.800 s)")
     chain.set_clock("lockstep")
     assert "slipped" not in status_line(chain)  # lockstep time never slips: nothing to report
+
+
+def test_the_pty_server_keeps_stepping_a_plant_that_is_behind(tmp_path, monkeypatch):
+    """While the plant is behind real time the server looks at the line without waiting (select with
+    timeout 0) and steps on; only an up-to-date plant lets it idle for idle_touch_s."""
+    from crane_io.sim import transport
+
+    chain, plant = chain_with(cost_s=0.0, max_lag_s=10.0, step_budget_s=1e-9)  # one substep per touch
+    waits = []
+    real_select = transport.select.select
+
+    def recording_select(r, w, x, timeout=None):
+        if r and w == []:
+            waits.append(timeout)
+        return real_select(r, w, x, timeout)
+
+    monkeypatch.setattr(transport.select, "select", recording_select)
+    time.sleep(0.05)  # 50 ms behind: 50 touches of one substep each to catch up
+    with PtyServer(chain, tmp_path / "crane") as server:
+        deadline = time.monotonic() + 30
+        while len(waits) < 20 and time.monotonic() < deadline:
+            time.sleep(0.01)
+    assert server.error is None
+    assert waits.count(0.0) >= 10  # came straight back to step on, instead of idling 5 ms per substep
+    assert chain.stats.slips == 0
