@@ -174,3 +174,31 @@ def test_the_pty_server_keeps_stepping_a_plant_that_is_behind(tmp_path, monkeypa
     assert server.error is None
     assert waits.count(0.0) >= 10  # came straight back to step on, instead of idling 5 ms per substep
     assert chain.stats.slips == 0
+
+
+def test_return_delay_counts_from_the_instructions_arrival(monkeypatch):
+    """Time spent stepping the plant is part of the Return Delay Time, not added to it: after a 50 ms
+    plant step the eight replies of a Sync Read (500 us each) are already due, so nothing sleeps."""
+    import crane_io.sim.chain as chain_module
+
+    plant = SlowPlant(SimplePlant.from_arm(ARM), 0.0)
+    chain = SimulatedChain.for_arm(ARM, plant, clock="wall")  # factory Return Delay Time: 500 us
+    slept = []
+    real_sleep = time.sleep
+
+    def recording_sleep(seconds):
+        slept.append(seconds)
+        real_sleep(seconds)
+
+    monkeypatch.setattr(chain_module.time, "sleep", recording_sleep)
+    sync_read = p.instruction_packet(p.BROADCAST_ID, p.INST_SYNC_READ, bytes((126, 0, 10, 0, *range(2, 10))))
+    plant.cost_s = 0.05
+    real_sleep(0.002)  # a substep to take: 50 ms
+    assert len(p.PacketParser().feed(chain.feed(sync_read))) == 8
+    assert [s for s in slept if s != 0.05] == []  # the replies were due when the plant was done
+    plant.cost_s = 0.0
+    slept.clear()
+    start = time.monotonic()
+    assert len(p.PacketParser().feed(chain.feed(sync_read))) == 8
+    assert time.monotonic() - start >= 8 * 500e-6  # a quick plant: the replies wait their turn
+    assert sum(slept) <= 8 * 500e-6 + 1e-9  # each to its deadline, never more than the delays
