@@ -240,13 +240,17 @@ def test_sigkill_loses_at_most_the_last_second(tmp_path):
         assert np.isfinite(f["follower/q"][:n]).all()
 
 
-def test_hardware_path_over_ptys_refuses_arms_that_disagree(tmp_path):
+def test_hardware_path_over_ptys_refuses_arms_that_disagree(tmp_path, monkeypatch):
     """The hardware code path (real ports, one bus thread per arm) against two simulated chains served
     on pseudo-terminals: arms 90 deg apart are not brought together automatically."""
+    import crane_io.port
     from collect.runner import StartRefused
     from crane_io.sim.chain import SimulatedChain
     from crane_io.sim.simple_plant import SimplePlant
     from crane_io.sim.transport import PtyServer
+
+    # the pty servers' threads may wait for a core on a busy machine: replies get ~0.5 s, not ~35 ms
+    monkeypatch.setattr(crane_io.port, "SDK_LATENCY_MS", 250.0)
 
     poses = {"leader": np.zeros(8), "follower": np.where(np.arange(8) == 1, np.pi / 2, 0.0)}
     servers, chains = [], {}
