@@ -1,4 +1,5 @@
-"""Shared test helper: watch a crane-collect process's session file grow (SWMR reads)."""
+"""Shared test helpers for collection runs: watch a crane-collect process's session file grow (SWMR
+reads); check that every simulated servo was left with torque off."""
 
 from __future__ import annotations
 
@@ -24,3 +25,10 @@ def wait_for_rows(proc, out: Path, rows: int, timeout: float = 60) -> None:
         assert proc.poll() is None, proc.communicate()
         assert time.monotonic() < end, "the run did not start recording"
         time.sleep(0.1)
+
+
+def torque_off_everywhere(sims: dict, min_servos: int = 16) -> bool:
+    """Torque off on every simulated servo of `sims` (arm name -> SimulatedArm) still on the bus, and at
+    least `min_servos` of them there (a vanished servo cannot be reached; its Bus Watchdog stops it)."""
+    servos = [s for sim in sims.values() for s in sim.chain.servos.values() if s.on_bus]
+    return len(servos) >= min_servos and all(s.read_register("torque_enable") == 0 for s in servos)

@@ -16,7 +16,7 @@ import tomllib
 from collect.recorder import read_events
 from collect.runner import RunOptions, SafetyStop, run_session
 from crane_io.description import default_arm
-from tests.recording import wait_for_rows
+from tests.recording import torque_off_everywhere, wait_for_rows
 
 ARM = default_arm()
 BIL = np.array([n in ARM.bilateral_joints for n in ARM.joint_names])
@@ -55,10 +55,7 @@ def _opts(tmp_path, cfg, **kw):
 
 
 def _torque_off_everywhere(sims) -> bool:
-    """Torque off on every simulated servo still on the bus (a vanished one cannot be reached; its
-    Bus Watchdog stops it)."""
-    servos = [s for sim in sims.values() for s in sim.chain.servos.values() if s.on_bus]
-    return len(servos) >= 15 and all(s.read_register("torque_enable") == 0 for s in servos)
+    return torque_off_everywhere(sims, min_servos=15)  # one servo may have vanished from the bus
 
 
 def test_sim_session_tracks_the_leader_and_meets_the_format(tmp_path, cfg):

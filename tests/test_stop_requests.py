@@ -17,6 +17,7 @@ from collect.recorder import read_events
 from collect.runner import RunOptions, SafetyStop, run_session
 from crane_io.bus import DynamixelBus
 from crane_io.shutdown import Terminated, handle_termination
+from tests.recording import torque_off_everywhere
 
 TEST_CONFIG = """
 [loop]
@@ -61,11 +62,6 @@ def _opts(tmp_path, cfg, **kw):
                 status=False)
     base.update(kw)
     return RunOptions(**base)
-
-
-def _torque_off_everywhere(sims) -> bool:
-    servos = [s for sim in sims.values() for s in sim.chain.servos.values() if s.on_bus]
-    return len(servos) == 16 and all(s.read_register("torque_enable") == 0 for s in servos)
 
 
 # ---- crane_io.shutdown ---------------------------------------------------------------------------------
@@ -144,7 +140,7 @@ def test_ctrl_c_lost_in_a_gc_callback_still_ends_the_run(tmp_path, cfg):
 
     r = run_session(_opts(tmp_path, cfg, duration=4.0, on_cycle=hook))
     assert r.end_reason == "interrupted" and r.cycles <= 102
-    assert _torque_off_everywhere(seen["sims"])
+    assert torque_off_everywhere(seen["sims"])
     with h5py.File(r.path, "r") as f:
         assert f.attrs["complete"] and f.attrs["end_reason"] == "interrupted"
         assert [e["message"] for e in read_events(f) if e["kind"] == "interrupted"] == \
@@ -175,7 +171,7 @@ def test_signals_during_the_clean_up_let_it_run_to_its_end(tmp_path, cfg, monkey
     r = run_session(_opts(tmp_path, cfg, duration=1.0, status=True,
                           on_cycle=lambda k, ctx: seen.setdefault("sims", ctx.sims)))
     assert r.end_reason == "duration" and r.cycles == 500
-    assert _torque_off_everywhere(seen["sims"])
+    assert torque_off_everywhere(seen["sims"])
     err = capfd.readouterr().err
     assert "stop is in progress" in err and "ended after the requested duration" in err
     with h5py.File(r.path, "r") as f:

@@ -19,6 +19,7 @@ import pytest
 from collect import runner
 from collect.recorder import read_events
 from collect.runner import RunOptions, run_session
+from tests.recording import torque_off_everywhere
 
 CONFIG = """
 [loop]
@@ -91,11 +92,6 @@ class _Phases:
             self.mark("running")
 
 
-def _torque_off_everywhere(sims) -> bool:
-    servos = [s for sim in sims.values() for s in sim.chain.servos.values()]
-    return len(servos) == 16 and all(s.read_register("torque_enable") == 0 for s in servos)
-
-
 def _check_file(path: Path) -> str:
     """'none' (no file), or 'complete' after checking the file; fails on anything else."""
     if not path.exists():
@@ -143,7 +139,7 @@ def test_ctrl_c_at_100_random_moments_always_ends_safely(tmp_path, monkeypatch):
             finally:
                 phases.disarm()
             done = time.perf_counter()
-            assert phases.sims is None or _torque_off_everywhere(phases.sims), \
+            assert phases.sims is None or torque_off_everywhere(phases.sims), \
                 f"run {i} ({phase} + {delay:.3f} s): torque left on"
             files[_check_file(tmp_path / f"s{i}.h5")] += 1
             if phases.fired is not None and phases.fired < done:
