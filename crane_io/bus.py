@@ -230,7 +230,11 @@ class DynamixelBus:
         self._fast_misses = 0
         self._last_port_error = ""
         self._poll_reader: _StatusSyncRead | None = None
-        self._last_tx: float | None = None  # time.monotonic() of the latest transfer
+        self._last_tx: float | None = None  # self._now() of the latest transfer
+        # the clock the stall check measures pauses with: the servos' own notion of time. Real servos
+        # (and wall-clock simulated ones) live in real time; a lockstep simulated chain only advances
+        # with the goal writes, so there a host pause cannot stop a servo and costs no extra read.
+        self._now = time.monotonic
 
     # ---- life cycle ----------------------------------------------------------------------------
     @property
@@ -244,6 +248,7 @@ class DynamixelBus:
         if self._closed:
             raise CommunicationError(f"the bus on {self.port_name} was closed; make a new DynamixelBus")
         self._port = open_port(self.port_name, self.arm.baudrate, latency_ms=self.latency_ms)
+        self._now = getattr(self._port.ser, "servo_time", None) or time.monotonic
         self._reader = _StatusSyncRead(self._port, self._ph, PRESENT_BLOCK_ADDRESS, PRESENT_BLOCK_SIZE)
         for sid in self.ids:
             self._reader.addParam(sid)
@@ -619,10 +624,11 @@ class DynamixelBus:
             raise self._fault_error(expired)
 
     def _check_stall(self) -> None:
-        """After a pause longer than half the watchdog time, confirm the servos are still running."""
+        """After a pause longer than half the watchdog time, confirm the servos are still running. The
+        pause is measured on the servos' clock (`_now`): simulated time for a lockstep simulated chain."""
         wd, last = self.watchdog_s, self._last_tx
         if wd and self.torque_enabled and last is not None:
-            gap = time.monotonic() - last
+            gap = self._now() - last
             if gap > _STALL_FRACTION * wd:
                 faults = self.read_hardware_errors()
                 expired = {j: [WATCHDOG_EXPIRED] for j, f in faults.items() if WATCHDOG_EXPIRED in f}
@@ -740,7 +746,7 @@ class DynamixelBus:
     def _transfer(self, fn, *args):
         """Run one SDK transfer; a serial-level exception counts as a failed transfer."""
         self.stats.attempts += 1
-        self._last_tx = time.monotonic()
+        self._last_tx = self._now()
         try:
             out = fn(*args)
         except (serial.SerialException, OSError) as exc:
@@ -772,7 +778,7 @@ class DynamixelBus:
     def _call(self, fn, *args):
         """SDK call returning a tuple whose second item is the result; port errors become failures."""
         self.stats.attempts += 1
-        self._last_tx = time.monotonic()
+        self._last_tx = self._now()
         try:
             return fn(self._port, *args)
         except (serial.SerialException, OSError) as exc:
@@ -819,7 +825,7 @@ class DynamixelBus:
 
     def _call_write(self, sid, address, size, payload):
         self.stats.attempts += 1
-        self._last_tx = time.monotonic()
+        self._last_tx = self._now()
         try:
             return self._ph.writeTxRx(self._port, sid, address, size, payload)
         except (serial.SerialException, OSError) as exc:

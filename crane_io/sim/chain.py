@@ -166,6 +166,11 @@ class SimulatedChain:
             for _ in range(steps):
                 self._step(self.period_s)
 
+    def servo_time(self) -> float:
+        """The time the servos' watchdogs count: the simulated time in lockstep, real time (continuous
+        across set_clock) on the wall clock."""
+        return self.time if self.clock == "lockstep" else self._wall_time()
+
     def _wall_time(self) -> float:
         """Wall clock: the simulated time it is now, were the plant never behind."""
         return time.monotonic() - self._t0

@@ -87,6 +87,13 @@ class Serial(SerialBase):
                 self._cond.notify_all()
         return len(data)
 
+    def servo_time(self) -> float:
+        """The servos' clock in seconds (crane_io.bus measures host pauses with it): the chain's
+        simulated time in lockstep, where no wall-clock pause can reach a servo's watchdog."""
+        if not self.is_open:
+            raise PortNotOpenError()
+        return self._chain.servo_time()
+
     def flush(self):
         pass
 
