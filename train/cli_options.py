@@ -6,15 +6,14 @@ import os
 import sys
 from dataclasses import fields
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from crane_io.errors import ConfigError
 
-from .batched import MLPSettings
-from .preprocess import PreprocessConfig, preprocess
-from .session import read_sessions
-from .splits import SplitConfig
+if TYPE_CHECKING:
+    from .preprocess import PreprocessConfig
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -22,12 +21,22 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 DEFAULT_CONFIG = Path(__file__).parent / "config" / "train.toml"
-SECTIONS = {"preprocess": PreprocessConfig, "splits": SplitConfig, "mlp": MLPSettings}
+
+
+def config_sections() -> dict:
+    """Section name -> settings class. Imported when a configuration is read, not for --help (the
+    settings modules bring numpy and torch)."""
+    from .batched import MLPSettings
+    from .preprocess import PreprocessConfig
+    from .splits import SplitConfig
+
+    return {"preprocess": PreprocessConfig, "splits": SplitConfig, "mlp": MLPSettings}
 
 
 def load_config(path=None) -> dict:
     """{'preprocess': PreprocessConfig, 'splits': SplitConfig, 'mlp': MLPSettings} from the defaults
     file overlaid with `path` (TOML, sections as in train/config/train.toml)."""
+    sections = config_sections()
     data = {}
     for p in [DEFAULT_CONFIG] + ([Path(path)] if path else []):
         try:
@@ -37,15 +46,15 @@ def load_config(path=None) -> dict:
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
             raise ConfigError(f"configuration file {p} is not valid TOML ({exc})") from None
         for section, values in doc.items():
-            if section not in SECTIONS or not isinstance(values, dict):
-                raise ConfigError(f"{p}: unknown section [{section}] (known: {', '.join(SECTIONS)})")
-            known = {f.name for f in fields(SECTIONS[section])}
+            if section not in sections or not isinstance(values, dict):
+                raise ConfigError(f"{p}: unknown section [{section}] (known: {', '.join(sections)})")
+            known = {f.name for f in fields(sections[section])}
             unknown = sorted(set(values) - known)
             if unknown:
                 raise ConfigError(f"{p}: unknown key(s) {', '.join(unknown)} in [{section}]")
             data.setdefault(section, {}).update(values)
     out = {}
-    for section, cls in SECTIONS.items():
+    for section, cls in sections.items():
         values = data.get(section, {})
         if "betas" in values:
             values["betas"] = tuple(values["betas"])
@@ -75,6 +84,9 @@ def data_options(func):
 def load_dataset(sessions, joints: str | None, alpha: float | None, zero_phase: bool,
                  config: PreprocessConfig | None = None):
     """Read and preprocess; explicit options win over `config` (default: PreprocessConfig())."""
+    from .preprocess import PreprocessConfig, preprocess
+    from .session import read_sessions
+
     config = config or PreprocessConfig()
     values = config.to_dict()
     if joints:

@@ -14,8 +14,7 @@ import click
 
 from crane_io.errors import cli_errors
 
-from .diagnose import DEFAULT_FOLDS, DEFAULT_MIN_REDUCTION
-from .diagnose import diagnose as run_diagnosis
+from .diagnosis_defaults import DEFAULT_FOLDS, DEFAULT_MIN_REDUCTION
 
 
 def _params_text(params: dict) -> str:
@@ -41,6 +40,7 @@ def diagnose(model_dir, sessions, as_json, folds, min_reduction, top, effect_fil
     """Rank the library's effects by how much of MODEL_DIR's error on SESSION(s) each one removes."""
     from crane_io.effects import load_effect_file
 
+    from .diagnose import diagnose as run_diagnosis
     from .heldout import diagnosis_data, model_settings
     from .models.registry import load_model
     from .preprocess import preprocess

@@ -7,17 +7,12 @@ import json
 from pathlib import Path
 
 import click
-import numpy as np
-import torch
-from tqdm import tqdm
 
 from crane_io.errors import ConfigError, cli_errors
 
 from .cli_options import data_options, load_config, load_dataset, parse_effect, writable_output
-from .metrics import metrics_table
-from .models.registry import METHODS, make_model
+from .method_names import METHOD_NAMES
 from .progress import show_progress
-from .splits import make_splits
 
 
 def fit_model(sessions, method: str, out_dir, train_size: int | None = None, seed: int = 0,
@@ -26,6 +21,14 @@ def fit_model(sessions, method: str, out_dir, train_size: int | None = None, see
               config_path=None) -> dict:
     """Preprocess, split, fit on `train_size` samples of the pool (all of it by default), score on the
     test set, save to out_dir. Returns the metrics document (also written as fit_metrics.json)."""
+    import numpy as np  # the work's imports live here, so that `crane-train fit --help` stays light
+    import torch
+    from tqdm import tqdm
+
+    from .metrics import metrics_table
+    from .models.registry import make_model
+    from .splits import make_splits
+
     writable_output(out_dir, "dir")
     cfg = load_config(config_path)
     ds = load_dataset(sessions, joints, alpha, zero_phase, cfg["preprocess"])
@@ -70,7 +73,8 @@ def fit_model(sessions, method: str, out_dir, train_size: int | None = None, see
 
 @click.command()
 @click.argument("sessions", nargs=-1, required=True, type=click.Path(dir_okay=False))
-@click.option("--model", "method", required=True, type=click.Choice(list(METHODS)), help="Method to train.")
+@click.option("--model", "method", required=True, type=click.Choice(list(METHOD_NAMES)),
+              help="Method to train.")
 @click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
               help="Model directory to write.")
 @click.option("--train-size", type=int, default=None, help="Training samples drawn from the pool [all 6000].")

@@ -8,12 +8,12 @@ import click
 
 from crane_io.errors import cli_errors
 
-from .preprocess import PreprocessConfig, preprocess
-from .session import read_sessions
-
 
 def session_info(paths, joints=None, alpha: float = 0.1, arm: str = "follower") -> dict:
     """Per file: duration, rate, samples, joints; over all files: the preprocessed moving fractions."""
+    from .preprocess import PreprocessConfig, preprocess  # numpy, scipy, h5py: not for --help
+    from .session import read_sessions
+
     sessions = read_sessions(paths, arm)
     config = PreprocessConfig(alpha=alpha, **({"joints": tuple(joints)} if joints else {}))
     ds = preprocess(sessions, config)

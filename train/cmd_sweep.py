@@ -9,8 +9,8 @@ import click
 from crane_io.errors import ConfigError, cli_errors
 
 from .cli_options import data_options, load_config, load_dataset, parse_sizes, writable_output
+from .method_names import SWEEP_METHODS
 from .progress import show_progress
-from .sweep import SWEEP_METHODS, format_table, run_sweep, write_results
 
 
 @click.command()
@@ -32,6 +32,8 @@ from .sweep import SWEEP_METHODS, format_table, run_sweep, write_results
 def sweep(sessions, out_dir, sizes, trials, methods, seed, epochs, batch_size, config_path, joints, alpha,
           zero_phase, scale_to_data, no_progress):
     """Test MSE against the number of training samples for each method (mean and 95 % CI)."""
+    from .sweep import format_table, run_sweep, write_results  # torch, scipy: for the work, not --help
+
     size_list = parse_sizes(sizes)
     writable_output(out_dir, "dir")
     method_list = [m.strip() for m in methods.split(",") if m.strip()]

@@ -41,6 +41,7 @@ import numpy as np
 
 from .dataset import Dataset
 from .diagnosis_cv import CVFit, Engine, cross_validate, fold_ids, jackknife
+from .diagnosis_defaults import DEFAULT_FOLDS, DEFAULT_MIN_FOLD_FRACTION, DEFAULT_MIN_REDUCTION
 from .diagnosis_effects import bind, candidate_columns, complexity, effect_name, library_effects, param_units
 from .diagnosis_ranking import is_significant, rank, spill_over_check
 from .diagnosis_result import Candidate, Diagnosis, DiagnosisError
@@ -51,9 +52,6 @@ __all__ = ["DEFAULT_FOLDS", "DEFAULT_MIN_FOLD_FRACTION", "DEFAULT_MIN_REDUCTION"
            "DiagnosisError", "diagnose", "diagnose_residual", "model_effects", "physics_basis",
            "residual_correlations"]
 
-DEFAULT_FOLDS = 5
-DEFAULT_MIN_REDUCTION = 0.15
-DEFAULT_MIN_FOLD_FRACTION = 1.0
 MIN_SAMPLES_PER_JOINT = 50
 
 

@@ -30,12 +30,12 @@ from crane_io.errors import CraneError
 from .batched import MLPSettings, predict, train_mlps
 from .dataset import Dataset
 from .masks import moving_fractions
+from .method_names import SWEEP_METHODS
 from .metrics import mse, torque_variance
 from .models.mlp import features
 from .models.rigid_body import RigidBodyModel
 from .splits import SplitConfig, Splits, make_splits
 
-SWEEP_METHODS = ("rigid-body", "mlp-mse", "mlp-masked")
 RESULTS_VERSION = 1
 
 

@@ -1,0 +1,66 @@
+"""`--help` of both command lines and of every subcommand imports none of the heavy libraries (torch,
+h5py, pinocchio, scipy, matplotlib): help must come back at once, even on a loaded machine. Each check runs
+in a fresh interpreter so that other tests' imports cannot hide (or cause) a heavy import."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+HEAVY = ("torch", "h5py", "pinocchio", "scipy", "matplotlib")
+
+PROBE = textwrap.dedent("""
+    import importlib, json, sys
+    from click.testing import CliRunner
+    heavy = {heavy!r}
+    main = importlib.import_module({module!r}).main
+    runner = CliRunner()
+    report = []
+    for args in [["--help"]] + [[name, "--help"] for name in main.list_commands(None)]:
+        result = runner.invoke(main, args)
+        loaded = sorted(h for h in heavy if h in sys.modules)
+        report.append({{"args": args, "exit": result.exit_code, "loaded": loaded,
+                        "usage": result.output.startswith("Usage:")}})
+    print(json.dumps(report))
+""")
+
+
+def help_imports(module: str) -> list[dict]:
+    code = PROBE.format(heavy=HEAVY, module=module)
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout)
+
+
+@pytest.mark.parametrize("module", ["train.cli", "collect.cli"])
+def test_help_imports_no_heavy_library(module):
+    report = help_imports(module)
+    assert len(report) > 1  # the group's help and at least one subcommand's
+    for row in report:
+        assert row["exit"] == 0 and row["usage"], row
+        assert row["loaded"] == [], f"{module} {' '.join(row['args'])} imported {row['loaded']}"
+
+
+def test_train_help_lists_every_subcommand():
+    names = [row["args"][0] for row in help_imports("train.cli")[1:]]
+    assert names == sorted(["info", "fit", "sweep", "report", "diagnose", "compare", "effects"])
+
+
+def test_light_method_names_match_the_registry_and_the_sweep():
+    from train import sweep
+    from train.method_names import METHOD_NAMES, SWEEP_METHODS
+    from train.models.registry import METHODS
+
+    assert tuple(METHODS) == METHOD_NAMES
+    assert sweep.SWEEP_METHODS == SWEEP_METHODS and set(SWEEP_METHODS) <= set(METHOD_NAMES)
+
+
+def test_diagnose_keeps_its_defaults():
+    from train import diagnose
+    from train.diagnosis_defaults import DEFAULT_FOLDS, DEFAULT_MIN_REDUCTION
+
+    assert (diagnose.DEFAULT_FOLDS, diagnose.DEFAULT_MIN_REDUCTION) == (DEFAULT_FOLDS, DEFAULT_MIN_REDUCTION)
