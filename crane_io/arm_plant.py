@@ -82,6 +82,8 @@ class ArmPlant:
         self._held_names = tuple(names[i] for i in self._held)
         self.kt = np.array([config.torque_constant[n] for n in names], dtype=float)
         self._compile_effects()
+        self._kt_l = self.kt.tolist()  # (torque-constant-error is applied by _compile_effects)
+        self._bi_l, self._held_l = self._bi.tolist(), self._held.tolist()
         self.dyn = ArmDynamics(BILATERAL_JOINTS, locked=config.locked, payload_mass=self._payload)
         self.model = self.dyn.model
         self.model.armature = self._armature.copy()
@@ -264,24 +266,32 @@ class ArmPlant:
         limit = np.asarray(command.current_limit, dtype=float)
         goal_position = np.asarray(command.goal_position, dtype=float)
         self._overload(enabled, mode, goal_current, limit, dt)
-        self._step_held(enabled[self._held], mode[self._held], goal_current[self._held],
-                        goal_position[self._held], limit[self._held], dt)
-        bi = self._bi
-        current_mode = enabled[bi] & (mode[bi] == 0)
-        position_mode = bool(np.any(enabled[bi] & (mode[bi] != 0)))
-        tau_current = np.where(current_mode, self.kt[bi] * goal_current[bi], 0.0)
+        # per joint in plain Python (8 values: cheaper than numpy's fancy indexing and reductions; the
+        # same IEEE operations, so the same results)
+        en_l, mode_l, gc_l = enabled.tolist(), mode.tolist(), goal_current.tolist()
+        lim_l, gp_l = limit.tolist(), goal_position.tolist()
+        held = self._held_l
+        self._step_held([en_l[i] for i in held], [mode_l[i] for i in held], [gc_l[i] for i in held],
+                        [gp_l[i] for i in held], [lim_l[i] for i in held], dt)
+        bi = self._bi_l
+        kt = self._kt_l
+        current_mode = [en_l[i] and mode_l[i] == 0 for i in bi]
+        position_mode = any(en_l[i] and mode_l[i] != 0 for i in bi)
+        tau_l = [kt[i] * gc_l[i] if cm else 0.0 for i, cm in zip(bi, current_mode)]
         if position_mode:
+            bi = self._bi
+            tau_current = np.array(tau_l)
+            current_mask = np.array(current_mode)
             bi_cmd = ActuatorCommand(enabled[bi], mode[bi], goal_current[bi], goal_position[bi],
                                      np.asarray(command.position_gains)[bi], limit[bi])
         n_sub = max(1, math.ceil(dt / self.h - 1e-9))
         h = dt / n_sub
         q, dq = self.q.tolist(), self.dq.tolist()
         ext = self.external.tolist()
-        tau_l = tau_current.tolist()
         for _ in range(n_sub):
             if position_mode:
                 self._pd.q, self._pd.dq = np.array(q), np.array(dq)
-                tau_l = np.where(current_mode, tau_current, self._pd.motor_torque(bi_cmd)).tolist()
+                tau_l = np.where(current_mask, tau_current, self._pd.motor_torque(bi_cmd)).tolist()
             q, dq = self._substep(q, dq, tau_l, ext, h)
         self.q, self.dq = np.array(q), np.array(dq)
         self.motor_torque = np.array(tau_l)
@@ -368,6 +378,7 @@ class ArmPlant:
     def _step_held(self, enabled, mode, goal_current, goal_position, limit, dt) -> None:
         """Held joints: position modes -> a critically damped second-order response to the goal
         (exact discretisation); current mode -> inertia + viscous friction; torque off -> at rest.
+        The commands are lists over the held joints.
 
         Scalar Python over the five joints (cheaper than numpy on arrays this small); the arithmetic
         is the element-wise arithmetic of the array form, in the same order."""
@@ -376,8 +387,8 @@ class ArmPlant:
         w = _HELD_OMEGA
         q_out, dq_out, cur_out = [], [], []
         for on, m, gc, gp, lim, q, dq, kt, inertia, visc, ext, lo, hi in zip(
-                enabled.tolist(), mode.tolist(), goal_current.tolist(), goal_position.tolist(),
-                limit.tolist(), self._held_q.tolist(), self._held_dq.tolist(), self.kt[self._held].tolist(),
+                enabled, mode, goal_current, goal_position, limit, self._held_q.tolist(),
+                self._held_dq.tolist(), self.kt[self._held].tolist(),
                 self._held_inertia_l, self._held_visc_l, self._held_ext.tolist(), self._held_lo_l,
                 self._held_hi_l):
             current = 0.0
