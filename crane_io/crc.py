@@ -4,6 +4,12 @@ shared by the bus client (crane_io.packets) and the simulated servos (crane_io.s
 Pure Python with a 65536-entry table so the loop runs once per 16-bit word instead of once per byte:
 for a 16-bit CRC, shifting in the big-endian word w gives crc' = TABLE16[crc ^ w]. About 4x faster
 than the byte-wise loop of the e-manual (and of dynamixel-sdk), same results.
+
+Every packet on a simulated bus has its CRC computed twice, by its sender and by its receiver, over the
+same bytes; and the Sync Read instruction of the control loop is the same packet every cycle. So
+`crc16` from zero keeps the CRCs of the last few packets (a memo keyed by the exact bytes: any changed
+byte is a different key and gets computed), and `remember` lets a sender that computed a packet's CRC
+in pieces (the Fast Sync Read status packet) file it for the receiver.
 """
 
 from __future__ import annotations
@@ -38,8 +44,30 @@ CRC_TABLE16 = _word_table(CRC_TABLE)
 _SWAP = sys.byteorder == "little"
 
 
+_MEMO: dict[bytes, int] = {}
+_MEMO_SIZE = 32  # packets remembered (a control cycle of two arms puts 4 on the wire)
+
+
+def remember(data: bytes, crc: int) -> None:
+    """File `crc` as the CRC-16 (from zero) of `data` for a later crc16(data)."""
+    if len(_MEMO) >= _MEMO_SIZE:
+        _MEMO.clear()
+    _MEMO[bytes(data)] = crc
+
+
 def crc16(data, crc: int = 0) -> int:
     """CRC-16 of `data` (bytes-like, or a sequence of ints 0..255), optionally continuing `crc`."""
+    if crc == 0:
+        key = data if type(data) is bytes else bytes(data)
+        value = _MEMO.get(key)
+        if value is None:
+            value = _crc16(key, 0)
+            remember(key, value)
+        return value
+    return _crc16(data, crc)
+
+
+def _crc16(data, crc: int) -> int:
     if not isinstance(data, (bytes, bytearray, memoryview)):
         data = bytes(data)
     n = len(data)

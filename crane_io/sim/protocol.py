@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..crc import crc16, crc16_append, crc16_chain
+from ..crc import crc16, crc16_append, crc16_chain, remember
 
 HEADER = b"\xff\xff\xfd\x00"
 BROADCAST_ID = 0xFE
@@ -121,7 +121,9 @@ def fast_status_packet(blocks: list[tuple[int, int, bytes]]) -> bytes:
         packet += s
         packet.append(crc & 0xFF)
         packet.append(crc >> 8)
-    return bytes(packet)
+    packet = bytes(packet)
+    remember(packet[:-2], crc)  # the last running CRC is the packet's: the host checks it next
+    return packet
 
 
 def fast_status_prefix(blocks: list[tuple[int, int, bytes]], n_total: int, data_length: int) -> bytes:
