@@ -102,6 +102,15 @@ class SimulatedChain:
         self.servos: dict[int, EmulatedServo] = {}
         self._rekey()
         self.reply_filter: Callable[[bytes], bytes | None] | None = None
+        self._broadcast_handlers = {
+            p.INST_PING: self._broadcast_ping,
+            p.INST_SYNC_READ: self._sync_read,
+            p.INST_FAST_SYNC_READ: self._fast_sync_read,
+            p.INST_SYNC_WRITE: self._sync_write,
+            p.INST_BULK_READ: self._bulk_read,
+            p.INST_FAST_BULK_READ: self._fast_bulk_read,
+            p.INST_BULK_WRITE: self._bulk_write,
+        }
         self.stats = ChainStats()
         self.parser = p.PacketParser()
         self.time = 0.0
@@ -292,15 +301,7 @@ class SimulatedChain:
             now = self.time
         inst, params = pkt.instruction, pkt.params
         if pkt.id == p.BROADCAST_ID:
-            handler = {
-                p.INST_PING: self._broadcast_ping,
-                p.INST_SYNC_READ: self._sync_read,
-                p.INST_FAST_SYNC_READ: self._fast_sync_read,
-                p.INST_SYNC_WRITE: self._sync_write,
-                p.INST_BULK_READ: self._bulk_read,
-                p.INST_FAST_BULK_READ: self._fast_bulk_read,
-                p.INST_BULK_WRITE: self._bulk_write,
-            }.get(inst)
+            handler = self._broadcast_handlers.get(inst)
             if handler is not None:
                 return handler(servos, params, now)
             for s in servos:  # broadcast write, reg write, action, reboot, factory reset: no replies
