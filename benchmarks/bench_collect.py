@@ -123,12 +123,17 @@ def run(quick: bool = False) -> list[dict]:
              _row("real-time overruns", m["overruns"] / max(m["cycles"], 1) * 100, "%", note),
              _row("real-time bus time per cycle (leader)", m["bus_leader_mean_s"] * 1e3, "ms", note)]
     lock = 10.0 if quick else 180.0
+    load_before = os.getloadavg()[0]
     s = _session(lock, False, None)
+    load = f"load average {load_before:.1f}-{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
     m = {k: s["summary"].get(k, float("nan")) for k in ("bus_leader_mean_s", "bus_follower_mean_s",
                                                          "compute_mean_s", "record_mean_s")}
-    note = f"{lock:g} s session, --sim lockstep, default plant, incl. start-up and alignment{s['note']}"
+    note = (f"{lock:g} s session, two arms, --sim lockstep, default plant, incl. start-up and alignment, "
+            f"{load}{s['note']}")
     rows += [_row("lockstep session wall time", s["wall"], "s", note),
-             _row("lockstep speed", lock / s["wall"], "x real time", note),
+             _row("lockstep speed", lock / s["wall"], "x real time", f"{note}; goal (issue 13) >= 10x"),
+             _row("lockstep speed per CPU s", lock / s["cpu"], "x real time",
+                  f"simulated s per CPU s of this process (less inflated by other jobs); {load}"),
              _row("lockstep session CPU time", s["cpu"], "s",
                   "what the wall time would be on a free core (the wall time grows with the machine's load)"),
              _row("lockstep bus time per cycle (both arms)",
