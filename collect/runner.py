@@ -353,7 +353,10 @@ def run_session(opts: RunOptions) -> RunResult:
     output = Path(opts.output)
     check_output(output, opts.force)
     check_ports(opts)
-    with handle_termination(_STOP_SIGNALS, notice=STOP_NOTICE) as stop:
+    # The first stop signal never raises: it is taken at the next checkpoint (between the start-up's steps,
+    # before every read of both arms). A further one raises (something may be stuck), and a raise that
+    # lands before the clean-up has shielded itself only makes the clean-up start again.
+    with handle_termination(_STOP_SIGNALS, notice=STOP_NOTICE) as stop, stop.deferred():
         session = _Session(opts, config, arm, output, out, stop)
         try:
             try:
@@ -362,7 +365,12 @@ def run_session(opts: RunOptions) -> RunResult:
                 session.exc = exc
                 raise
             finally:
-                session.clean_up()
+                while True:
+                    try:
+                        session.clean_up()
+                        break
+                    except KeyboardInterrupt:
+                        continue
         except KeyboardInterrupt:
             pass  # a stop signal: both arms are stopped and the file is closed
     if session.exc is not None and not isinstance(session.exc, KeyboardInterrupt):
@@ -408,24 +416,25 @@ class _Session:
         stop.check()
         if loop.paced:  # before any torque is on: freezing the collector and locking memory take ~0.3 s
             loop.realtime = enter_realtime(config.realtime)
+            stop.check()
         self.buses, hw = open_buses(opts, arm, config, ports, self.out, checkpoint=stop.check)
         loop.attach(self.buses)
         if loop.realtime is not None:  # said once the arms answered (a missing port stays one line)
             loop.status.say(loop.realtime.sentence())
-        with stop.deferred():  # from here a stop is taken between two cycles (ArmPair.read_both)
-            align_message = loop.align()
-            if self.sims:
-                loop.operator = SimulatedOperator(opts.seed, arm, config.loop.rate_hz, config)
-                loop.operator.start(loop.pair.read_both()[0][0].position, 0.0)
-            loop.recorder = make_recorder(opts, self.output, config, arm, hw)
-            loop.ctx.recorder = loop.recorder
-            for w in hw["warnings"]:
-                loop.event(0.0, "warning", w)
-            loop.event(0.0, "start", align_message)
-            mode = "lockstep simulation" if not loop.paced else "real time"
-            loop.status.say(f"recording to {self.output} ({mode}, {config.loop.rate_hz:g} Hz); "
-                            "Ctrl+C ends the session")
-            self.end_reason = loop.run(opts.duration)
+        # from here a stop is taken between two cycles (ArmPair.read_both) and in the loop
+        align_message = loop.align()
+        if self.sims:
+            loop.operator = SimulatedOperator(opts.seed, arm, config.loop.rate_hz, config)
+            loop.operator.start(loop.pair.read_both()[0][0].position, 0.0)
+        loop.recorder = make_recorder(opts, self.output, config, arm, hw)
+        loop.ctx.recorder = loop.recorder
+        for w in hw["warnings"]:
+            loop.event(0.0, "warning", w)
+        loop.event(0.0, "start", align_message)
+        mode = "lockstep simulation" if not loop.paced else "real time"
+        loop.status.say(f"recording to {self.output} ({mode}, {config.loop.rate_hz:g} Hz); "
+                        "Ctrl+C ends the session")
+        self.end_reason = loop.run(opts.duration)
 
     def _reason(self) -> str:
         if self.end_reason is not None:
