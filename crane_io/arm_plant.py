@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import json
 import math
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -53,6 +54,7 @@ from .sim.simple_plant import DEFAULT_INERTIA, DEFAULT_VISCOUS, SimplePlant
 from .units import AMPERE_PER_CURRENT_LSB, RAD_PER_PULSE, RADS_PER_VELOCITY_LSB
 
 _PULSE_SIGNS = np.array((-RAD_PER_PULSE, RAD_PER_PULSE))  # one-pulse position noise
+_SUBSTEP_KEY = struct.Struct("<13d")  # a substep's inputs (q, dq, motor and external torque, h), bit exact
 
 OVERLOAD_BIT = 0x20
 _HELD_OMEGA = 30.0  # rad/s: held joints follow their goal as a critically damped 2nd-order system
@@ -122,6 +124,7 @@ class ArmPlant:
         self._saturated_time = np.zeros(len(names))
         self._errors: dict[int, int] = {}
         self.time = 0.0
+        self._last_key, self._last_out = b"", None  # the last substep's inputs and result (_substep)
 
     # ---- effects -> arrays ---------------------------------------------------------------------------
     def _compile_effects(self):
@@ -298,6 +301,21 @@ class ArmPlant:
         self.time += dt
 
     def _substep(self, q: list, dq: list, tau_m: list, ext: list, h: float) -> tuple[list, list]:
+        """One substep. Without backlash (motor-side state) and user effects, a substep is a pure
+        function of its inputs: a joint set standing still (stuck) under an unchanged torque gives the
+        same inputs substep after substep, so the last result is reused when the inputs are the same
+        bits (pinocchio and the float arithmetic are deterministic: nothing changes)."""
+        if self._backlash or self._generic:
+            return self._substep_compute(q, dq, tau_m, ext, h)
+        key = _SUBSTEP_KEY.pack(*q, *dq, *tau_m, *ext, h)
+        if key == self._last_key:
+            q_new, dq_new = self._last_out
+        else:
+            q_new, dq_new = self._substep_compute(q, dq, tau_m, ext, h)
+            self._last_key, self._last_out = key, (q_new, dq_new)
+        return list(q_new), list(dq_new)
+
+    def _substep_compute(self, q: list, dq: list, tau_m: list, ext: list, h: float) -> tuple[list, list]:
         if self._backlash:
             tau_m = self._gear_gap(q, dq, tau_m, h)
         other = self._other_torque(q, dq)
