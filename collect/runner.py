@@ -340,10 +340,10 @@ def run_session(opts: RunOptions) -> RunResult:
     """Run one collection session (see the module docstring). Raises CraneError subclasses with one
     sentence for bad input and hardware problems; SafetyStop after a safety stop (file valid).
 
-    Stop signals (Ctrl+C, SIGTERM, SIGHUP) are recorded, never lost (crane_io.shutdown): during the
-    start-up they raise at once; during the alignment and the loop the first one is taken between two
-    cycles; the clean-up (safe stop, torque read-back, file close, summary) always runs to its end, and a
-    signal meanwhile only prints that the stop is in progress."""
+    Stop signals (Ctrl+C, SIGTERM, SIGHUP) are recorded, never lost (crane_io.shutdown): the first one is
+    taken at the next checkpoint (between the start-up's steps, between two cycles of the alignment and
+    the loop); the clean-up (safe stop, torque read-back, file close, summary) always runs to its end, and
+    a signal meanwhile only prints that the stop is in progress."""
     out = opts.stream if opts.stream is not None else sys.stderr
     config = load_config(opts.config)
     if opts.rate is not None:
