@@ -448,12 +448,7 @@ class _Session:
         """Both arms stopped, the events written, buses and file closed, the summary printed: every step
         runs whatever arrives meanwhile (a stop signal only prints that the stop is in progress) and
         whatever an earlier step raised (the first such error is kept in `clean_up_error`)."""
-        while True:  # a stop signal that lands before the shield is up: raise it again
-            try:
-                self.stop.begin_stop()
-                break
-            except KeyboardInterrupt:
-                continue
+        self.stop.begin_stop()  # a signal landing before this line makes run_session call us again
         if self.result is not None:
             return
         loop, reason = self.loop, self._reason()

@@ -67,16 +67,6 @@ def make_sim_arms(opts: RunOptions, config: Config, arm: ArmDescription) -> dict
     return sims
 
 
-def switch_to_wall_clock(sims: dict) -> None:
-    """From now on the simulated arms follow real time, continuing from their present simulated time.
-    Not used by `run --sim --realtime` (see the module docstring); for callers that want in-process
-    arms on the wall clock anyway. Substeps of one control period (the lockstep step, which the plant
-    integrates stably) halve the plant's cost against the chain's default 1 ms."""
-    for sim in sims.values():
-        sim.chain.max_substep_s = max(sim.chain.max_substep_s, sim.chain.period_s)
-        sim.chain.set_clock("wall")
-
-
 def write_truth(sims: dict, path: str | Path) -> Path:
     """Write the follower plant's truth (effects, parameters, seed) to `path`, a file of its own: the
     session never holds it. One sentence (ConfigError) for a plant without truth or an unwritable path."""

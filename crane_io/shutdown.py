@@ -84,22 +84,20 @@ class StopRequest:
             self.signum = signum
 
     @contextlib.contextmanager
-    def deferred(self):
-        """A loop that checks `requested` every cycle: the first signal is only recorded."""
-        self._phases.append(_DEFER)
+    def _phase(self, phase: str):
+        self._phases.append(phase)
         try:
             yield self
         finally:
             self._phases.pop()
 
-    @contextlib.contextmanager
+    def deferred(self):
+        """A loop that checks `requested` every cycle: the first signal is only recorded."""
+        return self._phase(_DEFER)
+
     def stopping(self):
         """The clean-up: no signal raises inside; each prints the notice."""
-        self._phases.append(_STOPPING)
-        try:
-            yield self
-        finally:
-            self._phases.pop()
+        return self._phase(_STOPPING)
 
     def begin_stop(self) -> None:
         """Enter the stop for good: from now on no signal raises (each prints the notice). Idempotent;
