@@ -8,7 +8,10 @@ Kp, Kd, Kf and cutoff g (shared/crane_x7_facts.md section 6a; the Sakaino/Tsuji-
   actually applied in the previous cycle (after safety clamps);
 - reaction-force observer (RFOB): tau_res = tau_dis - gravity(q) - D w  (what the outside world -
   the operator's hand on the leader, the environment on the follower - pushes against the arm, with
-  the DOB's sign: a hand pushing the joint positive gives tau_res < 0);
+  the DOB's sign: a hand pushing the joint positive gives tau_res < 0); with a learned model on an arm
+  (`models`), the joints it covers take the model's reaction torque instead,
+  tau_res = L(L(tau_applied)) - f(L(L(q)), L(D(q)), D(D(q))) with the training's filters
+  (collect/model_reaction.py), and fall back to the nominal one in a cycle whose prediction is unusable;
 - position term  tau_p = (J/2) [Kp (q_l - q_f) + Kd (w_l - w_f)]  (follower +, leader -);
 - force term     tau_f = -(Kf/2) (tau_res_l + tau_res_f)  (both arms);
 - references:  tau_ref_f = tau_p + tau_f + tau_dis_f,   tau_ref_l = -tau_p + tau_f + tau_dis_l,
@@ -141,15 +144,18 @@ class InertiaModel:
 
 
 class _Observer:
-    """Pseudo-derivative + DOB + RFOB state of one arm."""
+    """Pseudo-derivative + DOB + RFOB state of one arm; with a learned model (ModelReaction) the
+    reaction torque of the joints it covers comes from the model (collect/model_reaction.py)."""
 
-    def __init__(self, ctl: BilateralController):
+    def __init__(self, ctl: BilateralController, model=None):
         self.ctl = ctl
         self.z = None  # pseudo-derivative integrator (n,)
         self.y = None  # DOB low-pass state (n,)
         self.applied = None  # torque applied in the previous cycle (n,)
         self.J = ctl.J
         self._k = 0
+        self.model = model
+        self.fallback = None  # (J,) bool: model joints on the nominal model this cycle (None: no model)
 
     def update(self, q: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         c = self.ctl
@@ -168,6 +174,11 @@ class _Observer:
         self.y = a * self.y + (1.0 - a) * (self.applied + gjw)
         tau_dis = self.y - gjw
         tau_res = tau_dis - grav - c.D * w
+        if self.model is not None:
+            res_m, ok = self.model.update(q, self.applied)
+            i = self.model.idx
+            tau_res[i] = np.where(ok, res_m, tau_res[i])
+            self.fallback = ~ok
         return w, tau_dis, tau_res
 
 
@@ -176,8 +187,10 @@ class BilateralController:
     `.follower` (ArmEstimates). Call `applied(tau_leader, tau_follower)` after safety clamps so the
     observers see the torque that really went out (otherwise the unclamped reference is assumed)."""
 
-    def __init__(self, config: Config, arm: ArmDescription | None = None):
+    def __init__(self, config: Config, arm: ArmDescription | None = None, models: dict | None = None):
         self.config = config
+        # arm name ("leader", "follower") -> a factory of its ModelReaction (a fresh one per reset)
+        self.models = dict(models or {})
         self.arm = arm or default_arm()
         names = self.arm.joint_names
         gains = config.controller.joints
@@ -202,8 +215,9 @@ class BilateralController:
         self.reset()
 
     def reset(self) -> None:
-        self._obs_l = _Observer(self)
-        self._obs_f = _Observer(self)
+        make = self.models
+        self._obs_l = _Observer(self, make["leader"]() if make.get("leader") else None)
+        self._obs_f = _Observer(self, make["follower"]() if make.get("follower") else None)
         self.leader: ArmEstimates | None = None
         self.follower: ArmEstimates | None = None
 
@@ -244,6 +258,19 @@ class BilateralController:
         (tau_l, est_l), (tau_f, est_f) = out
         self.leader, self.follower = est_l, est_f
         return Commands(tau_l, tau_f, tau_l / self.kt, tau_f / self.kt)
+
+    def reaction(self, arm: str):
+        """The ModelReaction in `arm`'s observer ("leader" or "follower"), or None (nominal)."""
+        return (self._obs_l if arm == "leader" else self._obs_f).model
+
+    def model_fallbacks(self) -> dict[str, np.ndarray | None]:
+        """{arm: (J,) bool} for the arms with a learned model: which of its joints used the nominal
+        reaction torque in the last cycle (None before the first cycle)."""
+        out = {}
+        for name, obs in (("leader", self._obs_l), ("follower", self._obs_f)):
+            if obs.model is not None:
+                out[name] = obs.fallback
+        return out
 
     def applied(self, tau_leader: np.ndarray, tau_follower: np.ndarray) -> None:
         """Tell the observers the torques that were actually commanded this cycle."""

@@ -1,0 +1,117 @@
+"""Learned models for the arms' reaction-force observers (`crane-collect run --model/--leader-model`):
+loaded, checked against the arm and the run, and described for the status line and the session.
+
+    models = load_reaction_models({"follower": "models/mlp"}, arm, config)   # before any torque is on
+    ctl = BilateralController(config, arm, models=reaction_factories(models, arm, config))
+
+Every refusal is one sentence (crane_io.loop_model.LoopModelError or ConfigError) raised before the
+buses are opened: a missing or damaged model directory, a model without its loop export, units other
+than SI, zero-phase preprocessing, joints that are not bilateral joints of this arm, a model fitted on
+the other arm's data. Bilateral joints a model does not cover keep the nominal model.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from crane_io.description import ArmDescription
+from crane_io.errors import ConfigError
+
+from .config import Config
+from .model_reaction import ModelReaction
+
+ARM_NAMES = ("leader", "follower")
+
+
+@dataclass
+class ArmModel:
+    """A learned model in one arm's observer."""
+
+    arm: str  # "leader" or "follower": the arm whose observer uses it
+    model: object  # crane_io.loop_model.LoopModel
+    limit: np.ndarray  # (J,) N m: larger predictions are not used (the joint's maximum motor torque)
+
+    @property
+    def joints(self) -> tuple[str, ...]:
+        return tuple(self.model.joint_names)
+
+    def describe(self) -> dict:
+        """What the session records about it (root attribute `<arm>_model`, JSON)."""
+        m = self.model
+        return {"path": str(Path(m.path).resolve()), "method": m.method, "effects": list(m.effects),
+                "joints": list(m.joint_names), "fitted_on": m.arm, "sha256": m.sha256,
+                "filters": {"cutoff_rad_s": m.preprocessing["cutoff_rad_s"],
+                            "pseudo_diff_rad_s": m.preprocessing["pseudo_diff_rad_s"]}}
+
+    def short(self) -> str:
+        return f"{self.model.method} ({Path(self.model.path).name}) on {', '.join(self.joints)}"
+
+
+def load_reaction_models(paths: dict, arm: ArmDescription, config: Config) -> dict[str, ArmModel]:
+    """{arm name: ArmModel} for every arm given a model directory (None or missing: nominal model)."""
+    from crane_io.loop_model import LoopModel
+
+    out = {}
+    for name in ARM_NAMES:
+        path = paths.get(name)
+        if path is None:
+            continue
+        model = LoopModel.load(path)
+        check_model_for_arm(model, name, arm)
+        kt = {j.name: j.torque_constant for j in arm.joints}
+        limit = np.array([arm.joint(n).current_limit * kt[n] for n in model.joint_names])
+        out[name] = ArmModel(name, model, limit)
+    return out
+
+
+def check_model_for_arm(model, arm_name: str, arm: ArmDescription) -> None:
+    """One sentence (ConfigError) if `model` cannot serve `arm_name`'s observer."""
+    where = f"the model in {model.path}"
+    if model.arm != arm_name:
+        raise ConfigError(f"{where} was fitted on the {model.arm}'s data; the {arm_name}'s observer needs "
+                          f"a model fitted on the {arm_name}'s data (another arm has other friction)")
+    names = arm.joint_names
+    for joint in model.joint_names:
+        if joint not in names:
+            raise ConfigError(f"{where} is for joint {joint!r}, which this arm does not have "
+                              f"(its joints: {', '.join(names)})")
+        if joint not in arm.bilateral_joints:
+            raise ConfigError(f"{where} covers {joint}, which is held in position mode, not a bilateral "
+                              f"joint ({', '.join(arm.bilateral_joints)})")
+
+
+def reaction_factories(models: dict[str, ArmModel], arm: ArmDescription, config: Config) -> dict:
+    """{arm name: () -> ModelReaction} for BilateralController(models=...): fresh filter state per reset."""
+    rate = config.loop.rate_hz
+
+    def factory(m: ArmModel):
+        return lambda: ModelReaction(m.model, arm.joint_names, m.limit, rate)
+
+    return {name: factory(m) for name, m in models.items()}
+
+
+def observer_sentence(models: dict[str, ArmModel], arm: ArmDescription) -> str:
+    """Which joints of each arm use which model, e.g. for the start-up line and the summary."""
+    parts = []
+    for name in ARM_NAMES:
+        m = models.get(name)
+        if m is None:
+            parts.append(f"{name} nominal")
+            continue
+        rest = [j for j in arm.bilateral_joints if j not in m.joints]
+        text = f"{name} {m.short()}"
+        if rest:
+            text += f", nominal on {', '.join(rest)}"
+        parts.append(text)
+    return "reaction-force observers: " + "; ".join(parts)
+
+
+def session_attrs(models: dict[str, ArmModel]) -> dict:
+    """Root attributes `leader_model` and `follower_model`: JSON of the model, or "nominal"."""
+    return {f"{name}_model": json.dumps(models[name].describe()) if name in models else "nominal"
+            for name in ARM_NAMES}
+

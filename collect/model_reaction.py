@@ -1,0 +1,144 @@
+"""The reaction-force observer of one arm with a learned inverse-dynamics model in place of the nominal one.
+
+A crane-train model f(q, dq, ddq) says what motor torque the arm's own dynamics need (gravity, inertia,
+friction, everything it learned). It was trained on signals that went through the paper's
+preprocessing at the recording rate (train/preprocess.py): with the low-pass L (cutoff w) and the
+pseudo-derivative D (cutoff g) of train/filters.py (first-order, Tustin),
+
+    q_m = L(L(q)),   dq_m = L(D(q)),   ddq_m = D(D(q)),   tau_m = L(L(tau_applied)),
+
+every one of them two first-order lags behind the raw signal (exactly equal lags when g = w, the
+default 25 rad/s). The loop runs the SAME causal filters, sample by sample, at its own rate on the
+servos' angles and on the torque it applied, so the model sees inputs built exactly as in training,
+and the reaction torque is what the model cannot explain:
+
+    tau_res = tau_m[k-1] - f(q_m[k-1], dq_m[k-1], ddq_m[k-1])
+
+Both sides carry the same filtering and the same delay (two lags of the model's cutoff, about 2/w =
+80 ms of group delay at 25 rad/s, against 1/g = 50..67 ms of the nominal observer's single lag at
+15..20 rad/s). The pair is taken one cycle back because the torque of cycle k is only known after
+the reaction of cycle k was used to compute it: row k of a training session pairs the angle read in
+cycle k with the torque sent in cycle k, and so does the loop, one period (2 ms) later. In free motion
+a perfect model gives tau_res = 0; against an object or a hand it gives -tau_ext (the world's torque on
+the joint), the same sign convention as the nominal observer (collect/controller.py).
+
+Per cycle the model is evaluated once (crane_io.loop_model: numpy, a few microseconds). A prediction
+that is not finite or exceeds `limit` on a joint is not used: that joint falls back to the nominal
+reaction torque for that cycle (`ModelReaction.update` returns which joints did).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class LagFilters:
+    """The paper's first-order low-pass w/(s+w) and pseudo-derivative g s/(s+g), Tustin at `rate_hz`,
+    one sample at a time on (k,) vectors, started in steady state at the first sample (as
+    train/filters.py: the low-pass output starts at the input, the derivative at 0)."""
+
+    def __init__(self, cutoff_rad_s: float, pseudo_diff_rad_s: float, rate_hz: float):
+        c = 2.0 * float(rate_hz)
+        w, g = float(cutoff_rad_s), float(pseudo_diff_rad_s)
+        # y[n] = b0 (x[n] + x[n-1]) - a1 y[n-1]                    (low-pass)
+        self.lp_b, self.lp_a = w / (c + w), (w - c) / (c + w)
+        # y[n] = d0 (x[n] - x[n-1]) - e1 y[n-1]                    (pseudo-derivative)
+        self.pd_b, self.pd_a = g * c / (c + g), (g - c) / (c + g)
+
+    def low_pass(self, x: np.ndarray, x_prev: np.ndarray, y_prev: np.ndarray) -> np.ndarray:
+        return self.lp_b * (x + x_prev) - self.lp_a * y_prev
+
+    def derivative(self, x: np.ndarray, x_prev: np.ndarray, y_prev: np.ndarray) -> np.ndarray:
+        return self.pd_b * (x - x_prev) - self.pd_a * y_prev
+
+
+class ModelInputs:
+    """q_m = L(L(q)), dq_m = L(D(q)), ddq_m = D(D(q)) and tau_m = L(L(tau)) of train/preprocess.py, causal,
+    one sample at a time: `push(q, tau)` with (k,) arrays; the filtered signals in `.q`, `.dq`, `.ddq`,
+    `.tau`."""
+
+    def __init__(self, filters: LagFilters):
+        self.f = filters
+        self._x = None
+
+    def push(self, q: np.ndarray, tau: np.ndarray) -> None:
+        f = self.f
+        q = np.array(q, dtype=float)
+        tau = np.array(tau, dtype=float)
+        if self._x is None:  # steady state at the first sample
+            z = np.zeros_like(q)
+            self._x = (q, tau)
+            self.lq, self.llq = q.copy(), q.copy()  # L(q), L(L(q))
+            self.dq_raw, self.ldq, self.ddq_raw = z.copy(), z.copy(), z.copy()  # D(q), L(D(q)), D(D(q))
+            self.lt, self.llt = tau.copy(), tau.copy()  # L(tau), L(L(tau))
+            return
+        q0, t0 = self._x
+        lq = f.low_pass(q, q0, self.lq)
+        self.llq = f.low_pass(lq, self.lq, self.llq)
+        d = f.derivative(q, q0, self.dq_raw)
+        self.ldq = f.low_pass(d, self.dq_raw, self.ldq)
+        self.ddq_raw = f.derivative(d, self.dq_raw, self.ddq_raw)
+        lt = f.low_pass(tau, t0, self.lt)
+        self.llt = f.low_pass(lt, self.lt, self.llt)
+        self.lq, self.dq_raw, self.lt = lq, d, lt
+        self._x = (q, tau)
+
+    @property
+    def q(self) -> np.ndarray:
+        return self.llq
+
+    @property
+    def dq(self) -> np.ndarray:
+        return self.ldq
+
+    @property
+    def ddq(self) -> np.ndarray:
+        return self.ddq_raw
+
+    @property
+    def tau(self) -> np.ndarray:
+        return self.llt
+
+
+class ModelReaction:
+    """The learned-model reaction torque of one arm (see the module docstring).
+
+    `model`: a crane_io.loop_model.LoopModel (anything with `joint_names`, `preprocessing` and
+    `predict_one(q, dq, ddq)`); `arm_joint_names`: the arm's joints in the controller's order;
+    `limit`: (J,) N m per model joint, the largest plausible prediction (the joint's maximum motor
+    torque); `rate_hz`: the loop's rate, at which the filters are discretised."""
+
+    def __init__(self, model, arm_joint_names, limit: np.ndarray, rate_hz: float):
+        self.model = model
+        names = list(arm_joint_names)
+        self.joint_names = tuple(model.joint_names)
+        self.idx = np.array([names.index(n) for n in self.joint_names], dtype=int)
+        pre = model.preprocessing
+        self.filters = LagFilters(pre["cutoff_rad_s"], pre["pseudo_diff_rad_s"], rate_hz)
+        self.inputs = ModelInputs(self.filters)
+        self.limit = np.asarray(limit, dtype=float)
+        self._pred = None  # prediction of the previous cycle (J,)
+        self._ok = np.zeros(len(self.idx), dtype=bool)
+        self.fallback_cycles = np.zeros(len(self.idx), dtype=int)  # cycles each joint fell back
+
+    def update(self, q: np.ndarray, applied_prev: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Push this cycle's angles (n,) and the torque applied in the previous cycle (n,) (arm order);
+        return (tau_res (J,), ok (J,) bool) for the model's joints: the reaction torque of the previous
+        cycle's pair, and which joints had a usable prediction (the others must use the nominal one)."""
+        i = self.idx
+        inp = self.inputs
+        first = inp._x is None
+        inp.push(q[i], applied_prev[i])
+        if first:  # nothing filtered yet: the steady state at this sample is the first pair
+            self._predict()
+        tau_res = inp.tau - self._pred
+        ok = self._ok.copy()
+        self.fallback_cycles += ~ok
+        self._predict()  # for the next cycle, on this cycle's filtered angles
+        return tau_res, ok
+
+    def _predict(self) -> None:
+        inp = self.inputs
+        pred = np.array(self.model.predict_one(inp.q, inp.dq, inp.ddq), dtype=float)
+        self._ok = np.isfinite(pred) & (np.abs(pred) <= self.limit)
+        self._pred = np.where(self._ok, pred, 0.0)

@@ -1,0 +1,105 @@
+"""The simulated arms' true external torques, one row per recorded cycle, in a file of its own
+(`crane-collect run --sim --truth-trace PATH.h5`). Never written into the session: a model must not
+learn from it; `crane-train fidelity SESSION --truth-trace PATH.h5` compares the observers with it.
+
+Format "crane-truth-trace", version 1 (HDF5):
+
+    attrs   format, format_version, joint_names (the session's order), session (its file name),
+            sign (a sentence: world on the arm, positive pushes the joint positive)
+    /t                (N,)   s     the session's follower/t, row for row
+    /tau_ext          (N, J) N m   the follower plant's true external torque: contact with objects
+                                   (plus the hand, when the hand is on the follower)
+    /leader/tau_ext   (N, J) N m   the leader plant's true external torque: the simulated hand
+    /in_contact       (N,)   bool  the follower touches an object
+
+A row holds the torques acting when the cycle's angles were read (the end of the plant's last step):
+what the observers estimate in that row, with the opposite sign (tau_res estimates -tau_ext). Rows are
+written in blocks of `block` rows; the file is complete when `complete` is True.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from crane_io.errors import ConfigError
+
+FORMAT = "crane-truth-trace"
+FORMAT_VERSION = 1
+SIGN = ("world on the arm: a positive value pushes the joint positive; a reaction-force observer's "
+        "tau_res estimates -tau_ext")
+
+
+def check_truth_trace_path(path: str | Path, force: bool) -> Path:
+    """One sentence (ConfigError) for a truth-trace path that cannot be written; nothing is created."""
+    path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"the truth trace {path} is a directory; give a file name")
+    if path.exists() and not force:
+        raise ConfigError(f"the truth trace {path} already exists; pass --force to overwrite it")
+    if not path.parent.exists() and path.parent != Path(""):
+        raise ConfigError(f"the folder of the truth trace {path} does not exist")
+    return path
+
+
+class TruthTraceWriter:
+    """`append(t, tau_ext_follower, tau_ext_leader, in_contact)` once per recorded row; `close()`."""
+
+    def __init__(self, path: str | Path, joint_names, session: str, block: int = 1000):
+        self.path = Path(path)
+        if self.path.exists():
+            self.path.unlink()
+        try:
+            self._f = h5py.File(self.path, "w")
+        except OSError as exc:
+            raise ConfigError(f"cannot create the truth trace {self.path} ({exc})") from None
+        J = len(joint_names)
+        f = self._f
+        f.attrs.update({"format": FORMAT, "format_version": FORMAT_VERSION, "session": str(session),
+                        "joint_names": np.array([str(n) for n in joint_names], dtype=h5py.string_dtype()),
+                        "sign": SIGN, "complete": False})
+        opts = {"chunks": True, "compression": "gzip", "compression_opts": 1, "shuffle": True}
+        self._sets = {
+            "t": f.create_dataset("t", (0,), np.float64, maxshape=(None,), **opts),
+            "tau_ext": f.create_dataset("tau_ext", (0, J), np.float64, maxshape=(None, J), **opts),
+            "leader/tau_ext": f.create_dataset("leader/tau_ext", (0, J), np.float64, maxshape=(None, J),
+                                               **opts),
+            "in_contact": f.create_dataset("in_contact", (0,), np.bool_, maxshape=(None,), **opts),
+        }
+        for name, unit in (("t", "s"), ("tau_ext", "N m"), ("leader/tau_ext", "N m")):
+            self._sets[name].attrs["unit"] = unit
+        self.block = int(block)
+        self._rows: list[tuple] = []
+        self.rows = 0
+        self.closed = False
+
+    def append(self, t: float, tau_ext: np.ndarray, leader_tau_ext: np.ndarray, in_contact: bool) -> None:
+        self._rows.append((float(t), np.array(tau_ext, dtype=float), np.array(leader_tau_ext, dtype=float),
+                           bool(in_contact)))
+        if len(self._rows) >= self.block:
+            self._flush()
+
+    def _flush(self) -> None:
+        if not self._rows:
+            return
+        t, fe, le, c = zip(*self._rows)
+        n0, n = self.rows, len(t)
+        for name, values in (("t", t), ("tau_ext", fe), ("leader/tau_ext", le), ("in_contact", c)):
+            ds = self._sets[name]
+            ds.resize(n0 + n, axis=0)
+            ds[n0:] = np.array(values)
+        self.rows += n
+        self._rows = []
+        self._f.flush()
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        try:
+            self._flush()
+            self._f.attrs["complete"] = True
+        finally:
+            self._f.close()

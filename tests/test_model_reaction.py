@@ -1,0 +1,116 @@
+"""The learned-model reaction torque of collect/model_reaction.py: the loop's causal filters are the
+training's (train/preprocess.py) sample for sample, the pairing is one cycle back, unusable predictions
+fall back per joint, and the controller uses it only on the model's joints."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from collect.config import load_config
+from collect.controller import ArmSignals, BilateralController
+from collect.model_reaction import ModelInputs, ModelReaction
+from crane_io.description import default_arm
+from train.filters import lowpass, pseudo_diff
+
+RATE = 500.0
+
+
+class LinearModel:
+    """A stand-in for crane_io.loop_model.LoopModel: tau = a q + b dq + c ddq per joint."""
+
+    def __init__(self, joint_names, a=1.0, b=0.5, c=0.1, cutoff=25.0, diff=25.0):
+        self.joint_names = tuple(joint_names)
+        self.preprocessing = {"cutoff_rad_s": cutoff, "pseudo_diff_rad_s": diff, "zero_phase": False}
+        self.a, self.b, self.c = a, b, c
+        self.calls = []
+
+    def predict_one(self, q, dq, ddq, out=None):
+        self.calls.append((q.copy(), dq.copy(), ddq.copy()))
+        return self.a * q + self.b * dq + self.c * ddq
+
+
+def _signals(n=400, j=3, seed=0):
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / RATE
+    q = np.sin(2 * np.pi * 0.7 * t)[:, None] * rng.uniform(0.2, 1.0, j) + rng.normal(0, 1e-3, (n, j))
+    tau = np.cos(2 * np.pi * 0.4 * t)[:, None] * rng.uniform(0.5, 2.0, j) + rng.normal(0, 0.05, (n, j))
+    return q, tau
+
+
+@pytest.mark.parametrize(("cutoff", "diff"), [(25.0, 25.0), (30.0, 18.0)])
+def test_loop_filters_equal_the_training_preprocessing(cutoff, diff):
+    q, tau = _signals()
+    model = LinearModel(("a", "b", "c"), cutoff=cutoff, diff=diff)
+    inputs = ModelInputs(ModelReaction(model, ("a", "b", "c"), np.full(3, 10.0), RATE).filters)
+    rows = []
+    for k in range(len(q)):
+        inputs.push(q[k], tau[k])
+        rows.append((inputs.q.copy(), inputs.dq.copy(), inputs.ddq.copy(), inputs.tau.copy()))
+    got = [np.array(x) for x in zip(*rows)]
+    d = pseudo_diff(q, diff, RATE)
+    want = (lowpass(lowpass(q, cutoff, RATE), cutoff, RATE), lowpass(d, cutoff, RATE), pseudo_diff(d, diff, RATE),
+            lowpass(lowpass(tau, cutoff, RATE), cutoff, RATE))
+    for g, w in zip(got, want):
+        np.testing.assert_allclose(g, w, rtol=1e-9, atol=1e-9)
+
+
+def test_reaction_pairs_the_previous_cycles_torque_with_its_own_prediction():
+    names = ("joint1", "joint2", "joint4")
+    q, tau = _signals()
+    model = LinearModel(names)
+    reaction = ModelReaction(model, names, np.full(3, 100.0), RATE)
+    out = [reaction.update(q[k], tau[k - 1] if k else tau[0])[0].copy() for k in range(len(q))]
+    # reference: the training's filtered signals, row k-1 of each, through the same model
+    d = pseudo_diff(q, 25.0, RATE)
+    qm, dqm, ddqm = lowpass(lowpass(q, 25.0, RATE), 25.0, RATE), lowpass(d, 25.0, RATE), pseudo_diff(d, 25.0, RATE)
+    prev_tau = np.vstack([tau[:1], tau[:-1]])
+    taum = lowpass(lowpass(prev_tau, 25.0, RATE), 25.0, RATE)
+    want = taum[1:] - (qm[:-1] + 0.5 * dqm[:-1] + 0.1 * ddqm[:-1])
+    np.testing.assert_allclose(np.array(out)[1:], want, rtol=1e-9, atol=1e-9)
+
+
+def test_unusable_prediction_falls_back_for_that_joint_only():
+    names = ("joint1", "joint2", "joint4")
+
+    class Broken(LinearModel):
+        def predict_one(self, q, dq, ddq, out=None):
+            y = super().predict_one(q, dq, ddq)
+            y[1] = np.nan if len(self.calls) % 2 else 1e6
+            return y
+
+    reaction = ModelReaction(Broken(names), names, np.full(3, 5.0), RATE)
+    for _ in range(5):
+        res, ok = reaction.update(np.zeros(3), np.zeros(3))
+        assert ok.tolist() == [True, False, True]
+        assert np.isfinite(res).all()
+    assert reaction.fallback_cycles.tolist() == [0, 5, 0]
+
+
+def _controller(models=None):
+    config = load_config()
+    return BilateralController(config, default_arm(), models=models), config
+
+
+def test_controller_uses_the_model_only_on_its_joints_and_keeps_the_nominal_elsewhere():
+    arm = default_arm()
+    n = len(arm.joints)
+    nominal, _ = _controller()
+    model = LinearModel(("joint2",), a=0.0, b=0.0, c=0.0)  # says the arm needs no torque at all
+    learned, _ = _controller({"follower": lambda: ModelReaction(model, arm.joint_names, np.array([50.0]), RATE)})
+    rng = np.random.default_rng(1)
+    q0 = np.zeros(n)
+    q0[arm.joint_names.index("joint2")] = 0.4
+    for _ in range(200):
+        ql = q0 + rng.normal(0, 1e-3, n)
+        qf = q0 + rng.normal(0, 1e-3, n)
+        for ctl in (nominal, learned):
+            ctl.step(ArmSignals(ql), ArmSignals(qf), 1.0 / RATE)
+    i2 = arm.joint_names.index("joint2")
+    others = [arm.joint_names.index(j) for j in ("joint1", "joint4")]
+    # joints 1 and 4 are untouched on both arms (the law is per joint); joint2's reaction differs
+    np.testing.assert_array_equal(nominal.leader.tau_res[others], learned.leader.tau_res[others])
+    np.testing.assert_array_equal(nominal.follower.tau_res[others], learned.follower.tau_res[others])
+    assert abs(nominal.follower.tau_res[i2] - learned.follower.tau_res[i2]) > 0.1  # gravity is not subtracted
+    assert learned.model_fallbacks()["follower"].tolist() == [False]
+    assert learned.reaction("leader") is None and learned.reaction("follower") is not None
