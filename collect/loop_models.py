@@ -53,13 +53,13 @@ class ArmModel:
 
 def load_reaction_models(paths: dict, arm: ArmDescription, config: Config) -> dict[str, ArmModel]:
     """{arm name: ArmModel} for every arm given a model directory (None or missing: nominal model)."""
-    from crane_io.loop_model import LoopModel
-
     out = {}
     for name in ARM_NAMES:
         path = paths.get(name)
         if path is None:
             continue
+        from crane_io.loop_model import LoopModel  # (pinocchio for a rigid-body model: only when asked)
+
         model = LoopModel.load(path)
         check_model_for_arm(model, name, arm)
         kt = {j.name: j.torque_constant for j in arm.joints}
