@@ -82,10 +82,11 @@ def data_options(func):
 
 
 def load_dataset(sessions, joints: str | None, alpha: float | None, zero_phase: bool,
-                 config: PreprocessConfig | None = None):
-    """Read and preprocess; explicit options win over `config` (default: PreprocessConfig())."""
-    from .preprocess import PreprocessConfig, preprocess
-    from .session import read_sessions
+                 config: PreprocessConfig | None = None, arm: str | None = None):
+    """Read `arm`'s group (default: the config's, "follower") and preprocess; explicit options win over
+    `config` (default: PreprocessConfig()). A session whose arm the operator's hand moved is refused with
+    train.session.HandOnArmError (see `hand_on_hint`)."""
+    from .preprocess import PreprocessConfig, read_preprocessed
 
     config = config or PreprocessConfig()
     values = config.to_dict()
@@ -95,7 +96,23 @@ def load_dataset(sessions, joints: str | None, alpha: float | None, zero_phase: 
         values["alpha"] = alpha
     if zero_phase:
         values["zero_phase"] = True
-    return preprocess(read_sessions(sessions), PreprocessConfig.from_dict(values))
+    if arm:
+        values["arm"] = arm
+    return read_preprocessed(sessions, PreprocessConfig.from_dict(values))
+
+
+def arm_option(func):
+    """--arm leader|follower: which arm's data a model is fitted on."""
+    return click.option("--arm", type=click.Choice(["leader", "follower"]), default=None,
+                        help="The arm whose data to fit: the follower, or the leader of a session recorded "
+                             "with the hand on the follower (hand_on = follower) [follower].")(func)
+
+
+def hand_on_hint(exc) -> str:
+    """A HandOnArmError's sentence with how to record usable data of that arm (the CLI's hint)."""
+    other = "follower" if exc.arm == "leader" else "leader"
+    return (f"{exc}; record {exc.arm} data with `crane-collect run --hand-on {other}` (the hand on the "
+            f"{other}, the {exc.arm} moving on its own)")
 
 
 def parse_sizes(text: str) -> list[int]:

@@ -43,15 +43,14 @@ def diagnose(model_dir, sessions, as_json, folds, min_reduction, top, effect_fil
     from .diagnose import diagnose as run_diagnosis
     from .heldout import diagnosis_data, model_settings
     from .models.registry import load_model
-    from .preprocess import preprocess
+    from .preprocess import read_preprocessed
     from .progress import show_progress
-    from .session import read_sessions
 
     for path in effect_files:
         load_effect_file(path)
     model = load_model(model_dir)
     pconf = model_settings(model, model_dir)[0]
-    ds, judged = diagnosis_data(model, preprocess(read_sessions(list(sessions)), pconf), model_dir)
+    ds, judged = diagnosis_data(model, read_preprocessed(list(sessions), pconf), model_dir)  # model's arm
     result = run_diagnosis(model, ds, folds=folds, min_reduction=min_reduction,
                            progress=show_progress(not as_json))
     result.settings["judged_on"] = judged

@@ -1,5 +1,6 @@
-"""`crane-train fit SESSION... --model METHOD -o MODEL_DIR`: train one model the paper's way, print its
-test metrics and save it (with its preprocessing and normalisation)."""
+"""`crane-train fit SESSION... --model METHOD -o MODEL_DIR [--arm leader|follower]`: train one model the
+paper's way, print its test metrics and save it (with its preprocessing and normalisation; the arm it was
+fitted on is the preprocessing setting `arm`, model.json "preprocessing" -> "arm")."""
 
 from __future__ import annotations
 
@@ -10,7 +11,15 @@ import click
 
 from crane_io.errors import ConfigError, cli_errors
 
-from .cli_options import data_options, load_config, load_dataset, parse_effect, writable_output
+from .cli_options import (
+    arm_option,
+    data_options,
+    hand_on_hint,
+    load_config,
+    load_dataset,
+    parse_effect,
+    writable_output,
+)
 from .method_names import METHOD_NAMES
 from .progress import show_progress
 
@@ -18,9 +27,11 @@ from .progress import show_progress
 def fit_model(sessions, method: str, out_dir, train_size: int | None = None, seed: int = 0,
               effects=(), effect_files=(), joints=None, alpha=None, zero_phase=False,
               scale_to_data=False, epochs: int | None = None, progress: bool = True,
-              config_path=None) -> dict:
-    """Preprocess, split, fit on `train_size` samples of the pool (all of it by default), score on the
-    test set, save to out_dir. Returns the metrics document (also written as fit_metrics.json)."""
+              config_path=None, arm: str | None = None) -> dict:
+    """Preprocess `arm`'s data (default: the configuration's, "follower"), split, fit on `train_size`
+    samples of the pool (all of it by default), score on the test set, save to out_dir. Returns the
+    metrics document (also written as fit_metrics.json). A session whose arm the operator's hand moved
+    is refused (train.session.HandOnArmError) before anything is written."""
     import numpy as np  # the work's imports live here, so that `crane-train fit --help` stays light
     import torch
     from tqdm import tqdm
@@ -31,7 +42,7 @@ def fit_model(sessions, method: str, out_dir, train_size: int | None = None, see
 
     writable_output(out_dir, "dir")
     cfg = load_config(config_path)
-    ds = load_dataset(sessions, joints, alpha, zero_phase, cfg["preprocess"])
+    ds = load_dataset(sessions, joints, alpha, zero_phase, cfg["preprocess"], arm)
     splits = make_splits(ds, cfg["splits"], seed=seed, scale_to_data=scale_to_data)
     pool = splits.pool
     if train_size is not None:
@@ -61,7 +72,8 @@ def fit_model(sessions, method: str, out_dir, train_size: int | None = None, see
     else:
         model.fit(pool, splits.val)
     test = splits.test
-    doc = {"method": method, "joints": list(ds.joint_names), "train_samples": len(pool),
+    doc = {"method": method, "arm": ds.meta["arm"], "joints": list(ds.joint_names),
+           "train_samples": len(pool),
            "train_samples_all_moving": int(pool.all_moving.sum()), "test_samples": len(test), "seed": seed,
            "test": metrics_table(test.tau, model.predict_dataset(test), ds.joint_names),
            "usable_fraction": ds.meta["usable_fraction"],
@@ -86,17 +98,24 @@ def fit_model(sessions, method: str, out_dir, train_size: int | None = None, see
               help="Python file defining extra effects (see crane_io.effects).")
 @click.option("--epochs", type=click.IntRange(min=1), default=None,
               help="Epochs of the network (mlp-mse, mlp-masked, hybrid) [100].")
+@arm_option
 @data_options
 @click.option("--no-progress", is_flag=True,
               help="No progress bar (there is none anyway when stderr is not a terminal).")
 @cli_errors
-def fit(sessions, method, out_dir, train_size, seed, effects, effect_files, epochs, config_path, joints,
+def fit(sessions, method, out_dir, train_size, seed, effects, effect_files, epochs, arm, config_path, joints,
         alpha, zero_phase, scale_to_data, no_progress):
-    """Train one model on session files and save it."""
-    doc = fit_model(sessions, method, out_dir, train_size, seed, [parse_effect(e) for e in effects],
-                    effect_files, joints, alpha, zero_phase, scale_to_data, epochs,
-                    show_progress(not no_progress), config_path)
-    click.echo(f"{method}: trained on {doc['train_samples']} samples "
+    """Train one model on session files (the follower's data, or the leader's with --arm leader) and
+    save it."""
+    from .session import HandOnArmError
+
+    try:
+        doc = fit_model(sessions, method, out_dir, train_size, seed, [parse_effect(e) for e in effects],
+                        effect_files, joints, alpha, zero_phase, scale_to_data, epochs,
+                        show_progress(not no_progress), config_path, arm)
+    except HandOnArmError as exc:
+        raise HandOnArmError(hand_on_hint(exc), exc.path, exc.arm) from None
+    click.echo(f"{method} on the {doc['arm']}: trained on {doc['train_samples']} samples "
                f"({doc['train_samples_all_moving']} with every joint moving); "
                f"test on {doc['test_samples']} samples")
     click.echo(f"{'joint':<10}{'MSE (N m)^2':>14}{'RMSE N m':>12}{'NMSE':>10}")

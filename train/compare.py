@@ -8,6 +8,9 @@ is over the same moments.
 
 Metrics per joint: MSE, RMSE and normalised MSE on the test set (every joint moves: the paper's test
 set) and MSE on all held-out samples where that joint moves.
+
+Each model is evaluated on the arm it was fitted on (its preprocessing setting `arm`; follower for
+models saved before the setting existed).
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ import numpy as np
 
 from crane_io.errors import CraneError
 
-from .heldout import HeldOut, evaluation_data, fit_record, model_settings
+from .heldout import HeldOut, fit_record, model_settings
 from .metrics import metrics_table, mse
 from .model_effects import effect_labels
 
@@ -37,9 +40,10 @@ class ModelScore:
     moving_mse: dict  # {joint: MSE on the held-out samples where that joint moves}
     n_test: int
     notes: list[str] = field(default_factory=list)
+    arm: str = "follower"  # the arm the model was fitted (and is evaluated) on
 
     def to_json(self) -> dict:
-        return {"directory": self.directory, "method": self.method, "effects": self.effects,
+        return {"directory": self.directory, "method": self.method, "arm": self.arm, "effects": self.effects,
                 "n_test": self.n_test, "test": self.test, "moving_mse": self.moving_mse, "notes": self.notes}
 
 
@@ -61,6 +65,21 @@ def model_sessions(model, model_dir=None) -> list[str]:
             if record.get(key):
                 return [str(s) for s in record[key]]
     return []
+
+
+def evaluation_data(model, session_paths, seed: int | None = None, model_dir=None):
+    """train.heldout.evaluation_data on the arm the model was fitted on: (all data, splits, held-out
+    part) of the sessions read, preprocessed and split as the model's training did. A session whose arm
+    the operator's hand moved is refused (train.session.HandOnArmError)."""
+    from .heldout import held_out
+    from .preprocess import read_preprocessed
+    from .splits import make_splits
+
+    pconf, sconf, model_seed = model_settings(model, model_dir)
+    ds = read_preprocessed(session_paths, pconf)
+    seed = model_seed if seed is None else seed
+    splits = make_splits(ds, sconf, seed=seed, scale_to_data=True)
+    return ds, splits, held_out(ds, splits, session_paths, seed)
 
 
 def score(model, held: HeldOut, directory: str = "") -> ModelScore:
@@ -90,8 +109,7 @@ def compare_models(model_dirs, sessions=None, progress: bool = False) -> Compari
     """Load each model directory and score it on the same held-out samples."""
     from .heldout import held_out
     from .models.registry import load_model
-    from .preprocess import preprocess
-    from .session import read_sessions
+    from .preprocess import read_preprocessed
 
     if not model_dirs:
         raise CompareError("give at least one model directory to compare")
@@ -124,13 +142,13 @@ def compare_models(model_dirs, sessions=None, progress: bool = False) -> Compari
                          f"evaluated sessions: its split differs, so some held-out samples may have been in "
                          f"its training data")
         if pconf != ref_settings:
-            ds_m = preprocess(read_sessions(sessions), pconf)
+            ds_m = read_preprocessed(sessions, pconf)
             held = _align(reference, held_out(ds_m, _reindex(splits, ds_m, reference)))
             mine, ref = pconf.to_dict(), ref_settings.to_dict()
             diff = ", ".join(f"{k} {mine[k]} instead of {ref[k]}" for k in mine if mine[k] != ref.get(k))
             notes.append(f"preprocessed with its own settings ({diff}); scored at the same instants")
         s = score(m, held, str(d))
-        s.notes = notes
+        s.notes, s.arm = notes, pconf.arm
         out.append(s)
     return Comparison(tuple(joints), out, reference.description)
 

@@ -13,6 +13,11 @@ second pseudo-derivative of the raw pseudo-derivative is the choice that gives i
 Then the first `settle_s` of each piece are dropped (filter start-up), every piece is down-sampled to
 `downsample_hz` (the low-pass is the anti-alias filter) and the pieces are concatenated with `segment`
 ids (no filter ever runs across a boundary). The dead-zone mask uses sigma_j over all the data.
+
+`PreprocessConfig.arm` names the arm whose group is read ("follower" by default, "leader" for
+`crane-train fit --arm leader`); it travels with the other settings into Dataset.meta["preprocessing"]
+and so into every saved model (model.json "preprocessing" -> "arm"), which is how the evaluation
+commands know which arm to read (`read_preprocessed`).
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ from crane_io.errors import ConfigError
 from .dataset import Dataset
 from .filters import lowpass, pseudo_diff
 from .masks import DeadZoneError, dead_zone_mask, moving_fractions
-from .session import RawSession
+from .session import ARMS, RawSession, read_sessions
 
 # A joint whose (filtered) angle spans less than this never moved: a joint held in position mode only
 # jitters by an encoder count or two (0.0015 rad each), and its velocity's spread is that jitter.
@@ -43,6 +48,7 @@ class PreprocessConfig:
     alpha: float = 0.1  # dead-zone threshold factor (paper: 0.1)
     settle_s: float = 0.2  # dropped at the start of each piece (5 time constants of 25 rad/s)
     split_gap_s: float = 0.05  # a time step longer than this splits a session into separate pieces
+    arm: str = "follower"  # the session group the data come from ("leader" or "follower")
     extra: dict = field(default_factory=dict)  # free-form notes carried into Dataset.meta
 
     def __post_init__(self):
@@ -53,6 +59,8 @@ class PreprocessConfig:
                 raise ConfigError(f"preprocessing {name} must be a positive number, got {v!r}")
         if not self.joints:
             raise ConfigError("at least one learning joint must be selected")
+        if self.arm not in ARMS:
+            raise ConfigError(f"preprocessing arm must be 'leader' or 'follower', got {self.arm!r}")
         if len(set(self.joints)) != len(self.joints):
             raise ConfigError(f"learning joints are repeated: {', '.join(self.joints)}")
 
@@ -108,6 +116,9 @@ def preprocess(sessions: list[RawSession] | RawSession, config: PreprocessConfig
     dropped = 0
     longest = 0.0  # s, of the pieces too short to use
     for s in sessions:
+        if s.arm != config.arm:
+            raise ConfigError(f"{s.path or 'the session'} was read from the {s.arm}'s data but the "
+                              f"preprocessing settings are for the {config.arm}'s")
         missing = [n for n in config.joints if n not in s.joint_names]
         if missing:
             raise ConfigError(f"{s.path or 'the session'} has no joint(s) {', '.join(missing)} "
@@ -146,7 +157,14 @@ def preprocess(sessions: list[RawSession] | RawSession, config: PreprocessConfig
     rate = min(config.downsample_hz, min(s.rate_hz for s in sessions))
     meta = {"preprocessing": config.to_dict(), "sigma": sigma.tolist(), "alpha": config.alpha,
             "sources": [s.path for s in sessions], "source_kinds": [s.source for s in sessions],
-            "raw_rate_hz": [s.rate_hz for s in sessions], "pieces_dropped": dropped,
+            "raw_rate_hz": [s.rate_hz for s in sessions], "arm": config.arm, "pieces_dropped": dropped,
             "usable_fraction": moving_fractions(moving, config.joints)}
     return Dataset(joint_names=tuple(config.joints), t=cat["t"], q=cat["q"], dq=cat["dq"], ddq=cat["ddq"],
                    tau=cat["tau"], moving=moving, rate_hz=float(rate), segment=cat["segment"], meta=meta)
+
+
+def read_preprocessed(paths, config: PreprocessConfig, hand_free: bool = True) -> Dataset:
+    """Read the sessions' `config.arm` group and preprocess it. With `hand_free` (the default: fitting
+    and evaluating an inverse-dynamics model), a session whose arm the operator's hand moved is refused
+    (train.session.HandOnArmError)."""
+    return preprocess(read_sessions(paths, config.arm, hand_free=hand_free), config)

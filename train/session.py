@@ -6,6 +6,11 @@ read when the file was written in SWMR mode, so a recording in progress can be r
 is never modified. Every problem is a `SessionFileError` whose one sentence names the file; stored data
 that fail their fletcher32 checksum (written by crane-collect) name the damaged dataset
 (`SessionDamagedError`).
+
+Either arm's group can be read (`arm`, "follower" by default). The optional root attribute `hand_on`
+("leader", the default when it is absent, or "follower") says which arm the operator's hand moved: that
+arm's torque holds the hand's force besides its own dynamics, so it is no inverse-dynamics data
+(`read_sessions(..., hand_free=True)` refuses it with a `HandOnArmError`).
 """
 
 from __future__ import annotations
@@ -24,6 +29,8 @@ FORMAT = "crane-session"
 FORMAT_VERSION = 1  # newest version this reader understands
 MIN_SAMPLES = 100  # fewer raw samples than this cannot be filtered and split meaningfully
 REQUIRED_ATTRS = ("format", "format_version", "rate_hz", "joint_names", "source")
+ARMS = ("leader", "follower")
+DEFAULT_HAND_ON = "leader"  # a session without `hand_on`: the operator moved the leader (normal use)
 _TRUNCATED = re.compile(r"truncated file: eof = (?P<eof>\d+).*stored_eof = (?P<stored>\d+)")
 
 
@@ -40,6 +47,7 @@ class RawSession:
     path: str = ""
     attrs: dict = field(default_factory=dict)  # every root attribute, decoded to plain Python
     truncated: bool = False  # datasets had different lengths (a crashed recording); cut to the shortest
+    arm: str = "follower"  # the group the signals were read from
 
     @property
     def duration_s(self) -> float:
@@ -47,6 +55,31 @@ class RawSession:
 
     def __len__(self) -> int:
         return len(self.t)
+
+
+class HandOnArmError(SessionFileError):
+    """A session whose requested arm was moved by the operator's hand (root attribute `hand_on`)."""
+
+    def __init__(self, message: str, path: str = "", arm: str = ""):
+        super().__init__(message)
+        self.path, self.arm = path, arm
+
+
+def hand_on(attrs: dict, path="the session") -> str:
+    """Which arm the operator's hand moved ("leader" or "follower"), from a session's root attributes;
+    "leader" when `hand_on` is absent. Any other value is a SessionFileError."""
+    value = attrs.get("hand_on", DEFAULT_HAND_ON)
+    if value not in ARMS:
+        raise SessionFileError(f"{path} has hand_on = {value!r}; expected 'leader' or 'follower'")
+    return value
+
+
+def check_hand_free(session: RawSession) -> None:
+    """Refuse (HandOnArmError) a session whose arm the operator's hand moved."""
+    if hand_on(session.attrs, session.path) == session.arm:
+        raise HandOnArmError(f"{session.path}: the operator's hand moved the {session.arm} in this session "
+                             f"(hand_on = {session.arm}), so its torque holds the hand's force, not only "
+                             f"the arm's own dynamics", session.path, session.arm)
 
 
 def _decode(value):
@@ -150,11 +183,12 @@ def read_session(path, arm: str = "follower") -> RawSession:
         row = int(np.argmax(np.diff(t) <= 0))
         raise SessionFileError(f"{path}: /{arm}/t is not strictly increasing (at sample {row + 1})")
     return RawSession(t=t, q=q, tau=tau, rate_hz=rate, joint_names=names, source=str(attrs["source"]),
-                      path=str(path), attrs=attrs, truncated=truncated)
+                      path=str(path), attrs=attrs, truncated=truncated, arm=arm)
 
 
-def read_sessions(paths, arm: str = "follower") -> list[RawSession]:
-    """Read several session files; they must name the same joints."""
+def read_sessions(paths, arm: str = "follower", hand_free: bool = False) -> list[RawSession]:
+    """Read several session files; they must name the same joints. With `hand_free`, a session whose
+    `arm` the operator's hand moved is refused (check_hand_free)."""
     paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
     if not paths:
         raise SessionFileError("no session files were given")
@@ -165,6 +199,9 @@ def read_sessions(paths, arm: str = "follower") -> list[RawSession]:
             raise SessionFileError(f"{p} is given twice (as {seen[key]} and {p}); name each session once")
         seen[key] = p
     sessions = [read_session(p, arm) for p in paths]
+    if hand_free:
+        for s in sessions:
+            check_hand_free(s)
     first = sessions[0]
     for s in sessions[1:]:
         if s.joint_names != first.joint_names:
