@@ -21,7 +21,7 @@ from crane_io.errors import cli_errors
 def report(model_dir, sessions, output, diagnosis, seed):
     """Write an HTML report of MODEL_DIR's error on the held-out part of SESSION(s)."""
     from .cli_options import writable_output
-    from .compare import evaluation_data  # heldout.evaluation_data on the model's arm
+    from .heldout import evaluation_data
     from .models.registry import load_model
     from .report import report_html, write_report
 

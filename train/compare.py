@@ -22,7 +22,7 @@ import numpy as np
 
 from crane_io.errors import CraneError
 
-from .heldout import HeldOut, fit_record, model_settings
+from .heldout import HeldOut, evaluation_data, fit_record, model_settings
 from .metrics import metrics_table, mse
 from .model_effects import effect_labels
 
@@ -65,21 +65,6 @@ def model_sessions(model, model_dir=None) -> list[str]:
             if record.get(key):
                 return [str(s) for s in record[key]]
     return []
-
-
-def evaluation_data(model, session_paths, seed: int | None = None, model_dir=None):
-    """train.heldout.evaluation_data on the arm the model was fitted on: (all data, splits, held-out
-    part) of the sessions read, preprocessed and split as the model's training did. A session whose arm
-    the operator's hand moved is refused (train.session.HandOnArmError)."""
-    from .heldout import held_out
-    from .preprocess import read_preprocessed
-    from .splits import make_splits
-
-    pconf, sconf, model_seed = model_settings(model, model_dir)
-    ds = read_preprocessed(session_paths, pconf)
-    seed = model_seed if seed is None else seed
-    splits = make_splits(ds, sconf, seed=seed, scale_to_data=True)
-    return ds, splits, held_out(ds, splits, session_paths, seed)
 
 
 def score(model, held: HeldOut, directory: str = "") -> ModelScore:

@@ -17,8 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from .dataset import Dataset
-from .preprocess import PreprocessConfig, preprocess
-from .session import read_sessions
+from .preprocess import PreprocessConfig, read_preprocessed
 from .splits import SplitConfig, Splits, make_splits
 
 
@@ -108,9 +107,10 @@ def model_settings(model, model_dir=None) -> tuple[PreprocessConfig, SplitConfig
 def evaluation_data(model, session_paths, seed: int | None = None,
                     model_dir=None) -> tuple[Dataset, Splits, HeldOut]:
     """Read and preprocess the sessions as the model's training did, split them the same way and
-    return (all data, the splits, the held-out part)."""
+    return (all data, the splits, the held-out part), on the arm the model was fitted on (a session whose
+    arm the operator's hand moved is refused: train.session.HandOnArmError)."""
     pconf, sconf, model_seed = model_settings(model, model_dir)
-    ds = preprocess(read_sessions(session_paths), pconf)
+    ds = read_preprocessed(session_paths, pconf)
     seed = model_seed if seed is None else seed
     splits = make_splits(ds, sconf, seed=seed, scale_to_data=True)
     return ds, splits, held_out(ds, splits, session_paths, seed)
