@@ -56,8 +56,10 @@ def signals():
     q_l[SETTLE] += 1.0
     in_contact = np.zeros(N, bool)
     in_contact[CONTACT] = True
+    dq = np.zeros((N, 8))
+    dq[:, list(BILATERAL)] = np.where((np.arange(N) // 2) % 2 == 0, 1.0, 0.0)[:, None]  # moving half the rows
     return {"res_f": res_f, "res_l": res_l, "ext": ext, "ext_l": ext_l, "q_f": q_f, "q_l": q_l,
-            "in_contact": in_contact}
+            "in_contact": in_contact, "dq": dq}
 
 
 def write_session(path, sig, attrs=None, names=NAMES):
@@ -73,6 +75,7 @@ def write_session(path, sig, attrs=None, names=NAMES):
             g.create_dataset("q", data=q)
             g.create_dataset("tau", data=np.zeros((N, 8)))
             g.create_dataset("tau_res", data=res.astype(np.float32))
+            g.create_dataset("dq", data=sig["dq"].astype(np.float32))
     return path
 
 
@@ -117,6 +120,11 @@ def test_metrics_equal_the_hand_computation(files):
     assert j4["follower_false_rms"] == pytest.approx(0.4, rel=1e-6)
     assert j1["leader_rms"] == pytest.approx(0.95, rel=1e-6)
     assert j1["leader_hand_error_rms"] == pytest.approx(0.05, rel=1e-5)
+    assert j1["hand_true_rms"] == pytest.approx(1.0)
+    # moving and still (the dead-zone rule on the follower's dq): half the free rows each, each +-amplitude
+    assert j2["moving_fraction"] == pytest.approx(0.5, abs=0.02)
+    assert j2["follower_false_rms_moving"] == pytest.approx(0.3, rel=1e-6)
+    assert j2["follower_false_rms_still"] == pytest.approx(0.3, rel=1e-6)
     # contact: the observer estimates -tau_ext
     assert j1["contact_error_rms"] == pytest.approx(0.1, rel=1e-5)
     assert j1["contact_true_rms"] == pytest.approx(2.0)
@@ -196,7 +204,8 @@ def test_json_keys(files):
     assert doc["free_samples"] == FREE_ROWS and doc["contact_samples"] == 50
     assert doc["models"] == {"leader": "nominal model", "follower": "nominal model"}
     assert set(doc["joints"]["joint1"]) == {
-        "follower_false_rms", "leader_rms", "leader_hand_error_rms", "contact_error_rms", "contact_true_rms",
+        "follower_false_rms", "follower_false_rms_moving", "follower_false_rms_still", "moving_fraction",
+        "leader_rms", "leader_hand_error_rms", "hand_true_rms", "contact_error_rms", "contact_true_rms",
         "contact_error_ratio", "force_sum_rms", "tracking_rms", "tracking_rms_deg"}
 
 

@@ -5,9 +5,14 @@ sign (a hand pushing a joint positive gives tau_res < 0: tau_res estimates -tau_
 wrong is what a better model in the loop buys back:
 
 * in free motion (the follower touches nothing) every N m of the follower's tau_res is false force
-  the operator feels (`follower_false_rms`); the leader's tau_res there is the hand's torque plus the
-  leader's own model error (`leader_rms`), and with the truth known `leader_hand_error_rms`
-  = RMS(leader tau_res + leader tau_ext) is the error of the hand-torque estimate alone;
+  the operator feels (`follower_false_rms`), split into the samples where the joint moves and where it
+  stands still by the paper's dead-zone rule on the follower's velocity, |dq| > alpha std(dq) with
+  alpha = 0.1 (`..._moving`, `..._still`): standing still, the torque that held the joint lies anywhere
+  in its static-friction band, which no model of (q, dq, ddq) can tell from an outside force; the
+  leader's tau_res there is the hand's torque plus the leader's own model error (`leader_rms`), and
+  with the truth known `leader_hand_error_rms` = RMS(leader tau_res + leader tau_ext) is the error of
+  the hand-torque estimate alone and `hand_true_rms` = RMS(leader tau_ext) is the torque the hand
+  really pushed with;
 * in contact, `contact_error_rms` = RMS(follower tau_res + tau_ext) is the error of the contact
   estimate (zero when tau_res = -tau_ext), against `contact_true_rms` = RMS(tau_ext);
 * over all kept samples, `force_sum_rms` = RMS(leader tau_res + follower tau_res) (the 4-channel
@@ -36,6 +41,7 @@ from .session import _decode, _open, _read, read_session
 TRUTH_FORMAT = "crane-truth-trace"
 TRUTH_FORMAT_VERSION = 1
 NOMINAL = "nominal model"
+DEAD_ZONE_ALPHA = 0.1  # a joint moves when |dq| > alpha std(dq) (the paper's dead-zone rule)
 T_TOLERANCE_S = 1e-6  # the trace's t must equal the session's follower/t within this
 
 
@@ -185,6 +191,7 @@ def measure_fidelity(session, truth_trace=None, settle_s: float = 1.0,
         notes.append(f"the leader has {len(lead)} rows and the follower {len(fol)}: the first {n} are used.")
     with _open(path) as f:
         res = {arm: _arm_member(path, f, arm, "tau_res", n, len(names)) for arm in ("leader", "follower")}
+        dq_f = _arm_member(path, f, "follower", "dq", n, len(names))
     t = fol.t[:n]
     trace = None
     if truth_trace is not None:
@@ -225,10 +232,18 @@ def measure_fidelity(session, truth_trace=None, settle_s: float = 1.0,
         notes.append("no truth trace: every sample counts as free motion (contact, if any, is not told "
                      "apart) and the estimates' errors against the true torques are not measured.")
     joints = {}
+    dq_f = dq_f[:n]
     for j in np.flatnonzero(bilateral):
-        m = {"follower_false_rms": _rms(r_f[free, j]), "leader_rms": _rms(r_l[free, j])}
+        v = dq_f[keep, j]
+        moving = np.abs(dq_f[:, j]) > DEAD_ZONE_ALPHA * (np.std(v) if len(v) else 0.0)
+        m = {"follower_false_rms": _rms(r_f[free, j]),
+             "follower_false_rms_moving": _rms(r_f[free & moving, j]),
+             "follower_false_rms_still": _rms(r_f[free & ~moving, j]),
+             "moving_fraction": float(moving[free].mean()) if free.any() else None,
+             "leader_rms": _rms(r_l[free, j])}
         if ext_l is not None:
             m["leader_hand_error_rms"] = _rms(r_l[free, j] + ext_l[free, j])
+            m["hand_true_rms"] = _rms(ext_l[free, j])
         if ext is not None:
             err, true = _rms(r_f[contact, j] + ext[contact, j]), _rms(ext[contact, j])
             m.update(contact_error_rms=err, contact_true_rms=true,
@@ -265,9 +280,10 @@ def _num(value, fmt: str = ".4f") -> str:
 def fidelity_text(result: Fidelity) -> str:
     """A table per joint (units in the headers) and a short summary."""
     has_trace = result.truth_trace is not None
-    cols = [("follower_false_rms", "false N m"), ("leader_rms", "leader N m")]
+    cols = [("follower_false_rms", "false N m"), ("follower_false_rms_moving", "moving"),
+            ("follower_false_rms_still", "still"), ("leader_rms", "leader N m")]
     if any("leader_hand_error_rms" in m for m in result.joints.values()):
-        cols.append(("leader_hand_error_rms", "hand err N m"))
+        cols += [("leader_hand_error_rms", "hand err N m"), ("hand_true_rms", "hand N m")]
     if has_trace:
         cols += [("contact_error_rms", "contact err N m"), ("contact_true_rms", "contact true N m"),
                  ("contact_error_ratio", "err/true")]
@@ -281,9 +297,10 @@ def fidelity_text(result: Fidelity) -> str:
              f"motion ({result.free_s:.1f} s)"
              + (f", {result.contact_samples} in contact ({result.contact_s:.1f} s; guard "
                 f"{result.contact_guard_s:g} s around contact)" if has_trace else ""),
-             "RMS per joint: false = follower tau_res in free motion, leader = leader tau_res in free "
-             "motion," + (" hand err = leader tau_res + hand torque in free motion,\n  contact err = "
-                           "follower tau_res + tau_ext in contact, " if has_trace else "\n  ")
+             "RMS per joint: false = follower tau_res in free motion (moving / still: where the joint moved "
+             "or stood still),\n  leader = leader tau_res in free motion,"
+             + (" hand err = leader tau_res + hand torque in free motion, hand = the hand's true torque,\n"
+                "  contact err = follower tau_res + tau_ext in contact, " if has_trace else "\n  ")
              + "sum = leader + follower tau_res (all kept samples), track = leader q - follower q.",
              "", f"{'joint':<10}" + "".join(f"{h:>{w}}" for (_, h), w in zip(cols, width))]
     for name, m in result.joints.items():
