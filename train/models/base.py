@@ -6,8 +6,10 @@
     model.save(directory); model = load_model(directory)
 
 A saved model is a directory holding `model.json` (method, joint names, options, preprocessing
-settings the data went through, normalisation) plus method-specific files (weights as .pt, arrays
-as .npz). Loading never needs the training data.
+settings the data went through, normalisation, units) plus method-specific files (weights as .pt, arrays
+as .npz), and for a fitted model the control loop's numeric export `loop_model.npz` (train/models/
+loop_export.py; read by crane_io.loop_model without torch), whose SHA-256 model.json records under
+"loop_export". Loading never needs the training data.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from crane_io.errors import CraneError
+from crane_io.loop_model import SI_UNITS
 
 from ..dataset import Dataset
 
@@ -64,9 +67,15 @@ class Model(abc.ABC):
         directory.mkdir(parents=True, exist_ok=True)
         doc = {"format": "crane-model", "format_version": 1, "method": self.method,
                "joint_names": list(self.joint_names), "preprocessing": self.preprocessing,
-               "options": self.options, "state": self._state()}
+               "units": dict(SI_UNITS), "options": self.options, "state": self._state()}
         (directory / MODEL_JSON).write_text(json.dumps(doc, indent=2, default=_jsonable))
         self._save_extra(directory)
+        from .loop_export import EXPORT_FILE, is_fitted, write_loop_export
+
+        if is_fitted(self):  # the control loop's numeric export; model.json records its digest
+            _, sha = write_loop_export(self, directory)
+            doc["loop_export"] = {"file": EXPORT_FILE, "sha256": sha}
+            (directory / MODEL_JSON).write_text(json.dumps(doc, indent=2, default=_jsonable))
         return directory
 
 
