@@ -93,6 +93,15 @@ class OperatorConfig:
     damping: float
     max_torque: float
     start: dict[str, float]  # rad, sim start pose per joint
+    task: str = "free"  # "free": free motion only; "contact": also presses against the follower's objects
+    press_fraction: float = 0.3  # contact task: fraction of the time spent pressing, in (0, 1)
+    press_torque_min: float = 0.3  # N m: the smallest target press torque (norm over the joints)
+    press_torque_max: float = 1.5  # N m: the largest
+    press_min_s: float = 1.0  # s: the shortest press (force ramp and hold)
+    press_max_s: float = 4.0  # s: the longest press
+
+
+OPERATOR_TASKS = ("free", "contact")
 
 
 SCHEDULING = ("fifo", "off")
@@ -131,6 +140,14 @@ class Config:
         values = _deep_copy(self.values)
         values["loop"]["rate_hz"] = float(rate_hz)
         return _build(values, "--rate")
+
+    def with_operator_task(self, task: str) -> Config:
+        """The same configuration with the simulated operator's task set ("free" or "contact")."""
+        if task not in OPERATOR_TASKS:
+            raise ConfigError(f"the operator task must be one of {', '.join(OPERATOR_TASKS)}, got {task!r}")
+        values = _deep_copy(self.values)
+        values["operator"]["task"] = task
+        return _build(values, "--task")
 
 
 # ---- loading ---------------------------------------------------------------------------------------
@@ -294,6 +311,7 @@ def _build(values: dict, where: str) -> Config:
         damping=_nonneg(where, "operator.damping", o["damping"]),
         max_torque=_pos(where, "operator.max_torque", o["max_torque"]),
         start={k: _finite(where, f"operator.start_deg.{k}", v) * DEG for k, v in o["start_deg"].items()},
+        **_operator_task(o, where),
     )
     _need(operator.min_move_s <= operator.max_move_s, where, "operator.min_move_s",
           "at most operator.max_move_s", operator.min_move_s)
@@ -307,6 +325,20 @@ def _build(values: dict, where: str) -> Config:
                               cpu=r["cpu"], lock_memory=r["lock_memory"], freeze_gc=r["freeze_gc"])
     return Config(loop=loop, controller=controller, held=held, safety=safety, operator=operator,
                   values=values, realtime=realtime)
+
+
+def _operator_task(o: dict, where: str) -> dict:
+    """The [operator] task keys (task, press_*), checked."""
+    _need(o["task"] in OPERATOR_TASKS, where, "operator.task", "one of " + ", ".join(OPERATOR_TASKS),
+          o["task"])
+    _need(0 < o["press_fraction"] < 1, where, "operator.press_fraction", "in (0, 1)", o["press_fraction"])
+    keys = ("press_torque_min", "press_torque_max", "press_min_s", "press_max_s")
+    out = {k: _pos(where, f"operator.{k}", o[k]) for k in keys}
+    _need(out["press_torque_min"] <= out["press_torque_max"], where, "operator.press_torque_min",
+          "at most operator.press_torque_max", out["press_torque_min"])
+    _need(out["press_min_s"] <= out["press_max_s"], where, "operator.press_min_s",
+          "at most operator.press_max_s", out["press_min_s"])
+    return {"task": o["task"], "press_fraction": o["press_fraction"], **out}
 
 
 def _deep_copy(d):

@@ -10,15 +10,45 @@ random (seeded), the peak speed of each move stays below `peak_speed`.
 The hand is an impedance: torque = stiffness (q_ref - q) + damping (dq_ref - dq), limited to
 `max_torque`, applied to the leader plant via `Plant.set_external_torque`. Joints that are not
 bilateral get no torque (the servos hold them).
+
+Tasks ([operator] task):
+- "free" (default): the above, nothing else.
+- "contact": the operator is told the follower's objects (`environment=`: the follower plant's
+  parsed [[environment]] list, crane_io.plant_config; or a crane_io.environment.Environment). The
+  leader and follower start at the same pose and the follower tracks the leader, so the operator
+  plans on the leader's joint angles. Free-motion phases as above (targets kept out of the objects:
+  joint walls shrink the joint's workspace by 0.05 rad of clearance, a plane's contact frame stays
+  0.02 m above it at the move's end and midpoint) alternate with press episodes: when a free phase
+  ends (gamma-distributed, sized so that pressing takes about `press_fraction` of the time) the
+  running moves finish, then one object is picked at random and the hand
+    1. approaches: a minimum-jerk move of the reference to the object's surface (a joint wall: the
+       wall's angle on its joint; a plane: the nearest pose found by minimum-norm Newton steps on the
+       3-DOF kinematics of crane_io.dynamics, the held joints at [held]),
+    2. presses (`pressing` is True): ramps the reference in 0.3 s past the surface by
+       target x (1/stiffness + 1/k_object) along the joint-space direction into the object (k_object:
+       the object's stiffness in N m/rad along it; a plane's is stiffness |n^T J|^2), so the hand's
+       torque (norm over the bilateral joints) settles near a target drawn from
+       [press_torque_min, press_torque_max] N m; holds it; the press lasts a draw from
+       [press_min_s, press_max_s] s,
+    3. withdraws: a minimum-jerk move back to where the approach began; then a short pause and the
+       next free phase.
+  Everything is drawn from the operator's seeded generator: the same seed gives the same hand.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from crane_io.description import ArmDescription, default_arm
+from crane_io.errors import ConfigError
 
 from .config import Config, load_config
+
+_PUSH_RAMP_S = 0.3  # s: the press force ramps up over this long
+_WALL_CLEARANCE = 0.05  # rad: free-motion targets stay this far from a joint wall
+_PLANE_CLEARANCE = 0.02  # m: free-motion poses keep the contact frame this far above a plane
 
 
 def minimum_jerk(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -34,7 +64,7 @@ class SimulatedOperator:
     """`SimulatedOperator(seed, arm, rate)`; `start(q0, t0)` then `torque(t, q, dq) -> (n,)` each cycle."""
 
     def __init__(self, seed: int = 0, arm: ArmDescription | None = None, rate: float = 500.0,
-                 config: Config | None = None):
+                 config: Config | None = None, environment=None):
         self.arm = arm or default_arm()
         self.config = config or load_config()
         self.o = self.config.operator
@@ -58,6 +88,50 @@ class SimulatedOperator:
         self._phase_end = np.zeros(k)  # end of the current on or off phase
         self._out = np.zeros(self.n)
         self.started = False
+        self.task = self.o.task
+        self._pressing = False
+        self._phase = "free"
+        self._episode: list[tuple[str, float, np.ndarray]] = []  # press stages still to come
+        self.env = self._contact_setup(environment) if self.task == "contact" else None
+
+    def _contact_setup(self, environment):
+        """The contact task's objects (an Environment) and the free workspace kept out of the walls."""
+        from crane_io.environment import Environment
+        from crane_io.plant_config import BILATERAL_JOINTS
+
+        if tuple(self.arm.bilateral_joints) != BILATERAL_JOINTS:
+            raise ConfigError(f"the contact task needs the bilateral joints {', '.join(BILATERAL_JOINTS)}")
+        if not isinstance(environment, Environment):
+            if not environment:
+                raise ConfigError("the operator's contact task needs the follower's objects "
+                                  "(environment=, a plant with [[environment]] entries)")
+            locked = {n: v for n, v in self.config.held.items() if n not in BILATERAL_JOINTS}
+            environment = Environment(list(environment), locked=locked)
+        self._reach_lo, self._reach_hi = self.lo.copy(), self.hi.copy()
+        for wall in environment.walls:
+            j = wall.index
+            if wall.sign > 0:
+                self.hi[j] = min(self.hi[j], wall.angle - _WALL_CLEARANCE)
+            else:
+                self.lo[j] = max(self.lo[j], wall.angle + _WALL_CLEARANCE)
+            if self.lo[j] > self.hi[j]:
+                raise ConfigError(f"the joint walls leave {BILATERAL_JOINTS[j]} no free workspace for the "
+                                  "simulated operator")
+        self._free_end = math.inf
+        self._transit = self.o.min_move_s + self.o.max_move_s  # approach + withdraw, last episode
+        self._t_start, self._pressed = 0.0, 0.0  # when the task started, the time pressed since (s)
+        return environment
+
+    @property
+    def pressing(self) -> bool:
+        """True while the hand presses against an object (contact task: force ramp and hold)."""
+        return self._pressing
+
+    @property
+    def phase(self) -> str:
+        """What the hand does now: "free" (free motion), or in a press episode of the contact task
+        "approach", "ramp", "hold" (these two are `pressing`), "withdraw"."""
+        return self._phase
 
     # ---- reference ----------------------------------------------------------------------------------
     def start(self, q0: np.ndarray, t0: float = 0.0) -> None:
@@ -70,11 +144,19 @@ class SimulatedOperator:
         self._on[:] = False
         self._phase_end[:] = t0 + self.rng.uniform(0.1, 1.0, size=len(self.idx))
         self.started = True
+        if self.env is not None:
+            self._episode = []
+            self._pressing, self._phase = False, "free"
+            self._t_start, self._pressed = t0, 0.0
+            self._free_end = t0 + self._free_length(t0)
 
     def _pause_mean(self) -> float:
         return self.o.mean_on_s * (1.0 - self.o.duty) / self.o.duty
 
     def _new_move(self, j: int, t: float) -> None:
+        if self.env is not None:
+            self._new_free_move(j, t)
+            return
         o = self.o
         q = self._seg_b[j]
         span = self.hi[j] - self.lo[j]
@@ -107,11 +189,119 @@ class SimulatedOperator:
                 self._phase_end[j] = t + self.rng.gamma(2.0, self.o.mean_on_s / 2.0)
                 self._new_move(j, t)
 
+    # ---- contact task --------------------------------------------------------------------------------
+    def _free_length(self, t: float) -> float:
+        """Length (s) of the next free phase, drawn at time t (gamma, shape 2). Its mean makes the time
+        pressed so far plus one mean press come to `press_fraction` of the time by the end of the next
+        press, counting the last episode's approach and withdrawal as free time (at least 0.5 s)."""
+        o = self.o
+        mean_press = 0.5 * (o.press_min_s + o.press_max_s)
+        total = (self._pressed + mean_press) / o.press_fraction  # elapsed time at the next press's end
+        mean = max(0.5, total - (t - self._t_start) - mean_press - self._transit)
+        return float(self.rng.gamma(2.0, mean / 2.0))
+
+    def _free_ok(self, j: int, target: float) -> bool:
+        """Whether moving joint j to `target` (rad) keeps the planes' contact frames clear (at the end and
+        the midpoint of the move, the other joints at the ends of their moves)."""
+        if not self.env.planes:
+            return True
+        end = self._seg_b.copy()
+        end[j] = target
+        mid = 0.5 * (self._seg_b + end)
+        return all(p.distance(x) >= _PLANE_CLEARANCE for p in self.env.planes for x in (end, mid))
+
+    def _new_free_move(self, j: int, t: float) -> None:
+        """A free move of joint j (contact task): like _new_move, with targets out of the objects; a joint
+        that finds none stays where it is for one short move."""
+        o = self.o
+        q = self._seg_b[j]
+        span = self.hi[j] - self.lo[j]
+        target = q
+        for _ in range(8):
+            x = q + self.rng.uniform(-0.5, 0.5) * span
+            if self.lo[j] <= x <= self.hi[j] and abs(x - q) > 0.05 * span and self._free_ok(j, x):
+                target = x
+                break
+        dist = abs(target - q)
+        self._seg_t0[j] = t
+        self._seg_T[j] = max(self.rng.uniform(o.min_move_s, o.max_move_s), 1.875 * dist / o.peak_speed)
+        self._seg_a[j] = q
+        self._seg_b[j] = target
+
+    def _move_time(self, a: np.ndarray, b: np.ndarray) -> float:
+        """Duration (s) of a minimum-jerk move of all joints from a to b (rad)."""
+        dist = float(np.max(np.abs(b - a)))
+        return max(float(self.rng.uniform(self.o.min_move_s, self.o.max_move_s)),
+                   1.875 * dist / self.o.peak_speed)
+
+    def _plan_press(self, q0: np.ndarray) -> list[tuple[str, float, np.ndarray]] | None:
+        """The stages (name, duration s, reference at its end rad) of a press from rest at q0, or None
+        when the picked object is out of reach."""
+        o = self.o
+        obj = self.env.objects[int(self.rng.integers(len(self.env.objects)))]
+        if hasattr(obj, "normal"):
+            plan = obj.surface(q0, self._reach_lo, self._reach_hi)
+        else:
+            plan = obj.surface(q0)
+        target = float(self.rng.uniform(o.press_torque_min, o.press_torque_max))
+        hold = float(self.rng.uniform(o.press_min_s, o.press_max_s))
+        if plan is None:
+            return None
+        q_s, direction, k_object = plan
+        q_press = q_s + direction * target * (1.0 / o.stiffness + 1.0 / k_object)
+        ramp = min(_PUSH_RAMP_S, 0.5 * hold)
+        approach, withdraw = self._move_time(q0, q_s), self._move_time(q_press, q0)
+        self._transit = approach + withdraw
+        self._pressed += hold
+        return [("approach", approach, q_s), ("ramp", ramp, q_press), ("hold", hold - ramp, q_press),
+                ("withdraw", withdraw, q0.copy())]
+
+    def _next_stage(self) -> None:
+        """Start the next stage of the press episode where the current one ends (or resume free motion)."""
+        end = float(self._seg_t0[0] + self._seg_T[0])
+        if not self._episode:
+            self._pressing, self._phase = False, "free"
+            self._on[:] = False
+            self._phase_end[:] = end + self.rng.uniform(0.1, 1.0, size=len(self.idx))
+            self._free_end = end + self._free_length(end)
+            return
+        name, duration, target = self._episode.pop(0)
+        self._seg_a[:] = self._seg_b
+        self._seg_b[:] = target
+        self._seg_t0[:] = end
+        self._seg_T[:] = max(duration, 1e-9)
+        self._phase = name
+        self._pressing = name in ("ramp", "hold")
+
+    def _advance_contact(self, t: float) -> None:
+        """The contact task's schedule: free phases (the per-joint processes), press episodes (all joints
+        on one stage at a time; `_free_end` is infinite while an episode runs)."""
+        if self._free_end == math.inf:
+            while self._free_end == math.inf and t >= self._seg_t0[0] + self._seg_T[0]:
+                self._next_stage()
+            return
+        if t < self._free_end:
+            self._advance(t)
+            return
+        if np.all(t >= self._seg_t0 + self._seg_T):  # the free phase is over and every move has ended
+            stages = self._plan_press(self._seg_b.copy())
+            if stages is None:
+                self._free_end = t + self._free_length(t)
+                return
+            self._episode = stages
+            self._seg_t0[:] = t
+            self._seg_T[:] = 0.0
+            self._free_end = math.inf
+            self._next_stage()
+
     def reference(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Reference angle and velocity (k,) of the bilateral joints at time t."""
         if not self.started:
             raise RuntimeError("call start(q0) before asking for the reference")
-        self._advance(t)
+        if self.env is not None:
+            self._advance_contact(t)
+        else:
+            self._advance(t)
         tau = (t - self._seg_t0) / self._seg_T
         s, ds = minimum_jerk(tau)
         d = self._seg_b - self._seg_a

@@ -30,6 +30,10 @@ effects (crane_io.effects), plus the actuator, plus the external torque (an oper
   motor torque / Kt_true.
 - Overload (optional): a joint whose goal current sits at its Current Limit for `overload.time_s`
   gets Hardware Error Status bit 5; it stays set (the chain's Shutdown logic turns torque off).
+- Contact (optional, the config's [[environment]]: joint walls and planes, crane_io.environment): the
+  objects' torque on the bilateral joints is added to the external torque in every substep, so
+  stick-slip friction sees it. `contact_torque()` and `in_contact` give it at the end of the last
+  step. A plant without objects computes exactly what it did before they existed.
 
 The truth (effects and parameters) is available as `truth()` / `write_truth(path)` only.
 """
@@ -47,6 +51,7 @@ import pinocchio as pin
 from .description import default_arm
 from .dynamics import ArmDynamics
 from .effects import get_effect
+from .environment import Environment
 from .errors import ConfigError
 from .plant_config import BILATERAL_JOINTS, PlantConfig, load_plant_config
 from .sim.plant_api import ActuatorCommand, SensorReading
@@ -120,6 +125,11 @@ class ArmPlant:
         self._held_inertia_l, self._held_visc_l = self._held_inertia.tolist(), self._held_visc.tolist()
         self._held_cache: dict[float, np.ndarray] = {}
         self.external = np.zeros(3)
+        self._external_all = np.zeros(len(names))  # the last set_external_torque, joint order
+        self.environment = list(config.environment)  # the parsed [[environment]] objects
+        self._env = Environment(self.environment, model=self.model) if self.environment else None
+        self._contact = np.zeros(3)  # the objects' torque at the end of the last step
+        self._in_contact = False
         self.motor_torque = np.zeros(3)
         self._saturated_time = np.zeros(len(names))
         self._errors: dict[int, int] = {}
@@ -297,6 +307,9 @@ class ArmPlant:
                 tau_l = np.where(current_mask, tau_current, self._pd.motor_torque(bi_cmd)).tolist()
             q, dq = self._substep(q, dq, tau_l, ext, h)
         self.q, self.dq = np.array(q), np.array(dq)
+        if self._env is not None:
+            self._contact = np.array(self._env.torque_list(q, dq))
+            self._in_contact = self._env.in_contact(self.q)
         self.motor_torque = np.array(tau_l)
         self.time += dt
 
@@ -318,6 +331,9 @@ class ArmPlant:
     def _substep_compute(self, q: list, dq: list, tau_m: list, ext: list, h: float) -> tuple[list, list]:
         if self._backlash:
             tau_m = self._gear_gap(q, dq, tau_m, h)
+        if self._env is not None:  # the objects push like a hand: a pure function of q, dq
+            contact = self._env.torque_list(q, dq)
+            ext = [ext[0] + contact[0], ext[1] + contact[1], ext[2] + contact[2]]
         other = self._other_torque(q, dq)
         gen_fr = None
         if self._generic:
@@ -487,6 +503,25 @@ class ArmPlant:
             raise ValueError("external torque must be finite")
         self.external = torque[self._bi].copy()
         self._held_ext = torque[self._held].copy()
+        self._external_all = torque.copy()
+
+    def external_torque(self) -> np.ndarray:
+        """(8,) the external torque (N m, e.g. the operator's hand) last set by set_external_torque,
+        in joint order (zeros before the first call)."""
+        return self._external_all.copy()
+
+    def contact_torque(self) -> np.ndarray:
+        """(8,) the environment's torque on the arm (N m, world on arm, positive pushes the joint
+        positive) at the end of the last step, in joint order; zeros for the held joints and for a
+        plant without [[environment]]."""
+        out = np.zeros(len(self.servo_ids))
+        out[self._bi] = self._contact
+        return out
+
+    @property
+    def in_contact(self) -> bool:
+        """True when an [[environment]] object was penetrated at the end of the last step."""
+        return self._in_contact
 
     # ---- state and truth -----------------------------------------------------------------------------
     @property

@@ -22,6 +22,18 @@ Keys (every one optional; crane_io/plants/crane-x7.toml documents each with its 
                                is told (the truth minus the hidden effect, minus what a fitted
                                rigid-body model absorbs anyway)
     [hidden]                   one planted effect (effect, joint, parameters), simulated like the rest
+    [[environment]]            objects the arm can touch (crane_io.environment; none by default):
+        kind = "joint-wall"    joint = JOINT (joint1, joint2 or joint4), angle = RAD, side = "above" or
+                               "below" (the wall stops motion above / below angle), stiffness = 50.0
+                               N m/rad, damping = 0.5 N m s/rad (damping acts only while penetrating;
+                               the wall never pulls)
+        kind = "plane"         point = [x, y, z] m and normal = [nx, ny, nz] (into free space,
+                               normalised here) in the arm's base frame; frame = "tool" (the point
+                               on the arm checked against the plane: a frame of the 3-DOF model,
+                               default the tool frame 0.08 m beyond the gripper base, roughly between
+                               the fingertips), stiffness = 2000.0 N/m, damping = 20.0 N s/m,
+                               friction = 0.3 (Coulomb mu, tangential force <= mu x normal force),
+                               friction_velocity = 0.01 m/s (the tanh smoothing of friction)
 
 The truth (effects and parameters) is only written on request (`write_truth`), never into a session.
 """
@@ -46,7 +58,8 @@ else:  # pragma: no cover
 
 BILATERAL_JOINTS = ("joint1", "joint2", "joint4")
 _TOP_KEYS = {"name", "description", "base", "seed", "substep_s", "effect_files", "torque_constant", "locked",
-             "initial", "sensor", "overload", "limits", "effects", "known", "hidden"}
+             "initial", "sensor", "overload", "limits", "effects", "known", "hidden", "environment"}
+ENVIRONMENT_KINDS = ("joint-wall", "plane")
 
 
 @dataclass
@@ -57,6 +70,44 @@ class EffectSpec:
 
     def as_dict(self) -> dict:
         return {"effect": self.effect, "joint": self.joint, **self.values}
+
+
+@dataclass(frozen=True)
+class JointWallSpec:
+    """A wall in one joint's angle (see crane_io.environment.JointWall)."""
+
+    joint: str  # a bilateral joint
+    angle: float  # rad
+    side: str  # "above": stops motion above `angle`; "below": below it
+    stiffness: float = 50.0  # N m/rad
+    damping: float = 0.5  # N m s/rad, only while penetrating
+    kind: str = "joint-wall"
+
+    def as_dict(self) -> dict:
+        return {"kind": self.kind, "joint": self.joint, "angle": self.angle, "side": self.side,
+                "stiffness": self.stiffness, "damping": self.damping}
+
+
+@dataclass(frozen=True)
+class PlaneSpec:
+    """A plane in the arm's base frame checked against one frame of the arm (crane_io.environment.Plane)."""
+
+    point: tuple[float, float, float]  # m, a point of the plane
+    normal: tuple[float, float, float]  # unit vector into free space
+    frame: str = "tool"  # the point on the arm: a frame of the 3-DOF model
+    stiffness: float = 2000.0  # N/m
+    damping: float = 20.0  # N s/m, only while penetrating
+    friction: float = 0.3  # Coulomb coefficient mu
+    friction_velocity: float = 0.01  # m/s: friction = mu F_n tanh(|v_t| / friction_velocity)
+    kind: str = "plane"
+
+    def as_dict(self) -> dict:
+        return {"kind": self.kind, "point": list(self.point), "normal": list(self.normal),
+                "frame": self.frame, "stiffness": self.stiffness, "damping": self.damping,
+                "friction": self.friction, "friction_velocity": self.friction_velocity}
+
+
+EnvironmentSpec = JointWallSpec | PlaneSpec
 
 
 @dataclass
@@ -94,6 +145,7 @@ class PlantConfig:
     effects: list[EffectSpec] = field(default_factory=list)
     known: list[tuple[str, str | None, dict | None]] = field(default_factory=list)
     hidden: EffectSpec | None = None
+    environment: list[EnvironmentSpec] = field(default_factory=list)  # objects the arm can touch
     source: str = ""  # preset name or file path it was loaded from
 
     @property
@@ -102,13 +154,23 @@ class PlantConfig:
         return list(self.effects) + ([self.hidden] if self.hidden else [])
 
     def truth(self) -> dict:
-        """The plant's hidden truth as plain data (for write_truth and tests)."""
-        return {
+        """The plant's hidden truth as plain data (for write_truth and tests); the environment only
+        when there is one."""
+        out = {
             "plant": self.name, "source": self.source, "torque_constant": dict(self.torque_constant),
             "effects": [e.as_dict() for e in self.effects],
             "hidden": self.hidden.as_dict() if self.hidden else None,
             "known": [{"effect": n, "joint": j} for n, j, _ in self.known],
         }
+        if self.environment:
+            out["environment"] = [e.as_dict() for e in self.environment]
+        return out
+
+    def without_environment(self) -> PlantConfig:
+        """A copy with no [[environment]] objects (e.g. for the leader arm, which touches nothing)."""
+        cfg = copy.copy(self)
+        cfg.environment = []
+        return cfg
 
 
 def presets() -> list[str]:
@@ -282,7 +344,99 @@ def load_plant_config(preset_or_path: str | Path = "crane-x7") -> PlantConfig:
             raise ConfigError(f"{where}: [known] effects must be tables with an 'effect' name")
         get_effect(k["effect"])
         cfg.known.append((str(k["effect"]), k.get("joint"), k.get("shape")))
+    cfg.environment = _environment(data.get("environment", []), where)
     return cfg
+
+
+# ---- [[environment]] -------------------------------------------------------------------------------
+
+_WALL_KEYS = {"kind", "joint", "angle", "side", "stiffness", "damping"}
+_PLANE_KEYS = {"kind", "point", "normal", "frame", "stiffness", "damping", "friction", "friction_velocity"}
+
+
+def _environment(entries, where: str) -> list[EnvironmentSpec]:
+    if not isinstance(entries, list):
+        raise ConfigError(f"{where}: environment must be a list of [[environment]] tables")
+    out = []
+    for n, entry in enumerate(entries, start=1):
+        at = f"{where}: [[environment]] entry {n}"
+        if not isinstance(entry, dict):
+            raise ConfigError(f"{at} must be a table with a kind")
+        kind = entry.get("kind")
+        if kind not in ENVIRONMENT_KINDS:
+            raise ConfigError(f"{at} needs kind = one of {', '.join(map(repr, ENVIRONMENT_KINDS))}, "
+                              f"got {kind!r}")
+        out.append(_joint_wall(entry, at) if kind == "joint-wall" else _plane(entry, at))
+    return out
+
+
+def _number(entry: dict, key: str, at: str, default: float | None = None, minimum: float | None = None,
+            positive: bool = False) -> float:
+    if key not in entry and default is not None:
+        return default
+    if key not in entry:
+        raise ConfigError(f"{at} needs {key} (a number)")
+    value = entry[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ConfigError(f"{at}: {key} must be a finite number, got {value!r}")
+    if positive and value <= 0:
+        raise ConfigError(f"{at}: {key} must be positive, got {value!r}")
+    if minimum is not None and value < minimum:
+        raise ConfigError(f"{at}: {key} must be at least {minimum:g}, got {value!r}")
+    return float(value)
+
+
+def _check_keys(entry: dict, allowed: set, at: str) -> None:
+    unknown = sorted(set(entry) - allowed)
+    if unknown:
+        raise ConfigError(f"{at} has unknown key(s) {', '.join(unknown)} "
+                          f"(known: {', '.join(sorted(allowed))})")
+
+
+def _joint_wall(entry: dict, at: str) -> JointWallSpec:
+    _check_keys(entry, _WALL_KEYS, at)
+    joint, side = entry.get("joint"), entry.get("side")
+    if joint not in BILATERAL_JOINTS:
+        raise ConfigError(f"{at}: joint must be one of {', '.join(BILATERAL_JOINTS)}, got {joint!r}")
+    if side not in ("above", "below"):
+        raise ConfigError(f"{at}: side must be \"above\" or \"below\", got {side!r}")
+    return JointWallSpec(joint=joint, angle=_number(entry, "angle", at), side=side,
+                         stiffness=_number(entry, "stiffness", at, 50.0, positive=True),
+                         damping=_number(entry, "damping", at, 0.5, minimum=0.0))
+
+
+def _vector(entry: dict, key: str, at: str) -> tuple[float, float, float]:
+    value = entry.get(key)
+    if value is None:
+        raise ConfigError(f"{at} needs {key} = [x, y, z]")
+    if (not isinstance(value, list) or len(value) != 3
+            or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
+                   for v in value)):
+        raise ConfigError(f"{at}: {key} must be a list of three finite numbers, got {value!r}")
+    return (float(value[0]), float(value[1]), float(value[2]))
+
+
+def _frame_names() -> list[str]:
+    from .arm_model import JOINTS, TOOL_FRAME
+
+    return [j[0] for j in JOINTS] + [j[4] for j in JOINTS] + [TOOL_FRAME]
+
+
+def _plane(entry: dict, at: str) -> PlaneSpec:
+    _check_keys(entry, _PLANE_KEYS, at)
+    point, normal = _vector(entry, "point", at), _vector(entry, "normal", at)
+    length = math.sqrt(sum(v * v for v in normal))
+    if length < 1e-9:
+        raise ConfigError(f"{at}: normal must not be the zero vector")
+    frame = entry.get("frame", "tool")
+    if frame not in _frame_names():
+        raise ConfigError(f"{at}: frame must be a frame of the arm model ({', '.join(_frame_names())}), "
+                          f"got {frame!r}")
+    return PlaneSpec(point=point, normal=tuple(v / length for v in normal), frame=frame,
+                     stiffness=_number(entry, "stiffness", at, 2000.0, positive=True),
+                     damping=_number(entry, "damping", at, 20.0, minimum=0.0),
+                     friction=_number(entry, "friction", at, 0.3, minimum=0.0),
+                     friction_velocity=_number(entry, "friction_velocity", at, 0.01, positive=True))
 
 
 def write_truth(config: PlantConfig, path: str | Path) -> Path:
