@@ -4,7 +4,7 @@ loaded, checked against the arm and the run, and described for the status line a
     models = load_reaction_models({"follower": "models/mlp"}, arm, config)   # before any torque is on
     ctl = BilateralController(config, arm, models=reaction_factories(models, arm, config))
 
-Every refusal is one sentence (crane_io.loop_model.LoopModelError or ConfigError) raised before the
+Every refusal is one sentence (crane_io.loop_model.LoopModelError) raised before the
 buses are opened: a missing or damaged model directory, a model without its loop export, units other
 than SI, zero-phase preprocessing, joints that are not bilateral joints of this arm, a model fitted on
 the other arm's data. Bilateral joints a model does not cover keep the nominal model.
@@ -19,7 +19,6 @@ from pathlib import Path
 import numpy as np
 
 from crane_io.description import ArmDescription
-from crane_io.errors import ConfigError
 
 from .config import Config
 from .model_reaction import ModelReaction
@@ -61,27 +60,11 @@ def load_reaction_models(paths: dict, arm: ArmDescription, config: Config) -> di
         from crane_io.loop_model import LoopModel  # (pinocchio for a rigid-body model: only when asked)
 
         model = LoopModel.load(path)
-        check_model_for_arm(model, name, arm)
+        model.check_for_arm(arm.bilateral_joints, name)
         kt = {j.name: j.torque_constant for j in arm.joints}
         limit = np.array([arm.joint(n).current_limit * kt[n] for n in model.joint_names])
         out[name] = ArmModel(name, model, limit)
     return out
-
-
-def check_model_for_arm(model, arm_name: str, arm: ArmDescription) -> None:
-    """One sentence (ConfigError) if `model` cannot serve `arm_name`'s observer."""
-    where = f"the model in {model.path}"
-    if model.arm != arm_name:
-        raise ConfigError(f"{where} was fitted on the {model.arm}'s data; the {arm_name}'s observer needs "
-                          f"a model fitted on the {arm_name}'s data (another arm has other friction)")
-    names = arm.joint_names
-    for joint in model.joint_names:
-        if joint not in names:
-            raise ConfigError(f"{where} is for joint {joint!r}, which this arm does not have "
-                              f"(its joints: {', '.join(names)})")
-        if joint not in arm.bilateral_joints:
-            raise ConfigError(f"{where} covers {joint}, which is held in position mode, not a bilateral "
-                              f"joint ({', '.join(arm.bilateral_joints)})")
 
 
 def reaction_factories(models: dict[str, ArmModel], arm: ArmDescription, config: Config) -> dict:

@@ -16,6 +16,8 @@ COMMANDS = {
     "diagnose": ("train.cmd_diagnose", "diagnose"),
     "compare": ("train.cmd_compare", "compare"),
     "effects": ("train.cmd_effects", "effects"),
+    "export": ("train.cmd_export", "export"),
+    "fidelity": ("train.cmd_fidelity", "fidelity"),
 }
 
 
