@@ -18,6 +18,25 @@ from crane_io.errors import cli_errors
 @click.option("--truth", "truth_path", type=click.Path(dir_okay=False), default=None, metavar="JSON",
               help="With --sim and an arm plant: also write the follower plant's truth (effects, "
                    "parameters, seed) to this JSON file, overwriting it. Never stored in the session.")
+@click.option("--truth-trace", "truth_trace", type=click.Path(dir_okay=False), default=None, metavar="H5",
+              help="With --sim: also write the plants' true external torques (contact on the follower, the "
+                   "hand on the leader) for every recorded row to this HDF5 file, for crane-train fidelity. "
+                   "Never stored in the session; not overwritten without --force.")
+@click.option("--task", type=click.Choice(["free", "contact"]), default=None,
+              help="With --sim: what the simulated operator does: free motion, or free motion alternating "
+                   "with pressing the follower against the plant's objects (a plant with [[environment]], "
+                   "e.g. --plant contact-wall). Default: operator.task of the configuration (free).")
+@click.option("--hand-on", type=click.Choice(["leader", "follower"]), default="leader", show_default=True,
+              help="The arm the operator's hand moves. 'follower' swaps the roles so that the leader moves "
+                   "on its own: leader data free of a hand, for crane-train fit --arm leader. Recorded in "
+                   "the session (attribute hand_on).")
+@click.option("--model", "model_dir", type=click.Path(file_okay=False), default=None, metavar="MODEL_DIR",
+              help="A crane-train model (any method, exported for the loop) in the follower's reaction-force "
+                   "observer instead of the nominal model; bilateral joints it does not cover stay nominal.")
+@click.option("--leader-model", "leader_model_dir", type=click.Path(file_okay=False), default=None,
+              metavar="MODEL_DIR",
+              help="The same for the leader's observer: a model fitted on leader data (crane-train fit "
+                   "--arm leader).")
 @click.option("--seed", type=int, default=0, show_default=True,
               help="Seed of the simulated operator and plants (--sim).")
 @click.option("--duration", type=float, default=None, metavar="S",
@@ -34,8 +53,8 @@ from crane_io.errors import cli_errors
 @click.option("--force", is_flag=True, help="Overwrite the output file if it exists.")
 @click.option("--quiet", is_flag=True, help="No live status line and no summary.")
 @cli_errors
-def run(output, sim, plant, truth_path, seed, duration, rate, config_path, realtime, leader_port,
-        follower_port, force, quiet):
+def run(output, sim, plant, truth_path, truth_trace, task, hand_on, model_dir, leader_model_dir, seed,
+        duration, rate, config_path, realtime, leader_port, follower_port, force, quiet):
     """Drive leader and follower under 4-channel bilateral control and record a session.
 
     Start-up checks both ports, every servo's model and the latency timers, brings the arms into
@@ -48,4 +67,6 @@ def run(output, sim, plant, truth_path, seed, duration, rate, config_path, realt
         raise click.UsageError("--plant only applies to --sim")
     run_session(RunOptions(output=output, sim=sim, plant=plant, seed=seed, duration=duration, rate=rate,
                            config=config_path, realtime=realtime, leader_port=leader_port,
-                           follower_port=follower_port, force=force, status=not quiet, truth=truth_path))
+                           follower_port=follower_port, force=force, status=not quiet, truth=truth_path,
+                           truth_trace=truth_trace, task=task, hand_on=hand_on, model=model_dir,
+                           leader_model=leader_model_dir))

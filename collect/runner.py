@@ -41,14 +41,16 @@ from .alignment import SafetyStop, StartRefused, align
 from .arm_pair import ARMS, ArmPair
 from .config import Config, load_config
 from .controller import ArmSignals, BilateralController
+from .loop_models import load_reaction_models, observer_sentence, reaction_factories
 from .operator import SimulatedOperator
 from .pacing import CycleTimer
 from .realtime import RealtimeState, enter_realtime
 from .recorder import SessionRecorder
 from .safety import Breach, SafetyMonitor
-from .sim_arms import make_plant, make_sim_arms, write_truth
+from .sim_arms import make_operator, make_plant, make_sim_arms, write_truth
 from .startup import check_options, check_output, check_ports, make_recorder, open_buses, software_version
 from .status import StatusLine, print_summary
+from .truth_trace import TruthTraceWriter
 
 __all__ = ["ARMS", "RunContext", "RunOptions", "RunResult", "SafetyStop", "StartRefused", "make_plant",
            "make_sim_arms", "run_session", "software_version"]
@@ -72,6 +74,11 @@ class RunOptions:
     status: bool = True  # live status line on stderr
     stream: object = None  # where status and summary go (default sys.stderr)
     truth: str | Path | None = None  # sim only: write the follower plant's truth (JSON) here
+    truth_trace: str | Path | None = None  # sim only: the plants' true external torques per row (HDF5)
+    model: str | Path | None = None  # learned model directory for the follower's reaction-force observer
+    leader_model: str | Path | None = None  # ... for the leader's
+    hand_on: str = "leader"  # the arm the operator's hand moves ("follower": leader data free of a hand)
+    task: str | None = None  # sim only: the simulated operator's task ("free", "contact"); None: config's
     # test hook: called every bilateral cycle with (cycle index, RunContext) before the bus reads
     on_cycle: Callable[[int, RunContext], None] | None = None
 
@@ -114,7 +121,14 @@ class _Loop:
         self.paced = not sims or opts.realtime  # wait for the wall clock between cycles
         self.realtime: RealtimeState | None = None  # what the OS granted the paced loop
         self.period = config.loop.period_s
-        self.ctl = BilateralController(config, arm)
+        # learned models in the observers: loaded and checked here, before any torque is on
+        self.models = load_reaction_models({"leader": opts.leader_model, "follower": opts.model}, arm, config)
+        self.ctl = BilateralController(config, arm, models=reaction_factories(self.models, arm, config))
+        self.fallback_on = {name: None for name in self.models}  # joints on the nominal model now
+        self.fallback_events = 0
+        self.hand_arm = opts.hand_on  # the arm the simulated operator's hand moves
+        self.truth_trace = None  # collect.truth_trace.TruthTraceWriter (--truth-trace)
+        self._hand_torque = None  # the hand's torque acting when this cycle's angles were read
         self.safety = SafetyMonitor(config, arm)
         self.kt = np.array([j.torque_constant for j in arm.joints])
         self.bil = np.array([n in arm.bilateral_joints for n in arm.joint_names])
@@ -264,9 +278,13 @@ class _Loop:
     def _control(self, t: float, sl, sf):
         """The simulated operator's push, the controller and the safety clamps: (tau_l, tau_f, breach)."""
         ql, qf = sl.position, sf.position
-        sim_leader = self.sims.get("leader")
-        if sim_leader is not None:
-            sim_leader.plant.set_external_torque(self.operator.torque(t, ql, sl.velocity))
+        sim_hand = self.sims.get(self.hand_arm)
+        if sim_hand is not None:
+            plant = sim_hand.plant
+            if self.truth_trace is not None:
+                self._hand_torque = plant.external_torque()
+            s = sl if self.hand_arm == "leader" else sf
+            plant.set_external_torque(self.operator.torque(t, s.position, s.velocity))
         dt = self.period if (self.lockstep or self.last_t is None) else max(t - self.last_t, 1e-4)
         self.last_t = t
         cmd = self.ctl.step(ArmSignals(ql, sl.velocity, sl.current), ArmSignals(qf, sf.velocity, sf.current),
@@ -274,10 +292,31 @@ class _Loop:
         tau_l = self.safety.limit_torque(ql, cmd.leader_tau, sl.velocity)
         tau_f = self.safety.limit_torque(qf, cmd.follower_tau, sf.velocity)
         self.ctl.applied(tau_l, tau_f)
+        if self.models:
+            self._model_fallbacks(t)
         breach = self.safety.check("leader", ql, sl.velocity)
         if breach is None:
             breach = self.safety.check("follower", qf, sf.velocity)
         return tau_l, tau_f, breach
+
+    def _model_fallbacks(self, t: float) -> None:
+        """An event when a joint's learned model starts falling back to the nominal one (a prediction
+        that is not finite or beyond the joint's maximum motor torque), and when it recovers."""
+        for name, now in self.ctl.model_fallbacks().items():
+            before = self.fallback_on.get(name)
+            self.fallback_on[name] = now
+            if now is None or (before is not None and np.array_equal(before, now)):
+                continue
+            m = self.models[name]
+            for j, joint in enumerate(m.joints):
+                was = before is not None and before[j]
+                if now[j] and not was:
+                    self.fallback_events += 1
+                    self.event(t, "model_fallback", f"{name} {joint}: the model's prediction is not finite "
+                               f"or beyond {m.limit[j]:.2f} N m; the nominal model is used", joint)
+                elif was and not now[j]:
+                    self.event(t, "model_resumed", f"{name} {joint}: the model's prediction is usable again",
+                               joint)
 
     def _poll_hardware(self, k: int, t: float) -> Breach | None:
         """The servos' hardware-error registers, every safety.hardware_poll_cycles cycles."""
@@ -314,7 +353,23 @@ class _Loop:
             "timing/bus_time_follower": timer.last["bus_follower"],
             "timing/compute_time": timer.last["compute"], "timing/overrun": timer.last_overrun,
         })
+        if self.truth_trace is not None:
+            self._record_truth(t)
         timer.add("record", time.perf_counter() - tr)
+
+    def _record_truth(self, t: float) -> None:
+        """The plants' true external torques in this row (--truth-trace): contact, and the hand that was
+        acting when the angles were read."""
+        fol, lead = self.sims["follower"].plant, self.sims["leader"].plant
+        hand = self._hand_torque
+        ext_l, ext_f = lead.external_torque(), fol.external_torque()
+        if hand is not None:  # the hand's torque was replaced after the read: use the one read against
+            if self.hand_arm == "leader":
+                ext_l = hand
+            else:
+                ext_f = hand
+        self.truth_trace.append(t, fol.contact_torque() + ext_f, lead.contact_torque() + ext_l,
+                                fol.in_contact)
 
     def _fault_breach(self, name: str, exc: Exception, t: float) -> Breach | None:
         from crane_io.faults import CommunicationError, ServoMissingError
@@ -348,6 +403,8 @@ def run_session(opts: RunOptions) -> RunResult:
     config = load_config(opts.config)
     if opts.rate is not None:
         config = config.with_rate(opts.rate)
+    if opts.task is not None:
+        config = config.with_operator_task(opts.task)
     check_options(opts, config.loop.period_s)
     arm = default_arm()
     output = Path(opts.output)
@@ -421,12 +478,17 @@ class _Session:
         loop.attach(self.buses)
         if loop.realtime is not None:  # said once the arms answered (a missing port stays one line)
             loop.status.say(loop.realtime.sentence())
+        if loop.models:
+            loop.status.say(observer_sentence(loop.models, arm))
         # from here a stop is taken between two cycles (ArmPair.read_both) and in the loop
         align_message = loop.align()
         if self.sims:
-            loop.operator = SimulatedOperator(opts.seed, arm, config.loop.rate_hz, config)
-            loop.operator.start(loop.pair.read_both()[0][0].position, 0.0)
-        loop.recorder = make_recorder(opts, self.output, config, arm, hw)
+            loop.operator = make_operator(opts, config, arm, self.sims)
+            states = loop.pair.read_both()
+            loop.operator.start(states[ARMS.index(loop.hand_arm)][0].position, 0.0)
+        loop.recorder = make_recorder(opts, self.output, config, arm, hw, loop.models)
+        if opts.truth_trace is not None:
+            loop.truth_trace = TruthTraceWriter(opts.truth_trace, arm.joint_names, self.output.name)
         loop.ctx.recorder = loop.recorder
         for w in hw["warnings"]:
             loop.event(0.0, "warning", w)
@@ -459,6 +521,8 @@ class _Session:
                 for _name, msg in self._step(loop.pair.torque_report) or []:
                     self._step(loop.event, loop.now(), "torque_state", msg)
             self._step(loop.pair.close)
+            if loop.truth_trace is not None:
+                self._step(loop.truth_trace.close)
         for bus in self.buses.values():
             self._step(bus.close)
         self.result = self._step(_finish, loop, self.opts, self.output, reason, self.wall0, self.out)
@@ -476,6 +540,22 @@ class _Session:
             if self.clean_up_error is None and self.exc is None:
                 self.clean_up_error = exc
             return None
+
+
+def _model_lines(loop) -> list[str]:
+    """The summary's lines on the learned models in the observers (none without a model)."""
+    if not loop.models:
+        return []
+    lines = [observer_sentence(loop.models, loop.arm)]
+    for name, m in loop.models.items():
+        reaction = loop.ctl.reaction(name)
+        if reaction is None:
+            continue
+        cycles = {j: int(c) for j, c in zip(m.joints, reaction.fallback_cycles) if c}
+        if cycles:
+            lines.append(f"{name} model fell back to the nominal one in " + ", ".join(
+                f"{j} {c} cycles" for j, c in cycles.items()) + f" ({loop.fallback_events} events)")
+    return lines
 
 
 def _finish(loop, opts, output, end_reason, wall0, out) -> RunResult:
@@ -502,5 +582,6 @@ def _finish(loop, opts, output, end_reason, wall0, out) -> RunResult:
         result = RunResult(output, loop.cycles, loop.t_session, wall, end_reason, loop.breach, summary, rms)
         if opts.status and out is not None:
             print_summary(result, loop.errors, out, lockstep=not loop.paced,
-                          realtime=loop.realtime.sentence() if loop.realtime is not None else None)
+                          realtime=loop.realtime.sentence() if loop.realtime is not None else None,
+                          extra=_model_lines(loop))
     return result

@@ -33,9 +33,10 @@ if TYPE_CHECKING:
     from .runner import RunOptions
 
 
-def make_plant(spec: str | None, seed: int, arm: ArmDescription):
+def make_plant(spec: str | None, seed: int, arm: ArmDescription, objects: bool = True):
     """The plant behind a simulated arm: ArmPlant from a preset/TOML (default "crane-x7"), or
-    "simple" for the light SimplePlant."""
+    "simple" for the light SimplePlant. `objects=False`: without the preset's [[environment]] (the
+    leader's world: only the follower touches objects)."""
     from crane_io.sim.simple_plant import SimplePlant
 
     if spec == "simple":
@@ -48,11 +49,13 @@ def make_plant(spec: str | None, seed: int, arm: ArmDescription):
             return SimplePlant.from_arm(arm)
         raise ConfigError(f"--plant {spec} needs crane_io.arm_plant, which is not installed; "
                           "use --plant simple") from None
-    return ArmPlant(load_plant_config(spec or "crane-x7"), seed=seed)
+    config = load_plant_config(spec or "crane-x7")
+    return ArmPlant(config if objects else config.without_environment(), seed=seed)
 
 
 def make_sim_arms(opts: RunOptions, config: Config, arm: ArmDescription) -> dict:
-    """Leader and follower simulated arms (plant seeds 2 seed and 2 seed + 1), in lockstep."""
+    """Leader and follower simulated arms (plant seeds 2 seed and 2 seed + 1), in lockstep; the plant's
+    objects ([[environment]]) are in the follower's world only."""
     from crane_io.sim import simulated_arm
 
     # Lockstep, also for --realtime (see the module docstring); start-up (ping, configure, torque on)
@@ -61,7 +64,7 @@ def make_sim_arms(opts: RunOptions, config: Config, arm: ArmDescription) -> dict
     sims = {}
     tag = f"{os.getpid()}-{id(opts) & 0xFFFF:x}"
     for k, name in enumerate(ARMS):
-        plant = make_plant(opts.plant, opts.seed * 2 + k, arm)
+        plant = make_plant(opts.plant, opts.seed * 2 + k, arm, objects=name == "follower")
         sims[name] = simulated_arm(name=f"{name}-{tag}", plant=plant, clock=clock,
                                    period_s=config.loop.period_s, arm=arm, return_delay_time=0)
     return sims
@@ -77,3 +80,13 @@ def write_truth(sims: dict, path: str | Path) -> Path:
         return plant.write_truth(path)
     except OSError as exc:
         raise ConfigError(f"cannot write the truth file {path}: {exc.strerror or exc}") from None
+
+
+def make_operator(opts: RunOptions, config: Config, arm: ArmDescription, sims: dict):
+    """The simulated operator, its hand on `opts.hand_on`; in the "contact" task it is told the objects
+    of the follower's world (the follower's plant environment)."""
+    from .operator import SimulatedOperator
+
+    environment = getattr(sims["follower"].plant, "environment", None) or []
+    return SimulatedOperator(opts.seed, arm, config.loop.rate_hz, config, environment=environment)
+

@@ -52,6 +52,16 @@ def check_options(opts: RunOptions, period_s: float) -> None:
         raise ConfigError("--realtime only applies to --sim (hardware always runs in real time)")
     if opts.truth is not None and not opts.sim:
         raise ConfigError("--truth only applies to --sim (real arms have no truth to write)")
+    if opts.truth_trace is not None:
+        if not opts.sim:
+            raise ConfigError("--truth-trace only applies to --sim (real arms have no truth to write)")
+        from .truth_trace import check_truth_trace_path
+
+        check_truth_trace_path(opts.truth_trace, opts.force)
+    if opts.task is not None and not opts.sim:
+        raise ConfigError("--task only applies to --sim (it sets what the simulated operator does)")
+    if opts.hand_on not in ARMS:
+        raise ConfigError(f"the operator's hand is on the leader or the follower, not {opts.hand_on!r}")
 
 
 def check_ports(opts: RunOptions) -> None:
@@ -132,10 +142,15 @@ def open_buses(opts: RunOptions, arm: ArmDescription, config: Config, ports: dic
 
 
 def make_recorder(opts: RunOptions, output: Path, config: Config, arm: ArmDescription,
-                  hw: dict) -> SessionRecorder:
-    """The session file, with the run's attributes (never the simulated plants' truth)."""
+                  hw: dict, models: dict | None = None) -> SessionRecorder:
+    """The session file, with the run's attributes (never the simulated plants' truth): also the arm
+    the hand moved (`hand_on`) and the model in each arm's observer (`leader_model`, `follower_model`)."""
+    from .loop_models import session_attrs
+
     infos = hw["infos"]
     attrs = {
+        "hand_on": opts.hand_on,
+        **session_attrs(models or {}),
         "tau_source": ["goal_current" if n in arm.bilateral_joints else "present_current"
                        for n in arm.joint_names],
         "torque_constants": np.array([j.torque_constant for j in arm.joints]),

@@ -69,7 +69,8 @@ _END_WORDS = {"duration": "ended after the requested duration", "interrupted": "
               "error": "stopped by an error"}
 
 
-def print_summary(r, bus_errors: int, out, lockstep: bool = False, realtime: str | None = None) -> None:
+def print_summary(r, bus_errors: int, out, lockstep: bool = False, realtime: str | None = None,
+                  extra: list[str] | None = None) -> None:
     """The summary of a finished run (r: RunResult). In lockstep the loop's own rate is the nominal one
     (one period of simulated time per cycle); the wall-clock rate is how fast the machine simulated."""
     s = r.summary
@@ -97,6 +98,7 @@ def print_summary(r, bus_errors: int, out, lockstep: bool = False, realtime: str
     if r.tracking_rms:
         lines.append("  tracking rms (leader - follower): " + ", ".join(
             f"{n} {np.degrees(v):.2f} deg" for n, v in r.tracking_rms.items()))
+    lines.extend(f"  {line}" for line in extra or ())
     if r.breach is not None:
         lines.append(f"  SAFETY STOP: {r.breach.message}")
     print("\n".join(lines), file=out, flush=True)
