@@ -22,6 +22,15 @@ cycle k with the torque sent in cycle k, and so does the loop, one period (2 ms)
 a perfect model gives tau_res = 0; against an object or a hand it gives -tau_ext (the world's torque on
 the joint), the same sign convention as the nominal observer (collect/controller.py).
 
+Standing still, the velocity is inside the paper's dead zone: |dq_m| <= alpha sigma_j (sigma_j the std of
+the joint's velocity in the training data, recorded by crane-train fit as the preprocessing setting
+`dead_zone_rad_s`). There the torque is not a function of (q, dq, ddq) - static friction holds the
+joint anywhere in its band - and the masked loss never asked the model for it; a Coulomb term
+sign(dq) would flip with the velocity's noise and throw steps of twice the friction into the force
+channel. So the model is given dq = 0 for a joint inside its dead zone: it predicts what the joint
+needs standing still apart from friction, and the friction it holds reads as reaction, as with the
+nominal observer. A model saved without `dead_zone_rad_s` gets the filtered velocity as it is.
+
 Per cycle the model is evaluated once (crane_io.loop_model: numpy, a few microseconds). A prediction
 that is not finite or exceeds `limit` on a joint is not used: that joint falls back to the nominal
 reaction torque for that cycle (`ModelReaction.update` returns which joints did).
@@ -117,6 +126,9 @@ class ModelReaction:
         self.filters = LagFilters(pre["cutoff_rad_s"], pre["pseudo_diff_rad_s"], rate_hz)
         self.inputs = ModelInputs(self.filters)
         self.limit = np.asarray(limit, dtype=float)
+        dz = pre.get("dead_zone_rad_s")
+        self.dead_zone = (np.asarray(dz, dtype=float) if dz is not None and len(dz) == len(self.idx)
+                          else None)  # (J,) rad/s, or None: the velocity is given as it is
         self._pred = None  # prediction of the previous cycle (J,)
         self._ok = np.zeros(len(self.idx), dtype=bool)
         self.fallback_cycles = np.zeros(len(self.idx), dtype=int)  # cycles each joint fell back
@@ -139,6 +151,9 @@ class ModelReaction:
 
     def _predict(self) -> None:
         inp = self.inputs
-        pred = np.array(self.model.predict_one(inp.q, inp.dq, inp.ddq), dtype=float)
+        dq = inp.dq
+        if self.dead_zone is not None:
+            dq = np.where(np.abs(dq) > self.dead_zone, dq, 0.0)
+        pred = np.array(self.model.predict_one(inp.q, dq, inp.ddq), dtype=float)
         self._ok = np.isfinite(pred) & (np.abs(pred) <= self.limit)
         self._pred = np.where(self._ok, pred, 0.0)

@@ -105,7 +105,10 @@ def test_the_loop_prediction_is_the_trained_models_predict_on_the_training_filte
     d = pseudo_diff(q, g, rate)
     qm, dqm, ddqm = lowpass(lowpass(q, w, rate), w, rate), lowpass(d, w, rate), pseudo_diff(d, g, rate)
     taum = lowpass(lowpass(tau, w, rate), w, rate)
-    pred = model.predict(qm, dqm, ddqm)
+    # inside the training data's dead zone a joint counts as standing: the loop gives the model dq = 0
+    dead_zone = np.asarray(pre["dead_zone_rad_s"])
+    assert dead_zone.shape == (len(idx),) and (dead_zone > 0).all()
+    pred = model.predict(qm, np.where(np.abs(dqm) > dead_zone, dqm, 0.0), ddqm)
     want = np.full_like(recorded, np.nan)
     want[1:] = taum[:-1] - pred[:-1]  # row k pairs the filtered row k-1
     # From 0.5 s on (over 10 time constants of the 25 rad/s filters): the loop's filters carry the

@@ -114,3 +114,17 @@ def test_controller_uses_the_model_only_on_its_joints_and_keeps_the_nominal_else
     assert abs(nominal.follower.tau_res[i2] - learned.follower.tau_res[i2]) > 0.1  # gravity is not subtracted
     assert learned.model_fallbacks()["follower"].tolist() == [False]
     assert learned.reaction("leader") is None and learned.reaction("follower") is not None
+
+
+def test_a_joint_inside_the_dead_zone_is_given_zero_velocity():
+    names = ("joint1", "joint2", "joint4")
+    model = LinearModel(names, a=0.0, b=1.0, c=0.0)
+    model.preprocessing["dead_zone_rad_s"] = [0.05, 0.05, 1e9]  # joint4: always inside
+    reaction = ModelReaction(model, names, np.full(3, 100.0), RATE)
+    t = np.arange(300) / RATE
+    for k in range(len(t)):  # joint1 moves at 0.5 rad/s, joint2 creeps at 0.01 rad/s, joint4 moves
+        reaction.update(np.array([0.5 * t[k], 0.01 * t[k], 0.5 * t[k]]), np.zeros(3))
+    _, dq, _ = model.calls[-1]
+    assert dq[0] == pytest.approx(0.5, rel=0.05)  # moving: the filtered velocity as it is
+    assert dq[1] == 0.0 and dq[2] == 0.0  # inside the dead zone: standing
+    assert reaction.inputs.dq[1] == pytest.approx(0.01, rel=0.05)  # (the filter itself still sees it)

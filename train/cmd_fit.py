@@ -64,7 +64,11 @@ def fit_model(sessions, method: str, out_dir, train_size: int | None = None, see
         options.update(seed=seed, hidden=m.hidden, lr=m.lr, batch_size=m.batch_size,
                        epochs=epochs if epochs is not None else m.epochs)
     torch.set_num_threads(1)
-    model = make_model(method, ds.joint_names, preprocessing=ds.meta["preprocessing"], **options)
+    # the dead-zone velocity alpha sigma_j of the training data: where the loop's model treats a joint as
+    # standing still (collect/model_reaction.py)
+    dead_zone = [float(ds.meta["alpha"]) * float(s) for s in ds.meta["sigma"]]
+    model = make_model(method, ds.joint_names, preprocessing={**ds.meta["preprocessing"],
+                                                              "dead_zone_rad_s": dead_zone}, **options)
     if has_net:
         bar = tqdm(total=options["epochs"], desc=method, unit="epoch", disable=not progress, leave=False)
         model.fit(pool, splits.val, progress=lambda done, total: bar.update(1))
