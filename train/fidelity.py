@@ -36,7 +36,7 @@ import numpy as np
 
 from crane_io.errors import CraneError, SessionFileError
 
-from .session import _decode, _open, _read, read_session
+from .session import _decode, _open, _read, check_version, read_session
 
 TRUTH_FORMAT = "crane-truth-trace"
 TRUTH_FORMAT_VERSION = 1
@@ -128,14 +128,7 @@ def _read_trace(path: Path, joint_names: tuple[str, ...]) -> _Trace:
         if attrs.get("format") != TRUTH_FORMAT:
             raise SessionFileError(f"{path} is not a truth trace (its format is {attrs.get('format')!r}, "
                                    f"not {TRUTH_FORMAT!r})")
-        try:
-            version = int(attrs.get("format_version"))
-        except (TypeError, ValueError):
-            raise SessionFileError(f"{path} has an unreadable format_version "
-                                   f"{attrs.get('format_version')!r}") from None
-        if version > TRUTH_FORMAT_VERSION:
-            raise SessionFileError(f"{path} is truth-trace version {version}, newer than this reader's "
-                                   f"version {TRUTH_FORMAT_VERSION}; update crane-x7")
+        check_version(path, attrs, TRUTH_FORMAT, TRUTH_FORMAT_VERSION)
         names = attrs.get("joint_names")
         names = tuple(names) if isinstance(names, list) else (names,)
         if names != tuple(joint_names):

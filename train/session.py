@@ -127,6 +127,20 @@ def _read(path: Path, ds: h5py.Dataset, n: int) -> np.ndarray:
         raise damaged_dataset(path, ds, exc) from None
 
 
+def check_version(path: Path, attrs: dict, fmt: str, newest: int) -> int:
+    """The file's format_version; one sentence (SessionFileError) when it is unreadable or newer than
+    `newest`, the version this reader understands."""
+    try:
+        version = int(attrs.get("format_version"))
+    except (TypeError, ValueError):
+        raise SessionFileError(f"{path} has an unreadable format_version "
+                               f"{attrs.get('format_version')!r}") from None
+    if version > newest:
+        raise SessionFileError(f"{path} is {fmt} version {version}, newer than this reader's version "
+                               f"{newest}; update crane-x7")
+    return version
+
+
 def read_session(path, arm: str = "follower") -> RawSession:
     """Read and validate one session file; see the module docstring for what is checked."""
     path = Path(path)
@@ -139,14 +153,7 @@ def read_session(path, arm: str = "follower") -> RawSession:
         missing = [a for a in REQUIRED_ATTRS if a not in attrs]
         if missing:
             raise SessionFileError(f"{path} lacks the required attribute(s) {', '.join(missing)}")
-        try:
-            version = int(attrs["format_version"])
-        except (TypeError, ValueError):
-            raise SessionFileError(f"{path} has an unreadable format_version "
-                                   f"{attrs['format_version']!r}") from None
-        if version > FORMAT_VERSION:
-            raise SessionFileError(f"{path} is crane-session version {version}, newer than this "
-                                   f"reader's version {FORMAT_VERSION}; update crane-x7")
+        check_version(path, attrs, FORMAT, FORMAT_VERSION)
         try:
             rate = float(attrs["rate_hz"])
         except (TypeError, ValueError):
