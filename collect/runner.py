@@ -248,7 +248,7 @@ class _Loop:
         if wall is not None:
             rms_deg = np.degrees(np.sqrt(self.err_sq / max(self.cycles, 1)))[self.bil]
             self.status.show(self.t_session, wall, timer, rms_deg, self.errors, not self.paced,
-                             self.realtime.short() if self.realtime is not None else "")
+                             self.realtime.short() if self.realtime is not None else "", self._model_tag())
         return None, t
 
     def _session_time(self, k: int, leader_state) -> float:
@@ -298,6 +298,16 @@ class _Loop:
         if breach is None:
             breach = self.safety.check("follower", qf, sf.velocity)
         return tau_l, tau_f, breach
+
+    def _model_tag(self) -> str:
+        """The status line's short word on the observers' models ("" with the nominal ones only)."""
+        if not self.models:
+            return ""
+        words = []
+        for name in ("leader", "follower"):
+            m = self.models.get(name)
+            words.append(f"{name[0].upper()} " + (f"{m.model.method} {len(m.joints)}j" if m else "nominal"))
+        return f"model {' '.join(words)} (fallback events {self.fallback_events})"
 
     def _model_fallbacks(self, t: float) -> None:
         """An event when a joint's learned model starts falling back to the nominal one (a prediction

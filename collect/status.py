@@ -52,7 +52,7 @@ class StatusLine:
         return now - self.wall0
 
     def show(self, t_session: float, wall: float, timer, tracking_rms_deg, errors: int,
-             lockstep: bool, realtime: str = "") -> None:
+             lockstep: bool, realtime: str = "", models: str = "") -> None:
         r = timer.recent()
         speed = f" x{t_session / wall:.1f} real time" if lockstep and wall > 0 else ""
         text = (f"{t_session:7.1f} s | {r['rate_hz']:6.0f} Hz{speed} | jitter {r['jitter_s'] * 1e3:.3f} ms | "
@@ -60,6 +60,8 @@ class StatusLine:
                 f"track rms {' '.join(f'{x:.2f}' for x in tracking_rms_deg)} deg")
         if realtime:  # what the OS granted the loop, e.g. "FIFO 40" or "no RT"
             text += f" | {realtime}"
+        if models:  # the observers' models, e.g. "model L nominal F rigid-body 3j (fallback 0)"
+            text += f" | {models}"
         print(("\r" + text) if self.tty else text, end="" if self.tty else "\n", file=self.out, flush=True)
 
 
