@@ -5,13 +5,15 @@
 # 1. training data in free motion on the crane-x7 plant: the follower's (the hand on the leader, as
 #    always) and the leader's (the hand on the follower, so the leader moves on its own);
 # 2. per arm: rigid-body, rigid-body + Coulomb and viscous friction, mlp-masked, hybrid;
-# 3. a separate evaluation run per model pair on the contact-wall plant, the operator alternating
-#    free motion with pressing the follower against the walls, with the plants' true external torques
-#    written beside the session (--truth-trace); crane-train fidelity on each;
+# 3. a separate evaluation run per model on the contact-wall plant (the model in the follower's
+#    observer; and the hybrid pair in both arms' observers), the operator alternating free motion
+#    with pressing the follower against the walls, with the plants' true external torques written
+#    beside the session (--truth-trace); crane-train fidelity on each;
 # 4. the modelling loop in force terms: a hidden Coulomb friction on joint 2 leaves a false force on
 #    that joint until the diagnosis names it and the model gets it.
 # Results land in $OUT (default out/loop): fidelity-*.json, fidelity.md (the tables), models/.
-# Environment: TRAIN_S (simulated s of each training run, default 180), EVAL_S (default 120).
+# Environment: TRAIN_S (simulated s of each training run, default 180), EVAL_S (default 120);
+# REUSE=1 keeps the sessions and models already in $OUT (re-runs only what is missing).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -21,27 +23,36 @@ TRAIN_S=${TRAIN_S:-180}
 EVAL_S=${EVAL_S:-120}
 mkdir -p "$OUT/models"
 FIT="$BIN/crane-train fit --scale-to-data --no-progress --seed 1"
+# have PATH: with REUSE=1, PATH exists already (skip the step that makes it)
+have() { [ -n "${REUSE:-}" ] && [ -e "$1" ]; }
 
 echo "== 1/4 training data: ${TRAIN_S} s with the hand on the leader, ${TRAIN_S} s with the hand on the follower"
-$BIN/crane-collect run --sim --seed 21 --duration "$TRAIN_S" -o "$OUT/train-follower.h5" --force --quiet
-$BIN/crane-collect run --sim --seed 22 --duration "$TRAIN_S" --hand-on follower -o "$OUT/train-leader.h5" \
-    --force --quiet
+have "$OUT/train-follower.h5" ||
+    $BIN/crane-collect run --sim --seed 21 --duration "$TRAIN_S" -o "$OUT/train-follower.h5" --force --quiet
+have "$OUT/train-leader.h5" ||
+    $BIN/crane-collect run --sim --seed 22 --duration "$TRAIN_S" --hand-on follower -o "$OUT/train-leader.h5" \
+        --force --quiet
 
 echo "== 2/4 models of each arm"
 for arm in follower leader; do
     S="$OUT/train-$arm.h5"
-    $FIT "$S" --arm $arm --model rigid-body -o "$OUT/models/$arm-rigid-body"
-    $FIT "$S" --arm $arm --model rigid-body --effect coulomb --effect viscous -o "$OUT/models/$arm-rigid-body+friction"
-    $FIT "$S" --arm $arm --model mlp-masked -o "$OUT/models/$arm-mlp-masked"
-    $FIT "$S" --arm $arm --model hybrid --effect coulomb --effect viscous -o "$OUT/models/$arm-hybrid"
+    M="$OUT/models/$arm"
+    have "$M-rigid-body" || $FIT "$S" --arm $arm --model rigid-body -o "$M-rigid-body"
+    have "$M-rigid-body+friction" ||
+        $FIT "$S" --arm $arm --model rigid-body --effect coulomb --effect viscous -o "$M-rigid-body+friction"
+    have "$M-mlp-masked" || $FIT "$S" --arm $arm --model mlp-masked -o "$M-mlp-masked"
+    have "$M-hybrid" || $FIT "$S" --arm $arm --model hybrid --effect coulomb --effect viscous -o "$M-hybrid"
 done
 
-echo "== 3/4 evaluation: ${EVAL_S} s on the contact-wall plant per model pair (the same seed: the same operator)"
-for m in nominal rigid-body rigid-body+friction mlp-masked hybrid; do
+echo "== 3/4 evaluation: ${EVAL_S} s on the contact-wall plant per model (the same seed: the same operator)"
+for m in nominal rigid-body rigid-body+friction mlp-masked hybrid hybrid-both-arms; do
     args=()
-    if [ "$m" != nominal ]; then
-        args=(--model "$OUT/models/follower-$m" --leader-model "$OUT/models/leader-$m")
-    fi
+    case $m in
+        nominal) ;;
+        hybrid-both-arms) args=(--model "$OUT/models/follower-hybrid" --leader-model "$OUT/models/leader-hybrid") ;;
+        *) args=(--model "$OUT/models/follower-$m") ;;
+    esac
+    have "$OUT/fidelity-$m.json" && continue
     $BIN/crane-collect run --sim --plant contact-wall --task contact --seed 23 --duration "$EVAL_S" \
         -o "$OUT/eval-$m.h5" --truth-trace "$OUT/eval-$m.truth.h5" --force --quiet "${args[@]}"
     $BIN/crane-train fidelity "$OUT/eval-$m.h5" --truth-trace "$OUT/eval-$m.truth.h5" --json \
@@ -51,11 +62,14 @@ done
 echo "== 4/4 the modelling loop in force terms: a hidden Coulomb friction on joint 2"
 KNOWN=(--effect coulomb:joint=joint1 --effect viscous:joint=joint1 --effect viscous:joint=joint2
        --effect coulomb:joint=joint4 --effect viscous:joint=joint4 --effect rotor-inertia:joint=joint4)
-$BIN/crane-collect run --sim --plant hidden-coulomb --seed 31 --duration 150 -o "$OUT/hc-train.h5" --force --quiet
-$FIT "$OUT/hc-train.h5" --model rigid-body "${KNOWN[@]}" -o "$OUT/models/hc-baseline"
+have "$OUT/hc-train.h5" ||
+    $BIN/crane-collect run --sim --plant hidden-coulomb --seed 31 --duration 150 -o "$OUT/hc-train.h5" --force --quiet
+have "$OUT/models/hc-baseline" || $FIT "$OUT/hc-train.h5" --model rigid-body "${KNOWN[@]}" -o "$OUT/models/hc-baseline"
 $BIN/crane-train diagnose "$OUT/models/hc-baseline" "$OUT/hc-train.h5" | tee "$OUT/hc-diagnosis.txt"
-$FIT "$OUT/hc-train.h5" --model rigid-body "${KNOWN[@]}" --effect coulomb:joint=joint2 -o "$OUT/models/hc-with-coulomb"
+have "$OUT/models/hc-with-coulomb" ||
+    $FIT "$OUT/hc-train.h5" --model rigid-body "${KNOWN[@]}" --effect coulomb:joint=joint2 -o "$OUT/models/hc-with-coulomb"
 for m in nominal hc-baseline hc-with-coulomb; do
+    have "$OUT/hc-fidelity-$m.json" && continue
     args=()
     [ "$m" != nominal ] && args=(--model "$OUT/models/$m")
     $BIN/crane-collect run --sim --plant hidden-coulomb --seed 32 --duration 60 -o "$OUT/hc-eval-$m.h5" \

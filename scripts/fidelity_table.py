@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 JOINTS = ("joint1", "joint2", "joint4")
-MODELS = ("nominal", "rigid-body", "rigid-body+friction", "mlp-masked", "hybrid")
+MODELS = ("nominal", "rigid-body", "rigid-body+friction", "mlp-masked", "hybrid", "hybrid-both-arms")
 HIDDEN = ("nominal", "hc-baseline", "hc-with-coulomb")
 
 
