@@ -49,8 +49,8 @@ def test_loop_filters_equal_the_training_preprocessing(cutoff, diff):
         rows.append((inputs.q.copy(), inputs.dq.copy(), inputs.ddq.copy(), inputs.tau.copy()))
     got = [np.array(x) for x in zip(*rows)]
     d = pseudo_diff(q, diff, RATE)
-    want = (lowpass(lowpass(q, cutoff, RATE), cutoff, RATE), lowpass(d, cutoff, RATE), pseudo_diff(d, diff, RATE),
-            lowpass(lowpass(tau, cutoff, RATE), cutoff, RATE))
+    want = (lowpass(lowpass(q, cutoff, RATE), cutoff, RATE), lowpass(d, cutoff, RATE),
+            pseudo_diff(d, diff, RATE), lowpass(lowpass(tau, cutoff, RATE), cutoff, RATE))
     for g, w in zip(got, want):
         np.testing.assert_allclose(g, w, rtol=1e-9, atol=1e-9)
 
@@ -63,7 +63,8 @@ def test_reaction_pairs_the_previous_cycles_torque_with_its_own_prediction():
     out = [reaction.update(q[k], tau[k - 1] if k else tau[0])[0].copy() for k in range(len(q))]
     # reference: the training's filtered signals, row k-1 of each, through the same model
     d = pseudo_diff(q, 25.0, RATE)
-    qm, dqm, ddqm = lowpass(lowpass(q, 25.0, RATE), 25.0, RATE), lowpass(d, 25.0, RATE), pseudo_diff(d, 25.0, RATE)
+    qm = lowpass(lowpass(q, 25.0, RATE), 25.0, RATE)
+    dqm, ddqm = lowpass(d, 25.0, RATE), pseudo_diff(d, 25.0, RATE)
     prev_tau = np.vstack([tau[:1], tau[:-1]])
     taum = lowpass(lowpass(prev_tau, 25.0, RATE), 25.0, RATE)
     want = taum[1:] - (qm[:-1] + 0.5 * dqm[:-1] + 0.1 * ddqm[:-1])
@@ -97,7 +98,8 @@ def test_controller_uses_the_model_only_on_its_joints_and_keeps_the_nominal_else
     n = len(arm.joints)
     nominal, _ = _controller()
     model = LinearModel(("joint2",), a=0.0, b=0.0, c=0.0)  # says the arm needs no torque at all
-    learned, _ = _controller({"follower": lambda: ModelReaction(model, arm.joint_names, np.array([50.0]), RATE)})
+    make = {"follower": lambda: ModelReaction(model, arm.joint_names, np.array([50.0]), RATE)}
+    learned, _ = _controller(make)
     rng = np.random.default_rng(1)
     q0 = np.zeros(n)
     q0[arm.joint_names.index("joint2")] = 0.4
