@@ -162,8 +162,15 @@ def test_bad_models_are_refused_in_one_sentence_before_torque_on(models, tmp_pat
 
 
 def test_absurd_predictions_fall_back_to_the_nominal_observer(models, runs, tmp_path):
+    # a constant torque of 1000 N m on every joint (an offset term added to the fitted model): every
+    # prediction is beyond the joints' maximum motor torque (a model with non-finite parameters is
+    # refused at load, and a scaled one gives in-range values at some poses)
     absurd = load_model(models["follower"])
-    absurd.theta = absurd.theta * 1e4
+    j = len(absurd.joint_names)
+    absurd.terms = list(absurd.terms) + [{"name": "offset", "joint": i, "shape": None} for i in range(j)]
+    absurd.names = list(absurd.names) + [f"offset {n}" for n in absurd.joint_names]
+    absurd.theta = np.concatenate([absurd.theta, np.full(j, 1000.0)])
+    absurd.stderr = np.concatenate([absurd.stderr, np.zeros(j)])
     absurd.save(tmp_path / "absurd")  # with its loop export, consistent with the parameters
     r = _run(tmp_path / "s.h5", duration=3.0, model=tmp_path / "absurd")
     assert r.end_reason == "duration" and r.breach is None

@@ -84,7 +84,7 @@ def test_sim_realtime_aligns_and_records_on_a_slow_machine(tmp_path, monkeypatch
     into the velocity guard or the catch-up outran the Bus Watchdog. Now a late cycle only delays the
     simulated time."""
     make = sim_arms.make_plant
-    monkeypatch.setattr(sim_arms, "make_plant", lambda *a: _SlowPlant(make(*a), 3e-4))
+    monkeypatch.setattr(sim_arms, "make_plant", lambda *a, **k: _SlowPlant(make(*a, **k), 3e-4))
     out = tmp_path / "slow.h5"
     result = run_session(RunOptions(output=out, sim=True, realtime=True, duration=1.0, seed=1,
                                     config=_config(tmp_path), status=False))
