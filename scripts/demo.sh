@@ -19,7 +19,8 @@ $BIN/crane-collect run --sim --seed "$SEED" --duration "$DURATION" -o "$S" --for
 echo "== 2/7 what the session holds"
 $BIN/crane-train info "$S"
 
-echo "== 3/7 the paper's sweep: rigid-body, mlp-mse, mlp-masked over 300..3000 samples, 10 trials"
+echo "== 3/7 the paper's sweep: rigid-body, mlp-mse, mlp-masked over 10 training-set sizes, 10 trials each"
+echo "   (the paper's 300..3000 samples, scaled down to the data if the session is shorter: the sweep says so)"
 $BIN/crane-train sweep "$S" -o "$OUT/sweep" --seed "$SEED" --scale-to-data
 
 echo "== 4/7 a rigid-body (Newton-Euler) model of the follower"

@@ -10,7 +10,7 @@ from crane_io.errors import ConfigError, cli_errors
 
 from .cli_options import data_options, load_config, load_dataset, parse_sizes, writable_output
 from .method_names import SWEEP_METHODS
-from .progress import show_progress
+from .progress import progress_lines, show_progress
 
 
 @click.command()
@@ -27,7 +27,7 @@ from .progress import show_progress
 @click.option("--batch-size", default=None, type=int, help="MLP minibatch size [32].")
 @data_options
 @click.option("--no-progress", is_flag=True,
-              help="No progress bars (there are none anyway when stderr is not a terminal).")
+              help="No progress bars on a terminal, no progress lines (at most one every 10 s) in a log.")
 @cli_errors
 def sweep(sessions, out_dir, sizes, trials, methods, seed, epochs, batch_size, config_path, joints, alpha,
           zero_phase, scale_to_data, no_progress):
@@ -46,8 +46,11 @@ def sweep(sessions, out_dir, sizes, trials, methods, seed, epochs, batch_size, c
     if settings.epochs < 1 or settings.batch_size < 1:
         raise ConfigError("the number of epochs and the batch size must be at least 1")
     ds = load_dataset(sessions, joints, alpha, zero_phase, cfg["preprocess"])
-    result = run_sweep(ds, size_list, trials, method_list, seed, progress=show_progress(not no_progress),
-                       split_config=cfg["splits"], scale_to_data=scale_to_data, mlp_settings=settings)
+    # a terminal gets bars; a log (stderr redirected) plain lines at a bounded rate
+    progress = show_progress(not no_progress) or progress_lines(not no_progress, prefix="sweep: ") or False
+    result = run_sweep(ds, size_list, trials, method_list, seed, progress=progress,
+                       split_config=cfg["splits"], scale_to_data=scale_to_data, mlp_settings=settings,
+                       notify=lambda sentence: click.echo(f"sweep: {sentence}", err=True))
     paths = write_results(result, out_dir)
     click.echo(format_table(result))
     click.echo(f"\nsweep took {result.meta['timing']['total_s']:.1f} s; wrote "

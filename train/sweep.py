@@ -34,6 +34,7 @@ from .method_names import SWEEP_METHODS
 from .metrics import mse, torque_variance
 from .models.mlp import features
 from .models.rigid_body import RigidBodyModel
+from .progress import ProgressLines
 from .splits import SplitConfig, Splits, make_splits
 
 RESULTS_VERSION = 1
@@ -52,11 +53,33 @@ class SweepResult:
     usable_fraction: dict  # of the training pool: {per_joint: {name: f}, all_joints: f}
     window: dict  # t, tau, moving, predictions {method: (n, J)} of models trained on the largest size
     meta: dict = field(default_factory=dict)
+    sizes_requested: list | None = None  # as asked; `sizes` differ from them when sizes_scaled
+    sizes_scaled: bool = False  # --scale-to-data shrank (or dropped) sizes to fit the training pool
 
     def to_json(self) -> dict:
         return {"format": "crane-sweep-results", "format_version": RESULTS_VERSION, "joints": self.joints,
-                "sizes": self.sizes, "trials": self.trials, "usable_fraction": self.usable_fraction,
-                "methods": self.methods, "window": self.window, "meta": self.meta}
+                "sizes": self.sizes, "sizes_requested": self.sizes_requested or self.sizes,
+                "sizes_scaled": self.sizes_scaled, "trials": self.trials,
+                "usable_fraction": self.usable_fraction, "methods": self.methods, "window": self.window,
+                "meta": self.meta}
+
+
+def _span(sizes) -> str:
+    return f"{sizes[0]}..{sizes[-1]}" if len(sizes) > 1 else f"{sizes[0]}"
+
+
+def scaled_sizes_sentence(doc: dict) -> str | None:
+    """One sentence saying that (and how) the sizes were scaled to the data; None when they were not.
+    `doc`: a results.json document (SweepResult.to_json())."""
+    if not doc.get("sizes_scaled"):
+        return None
+    meta = doc.get("meta") or {}
+    pool = meta.get("splits", {}).get("pool")
+    used, asked = _span(doc["sizes"]), _span(doc["sizes_requested"])
+    if meta.get("split_scale", 0) >= 1:  # the splits fitted unscaled: only sizes above the pool went
+        return f"the sizes above the training pool of {pool} samples were left out: {used} instead of {asked}"
+    held = f" (the training pool holds {pool} samples)" if pool else ""
+    return f"the sizes were scaled to the data: {used} samples instead of {asked}{held}"
 
 
 def _ci95(values: np.ndarray) -> np.ndarray:
@@ -91,8 +114,10 @@ def _summarise(per_trial: np.ndarray, test_var: np.ndarray, sizes, rows_used) ->
             "train_rows_mean": [float(np.mean(r)) for r in rows_used]}
 
 
-def run_rigid_body(splits: Splits, subsets: dict, sizes, trials, progress: bool = True, effects=()):
-    """(S, T, J) test MSE, rows used per (size, trial), and the model of trial 0 at the largest size."""
+def run_rigid_body(splits: Splits, subsets: dict, sizes, trials, progress: bool = True, effects=(),
+                   lines: ProgressLines | None = None):
+    """(S, T, J) test MSE, rows used per (size, trial), and the model of trial 0 at the largest size.
+    `lines`: plain progress lines (for a log), at most one per size, the last one always."""
     J = len(splits.pool.joint_names)
     out = np.full((len(sizes), trials, J), np.nan)
     rows_used = [[0] * trials for _ in sizes]
@@ -111,6 +136,10 @@ def run_rigid_body(splits: Splits, subsets: dict, sizes, trials, progress: bool 
             if s == len(sizes) - 1 and trial == 0:
                 largest = model
             bar.update()
+        if lines is not None:
+            last = s == len(sizes) - 1
+            lines(f"rigid-body, size {s + 1}/{len(sizes)} ({size} samples), {(s + 1) * trials} of "
+                  f"{len(sizes) * trials} fits done", force=last)
     bar.close()
     return out, rows_used, largest
 
@@ -140,9 +169,10 @@ def mlp_jobs(splits: Splits, subsets: dict, sizes, trials, methods, seed: int) -
 
 
 def run_mlps(splits: Splits, subsets: dict, sizes, trials, methods, settings: MLPSettings, seed: int,
-             progress: bool = True):
+             progress: bool = True, lines: ProgressLines | None = None):
     """Every MLP of the sweep in one batched run. Returns {method: ((S, T, J) mse, rows_used)} and the
-    window predictions of trial 0 at the largest size."""
+    window predictions of trial 0 at the largest size. `lines`: plain progress lines (for a log) per
+    epoch when due, the last epoch always."""
     job = mlp_jobs(splits, subsets, sizes, trials, methods, seed)
     keys, rows = job["keys"], job["rows"]
     J = splits.pool.tau.shape[1]
@@ -153,8 +183,15 @@ def run_mlps(splits: Splits, subsets: dict, sizes, trials, methods, settings: ML
     val = splits.val
     bar = tqdm(total=settings.epochs, desc=f"{len(keys)} MLPs", unit="epoch", disable=not progress,
                leave=False)
+
+    def step(done, total):
+        bar.update(1)
+        if lines is not None:
+            lines(f"{len(keys)} networks ({', '.join(methods)}), epoch {done}/{total}"
+                  + (" (trained)" if done >= total else ""), force=done >= total)
+
     res = train_mlps(job["X"], job["Y"], job["W"], rows, features(val.q, val.dq, val.ddq), val.tau, settings,
-                     seeds=job["seeds"], progress=lambda done, total: bar.update(1))
+                     seeds=job["seeds"], progress=step)
     bar.close()
     test, win = splits.test, splits.window
     pred = predict(res.params, res.norm, features(test.q, test.dq, test.ddq))  # (M, n, J)
@@ -168,10 +205,15 @@ def run_mlps(splits: Splits, subsets: dict, sizes, trials, methods, settings: ML
 
 
 def run_sweep(dataset: Dataset, sizes, trials: int = 10, methods=SWEEP_METHODS, seed: int = 0,
-              progress: bool = True, split_config: SplitConfig | None = None, scale_to_data: bool = False,
-              mlp_settings: MLPSettings | None = None, threads: int | None = 1) -> SweepResult:
+              progress: bool | ProgressLines = True, split_config: SplitConfig | None = None,
+              scale_to_data: bool = False, mlp_settings: MLPSettings | None = None, threads: int | None = 1,
+              notify=None) -> SweepResult:
     """Run the experiment; see the module docstring. `threads` sets torch's intra-op threads
-    (1 is fastest for these tiny networks; None leaves torch's setting alone)."""
+    (1 is fastest for these tiny networks; None leaves torch's setting alone). `progress`: True for
+    tqdm bars, False for nothing, a train.progress.ProgressLines for plain lines (a log). `notify`:
+    callable(str) told, before any training, when scale_to_data changed the sizes (one sentence)."""
+    lines = progress if isinstance(progress, ProgressLines) else None
+    bars = bool(progress) and lines is None
     methods = list(dict.fromkeys(methods))
     unknown = [m for m in methods if m not in SWEEP_METHODS]
     if unknown:
@@ -184,6 +226,7 @@ def run_sweep(dataset: Dataset, sizes, trials: int = 10, methods=SWEEP_METHODS, 
     sizes = sorted({int(s) for s in sizes})
     if not sizes or sizes[0] < 1:
         raise SweepError("sample sizes must be positive integers")
+    requested = list(sizes)
     settings = mlp_settings or MLPSettings()
     if threads is not None:
         torch.set_num_threads(threads)
@@ -196,12 +239,26 @@ def run_sweep(dataset: Dataset, sizes, trials: int = 10, methods=SWEEP_METHODS, 
                              f"{pool_n} samples")
         scaled = (max(1, int(round(s * splits.scale))) for s in sizes)
         sizes = sorted({s for s in scaled if s <= pool_n})
+        if not sizes:
+            raise SweepError(f"no sample size fits the training pool of {pool_n} samples, even scaled "
+                             f"to the data (x{splits.scale:.3g}); ask for smaller sizes")
+    sizes_scaled = sizes != requested
+    if sizes_scaled and notify is not None:
+        notify(scaled_sizes_sentence({"sizes": sizes, "sizes_requested": requested, "sizes_scaled": True,
+                                      "meta": {"splits": {"pool": pool_n}, "split_scale": splits.scale}}))
     subsets = draw_subsets(pool_n, sizes, trials, seed)
+    if lines is not None:
+        mlp_n = sum(m.startswith("mlp-") for m in methods) * len(sizes) * trials
+        plan = [f"{len(sizes) * trials} rigid-body fits"] if "rigid-body" in methods else []
+        plan += [f"{mlp_n} networks trained together for {settings.epochs} epochs"] if mlp_n else []
+        plural = lambda n, word: f"{n} {word}" + ("s" if n != 1 else "")  # noqa: E731
+        lines(f"{plural(len(methods), 'method')} x {plural(len(sizes), 'size')} ({_span(sizes)} samples) x "
+              f"{plural(trials, 'trial')}: " + ", then ".join(plan), force=True)
     test_var = torque_variance(splits.test.tau)
     out_methods, predictions, timing = {}, {}, {}
     if "rigid-body" in methods:
         t = time.perf_counter()
-        per_trial, rows_used, model = run_rigid_body(splits, subsets, sizes, trials, progress)
+        per_trial, rows_used, model = run_rigid_body(splits, subsets, sizes, trials, bars, lines=lines)
         out_methods["rigid-body"] = _summarise(per_trial, test_var, sizes, rows_used)
         if model is not None:
             predictions["rigid-body"] = model.predict_dataset(splits.window)
@@ -209,7 +266,7 @@ def run_sweep(dataset: Dataset, sizes, trials: int = 10, methods=SWEEP_METHODS, 
     mlp_methods = [m for m in methods if m.startswith("mlp-")]
     if mlp_methods:
         t = time.perf_counter()
-        res, wpred = run_mlps(splits, subsets, sizes, trials, mlp_methods, settings, seed, progress)
+        res, wpred = run_mlps(splits, subsets, sizes, trials, mlp_methods, settings, seed, bars, lines)
         for m in mlp_methods:
             out_methods[m] = _summarise(res[m][0], test_var, sizes, res[m][1])
         predictions.update(wpred)
@@ -227,7 +284,8 @@ def run_sweep(dataset: Dataset, sizes, trials: int = 10, methods=SWEEP_METHODS, 
             "preprocessing": dataset.meta.get("preprocessing"), "sigma": dataset.meta.get("sigma"),
             "sources": dataset.meta.get("sources"), "timing": timing}
     return SweepResult(list(dataset.joint_names), sizes, trials, out_methods,
-                       moving_fractions(splits.pool.moving, dataset.joint_names), window, meta)
+                       moving_fractions(splits.pool.moving, dataset.joint_names), window, meta,
+                       sizes_requested=requested, sizes_scaled=sizes_scaled)
 
 
 def format_table(result: SweepResult | dict) -> str:
@@ -237,8 +295,11 @@ def format_table(result: SweepResult | dict) -> str:
     uf = doc["usable_fraction"]
     lines = ["usable fraction of the training pool: "
              + ", ".join(f"{j} {uf['per_joint'][j]:.0%}" for j in joints)
-             + f", all joints {uf['all_joints']:.0%}",
-             "", "test MSE [(N m)^2], mean +- 95% CI over {} trials".format(doc["trials"])]
+             + f", all joints {uf['all_joints']:.0%}"]
+    scaled = scaled_sizes_sentence(doc)
+    if scaled:
+        lines.append(scaled[0].upper() + scaled[1:] + ".")
+    lines += ["", "test MSE [(N m)^2], mean +- 95% CI over {} trials".format(doc["trials"])]
     head = f"{'method':<12}{'size':>6}" + "".join(f"{j:>24}" for j in joints)
     lines += [head, "-" * len(head)]
 
@@ -275,7 +336,9 @@ def write_results(result: SweepResult, out_dir) -> dict:
                                 r["rmse_mean"][s][j], r["nmse_mean"][s][j], r["train_rows_mean"][s],
                                 doc["trials"]])
     plot_mse_vs_samples(doc, paths["mse_plot"])
+    largest = f"{result.window['size']} samples"
+    if doc["sizes_scaled"]:
+        largest += f" (the largest size, {doc['sizes_requested'][-1]} scaled to the data)"
     plot_window(result.window, doc["joints"], paths["window_plot"],
-                f"measured and predicted torque, models trained on {result.window['size']} samples "
-                f"(grey: dead zone)")
+                f"measured and predicted torque, models trained on {largest}; grey: dead zone")
     return paths
