@@ -11,9 +11,10 @@ from click.testing import CliRunner
 from tests.sessions import write_synthetic_session
 from train.cli import main
 from train.cmd_fit import fit_model
-from train.compare import compare_models, plot, table_text
+from train.compare import Comparison, ModelScore, compare_models, legend_names, plot, table_text
 from train.heldout import evaluation_data
 from train.models.registry import load_model
+from train.plots import change_text, comparison_figure
 from train.preprocess import preprocess
 from train.session import read_sessions
 from train.splits import make_splits
@@ -88,7 +89,108 @@ def test_sessions_default_to_the_ones_the_model_was_trained_on(fitted):
     assert c.models[0].n_test == len(sp.index["test"])
 
 
-def test_plot_writes_one_panel_per_joint(fitted, tmp_path):
+def test_plot_writes_a_png(fitted, tmp_path):
     session, dirs, _ = fitted
     path = plot(compare_models(dirs, [session]), tmp_path / "p.png")
     assert path.exists() and path.stat().st_size > 5000
+
+
+def _texts(ax):
+    return [t.get_text() for t in ax.texts]
+
+
+def test_plot_groups_one_bar_per_model_by_joint_on_a_log_axis(fitted):
+    import matplotlib.pyplot as plt
+
+    session, dirs, _ = fitted
+    c = compare_models(dirs, [session])
+    fig = comparison_figure(c)
+    try:
+        (ax,) = fig.axes
+        assert ax.get_yscale() == "log"
+        assert "MSE" in ax.get_ylabel()
+        # joints on the x axis, one bar per (model, joint), one colour per model in every group
+        assert [t.get_text() for t in ax.get_xticklabels()] == list(c.joints)
+        assert len(ax.containers) == len(c.models)
+        assert len(ax.patches) == len(c.models) * len(c.joints)
+        colours = [{bar.get_facecolor() for bar in bars} for bars in ax.containers]
+        assert all(len(k) == 1 for k in colours) and len(set.union(*colours)) == len(c.models)
+        for bars, s in zip(ax.containers, c.models):
+            np.testing.assert_allclose([b.get_height() for b in bars], [s.test["mse"][j] for j in c.joints])
+        # the bars of one joint sit around that joint's tick, the models in the given order
+        for k in range(len(c.joints)):
+            xs = [bars[k].get_x() + bars[k].get_width() / 2 for bars in ax.containers]
+            assert xs == sorted(xs) and abs(np.mean(xs) - k) < 1e-9
+        assert ax.get_lines() == []  # no line across the bars of unrelated models
+        # the legend names every model by its directory, method and what it adds
+        legend = [t.get_text() for t in ax.get_legend().get_texts()]
+        assert legend == ["1. rb: rigid-body", "2. rb-friction: rigid-body +coulomb +viscous"]
+        # the change against the first model above each later bar
+        base, other = c.models
+        for j in c.joints:
+            assert change_text(other.test["mse"][j], base.test["mse"][j]) in _texts(ax)
+        assert _texts(ax).count("ref") == len(c.joints)
+        assert str(base.n_test) in fig._suptitle.get_text() and "MSE" in fig._suptitle.get_text()
+    finally:
+        plt.close(fig)
+
+
+def test_plot_and_cli_follow_the_chosen_metric(fitted, tmp_path):
+    import matplotlib.pyplot as plt
+
+    session, dirs, _ = fitted
+    c = compare_models(dirs, [session])
+    fig = comparison_figure(c, "rmse")
+    try:
+        ax = fig.axes[0]
+        assert "RMSE" in ax.get_ylabel() and "RMSE" in fig._suptitle.get_text()
+        np.testing.assert_allclose([b.get_height() for b in ax.containers[1]],
+                                   [c.models[1].test["rmse"][j] for j in c.joints])
+    finally:
+        plt.close(fig)
+    out = tmp_path / "rmse.png"
+    r = CliRunner().invoke(main, ["compare", *map(str, dirs), "--session", str(session), "--metric", "rmse",
+                                  "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    assert "joint2 RMSE" in r.output and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def _score(directory, effects, values, joints=("joint1", "joint2")):
+    table = dict(zip(joints, values))
+    return ModelScore(directory, "rigid-body", effects, {"mse": table, "rmse": table, "nmse": table}, {}, 40)
+
+
+def test_plot_keeps_tiny_and_missing_errors_visible():
+    import matplotlib.pyplot as plt
+
+    base = ["coulomb:joint=joint1"]
+    c = Comparison(("joint1", "joint2"), [
+        _score("a/baseline", base, [0.02, 0.3]),
+        _score("a/better", [*base, "coulomb:joint=joint2"], [0.0008, 0.0012]),  # -96 %, -99.6 %
+        _score("b/better", [], [0.0, float("nan")]),
+    ], "test")
+    fig = comparison_figure(c)
+    try:
+        ax = fig.axes[0]
+        lo, hi = ax.get_ylim()
+        # every positive error lies well inside the log axis: the -99.6 % bar is no sliver
+        assert lo <= 0.0008 / 2 and hi >= 0.3
+        assert {"-96%", "-99.6%", "-100%", "n/a"} <= set(_texts(ax))
+        assert all(t.get_text() for t in ax.yaxis.get_majorticklabels() if lo <= t.get_position()[1] <= hi)
+        legend = [t.get_text() for t in ax.get_legend().get_texts()]
+        # the same directory name twice: its parent tells them apart
+        assert legend == ["1. baseline: rigid-body, 1 effect", "2. a/better: rigid-body +coulomb(joint2)",
+                          "3. b/better: rigid-body -coulomb(joint1)"]
+    finally:
+        plt.close(fig)
+
+
+def test_legend_names_are_short():
+    many = [f"effect{k}:joint=joint1" for k in range(6)]
+    c = Comparison(("joint1", "joint2"), [_score("models/" + "x" * 80, [], [1, 1]),
+                                          _score("models/more", many, [1, 1])], "test")
+    first, second = legend_names(c)
+    assert len(first.split(": ")[0]) == len("1. ") + 30 and first.startswith("1. xxx") and "\u2026" in first
+    assert second == "2. more: rigid-body +effect0(joint1) +effect1(joint1) and 4 more"
+    assert change_text(1.0, 0.0) == "" and change_text(float("nan"), 1.0) == ""
+    assert change_text(2.0, 1.0) == "+100%" and change_text(0.9, 1.0) == "-10%"

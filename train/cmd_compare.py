@@ -17,9 +17,9 @@ from crane_io.errors import cli_errors
                    "sessions).")
 @click.option("--json", "as_json", is_flag=True, help="Print the comparison as JSON.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
-              help="Write the bar plot of the error per joint to this PNG.")
+              help="Write the bar chart of the error per joint (one bar per model, log axis) to this PNG.")
 @click.option("--metric", type=click.Choice(["mse", "rmse", "nmse"]), default="mse", show_default=True,
-              help="The metric of the printed table.")
+              help="The metric of the printed table and of the plot.")
 @cli_errors
 def compare(model_dirs, sessions, as_json, output, metric):
     """Compare MODEL_DIR(s), in the given order, on the same held-out samples."""
@@ -31,7 +31,7 @@ def compare(model_dirs, sessions, as_json, output, metric):
         writable_output(output, "file")
     result = compare_models(list(model_dirs), list(sessions), progress=show_progress(not as_json))
     if output:
-        plot(result, output)
+        plot(result, output, metric)
     if as_json:
         doc = result.to_json()
         if output:

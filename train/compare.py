@@ -211,36 +211,51 @@ def table_text(c: Comparison, metric: str = "mse") -> str:
     return "\n".join(lines) + f"\n({metric.upper()} in {unit} on {c.models[0].n_test} held-out test samples)"
 
 
-def plot(c: Comparison, path) -> Path:
-    """One panel per joint: bars of test MSE per model in the given order, a line through them and the
-    change against the first model written on each bar."""
-    import matplotlib
+def plot(c: Comparison, path, metric: str = "mse") -> Path:
+    """The bar chart of the test metric per joint, one bar per model (train.plots.plot_comparison)."""
+    from .plots import plot_comparison
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    return plot_comparison(c, path, metric)
 
-    J = len(c.joints)
-    fig, axes = plt.subplots(1, J, figsize=(3.6 * J + 0.8, 3.6), squeeze=False)
-    x = np.arange(len(c.models))
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    for ax, joint in zip(axes[0], c.joints):
-        v = np.array([s.test["mse"][joint] for s in c.models])
-        ax.bar(x, v, color=[colors[i % len(colors)] for i in range(len(v))], alpha=0.85)
-        ax.plot(x, v, "k.-", lw=1)
-        for i, vi in enumerate(v):
-            if i > 0 and v[0] > 0:
-                ax.annotate(f"{100 * (vi / v[0] - 1):+.0f}%", (i, vi), ha="center", va="bottom", fontsize=8)
-        ax.set_title(joint)
-        ax.set_xticks(x, [str(i + 1) for i in x])
-        ax.set_xlabel("model")
-        ax.set_ylim(0, max(v.max() * 1.15, 1e-12))
-    axes[0][0].set_ylabel("test MSE [N m²]")
-    legend = "   ".join(f"{_label(s, i)}: {_what(s, c.models[0], i)}" for i, s in enumerate(c.models))
-    fig.text(0.5, -0.02, legend, ha="center", va="top", fontsize=8, wrap=True)
-    fig.suptitle("Held-out error per joint, model by model", fontsize=11)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90, bbox_inches="tight")
-    plt.close(fig)
-    return path
+
+def _short_effect(label: str) -> str:
+    """'coulomb:joint=joint2' -> 'coulomb(joint2)'; 'payload' stays."""
+    name, _, joint = label.partition(":joint=")
+    return f"{name}({joint})" if joint else name
+
+
+def _names(c: Comparison) -> list[str]:
+    """Each model's directory name; its last two path parts where two models' names are the same."""
+    paths = [Path(s.directory) for s in c.models]
+    names = [p.name or s.directory for p, s in zip(paths, c.models)]
+    return [n if names.count(n) == 1 else "/".join(p.parts[-2:]) or n for n, p in zip(names, paths)]
+
+
+def _shorten(text: str, width: int, middle: bool = False) -> str:
+    """`text` cut to `width` characters with an ellipsis, at its end or in its middle."""
+    if len(text) <= width:
+        return text
+    if middle:
+        head = (width - 1) // 2
+        return text[:head] + "\u2026" + text[len(text) - (width - 1 - head):]
+    return text[:width - 1] + "\u2026"
+
+
+def legend_names(c: Comparison) -> list[str]:
+    """One short name per model for a plot's legend: '1. baseline: rigid-body, 6 effects', then what
+    each later model adds or drops ('2. with-coulomb: rigid-body +coulomb(joint2)'); a long directory
+    name is cut in its middle (30 characters), a long description at its end (60)."""
+    first = c.models[0]
+    out = []
+    for i, (s, name) in enumerate(zip(c.models, _names(c))):
+        if i == 0:
+            n = len(s.effects)
+            what = s.method + (f", {n} effect{'s' if n > 1 else ''}" if n else "")
+        else:
+            changes = ([f"+{_short_effect(e)}" for e in s.effects if e not in first.effects]
+                       + [f"-{_short_effect(e)}" for e in first.effects if e not in s.effects])
+            if len(changes) > 3:  # the first two, then how many more
+                changes = [*changes[:2], f"and {len(changes) - 2} more"]
+            what = " ".join([s.method, *changes]) if changes else f"{s.method}, same effects as 1"
+        out.append(f"{i + 1}. {_shorten(name, 30, middle=True)}: {_shorten(what, 60)}")
+    return out
