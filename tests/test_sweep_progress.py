@@ -111,7 +111,9 @@ def test_scaled_sizes_are_said_at_the_start_recorded_and_named_in_the_figures(se
                 f"(the training pool holds {pool} samples)")
     assert result.stderr.splitlines()[0] == f"sweep: {sentence}"  # first, before any training
     assert "T" + sentence[1:] + "." in result.stdout  # and with the table
-    window_title = titles[-1][0]
+    (mse_title, mse_xlabel), (window_title, _) = titles
+    assert f"sizes scaled to the data: {lo}..{hi} instead of 1000..6000" in mse_title
+    assert "scaled to the data" in mse_xlabel
     assert f"models trained on {hi} samples (the largest size, 6000 scaled to the data)" in window_title
 
 
