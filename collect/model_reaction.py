@@ -33,12 +33,18 @@ nominal observer. A model saved without `dead_zone_rad_s` gets the filtered velo
 
 Per cycle the model is evaluated once (crane_io.loop_model: numpy, a few microseconds). A prediction
 that is not finite or exceeds `limit` on a joint is not used: that joint falls back to the nominal
-reaction torque for that cycle (`ModelReaction.update` returns which joints did).
+reaction torque for that cycle (`ModelReaction.update` returns which joints did). A model is trusted
+only near the poses it was trained on: when a filtered angle lies more than POSE_MARGIN_RAD outside the
+training data's range (`input_range`, recorded by crane-train fit), every joint of the model falls back
+(`out_of_range` says so). An arm resting outside the operator's workspace - lying on the table, say -
+would otherwise get a model's extrapolation as false force the moment bilateral control engages.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+POSE_MARGIN_RAD = 0.1  # how far outside the training data's angles the model is still trusted (5.7 deg)
 
 
 class LagFilters:
@@ -129,6 +135,13 @@ class ModelReaction:
         dz = pre.get("dead_zone_rad_s")
         self.dead_zone = (np.asarray(dz, dtype=float) if dz is not None and len(dz) == len(self.idx)
                           else None)  # (J,) rad/s, or None: the velocity is given as it is
+        rng = pre.get("input_range") or {}
+        lo, hi = rng.get("q_min"), rng.get("q_max")
+        self.q_lo = self.q_hi = None  # (J,) rad: the trusted poses, or None (a model saved without them)
+        if lo is not None and hi is not None and len(lo) == len(hi) == len(self.idx):
+            self.q_lo = np.asarray(lo, dtype=float) - POSE_MARGIN_RAD
+            self.q_hi = np.asarray(hi, dtype=float) + POSE_MARGIN_RAD
+        self.out_of_range = False  # the last prediction was at a pose outside the training data's
         self._pred = None  # prediction of the previous cycle (J,)
         self._ok = np.zeros(len(self.idx), dtype=bool)
         self.fallback_cycles = np.zeros(len(self.idx), dtype=int)  # cycles each joint fell back
@@ -156,4 +169,8 @@ class ModelReaction:
             dq = np.where(np.abs(dq) > self.dead_zone, dq, 0.0)
         pred = np.array(self.model.predict_one(inp.q, dq, inp.ddq), dtype=float)
         self._ok = np.isfinite(pred) & (np.abs(pred) <= self.limit)
+        if self.q_lo is not None:
+            self.out_of_range = bool(((inp.q < self.q_lo) | (inp.q > self.q_hi)).any())
+            if self.out_of_range:
+                self._ok[:] = False
         self._pred = np.where(self._ok, pred, 0.0)

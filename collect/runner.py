@@ -322,8 +322,11 @@ class _Loop:
                 was = before is not None and before[j]
                 if now[j] and not was:
                     self.fallback_events += 1
-                    self.event(t, "model_fallback", f"{name} {joint}: the model's prediction is not finite "
-                               f"or beyond {m.limit[j]:.2f} N m; the nominal model is used", joint)
+                    why = ("the arm is outside the poses the model was trained on"
+                           if self.ctl.reaction(name).out_of_range
+                           else f"the model's prediction is not finite or beyond {m.limit[j]:.2f} N m")
+                    self.event(t, "model_fallback", f"{name} {joint}: {why}; the nominal model is used",
+                               joint)
                 elif was and not now[j]:
                     self.event(t, "model_resumed", f"{name} {joint}: the model's prediction is usable again",
                                joint)

@@ -130,3 +130,19 @@ def test_a_joint_inside_the_dead_zone_is_given_zero_velocity():
     assert dq[0] == pytest.approx(0.5, rel=0.05)  # moving: the filtered velocity as it is
     assert dq[1] == 0.0 and dq[2] == 0.0  # inside the dead zone: standing
     assert reaction.inputs.dq[1] == pytest.approx(0.01, rel=0.05)  # (the filter itself still sees it)
+
+
+def test_outside_the_training_poses_every_joint_of_the_model_falls_back():
+    names = ("joint1", "joint2", "joint4")
+    model = LinearModel(names)
+    model.preprocessing["input_range"] = {"q_min": [-1.0, -1.0, -2.0], "q_max": [1.0, 1.0, 0.0]}
+    reaction = ModelReaction(model, names, np.full(3, 100.0), RATE)
+    for _ in range(50):  # joint2 at 1.05 rad: outside the data (1.0) but inside the margin (0.1 rad)
+        _, ok = reaction.update(np.array([0.0, 1.05, -1.0]), np.zeros(3))
+    assert ok.all() and not reaction.out_of_range
+    for _ in range(400):  # lying at -1.6 rad: far outside; the filtered angle gets there after a while
+        _, ok = reaction.update(np.array([0.0, -1.6, -1.0]), np.zeros(3))
+    assert not ok.any() and reaction.out_of_range
+    cycles = reaction.fallback_cycles
+    assert cycles.min() > 300  # every joint of the model, from soon after the step on (joint2's own
+    # prediction also left its limit for a few cycles during the step: measured 338, 343, 338)

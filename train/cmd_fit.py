@@ -67,8 +67,11 @@ def fit_model(sessions, method: str, out_dir, train_size: int | None = None, see
     # the dead-zone velocity alpha sigma_j of the training data: where the loop's model treats a joint as
     # standing still (collect/model_reaction.py)
     dead_zone = [float(ds.meta["alpha"]) * float(s) for s in ds.meta["sigma"]]
+    # the poses the model saw: the loop trusts it only there (collect/model_reaction.py)
+    q_range = {"q_min": ds.q.min(axis=0).tolist(), "q_max": ds.q.max(axis=0).tolist()}
     model = make_model(method, ds.joint_names, preprocessing={**ds.meta["preprocessing"],
-                                                              "dead_zone_rad_s": dead_zone}, **options)
+                                                              "dead_zone_rad_s": dead_zone,
+                                                              "input_range": q_range}, **options)
     if has_net:
         bar = tqdm(total=options["epochs"], desc=method, unit="epoch", disable=not progress, leave=False)
         model.fit(pool, splits.val, progress=lambda done, total: bar.update(1))
