@@ -71,24 +71,49 @@ def _names(f) -> list[str]:
     return [str(n) for n in f.attrs["joint_names"]]
 
 
-def _moving_rms(path: Path) -> dict[str, float]:
-    """RMS of the follower's tau_res per bilateral joint on moving samples (|dq| > 0.1 std) after 1 s."""
+def _model_rows(path: Path, margin_s: float = 0.01) -> np.ndarray:
+    """(N,) bool: rows in which the follower's model was in use, by the session's model_fallback /
+    model_resumed events (the model falls back where the arm leaves the poses it was trained on)."""
+    with h5py.File(path, "r") as f:
+        t, events = f["follower/t"][()], read_events(f)
+    use = np.ones(len(t), bool)
+    start = None
+    for e in events:
+        if not e["message"].startswith("follower"):
+            continue
+        if e["kind"] == "model_fallback" and start is None:
+            start = e["t"]
+        elif e["kind"] == "model_resumed" and start is not None:
+            use &= ~((t >= start - margin_s) & (t <= e["t"] + margin_s))
+            start = None
+    if start is not None:
+        use &= t < start - margin_s
+    return use
+
+
+def _moving_rms(path: Path, rows: np.ndarray) -> dict[str, float]:
+    """RMS of the follower's tau_res per bilateral joint on moving samples (|dq| > 0.1 std) after 1 s,
+    among `rows`."""
     with h5py.File(path, "r") as f:
         names, t = _names(f), f["follower/t"][()]
         dq, res = f["follower/dq"][()], f["follower/tau_res"][()]
     out = {}
     for j in BILATERAL:
         i = names.index(j)
-        moving = (np.abs(dq[:, i]) > 0.1 * dq[:, i].std()) & (t - t[0] > 1.0)
+        moving = (np.abs(dq[:, i]) > 0.1 * dq[:, i].std()) & (t - t[0] > 1.0) & rows[: len(t)]
         assert moving.mean() > 0.3, (j, moving.mean())  # measured ~0.6-0.7
         out[j] = float(np.sqrt(np.mean(res[moving, i].astype(float) ** 2)))
     return out
 
 
 def test_the_learned_model_lowers_the_free_motion_false_reaction_torque(runs):
-    nominal, learned = _moving_rms(runs["nominal"]), _moving_rms(runs["learned"])
+    # the rows where the model was in use (not where the arm left the 30 s training data's poses and the
+    # nominal observer took over), the same rows of both runs (the same seed, lockstep: the same t)
+    rows = _model_rows(runs["learned"])
+    assert rows.mean() > 0.5, rows.mean()  # measured 0.88
+    nominal, learned = _moving_rms(runs["nominal"], rows), _moving_rms(runs["learned"], rows)
     for j in BILATERAL:
-        # measured: nominal 0.149 / 0.369 / 0.161 N m, model 0.024 / 0.058 / 0.030 (5-6x lower)
+        # measured: nominal 0.149 / 0.369 / 0.154 N m, model 0.028 / 0.072 / 0.037 (4-5x lower)
         assert learned[j] < nominal[j] / 3, (j, learned, nominal)
 
 
@@ -116,9 +141,11 @@ def test_the_loop_prediction_is_the_trained_models_predict_on_the_training_filte
     # Coulomb term's sign(dq) turns their small early difference in dq_m near zero velocity into jumps of
     # 2 Fc (measured 0.45 N m on joint2 up to row ~200, < 1.3e-3 N m from row 200 on).
     start = int(0.5 * rate)
-    err = np.abs(recorded[start:] - want[start:])
+    rows = _model_rows(runs["learned"])[start:]  # not where the nominal observer took over
+    assert rows.mean() > 0.5, rows.mean()  # measured 0.87
+    err = np.abs(recorded[start:] - want[start:])[rows]
     # recorded tau is the goal current written (2.69 mA steps) times Kt, the observer had it unquantised
-    assert err.max() < 5e-3, err.max(0)  # measured 1.0e-3 N m (joint2)
+    assert err.max() < 5e-3, err.max(0)  # measured 1.3e-3 N m (joint1)
     assert np.abs(recorded[start:]).max() > 0.1  # a real signal compared (measured 0.29-0.64 N m)
 
 
