@@ -1,7 +1,7 @@
 """Learned models for the arms' reaction-force observers (`crane-collect run --model/--leader-model`):
 loaded, checked against the arm and the run, and described for the status line and the session.
 
-    models = load_reaction_models({"follower": "models/mlp"}, arm, config)   # before any torque is on
+    models = load_reaction_models({"follower": "models/mlp"}, arm)   # before any torque is on
     ctl = BilateralController(config, arm, models=reaction_factories(models, arm, config))
 
 Every refusal is one sentence (crane_io.loop_model.LoopModelError) raised before the
@@ -50,8 +50,9 @@ class ArmModel:
         return f"{self.model.method} ({Path(self.model.path).name}) on {', '.join(self.joints)}"
 
 
-def load_reaction_models(paths: dict, arm: ArmDescription, config: Config) -> dict[str, ArmModel]:
+def load_reaction_models(paths: dict, arm: ArmDescription) -> dict[str, ArmModel]:
     """{arm name: ArmModel} for every arm given a model directory (None or missing: nominal model)."""
+    kt = {j.name: j.torque_constant for j in arm.joints}
     out = {}
     for name in ARM_NAMES:
         path = paths.get(name)
@@ -61,7 +62,6 @@ def load_reaction_models(paths: dict, arm: ArmDescription, config: Config) -> di
 
         model = LoopModel.load(path)
         model.check_for_arm(arm.bilateral_joints, name)
-        kt = {j.name: j.torque_constant for j in arm.joints}
         limit = np.array([arm.joint(n).current_limit * kt[n] for n in model.joint_names])
         out[name] = ArmModel(name, model, limit)
     return out

@@ -70,11 +70,16 @@ class LagFilters:
 class ModelInputs:
     """q_m = L(L(q)), dq_m = L(D(q)), ddq_m = D(D(q)) and tau_m = L(L(tau)) of train/preprocess.py, causal,
     one sample at a time: `push(q, tau)` with (k,) arrays; the filtered signals in `.q`, `.dq`, `.ddq`,
-    `.tau`."""
+    `.tau` (None before the first push)."""
 
     def __init__(self, filters: LagFilters):
         self.f = filters
-        self._x = None
+        self._x = None  # the last raw (q, tau)
+        self.q = self.dq = self.ddq = self.tau = None
+
+    @property
+    def started(self) -> bool:
+        return self._x is not None
 
     def push(self, q: np.ndarray, tau: np.ndarray) -> None:
         f = self.f
@@ -83,36 +88,20 @@ class ModelInputs:
         if self._x is None:  # steady state at the first sample
             z = np.zeros_like(q)
             self._x = (q, tau)
-            self.lq, self.llq = q.copy(), q.copy()  # L(q), L(L(q))
-            self.dq_raw, self.ldq, self.ddq_raw = z.copy(), z.copy(), z.copy()  # D(q), L(D(q)), D(D(q))
-            self.lt, self.llt = tau.copy(), tau.copy()  # L(tau), L(L(tau))
+            self._lq, self.q = q.copy(), q.copy()  # L(q), L(L(q))
+            self._d, self.dq, self.ddq = z.copy(), z.copy(), z.copy()  # D(q), L(D(q)), D(D(q))
+            self._lt, self.tau = tau.copy(), tau.copy()  # L(tau), L(L(tau))
             return
         q0, t0 = self._x
-        lq = f.low_pass(q, q0, self.lq)
-        self.llq = f.low_pass(lq, self.lq, self.llq)
-        d = f.derivative(q, q0, self.dq_raw)
-        self.ldq = f.low_pass(d, self.dq_raw, self.ldq)
-        self.ddq_raw = f.derivative(d, self.dq_raw, self.ddq_raw)
-        lt = f.low_pass(tau, t0, self.lt)
-        self.llt = f.low_pass(lt, self.lt, self.llt)
-        self.lq, self.dq_raw, self.lt = lq, d, lt
+        lq = f.low_pass(q, q0, self._lq)
+        self.q = f.low_pass(lq, self._lq, self.q)
+        d = f.derivative(q, q0, self._d)
+        self.dq = f.low_pass(d, self._d, self.dq)
+        self.ddq = f.derivative(d, self._d, self.ddq)
+        lt = f.low_pass(tau, t0, self._lt)
+        self.tau = f.low_pass(lt, self._lt, self.tau)
+        self._lq, self._d, self._lt = lq, d, lt
         self._x = (q, tau)
-
-    @property
-    def q(self) -> np.ndarray:
-        return self.llq
-
-    @property
-    def dq(self) -> np.ndarray:
-        return self.ldq
-
-    @property
-    def ddq(self) -> np.ndarray:
-        return self.ddq_raw
-
-    @property
-    def tau(self) -> np.ndarray:
-        return self.llt
 
 
 class ModelReaction:
@@ -152,7 +141,7 @@ class ModelReaction:
         cycle's pair, and which joints had a usable prediction (the others must use the nominal one)."""
         i = self.idx
         inp = self.inputs
-        first = inp._x is None
+        first = not inp.started
         inp.push(q[i], applied_prev[i])
         if first:  # nothing filtered yet: the steady state at this sample is the first pair
             self._predict()

@@ -122,7 +122,7 @@ class _Loop:
         self.realtime: RealtimeState | None = None  # what the OS granted the paced loop
         self.period = config.loop.period_s
         # learned models in the observers: loaded and checked here, before any torque is on
-        self.models = load_reaction_models({"leader": opts.leader_model, "follower": opts.model}, arm, config)
+        self.models = load_reaction_models({"leader": opts.leader_model, "follower": opts.model}, arm)
         self.ctl = BilateralController(config, arm, models=reaction_factories(self.models, arm, config))
         self.fallback_on = {name: None for name in self.models}  # joints on the nominal model now
         self.fallback_events = 0
