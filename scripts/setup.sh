@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Create .venv and install crane-x7 with its dev tools. The CPU build of torch 2.13.0 is pinned
+# Create .venv and install crane-x7 with its dev tools and the live-view extra. The CPU build of torch 2.13.0 is pinned
 # through constraints.txt (an unpinned torch would pull several GB of CUDA packages).
 # Idempotent: re-running after a change to pyproject.toml or constraints.txt re-installs.
 set -euo pipefail
@@ -14,7 +14,7 @@ want=$(cat pyproject.toml constraints.txt | sha256sum | cut -d' ' -f1)
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
     echo "== installing crane-x7 and its dependencies (CPU torch pinned by constraints.txt)"
     log=.venv/install.log
-    if ! .venv/bin/python -m pip install -c constraints.txt -e ".[dev]" > "$log" 2>&1; then
+    if ! .venv/bin/python -m pip install -c constraints.txt -e ".[dev,view]" > "$log" 2>&1; then
         tail -n 40 "$log"
         echo "Error: installing the dependencies failed (full log: $log)" >&2
         exit 1
