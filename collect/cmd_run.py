@@ -52,9 +52,18 @@ from crane_io.errors import cli_errors
 @click.option("--follower-port", default=None, metavar="PORT", help="Serial port of the follower's U2D2.")
 @click.option("--force", is_flag=True, help="Overwrite the output file if it exists.")
 @click.option("--quiet", is_flag=True, help="No live status line and no summary.")
+@click.option("--view", is_flag=True,
+              help="Live view in rerun (optional extra: pip install 'crane-x7[view]'): both arms' angles, "
+                   "torques, tau_dis/tau_res, tracking error, loop period and the arms in 3D.")
+@click.option("--view-save", "view_save", type=click.Path(dir_okay=False), default=None, metavar="FILE.rrd",
+              help="Write the live view to this rerun file instead of spawning a viewer (implies --view; "
+                   "open it later with `rerun FILE.rrd`).")
+@click.option("--view-every", "view_every", type=click.IntRange(min=1), default=10, show_default=True,
+              metavar="N", help="The view samples every N-th control cycle (50 samples a second at 500 Hz).")
 @cli_errors
 def run(output, sim, plant, truth_path, truth_trace, task, hand_on, model_dir, leader_model_dir, seed,
-        duration, rate, config_path, realtime, leader_port, follower_port, force, quiet):
+        duration, rate, config_path, realtime, leader_port, follower_port, force, quiet, view, view_save,
+        view_every):
     """Drive leader and follower under 4-channel bilateral control and record a session.
 
     Start-up checks both ports, every servo's model and the latency timers, brings the arms into
@@ -65,8 +74,13 @@ def run(output, sim, plant, truth_path, truth_trace, task, hand_on, model_dir, l
 
     if plant is not None and not sim:
         raise click.UsageError("--plant only applies to --sim")
+    if view or view_save is not None:  # without rerun: one sentence, before anything starts
+        from crane_io.view import import_rerun
+
+        import_rerun()
     run_session(RunOptions(output=output, sim=sim, plant=plant, seed=seed, duration=duration, rate=rate,
                            config=config_path, realtime=realtime, leader_port=leader_port,
                            follower_port=follower_port, force=force, status=not quiet, truth=truth_path,
                            truth_trace=truth_trace, task=task, hand_on=hand_on, model=model_dir,
-                           leader_model=leader_model_dir))
+                           leader_model=leader_model_dir, view=view, view_save=view_save,
+                           view_every=view_every))

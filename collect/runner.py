@@ -79,6 +79,9 @@ class RunOptions:
     leader_model: str | Path | None = None  # ... for the leader's
     hand_on: str = "leader"  # the arm the operator's hand moves ("follower": leader data free of a hand)
     task: str | None = None  # sim only: the simulated operator's task ("free", "contact"); None: config's
+    view: bool = False  # live view in a spawned rerun viewer (collect/live_view.py)
+    view_save: str | Path | None = None  # live view written to this .rrd file instead of a viewer
+    view_every: int = 10  # the view samples every N-th cycle
     # test hook: called every bilateral cycle with (cycle index, RunContext) before the bus reads
     on_cycle: Callable[[int, RunContext], None] | None = None
 
@@ -149,6 +152,17 @@ class _Loop:
         self.breach: Breach | None = None
         self.last_event_t = 0.0
         self.ctx = RunContext(config, arm, {}, sims)
+        self.view = None  # collect.live_view.LiveView (--view, --view-save): rerun imported, viewer up
+        if opts.view or opts.view_save is not None:
+            from .live_view import make_live_view
+
+            self.view = make_live_view(arm, save=opts.view_save, every=opts.view_every,
+                                       warn=self._view_warning)
+
+    def _view_warning(self, message: str) -> None:
+        """The live view failed (it turned itself off; the recording goes on): said once, and an event."""
+        self.status.say(f"warning: {message}")
+        self.event(self.now(), "warning", message)
 
     def attach(self, buses: dict) -> None:
         """The opened, configured buses (torque on) this loop drives."""
@@ -369,6 +383,8 @@ class _Loop:
         if self.truth_trace is not None:
             self._record_truth(t)
         timer.add("record", time.perf_counter() - tr)
+        if self.view is not None:  # a sample every view_every cycles, its parts spread over the next cycles
+            self.view.log_cycle(t, sl.position, sf.position, tl_rec, tf_rec, est_l, est_f, timer.last_period)
 
     def _record_truth(self, t: float) -> None:
         """The plants' true external torques in this row (--truth-trace): contact, and the hand that was
@@ -503,6 +519,8 @@ class _Session:
         if opts.truth_trace is not None:
             loop.truth_trace = TruthTraceWriter(opts.truth_trace, arm.joint_names, self.output.name)
         loop.ctx.recorder = loop.recorder
+        if loop.view is not None:
+            loop.view.start()
         for w in hw["warnings"]:
             loop.event(0.0, "warning", w)
         loop.event(0.0, "start", align_message)
@@ -536,6 +554,8 @@ class _Session:
             self._step(loop.pair.close)
             if loop.truth_trace is not None:
                 self._step(loop.truth_trace.close)
+            if loop.view is not None:
+                self._step(loop.view.close)
         for bus in self.buses.values():
             self._step(bus.close)
         self.result = self._step(_finish, loop, self.opts, self.output, reason, self.wall0, self.out)

@@ -1,0 +1,152 @@
+"""The live view of `crane-collect run --view` / `--view-save FILE.rrd` (rerun; crane_io/view.py has the
+entities): both arms' angles, torques, tau_dis and tau_res, the tracking error, the loop period and the two
+arms in 3D.
+
+It must not disturb the loop. The loop calls `log_cycle` once per recorded cycle; that call only copies a
+sample every `every` cycles (default 10: 50 samples a second at 500 Hz) into buffers kept for it, and
+then logs that sample's parts (one rerun call each: 10 time-series entities and two 3D arms) spread over
+the following cycles, at most `parts_per_cycle` per cycle (default 2; a time series costs about 40 us, a
+3D arm with its forward kinematics about 150 us), so no cycle pays for a whole sample (about 0.6 ms).
+rerun sends the data from its own threads (file or viewer); nothing here waits for them. If the next
+sample is due before the parts of the previous one are all logged, the rest of the previous one is
+skipped (counted in `skipped_parts`).
+
+Any failure inside the view (rerun, the viewer, the file) is reported once through `warn`, and the view
+turns itself off; the recording goes on. `close()` never raises either.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from crane_io.view import ARMS, SessionView, ViewError
+
+DEFAULT_EVERY = 10
+DEFAULT_PARTS_PER_CYCLE = 2
+
+
+def check_save_path(path) -> Path:
+    """Refuse (ViewError, one sentence) an .rrd path that cannot be written, before anything starts."""
+    path = Path(path)
+    if path.is_dir():
+        raise ViewError(f"--view-save {path} is a directory; give a file name such as {path / 'view.rrd'}")
+    parent = path.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise ViewError(f"--view-save {path} cannot be written: {parent} is not a writable folder")
+    return path
+
+
+class LiveView:
+    """See the module docstring. `start()` opens the .rrd file (a spawned viewer was started when the view
+    was made, before any torque is on); `log_cycle` is called by the loop; `close()` at the end."""
+
+    def __init__(self, view: SessionView, every: int = DEFAULT_EVERY,
+                 parts_per_cycle: int = DEFAULT_PARTS_PER_CYCLE, warn=None):
+        if every < 1 or parts_per_cycle < 1:
+            raise ViewError("the view logs every N >= 1 cycles, at least one part per cycle")
+        self.view = view
+        self.every = int(every)
+        self.parts_per_cycle = int(parts_per_cycle)
+        self.warn = warn
+        self.on = True
+        self.failure: str | None = None
+        n = len(view.joint_names)
+        self._bil = view.bil_cols
+        self._sample = {f"{arm}/{sig}": np.full(n, np.nan) for arm in ARMS
+                        for sig in ("q", "tau", "tau_dis", "tau_res")}
+        self._sample["loop/tracking_error"] = np.zeros(len(self._bil))
+        self._sample["loop/period"] = np.zeros(2)
+        self._parts = list(view.keys) + list(view.arm_keys)
+        self._next = len(self._parts)  # index of the next part to log; all done at first
+        self._count = self.every - 1  # the first cycle is sampled
+        self._t = 0.0
+        self._period_max = 0.0
+        self.samples = 0
+        self.skipped_parts = 0
+
+    def start(self) -> None:
+        """Open the sink (the .rrd file) as the recording starts; a failure is a warning, not an error."""
+        if not self.on:
+            return
+        try:
+            self.view.open()
+        except Exception as exc:  # noqa: BLE001 - never into the run
+            self._fail(exc)
+
+    def log_cycle(self, t: float, q_l, q_f, tau_l, tau_f, est_l, est_f, period: float) -> None:
+        """One recorded cycle: session time t, both arms' angles (J,) rad, recorded torques (J,) N m,
+        the controller's estimates (`.tau_dis`, `.tau_res`) and the loop period (s) before this cycle."""
+        if not self.on:
+            return
+        try:
+            if period > self._period_max:
+                self._period_max = period
+            self._count += 1
+            if self._count >= self.every:
+                self._count = 0
+                self._take(t, q_l, q_f, tau_l, tau_f, est_l, est_f, period)
+            budget = self.parts_per_cycle
+            parts, view = self._parts, self.view
+            while budget and self._next < len(parts):
+                view.log_part(parts[self._next], self._t, self._sample)
+                self._next += 1
+                budget -= 1
+        except Exception as exc:  # noqa: BLE001 - a view failure never reaches the control loop
+            self._fail(exc)
+
+    def _take(self, t, q_l, q_f, tau_l, tau_f, est_l, est_f, period) -> None:
+        s = self._sample
+        self.skipped_parts += len(self._parts) - self._next
+        np.copyto(s["leader/q"], q_l)
+        np.copyto(s["follower/q"], q_f)
+        np.copyto(s["leader/tau"], tau_l)
+        np.copyto(s["follower/tau"], tau_f)
+        np.copyto(s["leader/tau_dis"], est_l.tau_dis)
+        np.copyto(s["leader/tau_res"], est_l.tau_res)
+        np.copyto(s["follower/tau_dis"], est_f.tau_dis)
+        np.copyto(s["follower/tau_res"], est_f.tau_res)
+        bil = self._bil
+        np.subtract(s["leader/q"][bil], s["follower/q"][bil], out=s["loop/tracking_error"])
+        s["loop/period"][0] = period
+        s["loop/period"][1] = self._period_max
+        self._period_max = 0.0
+        self._t = t
+        self._next = 0
+        self.samples += 1
+
+    def _fail(self, exc: BaseException) -> None:
+        self.on = False
+        self.failure = f"the live view stopped ({exc.__class__.__name__}: {exc}); the recording goes on"
+        if self.warn is not None:
+            try:
+                self.warn(self.failure)
+            except Exception:  # noqa: BLE001, S110 - a warning must not fail the loop either
+                pass
+
+    def close(self) -> None:
+        """Flush and close the view (the .rrd file is complete afterwards); never raises."""
+        try:
+            self.view.close()
+        except Exception as exc:  # noqa: BLE001
+            if self.on:
+                self._fail(exc)
+        self.on = False
+
+
+def make_live_view(arm, *, save=None, spawn: bool = True, every: int = DEFAULT_EVERY,
+                   parts_per_cycle: int = DEFAULT_PARTS_PER_CYCLE, warn=None) -> LiveView:
+    """The live view of a run on `arm` (crane_io.description.ArmDescription), made before any torque is on:
+    rerun imported (ViewUnavailableError without it), the .rrd path checked, or the viewer spawned
+    (ViewError when it cannot start)."""
+    if save is not None:
+        check_save_path(save)
+    view = SessionView(arm.joint_names, arm.bilateral_joints, save=save, spawn=spawn and save is None,
+                       recording_name="crane-collect run")
+    if save is None:
+        view.open()  # the viewer starts now: it may take a while, and no torque is on yet
+    return LiveView(view, every=every, parts_per_cycle=parts_per_cycle, warn=warn)
