@@ -1,4 +1,5 @@
-"""`crane-collect ports`: the candidate U2D2 ports, their stable names and latency timers."""
+"""`crane-collect ports`: the candidate U2D2 ports, their stable names and latency timers, and the links
+of simulated arms that `crane-collect sim-serve` announced (crane_io.link_registry)."""
 
 from __future__ import annotations
 
@@ -11,13 +12,16 @@ from crane_io.errors import cli_errors
 @click.option("--all", "all_ports", is_flag=True, help="Also list serial ports that are not FTDI FT232H.")
 @cli_errors
 def ports(all_ports):
-    """List U2D2 adapters (FTDI 0403:6014): device, by-id path, USB serial, latency timer."""
+    """List U2D2 adapters (FTDI 0403:6014: device, by-id path, USB serial, latency timer) and the links of
+    running `crane-collect sim-serve` processes (marked simulated)."""
+    from crane_io.link_registry import live_links
     from crane_io.ports import list_u2d2_ports
 
     found = list_u2d2_ports(all_ports=all_ports)
-    if not found:
+    links = live_links()
+    if not found and not links:
         click.echo("no U2D2 found (is it plugged in? `lsusb` should show 0403:6014 Future Technology "
-                   "Devices FT232H)")
+                   "Devices FT232H) and no simulated arm is being served (`crane-collect sim-serve`)")
         return
     for p in found:
         latency = "unknown" if p.latency_timer_ms is None else f"{p.latency_timer_ms} ms"
@@ -26,3 +30,10 @@ def ports(all_ports):
             click.echo(f"    stable name: {p.by_id}")
         if p.warning:
             click.echo(f"    Warning: {p.warning}")
+    if not found:
+        click.echo("no U2D2 found")
+    for link in links:
+        role = "" if link.arm == "arm" else f" {link.arm}"
+        hand = ", hand on it" if link.hand else ""
+        click.echo(f"{link.link}  simulated{role} ({link.plant}, {link.clock} clock{hand}) -> {link.pty}  "
+                   f"sim-serve pid {link.pid}")

@@ -1,7 +1,11 @@
 """`crane-collect sim-serve`: serve a simulated CRANE-X7 on a pseudo-terminal until stopped.
 
 Any Dynamixel tool that opens a serial port (the SDK, Dynamixel Wizard 2.0, `crane-collect run`
-with `--port`) can then talk Protocol 2.0 to eight emulated servos (IDs 2..9, 3 Mbps) at the link.
+with `--leader-port/--follower-port`) can then talk Protocol 2.0 to eight emulated servos (IDs 2..9,
+3 Mbps) at the link. `--pair` serves a leader and a follower with a simulated person's hand on one of
+them (collect/sim_lab.py), so a `crane-collect run` over the two links records a session to train on.
+Every served link is announced in the user's runtime directory (crane_io.link_registry) for
+`crane-collect ports`, and withdrawn on exit.
 """
 
 from __future__ import annotations
@@ -24,6 +28,15 @@ def status_line(chain) -> str:
     if chain.clock == "wall":
         line += f"  slipped {s.slip_s:7.2f} s ({s.slips} times)"
     return line
+
+
+def pair_status_line(lab) -> str:
+    """The live status of a served pair: each arm's time and traffic, and what the hand does."""
+    parts = [f"{name} {c.time:8.2f} s {c.stats.packets_received:8d} pkts"
+             for name, c in lab.chains.items()]
+    hand = lab.hand
+    state = "moving" if hand.holding else ("waiting" if hand.engaged_since is not None else "off")
+    return "  ".join(parts) + f"  hand on {lab.hand_on}: {state} ({hand.engagements} takes)"
 
 
 def slip_summary(chain) -> str:
@@ -59,8 +72,26 @@ def build_plant(name: str | None, seed: int, arm):
 
 
 @click.command("sim-serve")
-@click.option("--link", "link", required=True, type=click.Path(dir_okay=False),
-              help="Path of the symlink to the pseudo-terminal, e.g. /tmp/crane_x7.")
+@click.option("--link", "link", default=None, type=click.Path(dir_okay=False),
+              help="Path of the symlink to the pseudo-terminal of one arm, e.g. /tmp/crane_x7.")
+@click.option("--pair", is_flag=True,
+              help="Serve a leader and a follower (--leader-link, --follower-link) with a simulated "
+                   "person's hand on one of them: a lab on the wire that `crane-collect run` records from.")
+@click.option("--leader-link", default=None, type=click.Path(dir_okay=False),
+              help="With --pair: the leader's link.")
+@click.option("--follower-link", default=None, type=click.Path(dir_okay=False),
+              help="With --pair: the follower's link.")
+@click.option("--hand-on", type=click.Choice(["leader", "follower"]), default="leader", show_default=True,
+              help="With --pair: the arm the simulated hand moves ('follower': leader data free of a hand, "
+                   "for `crane-train fit --arm leader`; record it with `run --hand-on follower`).")
+@click.option("--task", type=click.Choice(["free", "contact"]), default=None,
+              help="With --pair: the hand's task (default: the --config file's [operator] task, 'free'); "
+                   "'contact' presses the follower against its plant's objects (e.g. --plant contact-wall).")
+@click.option("--hand-delay", "hand_delay_s", type=click.FloatRange(0, 60), default=1.0, show_default=True,
+              metavar="S", help="With --pair: seconds of the arm's time between its bilateral joints coming "
+                                "alive (torque on, current mode) and the hand taking hold.")
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None, metavar="TOML",
+              help="With --pair: a crane-collect configuration whose [operator] section sets the hand.")
 @click.option("--plant", "plant_name", default=None, metavar="PRESET_OR_TOML",
               help="Physics behind the servos: 'simple' (independent joints) or an arm-plant preset "
                    "or TOML file. Default: the arm plant's 'crane-x7' preset when available, else 'simple'.")
@@ -69,55 +100,147 @@ def build_plant(name: str | None, seed: int, arm):
                    "Current sync write.")
 @click.option("--period", "period_s", type=float, default=0.002, show_default=True,
               help="Lockstep control period in seconds.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the plant's sensor noise.")
+@click.option("--seed", type=int, default=0, show_default=True,
+              help="Seed of the plant's sensor noise (--pair: leader 2 SEED, follower 2 SEED + 1, the hand "
+                   "SEED).")
 @click.option("--no-fast-sync-read", is_flag=True, help="Servos ignore Fast Sync Read (old firmware).")
 @click.option("--return-delay", type=click.IntRange(0, 254), default=None,
               help="Return Delay Time register of every servo (2 us/LSB). Default: factory 250.")
 @click.option("--truth", "truth_path", type=click.Path(dir_okay=False), default=None, metavar="JSON",
-              help="Also write the arm plant's hidden truth (effects, parameters, seed) to this file. "
-                   "Nothing else ever records it.")
+              help="Also write the arm plant's hidden truth (effects, parameters, seed; --pair: the "
+                   "follower's) to this file. Nothing else ever records it.")
 @cli_errors
-def sim_serve(link, plant_name, clock, period_s, seed, no_fast_sync_read, return_delay, truth_path):
-    """Serve a simulated CRANE-X7 on a pseudo-terminal linked at LINK until Ctrl+C or SIGTERM."""
+def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_s, config_path, plant_name,
+              clock, period_s, seed, no_fast_sync_read, return_delay, truth_path):
+    """Serve a simulated CRANE-X7 (or, with --pair, a leader and a follower with a simulated hand) on
+    pseudo-terminals until Ctrl+C or SIGTERM."""
+    if not period_s > 0:
+        raise ConfigError(f"--period must be positive, got {period_s}")
+    if pair:
+        if link is not None:
+            raise ConfigError("--pair serves two links: give --leader-link and --follower-link, not --link")
+        if leader_link is None or follower_link is None:
+            raise ConfigError("--pair needs both --leader-link and --follower-link")
+    else:
+        if link is None:
+            raise ConfigError("give --link PATH (one arm), or --pair with --leader-link and --follower-link")
+        extra = [o for o, v in (("--leader-link", leader_link), ("--follower-link", follower_link),
+                                ("--task", task), ("--config", config_path)) if v is not None]
+        if extra:
+            raise ConfigError(f"{extra[0]} goes with --pair")
+    stop = threading.Event()
+    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        if pair:
+            _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, config_path,
+                        plant_name, clock, period_s, seed, not no_fast_sync_read, return_delay, truth_path)
+        else:
+            _serve_one(stop, link, plant_name, clock, period_s, seed, not no_fast_sync_read, return_delay,
+                       truth_path)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _write_truth(plant, truth_path) -> None:
+    if truth_path is None:
+        return
+    if not hasattr(plant, "write_truth"):
+        raise ConfigError("--truth needs an arm plant (a preset or TOML file), not --plant simple")
+    try:
+        plant.write_truth(truth_path)
+    except OSError as exc:
+        raise ConfigError(f"cannot write the truth file {truth_path}: {exc.strerror or exc}") from None
+
+
+def _announce(server, arm: str, plant: str, clock: str, hand: bool):
+    import os
+
+    from crane_io.link_registry import SimLink, announce
+
+    return announce(SimLink(link=os.path.abspath(server.link), pty=server.slave_path, arm=arm, plant=plant,
+                            clock=clock, hand=hand, pid=os.getpid()))
+
+
+def _wait(stop: threading.Event, errors, status) -> None:
+    """Until Ctrl+C, SIGTERM or a server thread's error; the status line on a terminal."""
+    live = sys.stdout.isatty()
+    try:
+        while not stop.wait(1.0):
+            error = errors()
+            if error is not None:
+                raise HardwareError(f"the simulator stopped unexpectedly: {error}")
+            if live:
+                click.echo("\r" + status(), nl=False)
+    except KeyboardInterrupt:
+        pass
+
+
+def _serve_one(stop, link, plant_name, clock, period_s, seed, fast_sync_read, return_delay, truth_path):
     from crane_io.description import default_arm
+    from crane_io.link_registry import withdraw
     from crane_io.sim.chain import SimulatedChain
     from crane_io.sim.transport import PtyServer
 
-    if not period_s > 0:
-        raise ConfigError(f"--period must be positive, got {period_s}")
     arm = default_arm()
     plant = build_plant(plant_name, seed, arm)
-    if truth_path is not None:
-        if not hasattr(plant, "write_truth"):
-            raise ConfigError("--truth needs an arm plant (a preset or TOML file), not --plant simple")
-        try:
-            plant.write_truth(truth_path)
-        except OSError as exc:
-            raise ConfigError(f"cannot write the truth file {truth_path}: {exc.strerror or exc}") from None
+    _write_truth(plant, truth_path)
     chain = SimulatedChain.for_arm(arm, plant, clock=clock, period_s=period_s,
-                                   fast_sync_read=not no_fast_sync_read, return_delay_time=return_delay)
-    stop = threading.Event()
-    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+                                   fast_sync_read=fast_sync_read, return_delay_time=return_delay)
     server = PtyServer(chain, link)
+    entry = None
     try:
         server.start()
+        entry = _announce(server, "arm", plant_name or "crane-x7", clock, hand=False)
         click.echo(f"Simulated CRANE-X7 ({type(plant).__name__}, {clock} clock) on {link} -> "
                    f"{server.slave_path}")
         click.echo(f"Point the SDK or Dynamixel Wizard 2.0 at {link} (Protocol 2.0, 3,000,000 bps, "
                    f"IDs 2-9), e.g. `crane-collect check --port {link}`. Ctrl+C stops.")
-        live = sys.stdout.isatty()
-        while not stop.wait(1.0):
-            if server.error is not None:
-                raise HardwareError(f"the simulator stopped unexpectedly: {server.error}")
-            if live:
-                click.echo("\r" + status_line(chain), nl=False)
-    except KeyboardInterrupt:
-        pass
+        _wait(stop, lambda: server.error, lambda: status_line(chain))
     finally:
         server.stop()
-        signal.signal(signal.SIGTERM, previous)
+        withdraw(entry)
     s = chain.stats
     click.echo(f"\nStopped after {chain.time:.2f} s of simulated time: {s.packets_received} packets, "
                f"{s.replies_sent} replies, {s.crc_errors} CRC errors. Removed {link}.")
     if clock == "wall":
         click.echo(slip_summary(chain))
+
+
+def _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, config_path, plant_name,
+                clock, period_s, seed, fast_sync_read, return_delay, truth_path):
+    from crane_io.link_registry import withdraw
+
+    from .config import load_config
+    from .sim_lab import SimulatedLab
+
+    lab = SimulatedLab.build(plant=plant_name, seed=seed, hand_on=hand_on, clock=clock, period_s=period_s,
+                             config=load_config(config_path), task=task, hand_delay_s=hand_delay_s,
+                             fast_sync_read=fast_sync_read, return_delay_time=return_delay)
+    _write_truth(lab.plants["follower"], truth_path)  # (a HandOnPlant passes write_truth through)
+    links = {"leader": leader_link, "follower": follower_link}
+    entries = []
+    try:
+        lab.serve(links)
+        for name, server in lab.servers.items():
+            entries.append(_announce(server, name, lab.plant_name, clock, hand=name == hand_on))
+        for name, server in lab.servers.items():
+            click.echo(f"Simulated {name} ({lab.plant_name}, {clock} clock) on {links[name]} -> "
+                       f"{server.slave_path}")
+        click.echo(f"The simulated hand is on the {hand_on}; it takes hold {hand_delay_s:g} s after the "
+                   f"arm's torque comes on. Record with `crane-collect run --leader-port {leader_link} "
+                   f"--follower-port {follower_link} -o SESSION.h5`"
+                   + (" --hand-on follower" if hand_on == "follower" else "") + ". Ctrl+C stops.")
+        _wait(stop, lab.error, lambda: pair_status_line(lab))
+    finally:
+        lab.stop()
+        for entry in entries:
+            withdraw(entry)
+    click.echo("")
+    for name, chain in lab.chains.items():
+        s = chain.stats
+        click.echo(f"{name}: stopped after {chain.time:.2f} s of simulated time, {s.packets_received} "
+                   f"packets, {s.replies_sent} replies, {s.crc_errors} CRC errors. Removed {links[name]}.")
+    click.echo(f"The hand took hold {lab.hand.engagements} time(s).")
+    if clock == "wall":
+        for name, chain in lab.chains.items():
+            click.echo(f"{name}: " + slip_summary(chain))
