@@ -18,6 +18,8 @@ COMMANDS = {
     "effects": ("train.cmd_effects", "effects"),
     "export": ("train.cmd_export", "export"),
     "fidelity": ("train.cmd_fidelity", "fidelity"),
+    "view": ("train.cmd_view", "view"),
+    "import": ("train.cmd_import", "import_session"),
 }
 
 
