@@ -1,0 +1,396 @@
+"""Discover a missing term the effects library does not have (`crane-train diagnose --discover`).
+
+The ranking (train/diagnose.py) judges a closed list of effects. When the residual of a joint stays
+significant after the library's best candidate, discovery proposes *what* term would explain it: a
+sparse regression of the model's held-out residual on a generated basis of physically meaningful terms
+(train/discovery_basis.py), judged with the same honesty as the ranking.
+
+Per joint j (only the samples where j moves, as the ranking; the same K contiguous time blocks):
+
+1. The base: the model's physics basis (a rigid-body model is refitted, so a term competes with the
+   rigid-body parameters it correlates with; any other model keeps its prediction and the residual is
+   the target), plus the library's best candidate on j when that one is significant (discovery then
+   looks for what is left after it; `--discover-all` starts from the model alone on every joint).
+2. Selection on some blocks: the terms and the target are made orthogonal to the base on those blocks
+   (what the base can explain is not a discovery), standardised, and a Lasso path (scikit-learn's
+   `lasso_path`) is computed on a common grid of penalties. Each point of the path is scored by
+   cross-validation over the blocks (leave one block out; the selected terms refitted by least squares,
+   the relaxed Lasso, so shrinkage does not decide), the empty expression included. Parsimony: the
+   sparsest point whose CV error is within one standard error of the best is kept, and at most
+   `max_terms` terms.
+3. Held-out error: for every block k the selection of step 2 runs on the other blocks only, the
+   selected terms are refitted there together with the base, and the block k's squared error is
+   compared with the base's alone. `error_reduction` = 1 - SSE(with terms) / SSE(base), summed over the
+   blocks: measured on samples never used to select or fit.
+4. The reported expression: the selection on all blocks, refitted on all of them with the base;
+   each coefficient's uncertainty is the delete-a-block jackknife standard error (refits without each
+   block), honest with correlated neighbouring samples.
+5. Significant: `error_reduction` >= `min_reduction` and the error falls in every block. On a session
+   with nothing missing the empty expression is within one standard error of the best, or what is
+   selected does not hold on the blocks it never saw.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from crane_io.errors import CraneError
+
+from .dataset import Dataset
+from .diagnosis_cv import Engine, fold_ids
+from .diagnosis_defaults import DEFAULT_FOLDS, DEFAULT_MIN_REDUCTION
+from .discovery_basis import Term, columns, distinct, generate
+
+MAX_TERMS = 6
+N_ALPHAS = 40
+
+
+class DiscoveryError(CraneError):
+    """The data cannot support a discovery (a joint that barely moves, a model that predicts NaN)."""
+
+
+@dataclass
+class FoundTerm:
+    term: str
+    coefficient: float
+    stderr: float
+    unit: str = "N m"
+    code: str = field(default="", repr=False)
+    parameter: str = ""
+
+
+@dataclass
+class JointDiscovery:
+    joint: str
+    expression: str  # readable, e.g. "0.21·sign(dq2)·(1 + 0.8·cos(2·q2))"; "" when nothing was selected
+    terms: list[FoundTerm]
+    error_reduction: float  # fraction of the held-out MSE (after the base) removed, nested CV
+    fold_reductions: list[float]
+    significant: bool
+    sentence: str
+    on_top_of: str | None = None  # the library effect in the base ("coulomb"), None: the model alone
+    on_top_of_shape: dict = field(default_factory=dict)
+    mse_before: float = 0.0
+    mse_after: float = 0.0
+    fold_supports: list[list[str]] = field(default_factory=list)  # terms selected without block k
+    # for the report's figure (not in JSON): time, residual the terms explain, the terms' fit
+    curves: dict = field(default_factory=dict, repr=False)
+
+    def to_json(self) -> dict:
+        d = asdict(self)
+        d.pop("curves")
+        for t in d["terms"]:
+            t.pop("code")
+        return d
+
+
+@dataclass
+class Discovery:
+    joints: tuple[str, ...]
+    discovered: list[JointDiscovery]
+    summary: dict[str, str]
+    settings: dict
+
+    def for_joint(self, joint: str) -> JointDiscovery | None:
+        return next((d for d in self.discovered if d.joint == joint), None)
+
+    def to_json(self) -> dict:
+        return {"discovered": [d.to_json() for d in self.discovered], "summary": dict(self.summary),
+                "settings": dict(self.settings)}
+
+
+def discover(model, ds: Dataset, diagnosis=None, *, every_joint: bool = False, folds: int = DEFAULT_FOLDS,
+             min_reduction: float = DEFAULT_MIN_REDUCTION, max_terms: int = MAX_TERMS,
+             progress: bool = False) -> Discovery:
+    """Discovery for every joint of `ds` (see the module docstring). `diagnosis` (train.diagnose's
+    result on the same data) supplies each joint's library best; with `every_joint` (or without a
+    diagnosis) discovery starts from the model alone."""
+    from .diagnose import physics_basis
+
+    residual = ds.tau - np.asarray(model.predict(ds.q, ds.dq, ds.ddq), dtype=float)
+    if not np.isfinite(residual).all():
+        raise DiscoveryError("the model predicts NaN or infinite torque on these data")
+    X = physics_basis(model, ds)
+    if X is None:
+        X, y, how = np.zeros(ds.tau.shape + (0,)), residual, "terms fitted to the model's residual"
+    else:
+        y, how = ds.tau, "the physics model refitted with the terms"
+    fold = fold_ids(len(ds), folds)
+    _check(ds, fold, folds)
+    out, summary = [], {}
+    work = list(enumerate(ds.joint_names))
+    if progress:
+        from tqdm import tqdm
+
+        work = tqdm(work, desc="discover", unit="joint", leave=False)
+    for j, name in work:
+        lib = None if (every_joint or diagnosis is None) else _library_best(diagnosis, name)
+        base = X
+        if lib is not None:
+            base = np.concatenate([X, _library_columns(lib, ds, j)], axis=2)
+        found = discover_joint(ds, base, y, j, fold, folds, min_reduction=min_reduction,
+                               max_terms=max_terms)
+        if lib is not None:
+            found.on_top_of, found.on_top_of_shape = lib.effect, dict(lib.shape or {})
+        found.sentence = _sentence(found)
+        out.append(found)
+        summary[name] = found.sentence
+    settings = {"folds": folds, "min_reduction": min_reduction, "max_terms": max_terms,
+                "every_joint": every_joint, "method": how, "selection": (
+                    "Lasso path (scikit-learn lasso_path) on the terms made orthogonal to the base, "
+                    "leave-one-block-out CV of the refitted selections, sparsest within one standard "
+                    "error of the best"),
+                "error_reduction": "nested: selected and fitted without the block it is scored on"}
+    return Discovery(tuple(ds.joint_names), out, summary, settings)
+
+
+def discover_joint(ds: Dataset, base: np.ndarray, y: np.ndarray, j: int, fold: np.ndarray, folds: int,
+                   min_reduction: float = DEFAULT_MIN_REDUCTION, max_terms: int = MAX_TERMS,
+                   terms: list[Term] | None = None) -> JointDiscovery:
+    """Discovery on joint index j against the basis `base` (N, J, p) and target y (N, J)."""
+    name = ds.joint_names[j]
+    rows = np.flatnonzero(ds.moving[:, j])
+    terms = generate(ds.joint_names, j) if terms is None else terms
+    T = columns(terms, ds.q, ds.dq, ds.ddq)
+    keep = distinct(terms, T, rows)
+    terms, T = [terms[i] for i in keep], T[:, keep]
+    engine = Engine(base, y, ds.moving, fold, folds)
+    baseline = engine.baseline()
+    every = list(range(folds))
+    sse_before, sse_after, supports = np.zeros(folds), np.zeros(folds), []
+    for k in every:
+        train = [i for i in every if i != k]
+        S = select(T, y[:, j], base[:, j, :], rows, fold, train, max_terms)
+        supports.append([terms[i].name for i in S])
+        sse_before[k] = baseline[k][j]
+        if S:
+            C = _placed(T[:, S], j, ds.tau.shape[1])
+            th_x, th_c, _ = engine.fit(C, train)
+            sse_after[k] = engine.heldout_sse(C, th_x, th_c, k)[j]
+        else:
+            sse_after[k] = sse_before[k]
+    total = sse_before.sum()
+    reduction = 0.0 if total <= 0 else float(1 - sse_after.sum() / total)
+    fold_red = [float(1 - a / b) if b > 0 else 0.0 for a, b in zip(sse_after, sse_before)]
+    S = select(T, y[:, j], base[:, j, :], rows, fold, every, max_terms)
+    found: list[FoundTerm] = []
+    curves: dict = {}
+    if S:
+        C = _placed(T[:, S], j, ds.tau.shape[1])
+        th_x, th_c, _ = engine.fit(C, every)
+        jack = np.array([engine.fit(C, [i for i in every if i != k])[1] for k in every])
+        se = np.sqrt((folds - 1) / folds * ((jack - jack.mean(0)) ** 2).sum(0))
+        order = np.argsort([-abs(c) * np.std(T[rows, s]) for c, s in zip(th_c, S)])
+        for o in order:
+            t = terms[S[o]]
+            found.append(FoundTerm(t.name, float(th_c[o]), float(se[o]), _coef_unit(t.unit), t.code, t.parameter))
+        fit = (C @ th_c)[:, j]
+        partial = y[:, j] - (base @ th_x)[:, j] if base.shape[2] else y[:, j]
+        curves = {"t": ds.t[rows], "residual": partial[rows], "fit": fit[rows]}
+    count = max(len(rows), 1)
+    significant = bool(S) and reduction >= min_reduction and all(r > 0 for r in fold_red)
+    return JointDiscovery(
+        joint=name, expression=expression(found), terms=found, error_reduction=reduction,
+        fold_reductions=fold_red, significant=significant, sentence="",
+        mse_before=float(total / count), mse_after=float(sse_after.sum() / count),
+        fold_supports=supports, curves=curves)
+
+
+def select(T: np.ndarray, y: np.ndarray, B: np.ndarray, rows: np.ndarray, fold: np.ndarray, train: list[int],
+           max_terms: int = MAX_TERMS) -> list[int]:
+    """Indices of the terms (columns of T) selected on the rows of the `train` blocks: Lasso path on the
+    terms made orthogonal to the base B (N, p), leave-one-block-out CV of the least-squares refits of
+    each path point, the sparsest point within one standard error of the best (module docstring)."""
+    r = rows[np.isin(fold[rows], train)]
+    if len(r) < 10 or T.shape[1] == 0:
+        return []
+    Z, e = _orthogonal(T[r], y[r], B[r])
+    norm = np.linalg.norm(Z, axis=0)
+    usable = np.flatnonzero(norm > 1e-3 * np.maximum(np.linalg.norm(T[r], axis=0), 1e-300))
+    if len(usable) == 0:
+        return []
+    Z = Z[:, usable] / (norm[usable] / math.sqrt(len(r)))
+    blocks = fold[r]
+    alpha_max = float(np.abs(Z.T @ e).max()) / len(r)
+    if alpha_max <= 0:
+        return []
+    alphas = alpha_max * np.logspace(0, -3, N_ALPHAS)
+    mse = np.zeros((len(train), N_ALPHAS + 1))  # column 0: the empty expression
+    for i, k in enumerate(train):
+        tr, te = blocks != k, blocks == k
+        coefs = _path(Z[tr], e[tr], alphas)
+        mse[i, 0] = float(np.mean(e[te] ** 2))
+        for a in range(N_ALPHAS):
+            S = np.flatnonzero(coefs[:, a])
+            if len(S) > max_terms:
+                mse[i, a + 1:] = np.inf
+                break
+            mse[i, a + 1] = _refit_error(Z[tr][:, S], e[tr], Z[te][:, S], e[te]) if len(S) else mse[i, 0]
+    mean = mse.mean(0)
+    finite = np.isfinite(mean)
+    best = int(np.argmin(np.where(finite, mean, np.inf)))
+    se = float(mse[:, best].std(ddof=1) / math.sqrt(len(train))) if len(train) > 1 else 0.0
+    chosen = int(np.flatnonzero(finite & (mean <= mean[best] + se))[0])
+    if chosen == 0:
+        return []
+    coef = _path(Z, e, alphas[:chosen])[:, -1]
+    S = np.flatnonzero(coef)
+    if len(S) > max_terms:
+        S = S[np.argsort(-np.abs(coef[S]))[:max_terms]]
+    S = _prune(Z, e, blocks, train, list(S))
+    return sorted(int(usable[s]) for s in S)
+
+
+def _path(Z, e, alphas) -> np.ndarray:
+    """(m, len(alphas)) Lasso coefficients (scikit-learn; the smallest penalties may stop short of full
+    convergence, which only changes which terms are tried, never their refitted coefficients)."""
+    import warnings
+
+    from sklearn.exceptions import ConvergenceWarning
+    from sklearn.linear_model import lasso_path
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        return lasso_path(Z, e, alphas=alphas, max_iter=3000, tol=1e-4)[1]
+
+
+def _prune(Z, e, blocks, train, S: list[int]) -> list[int]:
+    """Drop, one at a time, the selected term whose least-squares coefficient is least certain until
+    every coefficient is at least twice its delete-a-block jackknife standard error."""
+    K = len(train)
+    while S and K > 1:
+        full = np.linalg.lstsq(Z[:, S], e, rcond=None)[0]
+        jack = np.array([np.linalg.lstsq(Z[blocks != k][:, S], e[blocks != k], rcond=None)[0] for k in train])
+        se = np.sqrt((K - 1) / K * ((jack - jack.mean(0)) ** 2).sum(0))
+        z = np.abs(full) / np.maximum(se, 1e-300)
+        worst = int(np.argmin(z))
+        if z[worst] >= 2.0:
+            break
+        S = S[:worst] + S[worst + 1:]
+    return S
+
+
+def _orthogonal(T: np.ndarray, y: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """T and y minus their least-squares projection on the columns of B (the base's joint equation)."""
+    B = B[:, np.linalg.norm(B, axis=0) > 0]
+    if B.shape[1] == 0:
+        return T.copy(), y.copy()
+    U, s, _ = np.linalg.svd(B / np.linalg.norm(B, axis=0), full_matrices=False)
+    U = U[:, s > 1e-8 * s[0]]
+    return T - U @ (U.T @ T), y - U @ (U.T @ y)
+
+
+def _refit_error(Ztr, etr, Zte, ete) -> float:
+    coef = np.linalg.lstsq(Ztr, etr, rcond=None)[0]
+    return float(np.mean((ete - Zte @ coef) ** 2))
+
+
+def _placed(cols: np.ndarray, j: int, n_joints: int) -> np.ndarray:
+    C = np.zeros((cols.shape[0], n_joints, cols.shape[1]))
+    C[:, j, :] = cols
+    return C
+
+
+def _check(ds: Dataset, fold: np.ndarray, folds: int) -> None:
+    need = max(50, 5 * folds)
+    for j, name in enumerate(ds.joint_names):
+        per_fold = np.bincount(fold[ds.moving[:, j]], minlength=folds)
+        if per_fold.sum() < need or per_fold.min() == 0:
+            raise DiscoveryError(f"{name} moves in only {int(per_fold.sum())} samples (or not in every "
+                                 f"part of the recording); discovery needs at least {need} spread over "
+                                 "the whole recording")
+
+
+def _library_best(diagnosis, joint: str):
+    best = diagnosis.best(joint)
+    if best is None or not best.significant or best.scope != "joint":
+        return None
+    return best
+
+
+def _library_columns(candidate, ds: Dataset, j: int) -> np.ndarray:
+    from crane_io.effects import get_effect
+
+    from .diagnosis_effects import bind
+
+    effect = bind(get_effect(candidate.effect), ds.joint_names)
+    C = np.asarray(effect.columns(ds.q, ds.dq, ds.ddq, j, candidate.shape or None), dtype=float)
+    return C if C.ndim == 3 else C[:, :, None]
+
+
+def _coef_unit(unit: str) -> str:
+    return unit
+
+
+def _num(x: float) -> str:
+    return f"{x:.3g}"
+
+
+def expression(terms: list[FoundTerm]) -> str:
+    """Readable sum of the terms; factored as c·F·(1 + a·g + ...) when every term is the factor F (for
+    instance sign(dq2)) times something and F alone is one of them."""
+    if not terms:
+        return ""
+    factors = [_split(t.term) for t in terms]
+    common = set(factors[0])
+    for f in factors[1:]:
+        common &= set(f)
+    lead = next((i for i, f in enumerate(factors) if set(f) == common), None) if common else None
+    if lead is not None and len(terms) > 1 and len(common) == 1 and abs(terms[lead].coefficient) > 0:
+        c0 = terms[lead].coefficient
+        F = next(iter(common))
+        inner = ["1"]
+        for i, t in enumerate(terms):
+            if i == lead:
+                continue
+            rest = "·".join(x for x in factors[i] if x != F)
+            ratio = t.coefficient / c0
+            inner.append(f"{'-' if ratio < 0 else '+'} {_num(abs(ratio))}·{rest}")
+        return f"{_num(c0)}·{F}·({' '.join(inner)})"
+    text = ""
+    for i, t in enumerate(terms):
+        c = t.coefficient
+        piece = _num(abs(c)) if t.term == "1" else f"{_num(abs(c))}·{t.term}"
+        text += (("-" if c < 0 else "") + piece) if i == 0 else f" {'-' if c < 0 else '+'} {piece}"
+    return text
+
+
+def _split(name: str) -> tuple[str, ...]:
+    """Top-level factors of a term name: 'sign(dq2)·cos(2·q2)' -> ('sign(dq2)', 'cos(2·q2)')."""
+    parts, depth, cur = [], 0, ""
+    for ch in name:
+        depth += ch == "("
+        depth -= ch == ")"
+        if ch == "·" and depth == 0:
+            parts.append(cur)
+            cur = ""
+        else:
+            cur += ch
+    return tuple(parts + [cur])
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:.0f}%"
+
+
+def _sentence(d: JointDiscovery) -> str:
+    after = f" after {d.on_top_of} (the library's best candidate)" if d.on_top_of else ""
+    blocks = f"{sum(r > 0 for r in d.fold_reductions)} of {len(d.fold_reductions)} blocks"
+    if not d.terms:
+        return (f"{d.joint}: discovery finds no term that explains the residual{after}: the empty "
+                "expression is within one standard error of the best (no significant discovery).")
+    text = (f"{d.joint}: the residual{after} is best explained by {d.expression} (N m); selected and "
+            f"fitted without the block it is scored on, it removes {_pct(max(d.error_reduction, 0.0))} of "
+            f"the held-out error (better in {blocks})")
+    if d.significant:
+        return text + ". Significant: add it as an effect (--write-effect-file) and refit."
+    return text + " — not significant (no claim)."
+
+
+def term_variables(term: str) -> set[str]:
+    """The signals a term name reads ('sign(dq2)·cos(2·q2)' -> {'dq2', 'q2'}), for tests and checks."""
+    return set(re.findall(r"\b(d{0,2}q\d+)\b", term))
