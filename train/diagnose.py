@@ -39,18 +39,35 @@ from __future__ import annotations
 
 import numpy as np
 
+from crane_io.errors import CraneError
+
 from .dataset import Dataset
 from .diagnosis_cv import CVFit, Engine, cross_validate, fold_ids, jackknife
 from .diagnosis_defaults import DEFAULT_FOLDS, DEFAULT_MIN_FOLD_FRACTION, DEFAULT_MIN_REDUCTION
-from .diagnosis_effects import bind, candidate_columns, complexity, effect_name, library_effects, param_units
-from .diagnosis_ranking import is_significant, rank, spill_over_check
+from .diagnosis_effects import (
+    bind,
+    candidate_columns,
+    columns_at,
+    complexity,
+    effect_name,
+    library_effects,
+    param_units,
+)
+from .diagnosis_ranking import forward_selection, is_significant, rank
 from .diagnosis_result import Candidate, Diagnosis, DiagnosisError
-from .diagnosis_text import candidate_sentence, joint_summary, residual_correlations
+from .diagnosis_text import (
+    candidate_sentence,
+    joint_summary,
+    residual_correlations,
+    residual_dependence,
+    selected_suffix,
+    unidentifiable_sentence,
+)
 from .model_effects import effect_entries
 
 __all__ = ["DEFAULT_FOLDS", "DEFAULT_MIN_FOLD_FRACTION", "DEFAULT_MIN_REDUCTION", "Candidate", "Diagnosis",
            "DiagnosisError", "diagnose", "diagnose_residual", "model_effects", "physics_basis",
-           "residual_correlations"]
+           "refine_own_shapes", "residual_correlations", "residual_dependence"]
 
 MIN_SAMPLES_PER_JOINT = 50
 
@@ -78,7 +95,8 @@ def diagnose(model, ds: Dataset, effects=None, **kwargs) -> Diagnosis:
     X = physics_basis(model, ds)
     if X is None:
         return _run(ds, None, residual, residual, effects, exclude=model_effects(model), **kwargs)
-    return _run(ds, X, ds.tau, residual, effects, exclude=model_effects(model), refit=True, **kwargs)
+    return _run(ds, X, ds.tau, residual, effects, exclude=model_effects(model), refit=True, model=model,
+                **kwargs)
 
 
 def diagnose_residual(ds: Dataset, residual: np.ndarray, effects=None, **kwargs) -> Diagnosis:
@@ -89,34 +107,152 @@ def diagnose_residual(ds: Dataset, residual: np.ndarray, effects=None, **kwargs)
 
 def _run(ds: Dataset, X, y, residual, effects=None, *, exclude=(), folds: int = DEFAULT_FOLDS,
          min_reduction: float = DEFAULT_MIN_REDUCTION, min_fold_fraction: float = DEFAULT_MIN_FOLD_FRACTION,
-         refit: bool = False, progress: bool = False) -> Diagnosis:
+         refit: bool = False, progress: bool = False, model=None) -> Diagnosis:
     """Cross-validate every candidate (effect, joint) against the basis X (None: no basis, y is the
-    residual), run the spill-over check, then rank and describe per joint."""
+    residual), select forward, then rank and describe per joint."""
     fold = _check_data(ds, residual, folds)
     effects = [bind(e, ds.joint_names) for e in (library_effects() if effects is None else effects)]
     if X is None:
         X = np.zeros(ds.tau.shape + (0,))
+    refinements, X = refine_own_shapes(model, ds, X, y, fold, folds, min_reduction, min_fold_fraction)
     engine = Engine(X, y, ds.moving, fold, folds)
     baseline = engine.baseline()
 
     results: dict[int, list[Candidate]] = {j: [] for j in range(len(ds.joint_names))}
-    tried: dict[int, tuple] = {}  # id(candidate) -> (effect, columns_by_shape, fit): the spill-over check
+    tried: dict[int, tuple] = {}  # id(candidate) -> (effect, columns_by_shape, fit, columns_at)
     for effect, j in _with_progress(_candidates_to_try(effects, ds.joint_names, exclude), progress):
         columns_by_shape = candidate_columns(effect, ds, j)
         if not columns_by_shape:
             continue
-        fit = cross_validate(engine, effect, columns_by_shape, baseline)
+        cols_at = columns_at(effect, ds, j)
+        fit = cross_validate(engine, effect, columns_by_shape, baseline, cols_at)
         home, cand = _judge(effect, j, fit, ds.joint_names, min_reduction, min_fold_fraction)
         results[home].append(cand)
-        tried[id(cand)] = (effect, columns_by_shape, fit)
+        tried[id(cand)] = (effect, columns_by_shape, fit, cols_at)
 
-    spill_over_check(engine, ds.joint_names, results, tried, min_reduction, min_fold_fraction)
+    selected = forward_selection(engine, ds.joint_names, results, tried, min_reduction, min_fold_fraction)
+    for c in selected:
+        c.sentence = c.sentence[:-1] + selected_suffix(c) + "."
     settings = {"folds": folds, "min_reduction": min_reduction, "min_fold_fraction": min_fold_fraction,
                 "method": "refit of the physics model with each candidate" if refit else
                           "candidate fitted to the model's residual",
+                "selection": "forward: each effect judged on top of the ones selected before it",
                 "samples": len(ds), "moving_samples": {name: int(ds.moving[:, j].sum())
                                                        for j, name in enumerate(ds.joint_names)}}
-    return _assemble(ds, residual, results, settings)
+    result = _assemble(ds, residual, results, settings, refinements, folds)
+    result.selected = [f"{c.effect} on {c.joint}" for c in selected]
+    return result
+
+
+def _own_shape_terms(model, ds: Dataset) -> list[dict]:
+    """The model's own effect terms whose shape parameters `fit` picked from a grid (rigid-body models:
+    `terms`, `theta`, `regressor(..., terms=)`), one entry per shape parameter."""
+    terms, theta = getattr(model, "terms", None), getattr(model, "theta", None)
+    dyn = getattr(model, "dynamics", None)
+    if not terms or theta is None or dyn is None or not callable(getattr(model, "regressor", None)):
+        return []
+    from crane_io import effects as fx
+
+    out, k = [], int(dyn.n_base)
+    for i, term in enumerate(terms):
+        try:
+            effect = bind(fx.get_effect(term["name"]), ds.joint_names)
+        except CraneError:
+            return []
+        n = effect.n_columns()
+        shape = dict(term.get("shape") or {})
+        for p in effect.shape_params:
+            if p.name in shape:
+                out.append({"index": i, "effect": effect, "name": term["name"], "joint": term["joint"],
+                            "offset": k, "n": n, "shape": shape, "parameter": p.name, "unit": p.unit})
+        k += n
+    return out if k == len(theta) else []
+
+
+def _derivative_column(item: dict, ds: Dataset, coef: np.ndarray, value: float) -> np.ndarray | None:
+    """(N, J, 1) d(torque of the term)/d(shape parameter) at `value`, the term's coefficients `coef`."""
+    h = 1e-4 * max(abs(value), 1.0)
+    cols = []
+    for v in (value + h, value - h):
+        C = columns_at(item["effect"], ds, item["joint"])({**item["shape"], item["parameter"]: v})
+        if C is None:
+            return None
+        cols.append(C @ coef)
+    D = ((cols[0] - cols[1]) / (2 * h))[:, :, None]
+    return D if np.any(D * ds.moving[:, :, None]) else None
+
+
+def _gauss_newton(model, item: dict, ds: Dataset, y, fold, folds: int, train: list[int], value: float,
+                  steps: int = 8) -> tuple[float, np.ndarray, np.ndarray | None]:
+    """Refine one shape parameter of the model's own term by Gauss-Newton on the training folds (the
+    whole regressor refitted at each step); returns (value, regressor at it, its derivative column)."""
+    terms = [dict(t) for t in model.terms]
+    X = D = None
+    for _ in range(steps):
+        terms[item["index"]] = {**terms[item["index"]], "shape": {**item["shape"], item["parameter"]: value}}
+        X = np.asarray(model.regressor(ds.q, ds.dq, ds.ddq, terms), dtype=float)
+        eng = Engine(X, y, ds.moving, fold, folds)
+        th = eng.fit(None, train)[0]
+        D = _derivative_column(item, ds, th[item["offset"]:item["offset"] + item["n"]], value)
+        if D is None:
+            break
+        delta = float(eng.fit(D, train)[1][0])
+        if not np.isfinite(delta):
+            break
+        value += delta
+        if abs(delta) < 1e-5 * max(abs(value), 1.0):
+            break
+    return value, X, D
+
+
+def refine_own_shapes(model, ds: Dataset, X, y, fold, folds: int, min_reduction: float,
+                      min_fold_fraction: float) -> tuple[list[dict], np.ndarray]:
+    """The model's own shape parameters (a spring's rest angle, a Stribeck velocity ...) were picked from
+    a grid by `fit`; what the grid step leaves behind (a spring off by 0.2 rad leaves k x 0.2 N m of
+    constant torque) must not come back as a new effect ("a torque offset"). Each is refined by
+    Gauss-Newton on the training folds (cross-validated: the held-out fold judges the refined model
+    against the model's own value) and reported as a refinement with its jackknife uncertainty; the
+    basis the candidates are judged against is the regressor at the refined value plus the term's
+    derivative column, so a candidate that only mimics the refinement explains nothing."""
+    items = _own_shape_terms(model, ds) if model is not None else []
+    if not items:
+        return [], X
+    base_engine = Engine(X, y, ds.moving, fold, folds)
+    base = base_engine.baseline()
+    out, extra = [], []
+    names = list(ds.joint_names)
+    for item in items:
+        s0 = float(item["shape"][item["parameter"]])
+        after, values = [], []
+        for k in range(folds):
+            train = [i for i in range(folds) if i != k]
+            v, Xk, _ = _gauss_newton(model, item, ds, y, fold, folds, train, s0)
+            eng = Engine(Xk, y, ds.moving, fold, folds)
+            after.append(eng.heldout_sse(None, eng.fit(None, train)[0], None, k))
+            values.append({item["parameter"]: v})
+        v_all, X_all, D_all = _gauss_newton(model, item, ds, y, fold, folds, list(range(folds)), s0)
+        j = item["joint"] if item["joint"] is not None else 0
+        before_j = np.array([b[j] for b in base])
+        after_j = np.array([a[j] for a in after])
+        red = 0.0 if before_j.sum() <= 0 else float(1 - after_j.sum() / before_j.sum())
+        improved = int(sum(a < b for a, b in zip(after_j, before_j)))
+        mean, sd = jackknife(values)[item["parameter"]]
+        out.append({"joint": names[j], "effect": item["name"], "parameter": item["parameter"],
+                    "unit": item["unit"], "model_value": s0, "value": v_all, "fold_mean": mean, "std": sd,
+                    "error_reduction": red, "significant": is_significant(red, improved, folds, min_reduction,
+                                                                         min_fold_fraction)})
+        X = _replace_term(X, X_all, item)
+        if D_all is not None:
+            extra.append(D_all)
+    return out, np.concatenate([X] + extra, axis=2) if extra else X
+
+
+def _replace_term(X: np.ndarray, X_new: np.ndarray, item: dict) -> np.ndarray:
+    """X with the term's columns taken from X_new (the regressor at the refined shape)."""
+    a, b = item["offset"], item["offset"] + item["n"]
+    out = X.copy()
+    out[:, :, a:b] = X_new[:, :, a:b]
+    return out
 
 
 def _check_data(ds: Dataset, residual: np.ndarray, folds: int) -> np.ndarray:
@@ -177,6 +313,13 @@ def _judge(effect, j: int | None, fit: CVFit, joint_names, min_reduction: float,
     improved = int(sum(r > 0 for r in fold_red))
     stats = jackknife(fit.fold_values) if fit.fold_values else {}
     parameters = {n: {"value": v, "std": sd, "unit": units.get(n, "")} for n, (v, sd) in stats.items()}
+    if not fit.identifiable:
+        parameters = {}  # any value fits as well: printing one (with a tiny spread) would mislead
+    loose = list(fit.collinear)
+    if loose:  # coefficients the others (and the model's own) can trade with: no value is meaningful
+        loose = [p.name for p in getattr(effect, "linear_params", ())] or loose
+        for n in loose:
+            parameters.pop(n, None)
     red = reductions[home]
     cand = Candidate(
         joint=joint_names[home], rank=0, effect=name, title=getattr(effect, "title", name),
@@ -184,23 +327,33 @@ def _judge(effect, j: int | None, fit: CVFit, joint_names, min_reduction: float,
         folds_improved=improved, parameters=parameters, shape=dict(fit.shape_all or {}),
         mse_before=float(fit.sse_before[home].sum() / max(fit.count[home], 1)),
         mse_after=float(fit.sse_after[home].sum() / max(fit.count[home], 1)),
-        significant=is_significant(red, improved, len(fold_red), min_reduction, min_fold_fraction),
+        significant=fit.identifiable and is_significant(red, improved, len(fold_red), min_reduction,
+                                                        min_fold_fraction),
         sentence="", other_joints={joint_names[jj]: reductions[jj] for jj in joints if jj != home},
-        n_parameters=complexity(effect))
-    cand.sentence = candidate_sentence(effect, cand)
+        n_parameters=complexity(effect), identifiable=fit.identifiable,
+        unidentifiable_parameters=loose)
+    cand.sentence = candidate_sentence(effect, cand) if fit.identifiable else unidentifiable_sentence(cand)
+    if fit.identifiable and loose:
+        cand.sentence = (cand.sentence[:-1] + f" ({', '.join(loose)} cannot be told apart from the model's "
+                         "own parameters, so no value is given).")
     return home, cand
 
 
 def _assemble(ds: Dataset, residual: np.ndarray, results: dict[int, list[Candidate]],
-              settings: dict) -> Diagnosis:
-    """Rank each joint's candidates, number them, and add the summaries and residual correlations."""
-    candidates, summary, correlations = [], {}, {}
+              settings: dict, refinements: list[dict], folds: int) -> Diagnosis:
+    """Rank each joint's candidates (the selected ones first, in selection order), number them, and add
+    the summaries, residual correlations and dependences."""
+    candidates, summary, correlations, dependence = [], {}, {}, {}
     for j, name in enumerate(ds.joint_names):
-        ranked = rank(results[j])
+        chosen = sorted((c for c in results[j] if c.selection_step), key=lambda c: c.selection_step)
+        ranked = chosen + [c for c in rank(results[j]) if not c.selection_step]
         for i, c in enumerate(ranked, start=1):
             c.rank = i
         candidates += ranked
         corr = residual_correlations(ds, residual, j)
+        dep = residual_dependence(ds, residual, j, folds)
         correlations[name] = corr[:6]
-        summary[name] = joint_summary(name, ranked, corr)
-    return Diagnosis(tuple(ds.joint_names), candidates, summary, correlations, settings)
+        dependence[name] = [{"with": d["with"], "share": d["share"]} for d in dep[:6]]
+        summary[name] = joint_summary(name, ranked, corr, dep, refinements)
+    return Diagnosis(tuple(ds.joint_names), candidates, summary, correlations, settings,
+                     refinements=refinements, dependence=dependence)

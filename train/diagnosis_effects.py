@@ -102,3 +102,18 @@ def library_effects():
     for e in list_effects():
         out.append(e() if isinstance(e, type) else e)
     return out
+
+
+def columns_at(effect, ds: Dataset, joint: int | None):
+    """shape -> the effect's (N, J, c) columns on the session at that shape, or None when they are not
+    finite (for refining a shape between grid points)."""
+    def at(shape):
+        try:
+            C = np.asarray(effect.columns(ds.q, ds.dq, ds.ddq, joint, shape), dtype=float)
+        except (CraneError, ValueError, ZeroDivisionError, FloatingPointError):
+            return None
+        if C.ndim == 2:
+            C = C[:, :, None]
+        return C if C.shape[:2] == ds.tau.shape and np.isfinite(C).all() else None
+
+    return at

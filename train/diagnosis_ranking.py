@@ -1,10 +1,11 @@
 """Which candidates count and which comes first (train/diagnose.py, steps 3 and 5): the significance
-rule, the parsimony ranking per joint, and the spill-over check that demotes a candidate another joint's
-missing effect explains."""
+rule, the parsimony ranking per joint, and the forward (nested) selection that keeps only what stays
+significant once the effects found before it are in the model."""
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -48,43 +49,76 @@ def rank(cands: list[Candidate]) -> list[Candidate]:
     return ranked
 
 
-def spill_over_check(engine: Engine, joint_names, results: dict[int, list[Candidate]],
-                     tried: dict[int, tuple[object, list, CVFit]], min_reduction: float,
-                     min_fold_fraction: float) -> None:
-    """A missing effect on one joint can make a candidate on ANOTHER joint look significant: the refit
-    bends the rigid-body parameters the joints share towards the missing effect, and a column that acts
-    on the other joint alone (a torque-constant error, a spring ...) buys back what that cost there.
-    Forward selection, one step (SINDy's sequential idea): the significant candidate that removes the
-    most held-out squared error over all joints (N m^2, not a fraction) is put into the model, and every
-    significant candidate of the other joints is cross-validated again on top of it. One that is no
-    longer significant is demoted, with the reason in its sentence: add the leading effect first and
-    diagnose again.
+MAX_SELECTED = 6  # forward selection stops after this many effects
 
-    `tried` maps id(candidate) -> (effect, columns_by_shape, its CVFit); candidates are changed in place."""
-    gains = []
-    for cands in results.values():
-        for c in cands:
-            if c.significant:
-                fit = tried[id(c)][2]
-                gains.append((float((fit.sse_before - fit.sse_after).sum()), c))
-    if not gains:
-        return
-    leader = max(gains, key=lambda g: g[0])[1]
-    others = [c for _, c in gains if c.joint != leader.joint]
-    if not others:
-        return
-    _, lead_cols, lead_fit = tried[id(leader)]
-    engine2 = engine.extended(lead_cols[lead_fit.shape_index][1])
-    baseline2 = engine2.baseline()
-    for c in others:
-        effect, cols, _ = tried[id(c)]
-        fit = cross_validate(engine2, effect, cols, baseline2)
-        home = list(joint_names).index(c.joint)
-        red = fit.reduction(home)
-        improved = sum(r > 0 for r in fit.fold_reductions(home))
-        c.reduction_given_leader = red
-        if is_significant(red, improved, engine.K, min_reduction, min_fold_fraction):
-            continue
-        c.significant = False
-        c.explained_by = f"{leader.effect} on {leader.joint}"
-        c.sentence = spill_over_sentence(c, red, leader)
+
+def _label(c: Candidate) -> str:
+    return f"{c.effect} on {c.joint}"
+
+
+def _pick_leader(pool: list[Candidate], fits: dict[int, CVFit], joint_names) -> Candidate:
+    """The next effect of the forward selection: per joint the candidate `rank` puts first (parsimony
+    rule) on the reductions measured against the current model; among those, the one that removes the
+    most held-out squared error over all joints (N m^2, not a fraction)."""
+    tops = []
+    for joint in dict.fromkeys(c.joint for c in pool):
+        here = [c for c in pool if c.joint == joint]
+        home = list(joint_names).index(joint)
+        proxies = [replace(c, error_reduction=fits[id(c)].reduction(home),
+                           fold_reductions=fits[id(c)].fold_reductions(home)) for c in here]
+        first = rank(proxies)[0]
+        tops.append(here[proxies.index(first)])
+    return max(tops, key=lambda c: float((fits[id(c)].sse_before - fits[id(c)].sse_after).sum()))
+
+
+def forward_selection(engine: Engine, joint_names, results: dict[int, list[Candidate]],
+                      tried: dict[int, tuple], min_reduction: float,
+                      min_fold_fraction: float) -> list[Candidate]:
+    """Nested forward selection (SINDy's sequential idea): what is significant is judged on top of what
+    was already found, never every candidate against the same baseline. Candidates often mimic part of
+    another effect (stiction or asymmetric Coulomb contain Coulomb; a ripple or a spring bends to fit a
+    step) or, on another joint, buy back what a missing effect cost the rigid-body parameters the joints
+    share (spill-over); against the same baseline they all look significant.
+
+    Start from the candidates significant on their own. Put the leader (`_pick_leader`) into the model,
+    cross-validate every remaining one again on top of it (the leader's columns join the basis and are
+    refitted per fold), keep those still significant, and repeat. The selected candidates get
+    `selection_step` 1, 2, ...; one that no longer passes is demoted: `significant` false, `explained_by`
+    the effect whose addition took its significance, `reduction_given_leader` its reduction then, and a
+    sentence saying to add that effect first and diagnose again.
+
+    `tried` maps id(candidate) -> (effect, columns_by_shape, its CVFit, columns_at); candidates are
+    changed in place. Candidates not significant on their own are not tried again (one that only
+    becomes significant once another effect is in shows when diagnosing the refitted model)."""
+    pool = [c for cands in results.values() for c in cands if c.significant]
+    fits = {id(c): tried[id(c)][2] for c in pool}
+    selected: list[Candidate] = []
+    eng = engine
+    while pool and len(selected) < MAX_SELECTED:
+        leader = _pick_leader(pool, fits, joint_names)
+        pool.remove(leader)
+        selected.append(leader)
+        leader.selection_step = len(selected)
+        if not pool:
+            break
+        eng = eng.extended(fits[id(leader)].columns_all)
+        baseline = eng.baseline()
+        given = [_label(c) for c in selected]
+        still = []
+        for c in pool:
+            effect, cols, _, cols_at = tried[id(c)]
+            fit = cross_validate(eng, effect, cols, baseline, cols_at)
+            home = list(joint_names).index(c.joint)
+            red = fit.reduction(home)
+            improved = sum(r > 0 for r in fit.fold_reductions(home))
+            fits[id(c)] = fit
+            c.reduction_given_leader = red
+            c.given = list(given)
+            if is_significant(red, improved, engine.K, min_reduction, min_fold_fraction):
+                still.append(c)
+                continue
+            c.significant = False
+            c.explained_by = _label(leader)
+            c.sentence = spill_over_sentence(c, red, leader)
+        pool = still
+    return selected

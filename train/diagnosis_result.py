@@ -35,6 +35,14 @@ class Candidate:
     # strongest significant candidate of another joint is in the model ("coulomb on joint2")
     explained_by: str | None = None
     reduction_given_leader: float | None = None  # its error reduction with that candidate added
+    # forward (nested) selection: 1, 2, ... for the candidates put into the model in that order (the
+    # significant ones); None for the others
+    selection_step: int | None = None
+    given: list[str] = field(default_factory=list)  # the effects in the model when it was last judged
+    # False: the candidate's columns lie in the span of the model's own parameters (a payload against a
+    # fitted rigid-body model): its parameters cannot be estimated and are left out of `parameters`
+    identifiable: bool = True
+    unidentifiable_parameters: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -44,6 +52,11 @@ class Diagnosis:
     summary: dict[str, str]  # joint -> one or two sentences
     correlations: dict[str, list[dict]]  # joint -> [{"with": ..., "r": ...}], strongest first
     settings: dict
+    # the model's own shape parameters (picked from a grid by `fit`), refined: see train/diagnose.py
+    refinements: list[dict] = field(default_factory=list)
+    # joint -> [{"with": ..., "share": ...}]: what the residual depends on (held-out binned means)
+    dependence: dict[str, list[dict]] = field(default_factory=dict)
+    selected: list[str] = field(default_factory=list)  # "coulomb on joint2", ... in selection order
 
     def for_joint(self, joint: str) -> list[Candidate]:
         return [c for c in self.candidates if c.joint == joint]
@@ -55,4 +68,5 @@ class Diagnosis:
     def to_json(self) -> dict:
         return {"joints": list(self.joints), "candidates": [asdict(c) for c in self.candidates],
                 "summary": dict(self.summary), "correlations": self.correlations,
-                "settings": self.settings}
+                "settings": self.settings, "selected": list(self.selected),
+                "refinements": list(self.refinements), "dependence": self.dependence}
