@@ -8,6 +8,13 @@
    paper's network with the masked loss (train.models.mlp, "mlp-masked") learns that residual: each
    joint's error counts only where the joint moves, so dead-zone samples are kept for the other joints.
 
+3. The network's share is chosen on the validation data, per joint: its output is scaled by the weight
+   w in [0, 1] that minimises the validation MSE of physics + w x network on the samples where the joint
+   moves (least squares, clipped). w = 0 falls back to the physics alone, so on the validation data the
+   hybrid is never worse than its physics part (a network that learnt noise, or too little, cannot make
+   it worse there). The weight is folded into the network's output scaling (its `y_mean`, `y_std`), so
+   the saved network part, the loop export and the numpy fast path all predict physics + w x network.
+
 The physics carries what it can explain (and extrapolates outside the training range); the network
 mops up what no chosen effect covers. Saved as a directory with model.json plus the two parts in
 `rigid/` and `mlp/` (each a model directory of its own).
@@ -39,6 +46,8 @@ class HybridModel(Model):
                             "seed": seed}
         self.rigid = None
         self.mlp = None
+        self.network_weight: dict[str, float] = {}  # joint -> share of the network (chosen on validation)
+        self.blend_info: dict = {}
 
     def _make_parts(self):
         from .mlp import MLPModel
@@ -61,6 +70,8 @@ class HybridModel(Model):
         rigid, mlp = self._make_parts()
         rigid.fit(train, val)
         mlp.fit(self._residual(train, rigid), self._residual(val, rigid), progress=progress)
+        self.network_weight, self.blend_info = _choose_weight(rigid, mlp, val)
+        _scale_network(mlp, [self.network_weight[n] for n in self.joint_names])
         self.rigid, self.mlp = rigid, mlp
         if not self.preprocessing:
             self.preprocessing = dict(train.meta.get("preprocessing", {}))
@@ -77,7 +88,8 @@ class HybridModel(Model):
 
     # ---- persistence --------------------------------------------------------------------------------
     def _state(self) -> dict:
-        return {"parts": {"rigid": RIGID_DIR, "mlp": MLP_DIR}}
+        return {"parts": {"rigid": RIGID_DIR, "mlp": MLP_DIR}, "network_weight": dict(self.network_weight),
+                "blend": dict(self.blend_info)}
 
     def _save_extra(self, directory: Path) -> None:
         if self.rigid is None or self.mlp is None:
@@ -93,3 +105,39 @@ class HybridModel(Model):
         self.mlp = load_model(directory / parts.get("mlp", MLP_DIR))
         if self.mlp.method != "mlp-masked":
             raise ModelFileError(f"{directory} is a hybrid model whose network part is not mlp-masked")
+        # older files have no weight: their network counts fully (and is saved unscaled)
+        self.network_weight = {str(k): float(v) for k, v in (state.get("network_weight") or {}).items()}
+        self.blend_info = dict(state.get("blend") or {})
+
+
+def _choose_weight(rigid, mlp, val: Dataset | None) -> tuple[dict[str, float], dict]:
+    """Per joint, the network's weight w in [0, 1] minimising the validation MSE of physics + w x network
+    on the validation samples where the joint moves (the masked loss's samples), and the validation
+    MSEs of the physics alone, the unweighted sum and the weighted hybrid. Without validation data the
+    network counts fully (w = 1)."""
+    names = list(rigid.joint_names)
+    if val is None or len(val) == 0:
+        return {n: 1.0 for n in names}, {"chosen_on": "no validation data: network weight 1"}
+    r = val.tau - rigid.predict(val.q, val.dq, val.ddq)
+    m = mlp.predict(val.q, val.dq, val.ddq)
+    weights, info = {}, {"chosen_on": f"{len(val)} validation samples (each joint where it moves)",
+                         "val_mse_physics": {}, "val_mse_sum": {}, "val_mse_hybrid": {}}
+    for j, name in enumerate(names):
+        rows = val.moving[:, j] if getattr(val, "moving", None) is not None else np.ones(len(val), bool)
+        rj, mj = r[rows, j], m[rows, j]
+        mm = float(mj @ mj)
+        w = 1.0 if not rows.any() else (0.0 if mm <= 0 else float(np.clip((rj @ mj) / mm, 0.0, 1.0)))
+        weights[name] = w
+        if rows.any():
+            info["val_mse_physics"][name] = float((rj ** 2).mean())
+            info["val_mse_sum"][name] = float(((rj - mj) ** 2).mean())
+            info["val_mse_hybrid"][name] = float(((rj - w * mj) ** 2).mean())
+    return weights, info
+
+
+def _scale_network(mlp, weights) -> None:
+    """Scale the network's output by `weights` (J,) in place: its output de-normalisation
+    (y std + mean) becomes w y std + w mean, which every predictor of a saved network applies."""
+    w = np.asarray(weights, dtype=np.float32)
+    for key in ("y_mean", "y_std"):
+        mlp.norm[key] = (np.asarray(mlp.norm[key], dtype=np.float32) * w).astype(np.float32)
