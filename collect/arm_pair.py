@@ -7,6 +7,10 @@ for the GIL (5 ms switch interval), so they are driven one after the other, dete
 Every transfer returns (value, error, seconds): a CraneError is handed back, not raised, so the caller
 decides whether a failed cycle is a fault. `safe_stop` (goal current 0, torque off) reaches both arms
 even if one fails; `torque_report` reads the torque state back from the servos afterwards.
+
+Calibrated angles (crane_io.calibration): with `offsets[arm]` set, every state read has the arm's
+offsets subtracted from its positions and every goal position has them added, so everything above the
+pair (controller, safety, alignment, session) sees calibrated angles only.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ class ArmPair:
         self.pool = concurrent.futures.ThreadPoolExecutor(2, "crane-bus") if concurrent_io else None
         self._inflight: list = []  # bus transfers a signal may have left running in the pool
         self.stopped = False  # both arms confirmed stopped (goal current 0, torque off)
+        self.offsets: dict = {}  # arm name -> (n,) rad encoder offsets (crane_io.calibration)
 
     def attach(self, buses: dict) -> None:
         """The opened, configured buses (torque on) to drive."""
@@ -52,13 +57,24 @@ class ArmPair:
         """[(ServoState | None, CraneError | None, s)] for leader, follower."""
         if self.checkpoint is not None:
             self.checkpoint()
-        return self._both([(self.buses[a].read_state,) for a in ARMS])
+        results = self._both([(self.buses[a].read_state,) for a in ARMS])
+        if self.offsets:
+            for name, (state, _exc, _s) in zip(ARMS, results):
+                off = self.offsets.get(name)
+                if state is not None and off is not None:
+                    state.position = state.position - off
+        return results
 
     def write_currents(self, amps_l, amps_f):
         return self._both([(self.buses["leader"].write_goal_current, amps_l),
                            (self.buses["follower"].write_goal_current, amps_f)])
 
     def write_positions(self, q_l, q_f):
+        off_l, off_f = self.offsets.get("leader"), self.offsets.get("follower")
+        if off_l is not None:
+            q_l = q_l + off_l
+        if off_f is not None:
+            q_f = q_f + off_f
         return self._both([(self.buses["leader"].write_goal_position, q_l),
                            (self.buses["follower"].write_goal_position, q_f)])
 

@@ -12,6 +12,7 @@ COMMANDS = {
     "run": ("collect.cmd_run", "run"),
     "check": ("collect.cmd_check", "check"),
     "ports": ("collect.cmd_ports", "ports"),
+    "calibrate": ("collect.cmd_calibrate", "calibrate"),
     "sim-serve": ("collect.cmd_sim_serve", "sim_serve"),
     "recover": ("collect.cmd_recover", "recover"),
 }

@@ -33,7 +33,7 @@ def _not_answering(r: dict) -> str:
             "or the line is overloaded; retry")
 
 
-def _row(r: dict) -> str:
+def _row(r: dict, offset: float | None = None) -> str:
     head = f"ID {r['id']:>2} {r['joint']:<8}"
     if not r.get("answering"):
         return f"{head} {_not_answering(r)}"
@@ -45,19 +45,30 @@ def _row(r: dict) -> str:
     return (f"{head} {model:<12} fw {r['firmware']:>3}  mode {mode:<8} torque {torque}"
             f"  limits {lo:7.1f}..{hi:6.1f} deg {r['current_limit_a']:.2f} A  errors {errors}"
             f"  {r['voltage_v']:.1f} V  {r['temperature_c']:.0f} C"
-            f"  at {math.degrees(r['position_rad']):7.1f} deg")
+            f"  at {math.degrees(r['position_rad']):7.1f} deg"
+            + ("" if offset is None else f" (calibrated {_deg(r['position_rad'] - offset):7.1f})"))
+
+
+def _deg(rad: float) -> float:
+    """Degrees to 0.1, never printed as -0.0."""
+    return round(math.degrees(rad), 1) + 0.0
 
 
 @click.command("check")
 @click.option("--sim", is_flag=True, help="Check a simulated arm (in-process) instead of hardware.")
 @click.option("--port", "ports", multiple=True, metavar="PORT",
               help="Serial port of an arm's U2D2; repeat for both arms.")
+@click.option("--calibration", "calibration_path", type=click.Path(dir_okay=False), default=None,
+              metavar="TOML", help="Show angles with this calibration (default: the one stored for each "
+                                   "port's adapter by `crane-collect calibrate`, if any).")
 @cli_errors
-def check(sim, ports):
-    """Per servo: ID, joint, model, firmware, mode, torque, limits, errors, voltage, temperature.
+def check(sim, ports, calibration_path):
+    """Per servo: ID, joint, model, firmware, mode, torque, limits, errors, voltage, temperature, angle
+    (and the calibrated angle, with the calibration in use named).
 
     The check reads registers only; on the way out it leaves every servo with torque off."""
     from crane_io.bus import LATE_REPLY_LISTEN_S, DynamixelBus
+    from crane_io.calibration import find_calibration, load_calibration
     from crane_io.description import default_arm
     from crane_io.ports import port_warnings
 
@@ -79,9 +90,14 @@ def check(sim, ports):
             if not sim:
                 for w in port_warnings(port):
                     click.echo(f"  Warning: {w}")
+            cal = (load_calibration(calibration_path) if calibration_path is not None
+                   else None if sim else find_calibration(port))
+            click.echo(f"  {cal.describe()}" if cal is not None else
+                       "  no calibration (angles as the servos read them; see `crane-collect calibrate`)")
             with DynamixelBus(port, arm, name=str(port)) as bus:
                 for r in bus.servo_report(late_listen_s=LATE_REPLY_LISTEN_S):
-                    click.echo("  " + _row(r))
+                    offset = cal.joints[r["joint"]].offset_rad if cal and r["joint"] in cal.joints else None
+                    click.echo("  " + _row(r, offset))
                     bad = not r.get("answering") or r["model"] != r["expected_model"] or r["hardware_errors"]
                     problems += bool(bad)
         if problems:

@@ -50,6 +50,13 @@ from crane_io.errors import cli_errors
                    "(faster than real time).")
 @click.option("--leader-port", default=None, metavar="PORT", help="Serial port of the leader's U2D2.")
 @click.option("--follower-port", default=None, metavar="PORT", help="Serial port of the follower's U2D2.")
+@click.option("--leader-calibration", type=click.Path(dir_okay=False), default=None, metavar="TOML",
+              help="The leader's calibration file (default: the one `crane-collect calibrate` stored for the "
+                   "leader port's adapter, if any).")
+@click.option("--follower-calibration", type=click.Path(dir_okay=False), default=None, metavar="TOML",
+              help="The same for the follower.")
+@click.option("--no-calibration", is_flag=True,
+              help="Use the angles as the servos read them, not the adapters' stored calibrations.")
 @click.option("--force", is_flag=True, help="Overwrite the output file if it exists.")
 @click.option("--quiet", is_flag=True, help="No live status line and no summary.")
 @click.option("--view", is_flag=True,
@@ -62,8 +69,8 @@ from crane_io.errors import cli_errors
               metavar="N", help="The view samples every N-th control cycle (50 samples a second at 500 Hz).")
 @cli_errors
 def run(output, sim, plant, truth_path, truth_trace, task, hand_on, model_dir, leader_model_dir, seed,
-        duration, rate, config_path, realtime, leader_port, follower_port, force, quiet, view, view_save,
-        view_every):
+        duration, rate, config_path, realtime, leader_port, follower_port, leader_calibration,
+        follower_calibration, no_calibration, force, quiet, view, view_save, view_every):
     """Drive leader and follower under 4-channel bilateral control and record a session.
 
     Start-up checks both ports, every servo's model and the latency timers, brings the arms into
@@ -83,4 +90,5 @@ def run(output, sim, plant, truth_path, truth_trace, task, hand_on, model_dir, l
                            follower_port=follower_port, force=force, status=not quiet, truth=truth_path,
                            truth_trace=truth_trace, task=task, hand_on=hand_on, model=model_dir,
                            leader_model=leader_model_dir, view=view, view_save=view_save,
-                           view_every=view_every))
+                           view_every=view_every, leader_calibration=leader_calibration,
+                           follower_calibration=follower_calibration, calibrate=not no_calibration))

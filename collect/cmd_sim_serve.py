@@ -92,6 +92,9 @@ def build_plant(name: str | None, seed: int, arm):
                                 "alive (torque on, current mode) and the hand taking hold.")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None, metavar="TOML",
               help="With --pair: a crane-collect configuration whose [operator] section sets the hand.")
+@click.option("--encoder-offset", "encoder_offsets", multiple=True, metavar="[ARM:]JOINT=RAD",
+              help="That joint's encoder reads RAD more than the truth, as on an uncalibrated arm (for "
+                   "`crane-collect calibrate`); with --pair prefix the arm (leader:joint2=0.05). Repeatable.")
 @click.option("--plant", "plant_name", default=None, metavar="PRESET_OR_TOML",
               help="Physics behind the servos: 'simple' (independent joints) or an arm-plant preset "
                    "or TOML file. Default: the arm plant's 'crane-x7' preset when available, else 'simple'.")
@@ -110,8 +113,9 @@ def build_plant(name: str | None, seed: int, arm):
               help="Also write the arm plant's hidden truth (effects, parameters, seed; --pair: the "
                    "follower's) to this file. Nothing else ever records it.")
 @cli_errors
-def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_s, config_path, plant_name,
-              clock, period_s, seed, no_fast_sync_read, return_delay, truth_path):
+def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_s, config_path,
+              encoder_offsets, plant_name, clock, period_s, seed, no_fast_sync_read, return_delay,
+              truth_path):
     """Serve a simulated CRANE-X7 (or, with --pair, a leader and a follower with a simulated hand) on
     pseudo-terminals until Ctrl+C or SIGTERM."""
     if not period_s > 0:
@@ -128,15 +132,21 @@ def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_
                                 ("--task", task), ("--config", config_path)) if v is not None]
         if extra:
             raise ConfigError(f"{extra[0]} goes with --pair")
+    from crane_io.description import default_arm
+
+    from .sim_lab import parse_offsets
+
+    offsets = parse_offsets(encoder_offsets, default_arm(), arms=("leader", "follower") if pair else ("arm",))
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
         if pair:
             _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, config_path,
-                        plant_name, clock, period_s, seed, not no_fast_sync_read, return_delay, truth_path)
+                        plant_name, clock, period_s, seed, not no_fast_sync_read, return_delay, truth_path,
+                        offsets)
         else:
             _serve_one(stop, link, plant_name, clock, period_s, seed, not no_fast_sync_read, return_delay,
-                       truth_path)
+                       truth_path, offsets.get("arm"))
     finally:
         signal.signal(signal.SIGTERM, previous)
 
@@ -175,15 +185,21 @@ def _wait(stop: threading.Event, errors, status) -> None:
         pass
 
 
-def _serve_one(stop, link, plant_name, clock, period_s, seed, fast_sync_read, return_delay, truth_path):
+def _serve_one(stop, link, plant_name, clock, period_s, seed, fast_sync_read, return_delay, truth_path,
+               offsets=None):
     from crane_io.description import default_arm
     from crane_io.link_registry import withdraw
     from crane_io.sim.chain import SimulatedChain
     from crane_io.sim.transport import PtyServer
 
+    from .sim_lab import OffsetPlant
+
     arm = default_arm()
     plant = build_plant(plant_name, seed, arm)
     _write_truth(plant, truth_path)
+    kind = type(plant).__name__ + (", encoders off" if offsets is not None else "")
+    if offsets is not None:
+        plant = OffsetPlant(plant, offsets)
     chain = SimulatedChain.for_arm(arm, plant, clock=clock, period_s=period_s,
                                    fast_sync_read=fast_sync_read, return_delay_time=return_delay)
     server = PtyServer(chain, link)
@@ -191,7 +207,7 @@ def _serve_one(stop, link, plant_name, clock, period_s, seed, fast_sync_read, re
     try:
         server.start()
         entry = _announce(server, "arm", plant_name or "crane-x7", clock, hand=False)
-        click.echo(f"Simulated CRANE-X7 ({type(plant).__name__}, {clock} clock) on {link} -> "
+        click.echo(f"Simulated CRANE-X7 ({kind}, {clock} clock) on {link} -> "
                    f"{server.slave_path}")
         click.echo(f"Point the SDK or Dynamixel Wizard 2.0 at {link} (Protocol 2.0, 3,000,000 bps, "
                    f"IDs 2-9), e.g. `crane-collect check --port {link}`. Ctrl+C stops.")
@@ -207,7 +223,7 @@ def _serve_one(stop, link, plant_name, clock, period_s, seed, fast_sync_read, re
 
 
 def _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, config_path, plant_name,
-                clock, period_s, seed, fast_sync_read, return_delay, truth_path):
+                clock, period_s, seed, fast_sync_read, return_delay, truth_path, offsets):
     from crane_io.link_registry import withdraw
 
     from .config import load_config
@@ -215,7 +231,8 @@ def _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, c
 
     lab = SimulatedLab.build(plant=plant_name, seed=seed, hand_on=hand_on, clock=clock, period_s=period_s,
                              config=load_config(config_path), task=task, hand_delay_s=hand_delay_s,
-                             fast_sync_read=fast_sync_read, return_delay_time=return_delay)
+                             fast_sync_read=fast_sync_read, return_delay_time=return_delay,
+                             encoder_offsets=offsets)
     _write_truth(lab.plants["follower"], truth_path)  # (a HandOnPlant passes write_truth through)
     links = {"leader": leader_link, "follower": follower_link}
     entries = []

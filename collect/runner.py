@@ -38,6 +38,7 @@ from crane_io.errors import CraneError
 from crane_io.shutdown import handle_termination
 
 from .alignment import SafetyStop, StartRefused, align
+from .arm_calibration import calibration_offsets, calibration_sentence, resolve_calibrations
 from .arm_pair import ARMS, ArmPair
 from .config import Config, load_config
 from .controller import ArmSignals, BilateralController
@@ -82,6 +83,9 @@ class RunOptions:
     view: bool = False  # live view in a spawned rerun viewer (collect/live_view.py)
     view_save: str | Path | None = None  # live view written to this .rrd file instead of a viewer
     view_every: int = 10  # the view samples every N-th cycle
+    leader_calibration: str | Path | None = None  # a calibration file for the leader (crane_io.calibration)
+    follower_calibration: str | Path | None = None  # ... for the follower
+    calibrate: bool = True  # hardware: use each adapter's stored calibration (False: --no-calibration)
     # test hook: called every bilateral cycle with (cycle index, RunContext) before the bus reads
     on_cycle: Callable[[int, RunContext], None] | None = None
 
@@ -152,7 +156,7 @@ class _Loop:
         self.breach: Breach | None = None
         self.last_event_t = 0.0
         self.ctx = RunContext(config, arm, {}, sims)
-        self.view = None  # collect.live_view.LiveView (--view, --view-save): rerun imported, viewer up
+        self.view = None  # collect.live_view.LiveView (--view, --view-save): rerun imported, its sink open
         if opts.view or opts.view_save is not None:
             from .live_view import make_live_view
 
@@ -477,6 +481,7 @@ class _Session:
         self.opts, self.config, self.arm, self.output, self.out = opts, config, arm, output, out
         self.stop = stop
         self.sims: dict = {}
+        self.calibrations: dict = {}  # arm -> crane_io.calibration.Calibration or None
         self.buses: dict = {}
         self.loop: _Loop | None = None
         self.end_reason: str | None = None  # set by the loop when it ends by itself
@@ -492,6 +497,8 @@ class _Session:
             ports = {name: self.sims[name].url for name in ARMS}
         else:
             ports = {"leader": opts.leader_port, "follower": opts.follower_port}
+        files = {"leader": opts.leader_calibration, "follower": opts.follower_calibration}
+        self.calibrations = resolve_calibrations(ports, files, lookup=opts.calibrate and not opts.sim)
         stop.check()
         if opts.truth is not None:  # its own file, asked for; before any torque is on
             write_truth(self.sims, opts.truth)
@@ -499,6 +506,7 @@ class _Session:
         # pause between torque-on and the first cycle would trip the servos' Bus Watchdog.
         loop = _Loop(opts, config, arm, self.sims, self.out, stop)
         self.loop = loop
+        loop.pair.offsets = calibration_offsets(self.calibrations, arm.joint_names)
         stop.check()
         if loop.paced:  # before any torque is on: freezing the collector and locking memory take ~0.3 s
             loop.realtime = enter_realtime(config.realtime)
@@ -509,13 +517,15 @@ class _Session:
             loop.status.say(loop.realtime.sentence())
         if loop.models:
             loop.status.say(observer_sentence(loop.models, arm))
+        if not opts.sim or any(self.calibrations.values()):
+            loop.status.say(calibration_sentence(self.calibrations))
         # from here a stop is taken between two cycles (ArmPair.read_both) and in the loop
         align_message = loop.align()
         if self.sims:
             loop.operator = make_operator(opts, config, arm, self.sims)
             states = loop.pair.read_both()
             loop.operator.start(states[ARMS.index(loop.hand_arm)][0].position, 0.0)
-        loop.recorder = make_recorder(opts, self.output, config, arm, hw, loop.models)
+        loop.recorder = make_recorder(opts, self.output, config, arm, hw, loop.models, self.calibrations)
         if opts.truth_trace is not None:
             loop.truth_trace = TruthTraceWriter(opts.truth_trace, arm.joint_names, self.output.name)
         loop.ctx.recorder = loop.recorder

@@ -21,7 +21,7 @@ lets go at once; the next engagement starts a new sequence of moves from whereve
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -90,12 +90,62 @@ class HandOnPlant:
         self.plant.set_external_torque(torque)
 
 
+class OffsetPlant:
+    """A plant whose servos' encoders are off: each reads its joint's angle plus `offsets` (rad, servo
+    order) and holds a goal position that much short, as a real arm does before calibration (the Plant
+    protocol, everything else passed through)."""
+
+    def __init__(self, plant, offsets):
+        self.plant = plant
+        self.offsets = np.asarray(offsets, dtype=float)
+        self.servo_ids = plant.servo_ids
+        if self.offsets.shape != (len(self.servo_ids),):
+            raise ConfigError(f"encoder offsets need {len(self.servo_ids)} values, got {self.offsets.shape}")
+
+    def __getattr__(self, name):
+        return getattr(self.__dict__["plant"], name)
+
+    def step(self, command, dt: float) -> None:
+        self.plant.step(replace(command, goal_position=command.goal_position - self.offsets), dt)
+
+    def read(self):
+        s = self.plant.read()
+        return replace(s, position=s.position + self.offsets)
+
+    def hardware_errors(self) -> dict[int, int]:
+        return self.plant.hardware_errors()
+
+    def set_external_torque(self, torque) -> None:
+        self.plant.set_external_torque(torque)
+
+
+def parse_offsets(specs, arm: ArmDescription, arms=ARMS) -> dict:
+    """`--encoder-offset` values "ARM:JOINT=RAD" (or "JOINT=RAD" for one arm, arms=("arm",)) ->
+    {arm: (n,) offsets}; ConfigError (one sentence) for anything else."""
+    out = {}
+    for spec in specs:
+        head, _, value = spec.partition("=")
+        who, _, joint = head.rpartition(":")
+        who = who or (arms[0] if len(arms) == 1 else "")
+        if who not in arms or joint not in arm.joint_names or not value:
+            want = "ARM:JOINT=RAD with ARM leader or follower" if len(arms) > 1 else "JOINT=RAD"
+            raise ConfigError(f"--encoder-offset {spec!r}: expected {want} and JOINT one of "
+                              f"{', '.join(arm.joint_names)}")
+        try:
+            rad = float(value)
+        except ValueError:
+            raise ConfigError(f"--encoder-offset {spec!r}: {value!r} is not a number of radians") from None
+        out.setdefault(who, np.zeros(len(arm.joint_names)))[arm.joint_names.index(joint)] = rad
+    return out
+
+
 @dataclass
 class SimulatedLab:
     """Two simulated arms (leader, follower) and the hand; `serve(links)` puts them on pseudo-terminals."""
 
-    plants: dict  # arm name -> plant (the hand's arm: a HandOnPlant)
+    plants: dict  # arm name -> plant behind the servos (a HandOnPlant and/or an OffsetPlant around it)
     chains: dict  # arm name -> crane_io.sim.chain.SimulatedChain
+    hand: HandOnPlant
     hand_on: str
     clock: str
     plant_name: str
@@ -106,9 +156,11 @@ class SimulatedLab:
               clock: str = "wall", period_s: float = 0.002, config: Config | None = None,
               task: str | None = None, hand_delay_s: float = DEFAULT_HAND_DELAY_S,
               arm: ArmDescription | None = None, fast_sync_read: bool = True,
-              return_delay_time: int | None = None) -> SimulatedLab:
+              return_delay_time: int | None = None, encoder_offsets: dict | None = None) -> SimulatedLab:
         """The leader's and the follower's plants (seeds 2 seed and 2 seed + 1, as `run --sim`; the
-        preset's objects only in the follower's world) behind servo chains, the hand on `hand_on`."""
+        preset's objects only in the follower's world) behind servo chains, the hand on `hand_on`;
+        `encoder_offsets` {arm: (n,) rad}: that arm's encoders read that much more than the truth (the
+        hand feels the true angles)."""
         from crane_io.sim.chain import SimulatedChain
 
         from .sim_arms import make_plant
@@ -124,16 +176,15 @@ class SimulatedLab:
             plants[name] = make_plant(plant, seed * 2 + k, arm, objects=name == "follower")
         environment = getattr(plants["follower"], "environment", None) or []
         operator = SimulatedOperator(seed, arm, config.loop.rate_hz, config, environment=environment)
-        plants[hand_on] = HandOnPlant(plants[hand_on], operator, arm, hand_delay_s)
+        hand = HandOnPlant(plants[hand_on], operator, arm, hand_delay_s)
+        plants[hand_on] = hand
+        for name, offsets in (encoder_offsets or {}).items():
+            plants[name] = OffsetPlant(plants[name], offsets)
         for name in ARMS:
             chains[name] = SimulatedChain.for_arm(arm, plants[name], clock=clock, period_s=period_s,
                                                   fast_sync_read=fast_sync_read,
                                                   return_delay_time=return_delay_time)
-        return cls(plants, chains, hand_on, clock, plant or "crane-x7")
-
-    @property
-    def hand(self) -> HandOnPlant:
-        return self.plants[self.hand_on]
+        return cls(plants, chains, hand, hand_on, clock, plant or "crane-x7")
 
     def serve(self, links: dict) -> dict:
         """Serve each arm on a pseudo-terminal linked at links[name]; returns {name: PtyServer}. If the

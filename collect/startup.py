@@ -142,15 +142,18 @@ def open_buses(opts: RunOptions, arm: ArmDescription, config: Config, ports: dic
 
 
 def make_recorder(opts: RunOptions, output: Path, config: Config, arm: ArmDescription,
-                  hw: dict, models: dict | None = None) -> SessionRecorder:
+                  hw: dict, models: dict | None = None, calibrations: dict | None = None) -> SessionRecorder:
     """The session file, with the run's attributes (never the simulated plants' truth): also the arm
-    the hand moved (`hand_on`) and the model in each arm's observer (`leader_model`, `follower_model`)."""
+    the hand moved (`hand_on`), the model in each arm's observer (`leader_model`, `follower_model`) and
+    each arm's calibration (`leader_calibration`, `follower_calibration`)."""
+    from .arm_calibration import calibration_attrs
     from .loop_models import session_attrs
 
     infos = hw["infos"]
     attrs = {
         "hand_on": opts.hand_on,
         **session_attrs(models or {}),
+        **calibration_attrs(calibrations or {}),
         "tau_source": ["goal_current" if n in arm.bilateral_joints else "present_current"
                        for n in arm.joint_names],
         "torque_constants": np.array([j.torque_constant for j in arm.joints]),

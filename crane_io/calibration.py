@@ -1,0 +1,222 @@
+"""Per-arm calibration: where each joint's zero really is, and the range it was seen to move through.
+
+Two CRANE-X7 arms never read the same angle at the same pose: every servo's encoder zero sits a little
+off the joint's mark. `crane-collect calibrate` finds each joint's offset with the arm held at its marks
+(offset = the angle the servo reads there) and records the range each joint moved through; `run` and
+`check` then use calibrated angles:
+
+    q_calibrated = q_servo - offset          (what the controller, the safety limits and the session see)
+    goal_servo   = goal_calibrated + offset  (what goes to a servo in position mode)
+
+A calibration is a TOML file per arm under the user's configuration directory
+(`$XDG_CONFIG_HOME/crane-x7/calibration`, else `~/.config/crane-x7/calibration`; `CRANE_X7_CONFIG_DIR`
+overrides the root), named by the key of the arm's adapter: the U2D2's USB serial number (it stays with
+the arm whatever /dev/ttyUSBn it gets), or for a port without one (a simulated link) `port-` and the
+port's file name.
+
+    [arm]
+    name = "follower"            # what the user called it
+    key = "FT6Z5Q1I"             # the adapter it belongs to
+    created = "2026-11-24T08:00:00Z"
+    [joints.joint1]
+    offset_rad = 0.0123          # the angle the servo read at the mark
+    min_rad = -2.61              # the calibrated range seen while moving the joint (absent: not recorded)
+    max_rad = 2.60
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ConfigError
+
+CONFIG_ENV = "CRANE_X7_CONFIG_DIR"
+MAX_OFFSET_RAD = math.radians(20.0)  # more than this at a mark: the joint was not at its mark
+
+
+class CalibrationError(ConfigError):
+    """A calibration file that cannot be read, or a calibration that cannot be right."""
+
+
+@dataclass(frozen=True)
+class JointCalibration:
+    offset_rad: float
+    min_rad: float | None = None
+    max_rad: float | None = None
+
+
+@dataclass(frozen=True)
+class Calibration:
+    name: str  # the user's name for the arm
+    key: str  # the adapter's key (USB serial or port-NAME)
+    joints: dict[str, JointCalibration]
+    created: str = ""
+    path: str | None = None  # where it was read from / written to
+
+    def offsets(self, joint_names) -> np.ndarray:
+        """(n,) rad, in `joint_names` order (0 for a joint the calibration does not name)."""
+        return np.array([self.joints[n].offset_rad if n in self.joints else 0.0 for n in joint_names])
+
+    def describe(self) -> str:
+        """One line: which calibration, from where."""
+        where = f" ({self.path})" if self.path else ""
+        return f"calibration {self.name!r} of adapter {self.key}{where}"
+
+    def as_attrs(self) -> dict:
+        """A JSON-able summary for a session's attributes."""
+        return {"name": self.name, "key": self.key, "created": self.created, "path": self.path,
+                "offsets_rad": {n: j.offset_rad for n, j in self.joints.items()}}
+
+
+def config_dir() -> Path:
+    """The folder calibrations live in (not created)."""
+    root = os.environ.get(CONFIG_ENV)
+    if root:
+        return Path(root) / "calibration"
+    base = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
+    return Path(base) / "crane-x7" / "calibration"
+
+
+def adapter_key(port: str, comports=None) -> str:
+    """The key of the adapter behind `port`: the U2D2's USB serial, else `port-` + the port's name."""
+    real = os.path.realpath(port)
+    if comports is None:
+        try:
+            from serial.tools import list_ports
+
+            comports = list_ports.comports()
+        except Exception:  # noqa: BLE001 - no port enumeration on this system: fall back to the name
+            comports = []
+    for info in comports:
+        if os.path.realpath(info.device) == real and info.serial_number:
+            return _safe(info.serial_number)
+    return "port-" + _safe(os.path.basename(str(port).rstrip("/")) or "unnamed")
+
+
+def _safe(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]", "_", text)
+
+
+def calibration_path(key: str) -> Path:
+    return config_dir() / f"{_safe(key)}.toml"
+
+
+def find_calibration(port: str, comports=None) -> Calibration | None:
+    """The stored calibration of the adapter behind `port`, or None when there is none."""
+    path = calibration_path(adapter_key(port, comports))
+    return load_calibration(path) if path.exists() else None
+
+
+def load_calibration(path: str | os.PathLike) -> Calibration:
+    """Read a calibration file; CalibrationError (one sentence) when it is unreadable or wrong."""
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10
+        import tomli as tomllib
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except OSError as exc:
+        raise CalibrationError(f"cannot read the calibration {path}: {exc.strerror or exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise CalibrationError(f"the calibration {path} is not valid TOML: {exc}") from None
+    head = data.get("arm", {})
+    joints = {}
+    for name, entry in (data.get("joints") or {}).items():
+        try:
+            offset = float(entry["offset_rad"])
+            lo = None if entry.get("min_rad") is None else float(entry["min_rad"])
+            hi = None if entry.get("max_rad") is None else float(entry["max_rad"])
+        except (KeyError, TypeError, ValueError):
+            raise CalibrationError(f"the calibration {path}: joint {name} needs a number offset_rad "
+                                   "(and numbers for min_rad/max_rad if given)") from None
+        if not math.isfinite(offset) or abs(offset) > MAX_OFFSET_RAD:
+            raise CalibrationError(f"the calibration {path}: joint {name}'s offset {offset} rad is not "
+                                   f"within ±{math.degrees(MAX_OFFSET_RAD):.0f} deg; calibrate the arm again")
+        joints[name] = JointCalibration(offset, lo, hi)
+    if not joints:
+        raise CalibrationError(f"the calibration {path} names no joint")
+    return Calibration(name=str(head.get("name", "")), key=str(head.get("key", path.stem)), joints=joints,
+                       created=str(head.get("created", "")), path=str(path))
+
+
+def save_calibration(cal: Calibration, path: str | os.PathLike | None = None) -> Path:
+    """Write `cal` (atomically) to `path` or its adapter's file; returns where."""
+    path = Path(path) if path is not None else calibration_path(cal.key)
+    lines = ["# crane-x7 arm calibration: q_calibrated = q_servo - offset_rad (crane_io/calibration.py)",
+             "[arm]", f"name = {_toml_str(cal.name)}", f"key = {_toml_str(cal.key)}",
+             f"created = {_toml_str(cal.created)}", ""]
+    for name, j in cal.joints.items():
+        lines.append(f"[joints.{name}]")
+        lines.append(f"offset_rad = {j.offset_rad!r}")
+        if j.min_rad is not None and j.max_rad is not None:
+            lines.append(f"min_rad = {j.min_rad!r}")
+            lines.append(f"max_rad = {j.max_rad!r}")
+        lines.append("")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text("\n".join(lines))
+        os.replace(tmp, path)
+    except OSError as exc:
+        raise CalibrationError(f"cannot write the calibration {path}: {exc.strerror or exc}") from None
+    return path
+
+
+def _toml_str(text: str) -> str:
+    return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+@dataclass
+class RangeRecorder:
+    """The smallest and largest calibrated angle seen per joint while the user moves the arm."""
+
+    offsets: np.ndarray
+    low: np.ndarray = field(init=False)
+    high: np.ndarray = field(init=False)
+    samples: int = 0
+
+    def __post_init__(self):
+        self.low = np.full(len(self.offsets), np.inf)
+        self.high = np.full(len(self.offsets), -np.inf)
+
+    def add(self, q_servo: np.ndarray) -> None:
+        q = np.asarray(q_servo, dtype=float) - self.offsets
+        self.low = np.minimum(self.low, q)
+        self.high = np.maximum(self.high, q)
+        self.samples += 1
+
+
+def offsets_at_marks(q_servo: np.ndarray, joint_names) -> np.ndarray:
+    """The offsets from the angles read with every joint at its mark (calibrated zero); a joint reading
+    more than MAX_OFFSET_RAD there is refused (CalibrationError): it was not at its mark."""
+    q = np.asarray(q_servo, dtype=float)
+    far = np.flatnonzero(np.abs(q) > MAX_OFFSET_RAD)
+    if far.size:
+        i = int(far[0])
+        raise CalibrationError(f"{joint_names[i]} reads {math.degrees(q[i]):.1f} deg at its mark, more than "
+                               f"the {math.degrees(MAX_OFFSET_RAD):.0f} deg an encoder can be off; put every "
+                               "joint on its mark and calibrate again")
+    return q.copy()
+
+
+def build_calibration(name: str, key: str, joint_names, offsets: np.ndarray,
+                      ranges: RangeRecorder | None = None,
+                      min_span_rad: float = math.radians(5.0)) -> Calibration:
+    """A Calibration from the offsets and (optionally) the ranges seen; a joint that moved less than
+    `min_span_rad` gets no range."""
+    joints = {}
+    for i, n in enumerate(joint_names):
+        lo = hi = None
+        if ranges is not None and ranges.samples and ranges.high[i] - ranges.low[i] >= min_span_rad:
+            lo, hi = float(ranges.low[i]), float(ranges.high[i])
+        joints[n] = JointCalibration(float(offsets[i]), lo, hi)
+    return Calibration(name=name, key=key, joints=joints,
+                       created=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()))
