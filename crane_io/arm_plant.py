@@ -135,6 +135,11 @@ class ArmPlant:
         self._errors: dict[int, int] = {}
         self.time = 0.0
         self._last_key, self._last_out = b"", None  # the last substep's inputs and result (_substep)
+        # per-joint parameters of the substep's scalar loops: (Coulomb +, Coulomb -, Stribeck terms) and
+        # (viscous, offset, spring stiffness, stiffness x rest angle, lower stop, upper stop)
+        self._kinetic_l = [(self._fc_pos_l[i], self._fc_neg_l[i], tuple(self._strib_l[i])) for i in range(3)]
+        self._other_l = list(zip(self._visc_l, self._offset_l, self._spring_k_l, self._spring_q0k_l,
+                                 self._lo_l, self._hi_l))
 
     # ---- effects -> arrays ---------------------------------------------------------------------------
     def _compile_effects(self):
@@ -232,27 +237,28 @@ class ArmPlant:
     # ---- forces (the hot path: plain Python floats for the 3 joints, pinocchio for the arm) ------------
     def _kinetic(self, i: int, v: float) -> float:
         """Kinetic friction of joint i at velocity v (v = +-tiny for a joint breaking away)."""
+        fc_pos, fc_neg, stribeck = self._kinetic_l[i]
         if v > 0:
-            f = self._fc_pos_l[i]
+            f = fc_pos
         elif v < 0:
-            f = -self._fc_neg_l[i]
+            f = -fc_neg
         else:
             return 0.0
-        for amp, vs in self._strib_l[i]:
+        for amp, vs in stribeck:
             x = v / vs
             f += math.copysign(amp * math.exp(-x * x), v)
         return f
 
-    def _other_torque(self, q: list, dq: list) -> list:
+    def _other_torque(self, q, dq) -> list:
         """Non-friction effect torques and end stops (inverse-dynamics sense), per joint."""
         out = []
-        for i in range(3):
-            t = (self._visc_l[i] * dq[i] + self._offset_l[i] + self._spring_k_l[i] * q[i]
-                 - self._spring_q0k_l[i])
-            if q[i] < self._lo_l[i]:
-                t += self._k_stop * (q[i] - self._lo_l[i]) + self._d_stop * dq[i]
-            elif q[i] > self._hi_l[i]:
-                t += self._k_stop * (q[i] - self._hi_l[i]) + self._d_stop * dq[i]
+        k_stop, d_stop = self._k_stop, self._d_stop
+        for qi, dqi, (visc, offset, spring_k, spring_q0k, lo, hi) in zip(q, dq, self._other_l):
+            t = visc * dqi + offset + spring_k * qi - spring_q0k
+            if qi < lo:
+                t += k_stop * (qi - lo) + d_stop * dqi
+            elif qi > hi:
+                t += k_stop * (qi - hi) + d_stop * dqi
             out.append(t)
         for k, a, b, n in self._cogging:
             out[k] += a * math.sin(n * q[k]) + b * math.cos(n * q[k])
@@ -313,22 +319,20 @@ class ArmPlant:
         self.motor_torque = np.array(tau_l)
         self.time += dt
 
-    def _substep(self, q: list, dq: list, tau_m: list, ext: list, h: float) -> tuple[list, list]:
-        """One substep. Without backlash (motor-side state) and user effects, a substep is a pure
-        function of its inputs: a joint set standing still (stuck) under an unchanged torque gives the
-        same inputs substep after substep, so the last result is reused when the inputs are the same
-        bits (pinocchio and the float arithmetic are deterministic: nothing changes)."""
+    def _substep(self, q, dq, tau_m, ext, h: float) -> tuple:
+        """One substep: ((q), (dq)) as tuples of 3 floats. Without backlash (motor-side state) and user
+        effects, a substep is a pure function of its inputs: a joint set standing still (stuck) under an
+        unchanged torque gives the same inputs substep after substep, so the last result is reused when
+        the inputs are the same bits (pinocchio and the float arithmetic are deterministic: nothing
+        changes)."""
         if self._backlash or self._generic:
             return self._substep_compute(q, dq, tau_m, ext, h)
         key = _SUBSTEP_KEY.pack(*q, *dq, *tau_m, *ext, h)
-        if key == self._last_key:
-            q_new, dq_new = self._last_out
-        else:
-            q_new, dq_new = self._substep_compute(q, dq, tau_m, ext, h)
-            self._last_key, self._last_out = key, (q_new, dq_new)
-        return list(q_new), list(dq_new)
+        if key != self._last_key:
+            self._last_key, self._last_out = key, self._substep_compute(q, dq, tau_m, ext, h)
+        return self._last_out
 
-    def _substep_compute(self, q: list, dq: list, tau_m: list, ext: list, h: float) -> tuple[list, list]:
+    def _substep_compute(self, q, dq, tau_m, ext, h: float) -> tuple:
         if self._backlash:
             tau_m = self._gear_gap(q, dq, tau_m, h)
         if self._env is not None:  # the objects push like a hand: a pure function of q, dq
@@ -339,24 +343,19 @@ class ArmPlant:
         if self._generic:
             gen_nf, gen_fr = self._generic_torques(q, dq)
             other = [other[i] + gen_nf[i] for i in range(3)]
-        drive = [tau_m[i] + ext[i] - other[i] for i in range(3)]
+        drive = [tau_m[0] + ext[0] - other[0], tau_m[1] + ext[1] - other[1], tau_m[2] + ext[2] - other[2]]
         qa, dqa = np.array(q), np.array(dq)
-        if dq[0] != 0.0 and dq[1] != 0.0 and dq[2] != 0.0:
-            f = [self._kinetic(i, dq[i]) for i in range(3)]
+        dq0, dq1, dq2 = dq
+        if dq0 != 0.0 and dq1 != 0.0 and dq2 != 0.0:
+            kinetic = self._kinetic
+            f0, f1, f2 = kinetic(0, dq0), kinetic(1, dq1), kinetic(2, dq2)
             if gen_fr is not None:
-                f = [f[i] + gen_fr[i] for i in range(3)]
-            net = np.array([drive[i] - f[i] for i in range(3)])
+                f0, f1, f2 = f0 + gen_fr[0], f1 + gen_fr[1], f2 + gen_fr[2]
+            net = np.array((drive[0] - f0, drive[1] - f1, drive[2] - f2))
             ddq = pin.aba(self.model, self.data, qa, dqa, net).tolist()
         else:
             ddq = self._stick_slip(qa, dqa, dq, drive, gen_fr)
-        q_new, dq_new = [0.0] * 3, [0.0] * 3
-        for i in range(3):
-            v = dq[i] + h * ddq[i]
-            if (dq[i] > 0 and v < 0) or (dq[i] < 0 and v > 0):
-                v = 0.0  # friction stops a joint; it never reverses it within a substep
-            dq_new[i] = v
-            q_new[i] = q[i] + h * v
-        return q_new, dq_new
+        return _semi_implicit_euler(q, dq, ddq, h)
 
     def _gear_gap(self, q: list, dq: list, tau_m: list, h: float) -> list:
         """Backlash: the motor drives its own inertia; the link only gets the torque the gear passes
@@ -377,29 +376,35 @@ class ArmPlant:
             tau[i] = tc
         return tau
 
-    def _stick_slip(self, qa, dqa, dq: list, drive: list, gen_fr) -> list:
+    def _stick_slip(self, qa, dqa, dq, drive: list, gen_fr) -> list:
+        """Accelerations when some joint stands still: the stuck joints are held while the friction needed
+        to hold each lies inside its static band; the joint pushed furthest beyond its band breaks away
+        first, in that direction (then the others are tested again)."""
         m = pin.crba(self.model, self.data, qa).tolist()
         m[1][0], m[2][0], m[2][1] = m[0][1], m[0][2], m[1][2]
         nle = pin.nonLinearEffects(self.model, self.data, qa, dqa).tolist()
-        rhs = [drive[i] - nle[i] for i in range(3)]
+        rhs = [drive[0] - nle[0], drive[1] - nle[1], drive[2] - nle[2]]
         free = [v != 0.0 for v in dq]
         vel = list(dq)  # velocity used for friction: tiny in the break-away direction
+        kinetic, band_pos, band_neg = self._kinetic, self._band_pos_l, self._band_neg_l
         for _ in range(4):
-            f = [self._kinetic(i, vel[i]) if free[i] else 0.0 for i in range(3)]
-            if gen_fr is not None:
-                f = [f[i] + (gen_fr[i] if free[i] else 0.0) for i in range(3)]
-            idx = [i for i in range(3) if free[i]]
+            idx = [i for i in (0, 1, 2) if free[i]]
             ddq = [0.0, 0.0, 0.0]
             if idx:
-                sol = _solve([[m[a][b] for b in idx] for a in idx], [rhs[a] - f[a] for a in idx])
-                for a, x in zip(idx, sol):
+                net = []  # drive beyond the free joints' kinetic friction
+                for a in idx:
+                    f = kinetic(a, vel[a])
+                    if gen_fr is not None:
+                        f = f + gen_fr[a]
+                    net.append(rhs[a] - f)
+                for a, x in zip(idx, _solve([[m[a][b] for b in idx] for a in idx], net)):
                     ddq[a] = x
             worst, worst_excess, push = -1, 0.0, 0.0
-            for s in range(3):
+            for s in (0, 1, 2):
                 if free[s]:
                     continue
                 hold = rhs[s] - sum(m[s][a] * ddq[a] for a in idx)  # friction needed to hold joint s
-                excess = max(hold - self._band_pos_l[s], -self._band_neg_l[s] - hold)
+                excess = max(hold - band_pos[s], -band_neg[s] - hold)
                 if excess > worst_excess:
                     worst, worst_excess, push = s, excess, hold
             if worst < 0:
@@ -564,6 +569,19 @@ class ArmPlant:
 
 
 
+def _semi_implicit_euler(q, dq, ddq, h: float) -> tuple:
+    """((q), (dq)) after one substep h: velocity first, then position; friction stops a joint, it never
+    reverses it within a substep."""
+    v = []
+    for dqi, a in zip(dq, ddq):
+        vi = dqi + h * a
+        if (dqi > 0 and vi < 0) or (dqi < 0 and vi > 0):
+            vi = 0.0
+        v.append(vi)
+    v0, v1, v2 = v
+    return (q[0] + h * v0, q[1] + h * v1, q[2] + h * v2), (v0, v1, v2)
+
+
 def _clip(x: float, lo: float, hi: float) -> float:
     """np.clip for one float, exactly (NaN passes through; on a tie the bound wins, so signed zeros
     come out as numpy's do)."""
@@ -571,8 +589,17 @@ def _clip(x: float, lo: float, hi: float) -> float:
     return x if (x != x or x < hi) else hi
 
 def _solve(a: list, b: list) -> list:
-    """Solve a small (1..3) symmetric positive-definite system by Gaussian elimination, in floats."""
+    """Solve a small (1..3) symmetric positive-definite system by Gaussian elimination, in floats. The
+    1- and 2-unknown cases are the general loop written out (the same operations in the same order,
+    `sum` included: it adds from 0.0)."""
     n = len(b)
+    if n == 1:
+        return [b[0] / a[0][0]]
+    if n == 2:
+        (a00, a01), (a10, a11) = a
+        f = a10 / a00
+        x1 = (b[1] - f * b[0]) / (a11 - f * a01)
+        return [(b[0] - (0.0 + a01 * x1)) / a00, x1]
     a = [row[:] for row in a]
     b = b[:]
     for k in range(n):
