@@ -98,9 +98,11 @@ def build_plant(name: str | None, seed: int, arm):
 @click.option("--plant", "plant_name", default=None, metavar="PRESET_OR_TOML",
               help="Physics behind the servos: 'simple' (independent joints) or an arm-plant preset "
                    "or TOML file. Default: the arm plant's 'crane-x7' preset when available, else 'simple'.")
-@click.option("--clock", type=click.Choice(["wall", "lockstep"]), default="wall", show_default=True,
+@click.option("--clock", type=click.Choice(["wall", "lockstep"]), default=None,
               help="'wall': physics follows real time. 'lockstep': one control period per Goal "
-                   "Current sync write.")
+                   "Current sync write: the arms wait for the controller, so a busy machine slows the run "
+                   "instead of letting the arms fall between late commands. Default: wall for one arm, "
+                   "lockstep for --pair.")
 @click.option("--period", "period_s", type=float, default=0.002, show_default=True,
               help="Lockstep control period in seconds.")
 @click.option("--seed", type=int, default=0, show_default=True,
@@ -120,6 +122,8 @@ def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_
     pseudo-terminals until Ctrl+C or SIGTERM."""
     if not period_s > 0:
         raise ConfigError(f"--period must be positive, got {period_s}")
+    if clock is None:
+        clock = "lockstep" if pair else "wall"
     if pair:
         if link is not None:
             raise ConfigError("--pair serves two links: give --leader-link and --follower-link, not --link")
