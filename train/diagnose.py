@@ -130,7 +130,9 @@ def _run(ds: Dataset, X, y, residual, effects=None, *, exclude=(), folds: int = 
         results[home].append(cand)
         tried[id(cand)] = (effect, columns_by_shape, fit, cols_at)
 
-    selected = forward_selection(engine, ds.joint_names, results, tried, min_reduction, min_fold_fraction)
+    selected, final = forward_selection(engine, ds.joint_names, results, tried, min_reduction,
+                                        min_fold_fraction)
+    remaining = final.y - final.X @ final.fit(None, list(range(folds)))[0] if selected else residual
     for c in selected:
         c.sentence = c.sentence[:-1] + selected_suffix(c) + "."
     settings = {"folds": folds, "min_reduction": min_reduction, "min_fold_fraction": min_fold_fraction,
@@ -139,7 +141,7 @@ def _run(ds: Dataset, X, y, residual, effects=None, *, exclude=(), folds: int = 
                 "selection": "forward: each effect judged on top of the ones selected before it",
                 "samples": len(ds), "moving_samples": {name: int(ds.moving[:, j].sum())
                                                        for j, name in enumerate(ds.joint_names)}}
-    result = _assemble(ds, residual, results, settings, refinements, folds)
+    result = _assemble(ds, residual, remaining, results, settings, refinements, folds)
     result.selected = [f"{c.effect} on {c.joint}" for c in selected]
     return result
 
@@ -339,10 +341,11 @@ def _judge(effect, j: int | None, fit: CVFit, joint_names, min_reduction: float,
     return home, cand
 
 
-def _assemble(ds: Dataset, residual: np.ndarray, results: dict[int, list[Candidate]],
+def _assemble(ds: Dataset, residual: np.ndarray, remaining: np.ndarray, results: dict[int, list[Candidate]],
               settings: dict, refinements: list[dict], folds: int) -> Diagnosis:
     """Rank each joint's candidates (the selected ones first, in selection order), number them, and add
-    the summaries, residual correlations and dependences."""
+    the summaries, the residual's linear correlations and what remains once the selected effects are in
+    the model depends on (`remaining`; the residual itself when nothing was selected)."""
     candidates, summary, correlations, dependence = [], {}, {}, {}
     for j, name in enumerate(ds.joint_names):
         chosen = sorted((c for c in results[j] if c.selection_step), key=lambda c: c.selection_step)
@@ -351,7 +354,7 @@ def _assemble(ds: Dataset, residual: np.ndarray, results: dict[int, list[Candida
             c.rank = i
         candidates += ranked
         corr = residual_correlations(ds, residual, j)
-        dep = residual_dependence(ds, residual, j, folds)
+        dep = residual_dependence(ds, remaining, j, folds)
         correlations[name] = corr[:6]
         dependence[name] = [{"with": d["with"], "share": d["share"]} for d in dep[:6]]
         summary[name] = joint_summary(name, ranked, corr, dep, refinements)

@@ -73,7 +73,7 @@ def _pick_leader(pool: list[Candidate], fits: dict[int, CVFit], joint_names) -> 
 
 def forward_selection(engine: Engine, joint_names, results: dict[int, list[Candidate]],
                       tried: dict[int, tuple], min_reduction: float,
-                      min_fold_fraction: float) -> list[Candidate]:
+                      min_fold_fraction: float) -> tuple[list[Candidate], Engine]:
     """Nested forward selection (SINDy's sequential idea): what is significant is judged on top of what
     was already found, never every candidate against the same baseline. Candidates often mimic part of
     another effect (stiction or asymmetric Coulomb contain Coulomb; a ripple or a spring bends to fit a
@@ -89,7 +89,8 @@ def forward_selection(engine: Engine, joint_names, results: dict[int, list[Candi
 
     `tried` maps id(candidate) -> (effect, columns_by_shape, its CVFit, columns_at); candidates are
     changed in place. Candidates not significant on their own are not tried again (one that only
-    becomes significant once another effect is in shows when diagnosing the refitted model)."""
+    becomes significant once another effect is in shows when diagnosing the refitted model).
+    Returns the selected candidates and the engine whose basis holds all of them."""
     pool = [c for cands in results.values() for c in cands if c.significant]
     fits = {id(c): tried[id(c)][2] for c in pool}
     selected: list[Candidate] = []
@@ -99,9 +100,9 @@ def forward_selection(engine: Engine, joint_names, results: dict[int, list[Candi
         pool.remove(leader)
         selected.append(leader)
         leader.selection_step = len(selected)
+        eng = eng.extended(fits[id(leader)].columns_all)
         if not pool:
             break
-        eng = eng.extended(fits[id(leader)].columns_all)
         baseline = eng.baseline()
         given = [_label(c) for c in selected]
         still = []
@@ -121,4 +122,4 @@ def forward_selection(engine: Engine, joint_names, results: dict[int, list[Candi
             c.explained_by = _label(leader)
             c.sentence = spill_over_sentence(c, red, leader)
         pool = still
-    return selected
+    return selected, eng

@@ -131,6 +131,7 @@ def residual_correlations(ds: Dataset, residual: np.ndarray, joint: int) -> list
 
 DEPENDENCE_BINS = 8  # quantile bins of a continuous signal
 DEPENDENCE_MIN_SHARE = 0.05  # held-out variance share below which a dependence is not named
+REMAINING_MIN_SHARE = 0.25  # after a selected effect: name what the rest depends on from this share
 
 
 def _codes(x: np.ndarray, bins: int = DEPENDENCE_BINS) -> np.ndarray:
@@ -194,8 +195,8 @@ def residual_dependence(ds: Dataset, residual: np.ndarray, joint: int, folds: in
     return out
 
 
-def _dependence_sentence(dep: list[dict] | None) -> str | None:
-    if not dep or dep[0]["share"] < DEPENDENCE_MIN_SHARE:
+def _dependence_sentence(dep: list[dict] | None, floor: float = DEPENDENCE_MIN_SHARE) -> str | None:
+    if not dep or dep[0]["share"] < floor:
         return None
     alone = {d["with"]: d["share"] for d in dep if len(d["parts"]) == 1}
     for d in dep:
@@ -251,6 +252,10 @@ def _joint_lead(joint: str, ranked: list[Candidate], corr: list[dict], dependenc
             text += (f" Also significant once {significant[0].effect} is in the model: "
                      + ", ".join(f"{c.effect} ({_pct(max(c.reduction_given_leader or 0.0, 0.0))} of what "
                                  "remains)" for c in significant[1:4]) + ".")
+        rest = _dependence_sentence(dependence, REMAINING_MIN_SHARE)
+        if rest:
+            names = ", ".join(c.effect for c in significant[:4])
+            text += f" Once {names} {'is' if len(significant) == 1 else 'are'} in the model, {rest}."
         return text
     if ranked:
         best = ranked[0]
