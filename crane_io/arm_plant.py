@@ -135,6 +135,7 @@ class ArmPlant:
         self._errors: dict[int, int] = {}
         self.time = 0.0
         self._last_key, self._last_out = b"", None  # the last substep's inputs and result (_substep)
+        self._raw_signs_ok = None  # the generator _pulse_signs may read raw (see there)
         # per-joint parameters of the substep's scalar loops: (Coulomb +, Coulomb -, Stribeck terms) and
         # (viscous, offset, spring stiffness, stiffness x rest angle, lower stop, upper stop)
         self._kinetic_l = [(self._fc_pos_l[i], self._fc_neg_l[i], tuple(self._strib_l[i])) for i in range(3)]
@@ -471,26 +472,54 @@ class ArmPlant:
             self._errors[self.servo_ids[i]] = self._errors.get(self.servo_ids[i], 0) | OVERLOAD_BIT
 
     def read(self) -> SensorReading:
+        """What the sensors measure: the true state with an occasional one-count position error, velocity
+        and current noise. Per servo in plain Python (8 values: cheaper than numpy's fancy indexing; the
+        same IEEE operations as the array form, and the same random stream)."""
         n = len(self.servo_ids)
         s = self.config.sensor
-        pos = np.empty(n)
-        vel = np.empty(n)
-        cur = np.empty(n)
-        pos[self._bi], pos[self._held] = self.q, self._held_q
-        vel[self._bi], vel[self._held] = self.dq, self._held_dq
-        cur[self._bi], cur[self._held] = self.motor_torque / self.kt[self._bi], self._held_current
+        pos, vel, cur = [0.0] * n, [0.0] * n, [0.0] * n
+        kt = self._kt_l
+        for i, q, dq, tau in zip(self._bi_l, self.q.tolist(), self.dq.tolist(), self.motor_torque.tolist()):
+            pos[i], vel[i], cur[i] = q, dq, tau / kt[i]
+        for i, q, dq, c in zip(self._held_l, self._held_q.tolist(), self._held_dq.tolist(),
+                               self._held_current.tolist()):
+            pos[i], vel[i], cur[i] = q, dq, c
         rng = self.rng
         if s.position_noise_probability > 0:
-            flip = rng.random(n) < s.position_noise_probability
-            # = rng.choice((-RAD_PER_PULSE, RAD_PER_PULSE), n): Generator.choice draws exactly these
-            # integers (same random stream) but costs twice as much
-            pos = pos + flip * _PULSE_SIGNS.take(rng.integers(0, 2, size=n, dtype=np.int64))
+            p = s.position_noise_probability
+            flips = rng.random(n).tolist()
+            pos = [x + (1.0 if f < p else 0.0) * sign for x, f, sign in zip(pos, flips, self._pulse_signs(n))]
         if s.velocity_noise_lsb > 0:
-            vel = vel + rng.normal(0.0, s.velocity_noise_lsb * RADS_PER_VELOCITY_LSB, n)
+            noise = rng.normal(0.0, s.velocity_noise_lsb * RADS_PER_VELOCITY_LSB, n).tolist()
+            vel = [x + e for x, e in zip(vel, noise)]
         if s.current_noise_lsb > 0:
-            cur = cur + rng.normal(0.0, s.current_noise_lsb * AMPERE_PER_CURRENT_LSB, n)
-        return SensorReading(position=pos, velocity=vel, current=cur, voltage=np.full(n, 12.0),
-                             temperature=np.full(n, 35.0))
+            noise = rng.normal(0.0, s.current_noise_lsb * AMPERE_PER_CURRENT_LSB, n).tolist()
+            cur = [x + e for x, e in zip(cur, noise)]
+        return SensorReading(position=np.array(pos), velocity=np.array(vel), current=np.array(cur),
+                             voltage=np.full(n, 12.0), temperature=np.full(n, 35.0))
+
+    def _pulse_signs(self, n: int) -> list:
+        """n signed one-pulse errors, -+RAD_PER_PULSE, drawn as `rng.choice((-RAD_PER_PULSE,
+        RAD_PER_PULSE), n)` draws them (Generator.choice draws `rng.integers(0, 2, n)`).
+
+        For 0..1, numpy's integers takes 32-bit halves of the PCG64 outputs, low half first (the high
+        half is kept in the bit generator for the next 32-bit draw), and Lemire's method returns the top
+        bit of each: bits 31 and 63 of every 64-bit output. An even n with no half kept from before (the
+        plant's own generator draws nothing else of 32 bits) is read from the raw outputs directly, at
+        a fifth of integers' cost; anything else goes through integers."""
+        rng = self.rng
+        if n % 2 == 0 and self._raw_signs_ok is not rng:
+            bg = rng.bit_generator
+            self._raw_signs_ok = rng if type(bg) is np.random.PCG64 and not bg.state["has_uint32"] else None
+        if n % 2 == 0 and self._raw_signs_ok is rng:
+            neg, pos = -RAD_PER_PULSE, RAD_PER_PULSE
+            out = []
+            for v in rng.bit_generator.random_raw(n // 2).tolist():
+                out.append(pos if v & 0x80000000 else neg)
+                out.append(pos if v >> 63 else neg)
+            return out
+        self._raw_signs_ok = None  # an odd draw may leave a half behind: look again next time
+        return _PULSE_SIGNS.take(rng.integers(0, 2, size=n, dtype=np.int64)).tolist()
 
     def hardware_errors(self) -> dict[int, int]:
         return dict(self._errors)

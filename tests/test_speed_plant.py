@@ -1,0 +1,94 @@
+"""The arm plant's fast paths (issue 13) compute what the array forms they replaced computed, bit for bit:
+the sensor reading (scalar Python instead of numpy fancy indexing, the position-noise signs read from the
+bit generator's raw outputs instead of Generator.integers) and the substep's small linear solves."""
+
+from __future__ import annotations
+
+import random
+import struct
+
+import numpy as np
+import pytest
+
+from crane_io.arm_plant import _PULSE_SIGNS, ArmPlant, _solve
+from crane_io.units import AMPERE_PER_CURRENT_LSB, RADS_PER_VELOCITY_LSB
+
+
+def _array_read(plant: ArmPlant, rng: np.random.Generator):
+    """ArmPlant.read as it was written with arrays (the reference), drawing from `rng`."""
+    n = len(plant.servo_ids)
+    s = plant.config.sensor
+    bi, held = plant._bi, plant._held
+    pos, vel, cur = np.empty(n), np.empty(n), np.empty(n)
+    pos[bi], pos[held] = plant.q, plant._held_q
+    vel[bi], vel[held] = plant.dq, plant._held_dq
+    cur[bi], cur[held] = plant.motor_torque / plant.kt[bi], plant._held_current
+    flip = rng.random(n) < s.position_noise_probability
+    pos = pos + flip * _PULSE_SIGNS.take(rng.integers(0, 2, size=n, dtype=np.int64))
+    vel = vel + rng.normal(0.0, s.velocity_noise_lsb * RADS_PER_VELOCITY_LSB, n)
+    cur = cur + rng.normal(0.0, s.current_noise_lsb * AMPERE_PER_CURRENT_LSB, n)
+    return pos, vel, cur
+
+
+def test_the_reading_equals_the_array_form_bit_for_bit():
+    plant = ArmPlant("crane-x7", seed=7)
+    twin = np.random.default_rng(7)
+    states = np.random.default_rng(1)
+    for k in range(500):
+        q = states.normal(0, 0.5, 8)
+        dq = states.normal(0, 0.5, 8) * (k % 3 != 0)  # some readings of a joint at rest (signed zeros)
+        if k % 5 == 0:
+            dq = -0.0 * np.abs(dq)
+        plant.set_state(q, dq)
+        plant.motor_torque = states.normal(0, 1, 3)
+        plant._held_current = states.normal(0, 0.1, 5)
+        got = plant.read()
+        for a, b in zip((got.position, got.velocity, got.current), _array_read(plant, twin)):
+            assert a.tobytes() == b.tobytes()
+    assert plant.rng.random() == twin.random()  # the two generators are still in step
+
+
+@pytest.mark.parametrize("sizes", [[8], [2], [3], [8, 3, 8, 8, 1, 2]])
+def test_pulse_signs_draw_what_integers_draws(sizes):
+    plant = ArmPlant("crane-x7", seed=11)
+    twin = np.random.default_rng(11)
+    for k in range(300):
+        n = sizes[k % len(sizes)]
+        want = _PULSE_SIGNS.take(twin.integers(0, 2, size=n, dtype=np.int64)).tolist()
+        assert plant._pulse_signs(n) == want
+        assert plant.rng.random() == twin.random()
+
+
+def _general_solve(a, b):
+    """The Gaussian elimination loop the written-out cases must equal."""
+    n = len(b)
+    a = [row[:] for row in a]
+    b = b[:]
+    for k in range(n):
+        p = a[k][k]
+        for r in range(k + 1, n):
+            f = a[r][k] / p
+            for c in range(k, n):
+                a[r][c] -= f * a[k][c]
+            b[r] -= f * b[k]
+    x = [0.0] * n
+    for k in range(n - 1, -1, -1):
+        x[k] = (b[k] - sum(a[k][c] * x[c] for c in range(k + 1, n))) / a[k][k]
+    return x
+
+
+def test_the_small_solves_equal_the_general_loop_signed_zeros_included():
+    rnd = random.Random(3)
+    special = [0.0, -0.0, 1.0, -1.0, 2.5]
+
+    def value():
+        return rnd.choice(special) if rnd.random() < 0.3 else rnd.uniform(-3, 3)
+
+    for n in (1, 2, 3):
+        for _ in range(20000):
+            a = [[value() for _ in range(n)] for _ in range(n)]
+            for i in range(n):
+                a[i][i] = rnd.uniform(0.5, 3)
+            b = [value() for _ in range(n)]
+            want = _general_solve(a, b)
+            assert struct.pack(f"{n}d", *_solve(a, b)) == struct.pack(f"{n}d", *want)
