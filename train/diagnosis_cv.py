@@ -186,9 +186,10 @@ def _shape_objective(engine: Engine, columns_at, base: dict, name: str, train: l
 
 
 def refine_shape(engine: Engine, columns_at, grid: dict[str, list], shape: dict | None, train: list[int],
-                 sse: float) -> tuple[dict | None, np.ndarray | None, float]:
+                 sse: float, integers=()) -> tuple[dict | None, np.ndarray | None, float]:
     """Refine the shape parameters picked from the grid (bounded scalar search per parameter, scipy's
-    minimize_scalar, within half a grid step of the pick) on the training folds `train`; returns
+    minimize_scalar, within half a grid step of the pick; over the whole numbers there for the names in
+    `integers`) on the training folds `train`; returns
     (shape, columns, training SSE), the grid pick itself when nothing better is found.
     `columns_at(shape)` -> (N, J, c) columns or None when the shape gives unusable columns."""
     if not shape or columns_at is None:
@@ -201,6 +202,14 @@ def refine_shape(engine: Engine, columns_at, grid: dict[str, list], shape: dict 
             continue
         lo, hi = _bracket(list(grid[name]), float(best_shape[name]))
         if not hi > lo:
+            continue
+        if name in integers:  # whole numbers only: try each one in the bracket
+            objective = _shape_objective(engine, columns_at, dict(best_shape), name, train)
+            for v in range(math.ceil(lo), math.floor(hi) + 1):
+                f = objective(float(v))
+                if np.isfinite(f) and f < best_sse:
+                    best_shape, best_sse = {**best_shape, name: float(v)}, float(f)
+                    best_cols = columns_at(best_shape)
             continue
 
         objective = _shape_objective(engine, columns_at, dict(best_shape), name, train)
@@ -223,6 +232,7 @@ def cross_validate(engine: Engine, effect, columns_by_shape, baseline, columns_a
     K = engine.K
     J = engine.y.shape[1]
     grid = dict(getattr(effect, "shape_grid", None) or {})
+    integers = tuple(getattr(effect, "integer_shapes", ()) or ())
     sse_before = np.zeros((J, K))
     sse_after = np.zeros((J, K))
     fold_values = []
@@ -234,7 +244,7 @@ def cross_validate(engine: Engine, effect, columns_by_shape, baseline, columns_a
             if best is None or sse < best[0]:
                 best = (sse, i, shape, C)
         sse, i, shape, C = best
-        shape2, C2, _ = refine_shape(engine, columns_at, grid, shape, train, sse)
+        shape2, C2, _ = refine_shape(engine, columns_at, grid, shape, train, sse, integers)
         if C2 is not None:
             shape, C = shape2, C2
         return i, shape, C

@@ -44,6 +44,9 @@ class Effect:
     signature: str = ""  # residual signature when missing; may contain {joint}
     params: tuple[Param, ...] = ()
     shape_grid: dict[str, list] = {}
+    # shape parameters that only take whole numbers (ripple periods per revolution): a fit refines them
+    # over the integers between grid points, never to a fraction
+    integer_shapes: tuple[str, ...] = ()
     scope: str = "joint"  # "joint" or "arm"
     friction: bool = False  # the plant treats it as friction: it can hold a joint at rest
 

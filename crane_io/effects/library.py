@@ -175,6 +175,7 @@ class Cogging(Effect):
               Param("phase", "rad", 0.0, "ripple phase at q = 0 (from the sin/cos pair)"),
               Param("cycles_per_rev", "1/rev", 12.0, "ripple periods per joint revolution", linear=False))
     shape_grid = {"cycles_per_rev": [4.0, 6.0, 8.0, 12.0, 16.0, 24.0]}
+    integer_shapes = ("cycles_per_rev",)
 
     def _columns(self, q, dq, ddq, joint, shape):
         a = shape["cycles_per_rev"] * q[:, joint]
