@@ -4,19 +4,14 @@ fitted on is the preprocessing setting `arm`, model.json "preprocessing" -> "arm
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
 import click
 
-from crane_io.errors import ConfigError, cli_errors
+from crane_io.errors import cli_errors
 
 from .cli_options import (
     arm_option,
     data_options,
     hand_on_hint,
-    load_config,
-    load_dataset,
     parse_effect,
     writable_output,
 )
@@ -28,66 +23,29 @@ def fit_model(sessions, method: str, out_dir, train_size: int | None = None, see
               effects=(), effect_files=(), joints=None, alpha=None, zero_phase=False,
               scale_to_data=False, epochs: int | None = None, progress: bool = True,
               config_path=None, arm: str | None = None) -> dict:
-    """Preprocess `arm`'s data (default: the configuration's, "follower"), split, fit on `train_size`
-    samples of the pool (all of it by default), score on the test set, save to out_dir. Returns the
-    metrics document (also written as fit_metrics.json). A session whose arm the operator's hand moved
+    """train.api.fit on `arm`'s data of the sessions, saved to out_dir (with fit_metrics.json); returns the
+    metrics document. The output is checked before any work; a session whose arm the operator's hand moved
     is refused (train.session.HandOnArmError) before anything is written."""
-    import numpy as np  # the work's imports live here, so that `crane-train fit --help` stays light
-    import torch
     from tqdm import tqdm
 
-    from .metrics import metrics_table
-    from .models.registry import make_model
-    from .splits import make_splits
+    from .api import fit
 
     writable_output(out_dir, "dir")
-    cfg = load_config(config_path)
-    ds = load_dataset(sessions, joints, alpha, zero_phase, cfg["preprocess"], arm)
-    splits = make_splits(ds, cfg["splits"], seed=seed, scale_to_data=scale_to_data)
-    pool = splits.pool
-    if train_size is not None:
-        if not 0 < train_size <= len(pool):
-            raise ConfigError(f"--train-size must be between 1 and the pool size {len(pool)}, "
-                              f"got {train_size}")
-        rows = np.sort(np.random.default_rng([seed, train_size]).choice(len(pool), train_size, replace=False))
-        pool = pool.subset(rows)
-    options = {}
-    if effects or effect_files:
-        if method not in ("rigid-body", "hybrid"):
-            raise ConfigError(f"--effect and --effect-file apply to rigid-body and hybrid, not {method}")
-        options["effects"] = [list(e) for e in effects]
-        # absolute, so that the saved model loads from any working directory
-        options["effect_files"] = [str(Path(f).resolve()) for f in effect_files]
-    has_net = method.startswith("mlp-") or method == "hybrid"  # hybrid: a masked net on the residual
-    if has_net:
-        m = cfg["mlp"]
-        options.update(seed=seed, hidden=m.hidden, lr=m.lr, batch_size=m.batch_size,
-                       epochs=epochs if epochs is not None else m.epochs)
-    torch.set_num_threads(1)
-    # the dead-zone velocity alpha sigma_j of the training data: where the loop's model treats a joint as
-    # standing still (collect/model_reaction.py)
-    dead_zone = [float(ds.meta["alpha"]) * float(s) for s in ds.meta["sigma"]]
-    # the poses the model saw: the loop trusts it only there (collect/model_reaction.py)
-    q_range = {"q_min": ds.q.min(axis=0).tolist(), "q_max": ds.q.max(axis=0).tolist()}
-    model = make_model(method, ds.joint_names, preprocessing={**ds.meta["preprocessing"],
-                                                              "dead_zone_rad_s": dead_zone,
-                                                              "input_range": q_range}, **options)
-    if has_net:
-        bar = tqdm(total=options["epochs"], desc=method, unit="epoch", disable=not progress, leave=False)
-        model.fit(pool, splits.val, progress=lambda done, total: bar.update(1))
+    bar = None
+    if progress and (method.startswith("mlp-") or method == "hybrid"):
+        bar = tqdm(desc=method, unit="epoch", leave=False)
+
+    def step(done, total):
+        bar.total = total
+        bar.update(1)
+
+    result = fit(list(sessions), method, effects=effects, effect_files=effect_files, train_size=train_size,
+                 seed=seed, epochs=epochs, scale_to_data=scale_to_data, config=config_path, arm=arm,
+                 joints=joints, alpha=alpha, zero_phase=zero_phase, progress=step if bar else None)
+    if bar is not None:
         bar.close()
-    else:
-        model.fit(pool, splits.val)
-    test = splits.test
-    doc = {"method": method, "arm": ds.meta["arm"], "joints": list(ds.joint_names),
-           "train_samples": len(pool),
-           "train_samples_all_moving": int(pool.all_moving.sum()), "test_samples": len(test), "seed": seed,
-           "test": metrics_table(test.tau, model.predict_dataset(test), ds.joint_names),
-           "usable_fraction": ds.meta["usable_fraction"],
-           "sources": [str(Path(f).resolve()) for f in ds.meta["sources"]]}  # found from any directory
-    path = model.save(out_dir)
-    (path / "fit_metrics.json").write_text(json.dumps(doc, indent=2))
-    return doc
+    result.save(out_dir)
+    return result.metrics
 
 
 @click.command()

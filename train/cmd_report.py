@@ -20,21 +20,10 @@ from crane_io.errors import cli_errors
 @cli_errors
 def report(model_dir, sessions, output, diagnosis, seed):
     """Write an HTML report of MODEL_DIR's error on the held-out part of SESSION(s)."""
+    from .api import make_report
     from .cli_options import writable_output
-    from .heldout import evaluation_data
-    from .models.registry import load_model
-    from .report import report_html, write_report
 
     writable_output(output, "file")
-    model = load_model(model_dir)
-    click.echo(f"Evaluating {model_dir} ({model.method}) on the held-out part of {', '.join(sessions)} ...",
-               err=True)
-    ds, _, held = evaluation_data(model, list(sessions), seed=seed, model_dir=model_dir)
-    diag = None
-    if diagnosis:
-        from .diagnose import diagnose as run_diagnosis
-        from .heldout import diagnosis_data
-
-        diag = run_diagnosis(model, diagnosis_data(model, ds, model_dir, seed)[0])
-    path = write_report(output, report_html(model, model_dir, held, sessions, diag))
+    click.echo(f"Evaluating {model_dir} on the held-out part of {', '.join(sessions)} ...", err=True)
+    path = make_report(model_dir, list(sessions), output, seed=seed, diagnosis=diagnosis)
     click.echo(f"Wrote {path} ({path.stat().st_size / 1e3:.0f} kB); open it in a browser (works offline).")

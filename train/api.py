@@ -1,0 +1,236 @@
+"""The Python front door of crane-train: the modelling loop in a notebook, without the command line.
+
+    import train
+
+    ds = train.load_sessions("day1.h5")                      # the follower's data, preprocessed
+    fit = train.fit(ds, "rigid-body", scale_to_data=True)    # a FitResult: .model, .metrics, .splits
+    fit.save("models/rb")
+    found = train.diagnose_model("models/rb", "day1.h5")     # which effect is missing?
+    better = train.fit(ds, "rigid-body", effects=["coulomb:joint=joint2"], scale_to_data=True)
+    better.save("models/rb-coulomb")
+    table = train.compare_models(["models/rb", "models/rb-coulomb"])
+    train.make_report("models/rb-coulomb", "day1.h5", "rb.html")
+
+Every function takes and returns SI values, numpy arrays and small objects (a Dataset, a Model, a
+Diagnosis, a Comparison); problems are raised as crane_io.errors.CraneError subclasses with one sentence.
+The `crane-train` commands are thin wrappers over these functions. (The names differ from the modules
+train.diagnose, train.compare and train.report, which hold the machinery.)
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from crane_io.errors import ConfigError
+
+from .diagnosis_defaults import DEFAULT_FOLDS, DEFAULT_MIN_REDUCTION
+
+if TYPE_CHECKING:
+    from .compare import Comparison
+    from .dataset import Dataset
+    from .diagnosis_result import Diagnosis
+    from .models.base import Model
+    from .splits import Splits
+
+PathLike = str | Path
+Sessions = PathLike | Sequence[PathLike]
+Effect = str | tuple  # "coulomb", "coulomb:joint=joint2", or (name, joint, shape)
+
+
+def _paths(sessions: Sessions) -> list[str]:
+    if isinstance(sessions, (str, Path)):
+        return [str(sessions)]
+    out = [str(s) for s in sessions]
+    if not out:
+        raise ConfigError("give at least one session file")
+    return out
+
+
+def _effect(e: Effect) -> tuple[str, str | None, dict | None]:
+    from .cli_options import parse_effect
+
+    if isinstance(e, str):
+        return parse_effect(e)
+    name, joint, shape = (tuple(e) + (None, None))[:3]
+    return str(name), joint, dict(shape) if shape else None
+
+
+def load_settings(config: PathLike | None = None) -> dict:
+    """The training settings {'preprocess', 'splits', 'mlp'}: train/config/train.toml's documented
+    defaults, overlaid with the TOML file `config` (same sections)."""
+    from .cli_options import load_config
+
+    return load_config(config)
+
+
+def load_sessions(sessions: Sessions, *, arm: str | None = None, joints: Sequence[str] | str | None = None,
+                  alpha: float | None = None, zero_phase: bool = False,
+                  config: PathLike | None = None) -> Dataset:
+    """Read one arm's data from session files and preprocess it the paper's way (50 Hz, causal filters,
+    dead-zone masks): a train.dataset.Dataset with q, dq, ddq (rad, rad/s, rad/s^2), tau (N m) and the
+    masks, (N, J) each.
+
+    arm: "follower" (default) or "leader" (only from a session recorded with the hand on the follower);
+    joints: the learning joints (default joint1, joint2, joint4); alpha: the dead-zone threshold
+    (|dq| > alpha std(dq) moves, default 0.1); zero_phase: filter forward and backward instead."""
+    from .cli_options import load_dataset
+
+    if joints is not None and not isinstance(joints, str):
+        joints = ",".join(joints)
+    return load_dataset(_paths(sessions), joints, alpha, zero_phase, load_settings(config)["preprocess"], arm)
+
+
+@dataclass
+class FitResult:
+    """A fitted model with what it was fitted and scored on."""
+
+    model: Model
+    metrics: dict  # the test metrics document (fit_metrics.json): mse, rmse, nmse per joint, sizes, seed
+    dataset: Dataset = field(repr=False)
+    splits: Splits = field(repr=False)
+
+    def save(self, out_dir: PathLike) -> Path:
+        """Write the model (and fit_metrics.json) to `out_dir`; returns its path."""
+        path = self.model.save(out_dir)
+        (path / "fit_metrics.json").write_text(json.dumps(self.metrics, indent=2))
+        return path
+
+
+def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = (),
+        effect_files: Sequence[PathLike] = (), train_size: int | None = None, seed: int = 0,
+        epochs: int | None = None, scale_to_data: bool = False, config: PathLike | None = None,
+        arm: str | None = None, joints: Sequence[str] | str | None = None, alpha: float | None = None,
+        zero_phase: bool = False, progress: Callable[[int, int], None] | None = None) -> FitResult:
+    """Fit one model the paper's way: split the data (pool, validation, test; `scale_to_data` shrinks the
+    sizes to short data), fit on `train_size` samples of the pool (all by default) and score on the test
+    set.
+
+    data: a Dataset from load_sessions, or session file(s) (then arm, joints, alpha, zero_phase, config
+    apply as in load_sessions); method: "rigid-body", "mlp-mse", "mlp-masked" or "hybrid"; effects
+    (rigid-body, hybrid): physical effects added to the model, e.g. "coulomb", "coulomb:joint=joint2",
+    "stribeck:joint=joint4,stribeck_velocity=0.05"; effect_files: Python files defining more effects;
+    epochs: of the network (default from the settings, 100); progress(done, total): called per epoch."""
+    import numpy as np
+    import torch
+
+    from .metrics import metrics_table
+    from .models.registry import make_model
+    from .splits import make_splits
+
+    effects = [_effect(e) for e in effects]  # bad input is refused before any work
+    if (effects or effect_files) and method not in ("rigid-body", "hybrid"):
+        raise ConfigError(f"effects apply to rigid-body and hybrid models, not {method}")
+    settings = load_settings(config)
+    if not hasattr(data, "tau"):  # session file(s), not a Dataset
+        data = load_sessions(data, arm=arm, joints=joints, alpha=alpha, zero_phase=zero_phase, config=config)
+    ds = data
+    splits = make_splits(ds, settings["splits"], seed=seed, scale_to_data=scale_to_data)
+    pool = splits.pool
+    if train_size is not None:
+        if not 0 < train_size <= len(pool):
+            raise ConfigError(f"the training size must be between 1 and the pool size {len(pool)}, "
+                              f"got {train_size}")
+        rows = np.sort(np.random.default_rng([seed, train_size]).choice(len(pool), train_size, replace=False))
+        pool = pool.subset(rows)
+    options = {}
+    if effects or effect_files:
+        options["effects"] = [list(e) for e in effects]
+        # absolute, so that the saved model loads from any working directory
+        options["effect_files"] = [str(Path(f).resolve()) for f in effect_files]
+    has_net = method.startswith("mlp-") or method == "hybrid"  # hybrid: a masked net on the residual
+    if has_net:
+        m = settings["mlp"]
+        options.update(seed=seed, hidden=m.hidden, lr=m.lr, batch_size=m.batch_size,
+                       epochs=epochs if epochs is not None else m.epochs)
+    torch.set_num_threads(1)
+    # the dead-zone velocity alpha sigma_j of the training data: where the loop's model treats a joint as
+    # standing still (collect/model_reaction.py)
+    dead_zone = [float(ds.meta["alpha"]) * float(s) for s in ds.meta["sigma"]]
+    # the poses the model saw: the loop trusts it only there (collect/model_reaction.py)
+    q_range = {"q_min": ds.q.min(axis=0).tolist(), "q_max": ds.q.max(axis=0).tolist()}
+    model = make_model(method, ds.joint_names, preprocessing={**ds.meta["preprocessing"],
+                                                              "dead_zone_rad_s": dead_zone,
+                                                              "input_range": q_range}, **options)
+    if has_net and progress is not None:
+        model.fit(pool, splits.val, progress=progress)
+    else:
+        model.fit(pool, splits.val)
+    test = splits.test
+    metrics = {"method": method, "arm": ds.meta["arm"], "joints": list(ds.joint_names),
+               "train_samples": len(pool),
+               "train_samples_all_moving": int(pool.all_moving.sum()), "test_samples": len(test),
+               "seed": seed,
+               "test": metrics_table(test.tau, model.predict_dataset(test), ds.joint_names),
+               "usable_fraction": ds.meta["usable_fraction"],
+               "sources": [str(Path(f).resolve()) for f in ds.meta["sources"]]}  # found from any directory
+    return FitResult(model, metrics, ds, splits)
+
+
+def load_model(model_dir: PathLike) -> Model:
+    """A saved model (any method); `model.predict(q, dq, ddq)` takes (N, J) arrays in rad, rad/s, rad/s^2
+    and returns (N, J) N m."""
+    from .models.registry import load_model as _load
+
+    return _load(model_dir)
+
+
+def diagnose_model(model_dir: PathLike, sessions: Sessions, *, folds: int = DEFAULT_FOLDS,
+             min_reduction: float = DEFAULT_MIN_REDUCTION, effect_files: Sequence[PathLike] = (),
+             progress: bool = False) -> Diagnosis:
+    """Which physical effect is the model at `model_dir` missing on `sessions`? The library's effects
+    (and those of `effect_files`) ranked by how much of the model's held-out error each removes, with
+    cross-validation over `folds` contiguous time blocks; a candidate must remove at least
+    `min_reduction` of it to count. The Diagnosis has `.candidates`, `.summary` and `.to_json()`."""
+    from crane_io.effects import load_effect_file
+
+    from .diagnose import diagnose as run_diagnosis
+    from .heldout import diagnosis_data, model_settings
+    from .preprocess import read_preprocessed
+
+    for path in effect_files:
+        load_effect_file(path)
+    model = load_model(model_dir)
+    pconf = model_settings(model, model_dir)[0]
+    ds, judged = diagnosis_data(model, read_preprocessed(_paths(sessions), pconf), model_dir)
+    result = run_diagnosis(model, ds, folds=folds, min_reduction=min_reduction, progress=progress)
+    result.settings["judged_on"] = judged
+    return result
+
+
+def compare_models(model_dirs: Sequence[PathLike], sessions: Sessions | None = None,
+            progress: bool = False) -> Comparison:
+    """The held-out error per joint of successive models on the same samples (default: the first model's
+    training sessions); `.to_json()`, and train.compare.table_text / plot for a table and a chart."""
+    from . import compare
+
+    return compare.compare_models([str(d) for d in model_dirs], _paths(sessions) if sessions else [],
+                          progress=progress)
+
+
+def make_report(model_dir: PathLike, sessions: Sessions, output: PathLike, *, seed: int | None = None,
+           diagnosis: bool = True) -> Path:
+    """Write the self-contained HTML page of the model's error on the held-out part of `sessions` (with
+    the diagnosis sentences unless `diagnosis=False`); `seed`: the split seed (default: the model's)."""
+    from .cli_options import writable_output
+    from .heldout import evaluation_data
+    from .report import report_html, write_report
+
+    writable_output(output, "file")
+    model = load_model(model_dir)
+    paths = _paths(sessions)
+    ds, _, held = evaluation_data(model, paths, seed=seed, model_dir=model_dir)
+    diag = None
+    if diagnosis:
+        from .diagnose import diagnose as run_diagnosis
+        from .heldout import diagnosis_data
+
+        diag = run_diagnosis(model, diagnosis_data(model, ds, model_dir, seed)[0])
+    return write_report(output, report_html(model, model_dir, held, paths, diag))
+
+
+__all__ = ["FitResult", "compare_models", "diagnose_model", "fit", "load_model", "load_sessions",
+           "load_settings", "make_report"]
