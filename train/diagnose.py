@@ -16,8 +16,10 @@ The method, per joint j (names as in the session):
    joint moves: its equation holds whatever the other joints do), so a candidate competes with the
    rigid-body parameters it correlates with. For any other model (network, hybrid) the model is kept
    and the candidate is fitted to its residual. A candidate with shape parameters (Stribeck velocity,
-   spring rest angle, cogging period ...) tries every value of its grid and keeps the one that fits the
-   training blocks best.
+   spring rest angle, cogging period ...) tries every value of its grid, keeps the one that fits the
+   training blocks best and refines it there (scipy, within half a grid step; whole numbers for
+   `integer_shapes`). The model's own grid-picked shapes are refined first (`refine_own_shapes`) so
+   their leftovers are not found as new effects.
 3. `error_reduction` = 1 - (held-out SSE with the candidate) / (held-out SSE without it): the fraction
    of the held-out mean squared error the candidate removes. A flexible candidate cannot win by
    overfitting: it is scored only on blocks it never saw. Ranking: by error reduction, except that a
@@ -25,9 +27,12 @@ The method, per joint j (names as in the session):
 4. Parameters: each fold's fit gives one set of named values (`effect.values_from_coefficients`); the
    value is the mean over folds and its uncertainty the delete-a-block jackknife standard error
    sqrt((K-1)/K * sum (v_k - mean)^2), which stays honest when neighbouring samples are correlated
-   (plain least-squares standard errors would not).
+   (plain least-squares standard errors would not); refined shapes included. A candidate whose
+   columns the basis spans is not identifiable: no value is given (diagnosis_cv.identifiability).
 5. Significant: error_reduction >= `min_reduction` AND the held-out error falls in every fold
-   (`min_fold_fraction`). A session with nothing missing yields no significant candidate.
+   (`min_fold_fraction`), judged by forward selection (diagnosis_ranking.forward_selection): each
+   candidate on top of the effects selected before it. A session with nothing missing yields no
+   significant candidate.
 
 Arm-scope effects (payload) have one set of parameters for all joints: their fit is joint across all
 joints and they are reported once, on the joint where they remove the largest fraction of the error,
