@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import click
 
+from crane_io.cli_support import plant_presets
 from crane_io.errors import cli_errors
 
 
@@ -14,7 +15,7 @@ from crane_io.errors import cli_errors
               help="Drive two simulated arms and a simulated operator instead of hardware.")
 @click.option("--plant", default=None, metavar="PRESET_OR_TOML",
               help="Physics of the simulated arms: an arm-plant preset (default crane-x7), a plant TOML, "
-                   "or 'simple'. Only with --sim.")
+                   f"or 'simple'. Only with --sim. Presets: {', '.join(plant_presets())}.")
 @click.option("--truth", "truth_path", type=click.Path(dir_okay=False), default=None, metavar="JSON",
               help="With --sim and an arm plant: also write the follower plant's truth (effects, "
                    "parameters, seed) to this JSON file, overwriting it. Never stored in the session.")
@@ -42,7 +43,7 @@ from crane_io.errors import cli_errors
 @click.option("--duration", type=float, default=None, metavar="S",
               help="Seconds of bilateral control to record (default: until Ctrl+C).")
 @click.option("--rate", type=float, default=None, metavar="HZ",
-              help="Control rate (default: loop.rate_hz of the configuration, 500).")
+              help="Control rate, 100..2000 Hz (default: loop.rate_hz of the configuration, 500).")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None, metavar="TOML",
               help="Configuration overriding collect/config/bilateral.toml.")
 @click.option("--realtime", is_flag=True,

@@ -17,6 +17,7 @@ import threading
 
 import click
 
+from crane_io.cli_support import plant_presets
 from crane_io.errors import ConfigError, HardwareError, cli_errors
 
 
@@ -97,7 +98,8 @@ def build_plant(name: str | None, seed: int, arm):
                    "`crane-collect calibrate`); with --pair prefix the arm (leader:joint2=0.05). Repeatable.")
 @click.option("--plant", "plant_name", default=None, metavar="PRESET_OR_TOML",
               help="Physics behind the servos: 'simple' (independent joints) or an arm-plant preset "
-                   "or TOML file. Default: the arm plant's 'crane-x7' preset when available, else 'simple'.")
+                   "or TOML file. Default: the arm plant's 'crane-x7' preset when available, else 'simple'. "
+                   f"Presets: {', '.join(plant_presets())}.")
 @click.option("--clock", type=click.Choice(["wall", "lockstep"]), default=None,
               help="'wall': physics follows real time. 'lockstep': one control period per Goal "
                    "Current sync write: the arms wait for the controller, so a busy machine slows the run "

@@ -24,3 +24,12 @@ class LazyGroup(click.Group):
             return None
         module, attr = self.lazy_commands[name]
         return getattr(importlib.import_module(module), attr)
+
+
+def plant_presets() -> list[str]:
+    """Names of the shipped plant presets (crane_io/plants/*.toml), read from the folder without importing
+    the simulator, so that a command's --help can list them."""
+    from importlib import resources
+
+    folder = resources.files("crane_io") / "plants"
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
