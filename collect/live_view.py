@@ -2,28 +2,34 @@
 entities): both arms' angles, torques, tau_dis and tau_res, the tracking error, the loop period and the two
 arms in 3D.
 
-It must not disturb the loop. The loop calls `log_cycle` once per recorded cycle; that call only copies a
-sample every `every` cycles (default 10: 50 samples a second at 500 Hz) into buffers kept for it, and
-then logs that sample's parts (one rerun call each: 10 time-series entities and two 3D arms) spread over
-the following cycles, at most `parts_per_cycle` per cycle (default 2; a time series costs about 40 us, a
-3D arm with its forward kinematics about 150 us), so no cycle pays for a whole sample (about 0.6 ms).
+It must not disturb the loop. Two calls per cycle:
+- `log_cycle` (after the cycle's row is recorded) only copies a sample every `every` cycles (default 10:
+  50 samples a second at 500 Hz) into buffers kept for it: a few microseconds, nothing sent;
+- `idle(timer)` (after the cycle's writes, just before the loop waits for its next deadline) logs that
+  sample's parts, one rerun call each (10 time series and two 3D arms: a time series costs 20-100 us, a 3D
+  arm with its forward kinematics 130-400 us, the more the busier the machine), in the time the loop would
+  otherwise sleep: a part is logged only while the time left to the deadline exceeds what that kind of
+  part took recently (a decaying maximum) plus a margin (`margin_s`, default 0.3 ms, beyond the timer's
+  own busy-wait). So the view's work never makes a cycle late, it only fills the wait. In lockstep (the
+  simulation runs as fast as it can, nothing waits) at most `parts_per_cycle` parts (default 2) per cycle.
 rerun sends the data from its own threads (file or viewer); nothing here waits for them. If the next
-sample is due before the parts of the previous one are all logged, the rest of the previous one is
-skipped (counted in `skipped_parts`).
+sample is due before the previous one's parts are all logged (no slack: an overloaded machine), the rest
+of the previous one is skipped (counted in `skipped_parts`): the view gets sparser, the loop stays on time.
 
 Any failure inside the view (rerun, the viewer, the file) is reported once through `warn`, and the view
 turns itself off; the recording goes on. `close()` never raises either.
 
 The sink (the .rrd file, or the spawned viewer) is opened when the view is made, before any torque is on
 and before the loop asks for real-time scheduling: rerun writes from threads of its own, and a thread
-started after that would inherit the loop's SCHED_FIFO priority and core and compete with it (measured:
-overruns up 2-6x when the file was opened at the first recorded cycle). A run that ends before recording
-starts removes the .rrd it had opened (it would hold only the static parts).
+started after that would inherit the loop's SCHED_FIFO priority and its core (Linux threads inherit both)
+and compete with the loop. A run that ends before recording starts removes the .rrd it had opened (it
+would hold only the static parts).
 """
 
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +38,9 @@ from crane_io.view import ARMS, SessionView, ViewError
 
 DEFAULT_EVERY = 10
 DEFAULT_PARTS_PER_CYCLE = 2
+DEFAULT_MARGIN_S = 3e-4
+_FIRST_GUESS_S = 5e-4  # cost assumed for a kind of part never logged yet
+_DECAY = 0.98  # per logged part: how fast a one-off slow call is forgotten
 
 
 def check_save_path(path) -> Path:
@@ -49,16 +58,20 @@ def check_save_path(path) -> Path:
 
 class LiveView:
     """See the module docstring. `start()` says the recording has started (the sink was opened when the
-    view was made); `log_cycle` is called by the loop; `close()` at the end."""
+    view was made); `log_cycle` and `idle` are called by the loop; `close()` at the end."""
 
     def __init__(self, view: SessionView, every: int = DEFAULT_EVERY,
-                 parts_per_cycle: int = DEFAULT_PARTS_PER_CYCLE, warn=None):
+                 parts_per_cycle: int = DEFAULT_PARTS_PER_CYCLE, warn=None,
+                 margin_s: float = DEFAULT_MARGIN_S, clock=time.perf_counter):
         if every < 1 or parts_per_cycle < 1:
             raise ViewError("the view logs every N >= 1 cycles, at least one part per cycle")
         self.view = view
         self.every = int(every)
         self.parts_per_cycle = int(parts_per_cycle)
         self.warn = warn
+        self.margin_s = float(margin_s)
+        self._clock = clock
+        self._cost = {"series": _FIRST_GUESS_S, "arm": _FIRST_GUESS_S}  # recent cost per kind of part, s
         self.on = True
         self.failure: str | None = None
         n = len(view.joint_names)
@@ -82,7 +95,8 @@ class LiveView:
 
     def log_cycle(self, t: float, q_l, q_f, tau_l, tau_f, est_l, est_f, period: float) -> None:
         """One recorded cycle: session time t, both arms' angles (J,) rad, recorded torques (J,) N m,
-        the controller's estimates (`.tau_dis`, `.tau_res`) and the loop period (s) before this cycle."""
+        the controller's estimates (`.tau_dis`, `.tau_res`) and the loop period (s) before this cycle.
+        Copies a sample every `every` cycles; logs nothing."""
         if not self.on:
             return
         try:
@@ -92,12 +106,34 @@ class LiveView:
             if self._count >= self.every:
                 self._count = 0
                 self._take(t, q_l, q_f, tau_l, tau_f, est_l, est_f, period)
-            budget = self.parts_per_cycle
-            parts, view = self._parts, self.view
-            while budget and self._next < len(parts):
-                view.log_part(parts[self._next], self._t, self._sample)
+        except Exception as exc:  # noqa: BLE001 - a view failure never reaches the control loop
+            self._fail(exc)
+
+    def idle(self, timer) -> None:
+        """Between two cycles, before the wait for the next deadline (collect.pacing.CycleTimer `timer`):
+        log the pending parts that fit in the time left (all of it in lockstep, up to parts_per_cycle)."""
+        parts = self._parts
+        if not self.on or self._next >= len(parts):
+            return
+        try:
+            view, clock, cost = self.view, self._clock, self._cost
+            deadline = None if timer.lockstep else getattr(timer, "_deadline", None)
+            reserve = self.margin_s + getattr(timer, "spin_s", 0.0)
+            done = 0
+            while self._next < len(parts):
+                key = parts[self._next]
+                kind = "arm" if key.startswith("arms/") else "series"
+                if deadline is None:
+                    if done >= self.parts_per_cycle:
+                        break
+                elif deadline - clock() < cost[kind] + reserve:
+                    break
+                t0 = clock()
+                view.log_part(key, self._t, self._sample)
+                took = clock() - t0
+                cost[kind] = max(took, cost[kind] * _DECAY)
                 self._next += 1
-                budget -= 1
+                done += 1
         except Exception as exc:  # noqa: BLE001 - a view failure never reaches the control loop
             self._fail(exc)
 
@@ -144,7 +180,8 @@ class LiveView:
 
 
 def make_live_view(arm, *, save=None, spawn: bool = True, every: int = DEFAULT_EVERY,
-                   parts_per_cycle: int = DEFAULT_PARTS_PER_CYCLE, warn=None) -> LiveView:
+                   parts_per_cycle: int = DEFAULT_PARTS_PER_CYCLE, warn=None,
+                   margin_s: float = DEFAULT_MARGIN_S) -> LiveView:
     """The live view of a run on `arm` (crane_io.description.ArmDescription), made before any torque is on
     and before real-time scheduling: rerun imported (ViewUnavailableError without it), the .rrd file
     opened or the viewer spawned (ViewError, one sentence, when it cannot be)."""
@@ -153,4 +190,4 @@ def make_live_view(arm, *, save=None, spawn: bool = True, every: int = DEFAULT_E
     view = SessionView(arm.joint_names, arm.bilateral_joints, save=save, spawn=spawn and save is None,
                        recording_name="crane-collect run")
     view.open()  # rerun's sink threads start now, at normal priority (see the module docstring)
-    return LiveView(view, every=every, parts_per_cycle=parts_per_cycle, warn=warn)
+    return LiveView(view, every=every, parts_per_cycle=parts_per_cycle, warn=warn, margin_s=margin_s)

@@ -226,6 +226,8 @@ class _Loop:
             if breach is not None:
                 return self._stop(breach, t)
             self.between_cycles()
+            if self.view is not None:  # the live view logs in the time the loop would wait anyway
+                self.view.idle(self.timer)
             self.timer.wait()
             k += 1
         return "duration"
@@ -387,7 +389,7 @@ class _Loop:
         if self.truth_trace is not None:
             self._record_truth(t)
         timer.add("record", time.perf_counter() - tr)
-        if self.view is not None:  # a sample every view_every cycles, its parts spread over the next cycles
+        if self.view is not None:  # copies a sample every view_every cycles; idle() logs it
             self.view.log_cycle(t, sl.position, sf.position, tl_rec, tf_rec, est_l, est_f, timer.last_period)
 
     def _record_truth(self, t: float) -> None:

@@ -202,15 +202,25 @@ class _CountingView:
         self.logged.append((key, t, sample[key].copy() if key in sample else None))
 
 
-def test_live_view_spreads_a_sample_over_cycles():
+class _Timer:
+    """The two things LiveView.idle reads of a CycleTimer, on a fake clock."""
+
+    def __init__(self, lockstep, clock=None, deadline=0.0):
+        self.lockstep, self.spin_s, self._deadline = lockstep, 2e-4, deadline
+
+
+def test_lockstep_spreads_a_sample_over_cycles():
     v = _CountingView()
     live = LiveView(v, every=10, parts_per_cycle=2)
+    timer = _Timer(lockstep=True)
     est = type("E", (), {"tau_dis": np.zeros(8), "tau_res": np.ones(8)})()
     per_cycle = []
     for k in range(100):
         before = len(v.logged)
         q = np.full(8, float(k))
         live.log_cycle(k * 0.002, q, q - 0.5, q, q, est, est, 0.002 + (0.001 if k == 13 else 0.0))
+        assert len(v.logged) == before  # log_cycle only copies the sample
+        live.idle(timer)
         per_cycle.append(len(v.logged) - before)
     assert max(per_cycle) == 2 and live.samples == 10 and live.skipped_parts == 0
     assert len(v.logged) == 10 * 12
@@ -225,9 +235,46 @@ def test_live_view_spreads_a_sample_over_cycles():
     assert periods[1][1] == pytest.approx(0.002)
     assert periods[2][1] == pytest.approx(0.003)  # the longest period since the previous sample (k = 13)
     assert periods[2][0] == pytest.approx(0.002)  # the period at the sample (k = 20)
-    # a budget too small for the sample rate skips the rest of a sample, never blocks
+
+
+def test_paced_loop_logs_only_in_the_time_left_to_the_deadline():
+    """A fake clock: every part takes 0.1 ms; the view logs only while the deadline stays 0.3 ms (margin)
+    + 0.2 ms (spin) + the part's recent cost away, so it never runs into the next cycle."""
+    now = [0.0]
+
+    class SlowView(_CountingView):
+        def log_part(self, key, t, sample):
+            super().log_part(key, t, sample)
+            now[0] += 1e-4
+
+    v = SlowView()
+    live = LiveView(v, every=10, clock=lambda: now[0])
+    est = type("E", (), {"tau_dis": np.zeros(8), "tau_res": np.ones(8)})()
+    z = np.zeros(8)
+    live.log_cycle(0.0, z, z, z, z, est, est, 0.002)
+    live.idle(_Timer(lockstep=False, deadline=0.9e-3))  # 0.9 ms left, first guess 0.5 ms a part: none fits
+    assert v.logged == []
+    live.idle(_Timer(lockstep=False, deadline=2e-3))  # 2 ms: parts while 0.5 ms + 0.5 ms (guess) fit
+    assert len(v.logged) > 0 and now[0] <= 2e-3 - 5e-4 + 1e-12
+    n = len(v.logged)
+    live.idle(_Timer(lockstep=False, deadline=now[0] + 1e-2))  # plenty of time: the rest of the sample
+    assert len(v.logged) == 12 and n < 12
+    # a machine without slack: samples are skipped, never logged late
     v2 = _CountingView()
-    live2 = LiveView(v2, every=2, parts_per_cycle=1)
+    live2 = LiveView(v2, every=2, clock=lambda: 0.0)
     for k in range(20):
-        live2.log_cycle(k * 0.002, np.zeros(8), np.zeros(8), np.zeros(8), np.zeros(8), est, est, 0.002)
-    assert len(v2.logged) == 20 and live2.skipped_parts > 0
+        live2.log_cycle(k * 0.002, z, z, z, z, est, est, 0.002)
+        live2.idle(_Timer(lockstep=False, deadline=4e-4))
+    assert v2.logged == [] and live2.skipped_parts == 9 * 12
+
+
+def test_close_without_a_recording_removes_the_rrd(tmp_path):
+    from crane_io.view import SessionView
+
+    rrd = tmp_path / "x.rrd"
+    view = SessionView(("joint1", "joint2"), ("joint1",), save=rrd)
+    view.open()
+    live = LiveView(view)
+    assert rrd.exists()
+    live.close()  # the run ended before recording started
+    assert not rrd.exists()
