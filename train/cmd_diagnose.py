@@ -4,6 +4,10 @@ The sessions are preprocessed as the model's training did; the model's error is 
 effect, with cross-validation over contiguous time blocks (train.diagnose): a physics model is refitted
 per fold on all samples, any other model is judged only on the samples it never trained on
 (train.heldout.diagnosis_data).
+
+With --discover (train/discovery.py), each joint whose residual stays significant after the library's
+best candidate (every joint with --discover-all) gets a sparse regression of that residual on a basis of
+physical terms; --write-effect-file writes what is significant as an effect file for `fit --effect-file`.
 """
 
 from __future__ import annotations
@@ -12,7 +16,7 @@ import json
 
 import click
 
-from crane_io.errors import cli_errors
+from crane_io.errors import ConfigError, cli_errors
 
 from .diagnosis_defaults import DEFAULT_FOLDS, DEFAULT_MIN_REDUCTION
 
@@ -35,10 +39,22 @@ def _params_text(params: dict) -> str:
               help="Candidates shown per joint in the text output.")
 @click.option("--effect-file", "effect_files", multiple=True, type=click.Path(dir_okay=False),
               help="A Python file defining extra effects to try as candidates (repeatable).")
+@click.option("--discover", is_flag=True,
+              help="Also propose the missing term: sparse regression of the residual on a basis of physical "
+                   "terms, for each joint whose residual stays significant after the library's best.")
+@click.option("--discover-all", is_flag=True,
+              help="Discovery on every joint, from the model alone (implies --discover).")
+@click.option("--write-effect-file", "effect_out", type=click.Path(dir_okay=False), default=None,
+              help="Write the significant discovered terms as an effect file PATH.py for "
+                   "`fit --effect-file` (implies --discover).")
 @cli_errors
-def diagnose(model_dir, sessions, as_json, folds, min_reduction, top, effect_files):
+def diagnose(model_dir, sessions, as_json, folds, min_reduction, top, effect_files, discover, discover_all,
+             effect_out):
     """Rank the library's effects by how much of MODEL_DIR's error on SESSION(s) each one removes."""
     from crane_io.effects import load_effect_file
+
+    if effect_out and not str(effect_out).endswith(".py"):
+        raise ConfigError(f"--write-effect-file must name a Python file (.py), got {effect_out}")
 
     from .diagnose import diagnose as run_diagnosis
     from .heldout import diagnosis_data, model_settings
@@ -54,9 +70,24 @@ def diagnose(model_dir, sessions, as_json, folds, min_reduction, top, effect_fil
     result = run_diagnosis(model, ds, folds=folds, min_reduction=min_reduction,
                            progress=show_progress(not as_json))
     result.settings["judged_on"] = judged
+    found, written = None, None
+    if discover or discover_all or effect_out:
+        from .discovery import discover as run_discovery
+
+        found = run_discovery(model, ds, result, every_joint=discover_all, folds=folds,
+                              min_reduction=min_reduction, progress=show_progress(not as_json))
+        if effect_out and any(d.significant for d in found.discovered):
+            from .effect_writer import write_effect_file
+
+            written = write_effect_file(effect_out, found, model_dir, sessions)
     if as_json:
         doc = result.to_json()
         doc.update(model=str(model_dir), sessions=list(sessions))
+        if found is not None:
+            disc = found.to_json()
+            doc.update(discovered=disc["discovered"], discovery={"summary": disc["summary"],
+                                                                 "settings": disc["settings"]},
+                       effect_file=None if written is None else str(written[0]))
         click.echo(json.dumps(doc, indent=2))
         return
     click.echo(f"Diagnosis of {model_dir} ({model.method}) on {judged} of {', '.join(sessions)}; "
@@ -72,3 +103,26 @@ def diagnose(model_dir, sessions, as_json, folds, min_reduction, top, effect_fil
     click.echo("")
     click.echo("* significant. Add an effect with: crane-train fit SESSION... --model rigid-body "
                "--effect NAME:joint=JOINT -o NEW_MODEL_DIR")
+    if found is not None:
+        _echo_discovery(found, written, effect_out)
+
+
+def _echo_discovery(found, written, effect_out) -> None:
+    click.echo("")
+    click.echo("Discovery: sparse regression of each joint's residual on a basis of physical terms "
+               "(held-out error: selected and fitted without the block it is scored on).")
+    for d in found.discovered:
+        click.echo("")
+        click.echo(d.sentence)
+        for t in d.terms:
+            click.echo(f"  {t.coefficient:>10.4g} ± {t.stderr:<8.2g} {t.unit:<16} {t.term}")
+    click.echo("")
+    if not any(d.significant for d in found.discovered):
+        tail = ": no effect file written." if effect_out else "."
+        click.echo("No significant discovery on any joint" + tail)
+    elif written is not None:
+        path, added = written
+        flags = " ".join(f"--effect {name}:joint={joint}" + (f" --effect {lib}:joint={joint}" if lib else "")
+                         for name, joint, lib in added)
+        click.echo(f"Effect file written to {path}. Refit with: crane-train fit SESSION... --model "
+                   f"rigid-body --effect-file {path} {flags} (plus the model's own effects) -o NEW_MODEL_DIR")

@@ -12,12 +12,14 @@ Per joint j (only the samples where j moves, as the ranking; the same K contiguo
    the target), plus the library's best candidate on j when that one is significant (discovery then
    looks for what is left after it; `--discover-all` starts from the model alone on every joint).
 2. Selection on some blocks: the terms and the target are made orthogonal to the base on those blocks
-   (what the base can explain is not a discovery), standardised, and a Lasso path (scikit-learn's
-   `lasso_path`) is computed on a common grid of penalties. Each point of the path is scored by
-   cross-validation over the blocks (leave one block out; the selected terms refitted by least squares,
-   the relaxed Lasso, so shrinkage does not decide), the empty expression included. Parsimony: the
-   sparsest point whose CV error is within one standard error of the best is kept, and at most
-   `max_terms` terms.
+   (what the base can explain is not a discovery), standardised, and the Lasso path is computed
+   (scikit-learn's `lars_path`, method "lasso": exact, knot by knot, up to `max_terms` terms). The
+   expressions along the path - the empty one, then one term, two terms, ... - are scored by
+   cross-validation over the blocks (leave one block out, the path recomputed without it, the path's
+   terms refitted by least squares - the relaxed Lasso, so shrinkage does not decide). Parsimony: the
+   expression with the fewest terms whose CV error is within one standard error of the best one is
+   kept. Then, one at a time, the term whose coefficient is least certain is dropped until every
+   coefficient is at least twice its delete-a-block jackknife standard error.
 3. Held-out error: for every block k the selection of step 2 runs on the other blocks only, the
    selected terms are refitted there together with the base, and the block k's squared error is
    compared with the base's alone. `error_reduction` = 1 - SSE(with terms) / SSE(base), summed over the
@@ -46,7 +48,7 @@ from .diagnosis_defaults import DEFAULT_FOLDS, DEFAULT_MIN_REDUCTION
 from .discovery_basis import Term, columns, distinct, generate
 
 MAX_TERMS = 6
-N_ALPHAS = 40
+MIN_OWN_PART = 0.05  # a term's part orthogonal to the base, relative to its norm, below which it is dropped
 
 
 class DiscoveryError(CraneError):
@@ -60,7 +62,8 @@ class FoundTerm:
     stderr: float
     unit: str = "N m"
     code: str = field(default="", repr=False)
-    parameter: str = ""
+    parameter: str = ""  # its name in a written effect file
+    family: str = ""  # "velocity sign x angle", "coupling", ... (train/discovery_basis.py)
 
 
 @dataclass
@@ -141,9 +144,9 @@ def discover(model, ds: Dataset, diagnosis=None, *, every_joint: bool = False, f
         summary[name] = found.sentence
     settings = {"folds": folds, "min_reduction": min_reduction, "max_terms": max_terms,
                 "every_joint": every_joint, "method": how, "selection": (
-                    "Lasso path (scikit-learn lasso_path) on the terms made orthogonal to the base, "
-                    "leave-one-block-out CV of the refitted selections, sparsest within one standard "
-                    "error of the best"),
+                    "Lasso path (scikit-learn lars_path) of the terms made orthogonal to the base; "
+                    "leave-one-block-out CV of the refitted expressions; the fewest terms within one "
+                    "standard error of the best; terms below twice their jackknife error dropped"),
                 "error_reduction": "nested: selected and fitted without the block it is scored on"}
     return Discovery(tuple(ds.joint_names), out, summary, settings)
 
@@ -187,7 +190,8 @@ def discover_joint(ds: Dataset, base: np.ndarray, y: np.ndarray, j: int, fold: n
         order = np.argsort([-abs(c) * np.std(T[rows, s]) for c, s in zip(th_c, S)])
         for o in order:
             t = terms[S[o]]
-            found.append(FoundTerm(t.name, float(th_c[o]), float(se[o]), _coef_unit(t.unit), t.code, t.parameter))
+            found.append(FoundTerm(t.name, float(th_c[o]), float(se[o]), t.unit, t.code, t.parameter,
+                                   t.family))
         fit = (C @ th_c)[:, j]
         partial = y[:, j] - (base @ th_x)[:, j] if base.shape[2] else y[:, j]
         curves = {"t": ds.t[rows], "residual": partial[rows], "fit": fit[rows]}
@@ -210,52 +214,52 @@ def select(T: np.ndarray, y: np.ndarray, B: np.ndarray, rows: np.ndarray, fold: 
         return []
     Z, e = _orthogonal(T[r], y[r], B[r])
     norm = np.linalg.norm(Z, axis=0)
-    usable = np.flatnonzero(norm > 1e-3 * np.maximum(np.linalg.norm(T[r], axis=0), 1e-300))
+    # a term the base nearly spans (gravity's sin(q2 + q4) against a rigid-body model) cannot be told
+    # apart from the base's own parameters: it is not a candidate
+    usable = np.flatnonzero(norm > MIN_OWN_PART * np.maximum(np.linalg.norm(T[r], axis=0), 1e-300))
     if len(usable) == 0:
         return []
     Z = Z[:, usable] / (norm[usable] / math.sqrt(len(r)))
     blocks = fold[r]
-    alpha_max = float(np.abs(Z.T @ e).max()) / len(r)
-    if alpha_max <= 0:
-        return []
-    alphas = alpha_max * np.logspace(0, -3, N_ALPHAS)
-    mse = np.zeros((len(train), N_ALPHAS + 1))  # column 0: the empty expression
+    sizes = range(max_terms + 1)
+    mse = np.full((len(train), max_terms + 1), np.inf)  # per held-out block and number of terms
     for i, k in enumerate(train):
         tr, te = blocks != k, blocks == k
-        coefs = _path(Z[tr], e[tr], alphas)
-        mse[i, 0] = float(np.mean(e[te] ** 2))
-        for a in range(N_ALPHAS):
-            S = np.flatnonzero(coefs[:, a])
-            if len(S) > max_terms:
-                mse[i, a + 1:] = np.inf
-                break
-            mse[i, a + 1] = _refit_error(Z[tr][:, S], e[tr], Z[te][:, S], e[te]) if len(S) else mse[i, 0]
+        supports = _supports(Z[tr], e[tr], max_terms)
+        for n in sizes:  # a size the path skips scores as the largest expression it has below that size
+            S = supports[max(m for m in supports if m <= n)]
+            mse[i, n] = _refit_error(Z[tr][:, S], e[tr], Z[te][:, S], e[te]) if len(S) else float(
+                np.mean(e[te] ** 2))
     mean = mse.mean(0)
     finite = np.isfinite(mean)
     best = int(np.argmin(np.where(finite, mean, np.inf)))
     se = float(mse[:, best].std(ddof=1) / math.sqrt(len(train))) if len(train) > 1 else 0.0
-    chosen = int(np.flatnonzero(finite & (mean <= mean[best] + se))[0])
+    chosen = next(n for n in sizes if finite[n] and mean[n] <= mean[best] + se)  # the simplest
     if chosen == 0:
         return []
-    coef = _path(Z, e, alphas[:chosen])[:, -1]
-    S = np.flatnonzero(coef)
-    if len(S) > max_terms:
-        S = S[np.argsort(-np.abs(coef[S]))[:max_terms]]
-    S = _prune(Z, e, blocks, train, list(S))
+    supports = _supports(Z, e, max_terms)
+    n = max((m for m in supports if m <= chosen), default=0)
+    S = _prune(Z, e, blocks, train, list(supports[n]))
     return sorted(int(usable[s]) for s in S)
 
 
-def _path(Z, e, alphas) -> np.ndarray:
-    """(m, len(alphas)) Lasso coefficients (scikit-learn; the smallest penalties may stop short of full
-    convergence, which only changes which terms are tried, never their refitted coefficients)."""
+def _supports(Z, e, max_terms: int) -> dict[int, np.ndarray]:
+    """Number of terms -> the terms active at the first knot of the Lasso path (scikit-learn's
+    `lars_path`, method "lasso") with that many, up to `max_terms` (0 -> none)."""
     import warnings
 
     from sklearn.exceptions import ConvergenceWarning
-    from sklearn.linear_model import lasso_path
+    from sklearn.linear_model import lars_path
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
-        return lasso_path(Z, e, alphas=alphas, max_iter=3000, tol=1e-4)[1]
+        coefs = lars_path(Z, e, method="lasso", max_iter=max_terms + 4, Gram=Z.T @ Z)[2]
+    out: dict[int, np.ndarray] = {0: np.zeros(0, dtype=int)}
+    for c in coefs.T:
+        S = np.flatnonzero(c)
+        if 0 < len(S) <= max_terms and len(S) not in out:
+            out[len(S)] = S
+    return out
 
 
 def _prune(Z, e, blocks, train, S: list[int]) -> list[int]:
@@ -279,8 +283,11 @@ def _orthogonal(T: np.ndarray, y: np.ndarray, B: np.ndarray) -> tuple[np.ndarray
     B = B[:, np.linalg.norm(B, axis=0) > 0]
     if B.shape[1] == 0:
         return T.copy(), y.copy()
-    U, s, _ = np.linalg.svd(B / np.linalg.norm(B, axis=0), full_matrices=False)
-    U = U[:, s > 1e-8 * s[0]]
+    from scipy.linalg import qr
+
+    U, R, _ = qr(B / np.linalg.norm(B, axis=0), mode="economic", pivoting=True)
+    d = np.abs(np.diag(R))
+    U = U[:, d > 1e-8 * d[0]]  # the base's own rank deficiencies (columns the data barely excite)
     return T - U @ (U.T @ T), y - U @ (U.T @ y)
 
 
@@ -320,10 +327,6 @@ def _library_columns(candidate, ds: Dataset, j: int) -> np.ndarray:
     effect = bind(get_effect(candidate.effect), ds.joint_names)
     C = np.asarray(effect.columns(ds.q, ds.dq, ds.ddq, j, candidate.shape or None), dtype=float)
     return C if C.ndim == 3 else C[:, :, None]
-
-
-def _coef_unit(unit: str) -> str:
-    return unit
 
 
 def _num(x: float) -> str:
@@ -383,12 +386,13 @@ def _sentence(d: JointDiscovery) -> str:
     if not d.terms:
         return (f"{d.joint}: discovery finds no term that explains the residual{after}: the empty "
                 "expression is within one standard error of the best (no significant discovery).")
-    text = (f"{d.joint}: the residual{after} is best explained by {d.expression} (N m); selected and "
-            f"fitted without the block it is scored on, it removes {_pct(max(d.error_reduction, 0.0))} of "
-            f"the held-out error (better in {blocks})")
+    removes = (f"selected and fitted without the block it is scored on, it removes "
+               f"{_pct(max(d.error_reduction, 0.0))} of the held-out error (better in {blocks})")
     if d.significant:
-        return text + ". Significant: add it as an effect (--write-effect-file) and refit."
-    return text + " — not significant (no claim)."
+        return (f"{d.joint}: the residual{after} is explained by {d.expression} (N m); {removes}. "
+                "Significant: add it as an effect (--write-effect-file) and refit.")
+    return (f"{d.joint}: the best expression discovery finds for the residual{after}, {d.expression}, "
+            f"is not significant ({removes}): no term is claimed.")
 
 
 def term_variables(term: str) -> set[str]:

@@ -169,9 +169,8 @@ def library_terms(joint_names, j: int) -> list[Term]:
             for c, p in enumerate(effect.linear_params[:k_cols]):
                 base = effect.name if k_cols == 1 else f"{effect.name}.{p.name}"
                 name = f"{base}(joint{L}; {where})" if where else f"{base}(joint{L})"
-                out.append(Term(name,
-                                f"get_effect({effect.name!r}).columns(q, dq, ddq, {j}, {shape!r})[:, {j}, {c}]",
-                                p.unit, "library", frozenset({f"q{L}", f"dq{L}", f"ddq{L}"}),
+                code = f"get_effect({effect.name!r}).columns(q, dq, ddq, {j}, {shape!r})[:, {j}, {c}]"
+                out.append(Term(name, code, p.unit, "library", frozenset({f"q{L}", f"dq{L}", f"ddq{L}"}),
                                 (name,)))
     return out
 
