@@ -175,7 +175,7 @@ class _Observer:
         tau_dis = self.y - gjw
         tau_res = tau_dis - grav - c.D * w
         if self.model is not None:
-            res_m, ok = self.model.update(q, self.applied)
+            res_m, ok = self.model.update(q, self.applied, dt)
             i = self.model.idx
             tau_res[i] = np.where(ok, res_m, tau_res[i])
             self.fallback = ~ok

@@ -31,6 +31,11 @@ channel. So the model is given dq = 0 for a joint inside its dead zone: it predi
 needs standing still apart from friction, and the friction it holds reads as reaction, as with the
 nominal observer. A model saved without `dead_zone_rad_s` gets the filtered velocity as it is.
 
+The filters run at the time that really passed: a cycle that came late (a loaded machine, a slow
+adapter) is filtered with Tustin coefficients for its own dt, as the controller's observers are, so the
+model's velocity and acceleration stay in rad/s and rad/s^2; at the nominal period they are exactly the
+training's.
+
 Per cycle the model is evaluated once (crane_io.loop_model: numpy, a few microseconds). A prediction
 that is not finite or exceeds `limit` on a joint is not used: that joint falls back to the nominal
 reaction torque for that cycle (`ModelReaction.update` returns which joints did). A model is trusted
@@ -50,15 +55,31 @@ POSE_MARGIN_RAD = 0.1  # how far outside the training data's angles the model is
 class LagFilters:
     """The paper's first-order low-pass w/(s+w) and pseudo-derivative g s/(s+g), Tustin at `rate_hz`,
     one sample at a time on (k,) vectors, started in steady state at the first sample (as
-    train/filters.py: the low-pass output starts at the input, the derivative at 0)."""
+    train/filters.py: the low-pass output starts at the input, the derivative at 0).
+
+    `set_period(dt)` re-discretises them for a cycle that took dt seconds (Tustin at 1/dt), so that a
+    loop running late still filters and differentiates in real time: at the nominal period the
+    coefficients are exactly those of `rate_hz`."""
 
     def __init__(self, cutoff_rad_s: float, pseudo_diff_rad_s: float, rate_hz: float):
-        c = 2.0 * float(rate_hz)
-        w, g = float(cutoff_rad_s), float(pseudo_diff_rad_s)
+        self.w, self.g = float(cutoff_rad_s), float(pseudo_diff_rad_s)
+        self.period = None
+        self._set(2.0 * float(rate_hz))
+        self.period = 1.0 / float(rate_hz)
+
+    def _set(self, c: float) -> None:
+        w, g = self.w, self.g
         # y[n] = b0 (x[n] + x[n-1]) - a1 y[n-1]                    (low-pass)
         self.lp_b, self.lp_a = w / (c + w), (w - c) / (c + w)
         # y[n] = d0 (x[n] - x[n-1]) - e1 y[n-1]                    (pseudo-derivative)
         self.pd_b, self.pd_a = g * c / (c + g), (g - c) / (c + g)
+
+    def set_period(self, dt: float) -> None:
+        """Discretise for a sample dt seconds after the previous one (nothing to do when dt is the last
+        period)."""
+        if dt != self.period and dt > 0:
+            self._set(2.0 / dt)
+            self.period = dt
 
     def low_pass(self, x: np.ndarray, x_prev: np.ndarray, y_prev: np.ndarray) -> np.ndarray:
         return self.lp_b * (x + x_prev) - self.lp_a * y_prev
@@ -135,12 +156,17 @@ class ModelReaction:
         self._ok = np.zeros(len(self.idx), dtype=bool)
         self.fallback_cycles = np.zeros(len(self.idx), dtype=int)  # cycles each joint fell back
 
-    def update(self, q: np.ndarray, applied_prev: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def update(self, q: np.ndarray, applied_prev: np.ndarray,
+               dt: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Push this cycle's angles (n,) and the torque applied in the previous cycle (n,) (arm order);
         return (tau_res (J,), ok (J,) bool) for the model's joints: the reaction torque of the previous
-        cycle's pair, and which joints had a usable prediction (the others must use the nominal one)."""
+        cycle's pair, and which joints had a usable prediction (the others must use the nominal one).
+        dt: seconds since the previous cycle (default: the nominal period); a late cycle's filters are
+        discretised for the time that really passed, as the controller's own are."""
         i = self.idx
         inp = self.inputs
+        if dt is not None:
+            self.filters.set_period(dt)
         first = not inp.started
         inp.push(q[i], applied_prev[i])
         if first:  # nothing filtered yet: the steady state at this sample is the first pair

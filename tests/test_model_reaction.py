@@ -146,3 +146,22 @@ def test_outside_the_training_poses_every_joint_of_the_model_falls_back():
     cycles = reaction.fallback_cycles
     assert cycles.min() > 300  # every joint of the model, from soon after the step on (joint2's own
     # prediction also left its limit for a few cycles during the step: measured 338, 343, 338)
+
+
+def test_a_late_cycle_is_filtered_for_the_time_that_really_passed():
+    """A loop at half its rate (every cycle 4 ms instead of 2): the model's velocity of a ramp is still
+    the ramp's slope in rad/s (with the nominal coefficients it would read twice as much), and at the
+    nominal period the result is bit for bit the same as without dt."""
+    speed = 0.8  # rad/s
+    names = ("a", "b", "c")
+
+    def run(dt, given):
+        reaction = ModelReaction(LinearModel(names), names, np.full(3, 10.0), RATE)
+        for k in range(2000):
+            q = np.full(3, speed * k * dt)
+            reaction.update(q, np.zeros(3), dt if given else None)
+        return reaction.inputs.dq
+
+    assert np.allclose(run(0.004, True), speed, rtol=1e-6)
+    assert np.allclose(run(0.004, False), 2 * speed, rtol=1e-6)  # what the fixed coefficients read
+    assert np.array_equal(run(1 / RATE, True), run(1 / RATE, False))
