@@ -15,6 +15,7 @@ It must not disturb the loop. Two calls per cycle:
 rerun sends the data from its own threads (file or viewer); nothing here waits for them. If the next
 sample is due before the previous one's parts are all logged (no slack: an overloaded machine), the rest
 of the previous one is skipped (counted in `skipped_parts`): the view gets sparser, the loop stays on time.
+Each sample starts with another part (round robin), so what is skipped is spread over all the entities.
 
 Any failure inside the view (rerun, the viewer, the file) is reported once through `warn`, and the view
 turns itself off; the recording goes on. `close()` never raises either.
@@ -81,7 +82,8 @@ class LiveView:
         self._sample["loop/tracking_error"] = np.zeros(len(self._bil))
         self._sample["loop/period"] = np.zeros(2)
         self._parts = list(view.keys) + list(view.arm_keys)
-        self._next = len(self._parts)  # index of the next part to log; all done at first
+        self._next = len(self._parts)  # how many of the sample's parts are done; all at first
+        self._first = 0  # the part this sample starts with
         self._count = self.every - 1  # the first cycle is sampled
         self._t = 0.0
         self._period_max = 0.0
@@ -120,8 +122,9 @@ class LiveView:
             deadline = None if timer.lockstep else getattr(timer, "_deadline", None)
             reserve = self.margin_s + getattr(timer, "spin_s", 0.0)
             done = 0
-            while self._next < len(parts):
-                key = parts[self._next]
+            n = len(parts)
+            while self._next < n:
+                key = parts[(self._first + self._next) % n]
                 kind = "arm" if key.startswith("arms/") else "series"
                 if deadline is None:
                     if done >= self.parts_per_cycle:
@@ -155,6 +158,7 @@ class LiveView:
         self._period_max = 0.0
         self._t = t
         self._next = 0
+        self._first = self.samples % len(self._parts)
         self.samples += 1
 
     def _fail(self, exc: BaseException) -> None:
