@@ -137,7 +137,8 @@ def _run(ds: Dataset, X, y, residual, effects=None, *, exclude=(), folds: int = 
 
     selected, final = forward_selection(engine, ds.joint_names, results, tried, min_reduction,
                                         min_fold_fraction)
-    remaining = final.y - final.X @ final.fit(None, list(range(folds)))[0] if selected else residual
+    # what remains once the selected effects (and the refined own shapes) are in: the refit on all rows
+    remaining = final.y - final.X @ final.fit(None, list(range(folds)))[0] if final.p else residual
     for c in selected:
         c.sentence = c.sentence[:-1] + selected_suffix(c) + "."
     settings = {"folds": folds, "min_reduction": min_reduction, "min_fold_fraction": min_fold_fraction,
@@ -146,7 +147,7 @@ def _run(ds: Dataset, X, y, residual, effects=None, *, exclude=(), folds: int = 
                 "selection": "forward: each effect judged on top of the ones selected before it",
                 "samples": len(ds), "moving_samples": {name: int(ds.moving[:, j].sum())
                                                        for j, name in enumerate(ds.joint_names)}}
-    result = _assemble(ds, residual, remaining, results, settings, refinements, folds)
+    result = _assemble(ds, remaining, results, settings, refinements, folds)
     result.selected = [f"{c.effect} on {c.joint}" for c in selected]
     return result
 
@@ -189,15 +190,18 @@ def _derivative_column(item: dict, ds: Dataset, coef: np.ndarray, value: float) 
     return D if np.any(D * ds.moving[:, :, None]) else None
 
 
-def _gauss_newton(model, item: dict, ds: Dataset, y, fold, folds: int, train: list[int], value: float,
-                  steps: int = 8) -> tuple[float, np.ndarray, np.ndarray | None]:
+def _gauss_newton(X0: np.ndarray, item: dict, ds: Dataset, y, fold, folds: int, train: list[int],
+                  value: float, steps: int = 8) -> tuple[float, np.ndarray, np.ndarray | None]:
     """Refine one shape parameter of the model's own term by Gauss-Newton on the training folds (the
-    whole regressor refitted at each step); returns (value, regressor at it, its derivative column)."""
-    terms = [dict(t) for t in model.terms]
+    whole regressor X0, with the term's columns at the new value, refitted at each step); returns
+    (value, regressor at it (X0 if no step could be made), its derivative column)."""
+    cols_at = columns_at(item["effect"], ds, item["joint"])
     X = D = None
     for _ in range(steps):
-        terms[item["index"]] = {**terms[item["index"]], "shape": {**item["shape"], item["parameter"]: value}}
-        X = np.asarray(model.regressor(ds.q, ds.dq, ds.ddq, terms), dtype=float)
+        C = cols_at({**item["shape"], item["parameter"]: value})
+        if C is None or C.shape[2] != item["n"]:
+            break
+        X = _replace_term(X0, C, item, whole=False)
         eng = Engine(X, y, ds.moving, fold, folds)
         th = eng.fit(None, train)[0]
         D = _derivative_column(item, ds, th[item["offset"]:item["offset"] + item["n"]], value)
@@ -209,7 +213,7 @@ def _gauss_newton(model, item: dict, ds: Dataset, y, fold, folds: int, train: li
         value += delta
         if abs(delta) < 1e-5 * max(abs(value), 1.0):
             break
-    return value, X, D
+    return value, (X0 if X is None else X), D
 
 
 def refine_own_shapes(model, ds: Dataset, X, y, fold, folds: int, min_reduction: float,
@@ -233,11 +237,11 @@ def refine_own_shapes(model, ds: Dataset, X, y, fold, folds: int, min_reduction:
         after, values = [], []
         for k in range(folds):
             train = [i for i in range(folds) if i != k]
-            v, Xk, _ = _gauss_newton(model, item, ds, y, fold, folds, train, s0)
+            v, Xk, _ = _gauss_newton(X, item, ds, y, fold, folds, train, s0)
             eng = Engine(Xk, y, ds.moving, fold, folds)
             after.append(eng.heldout_sse(None, eng.fit(None, train)[0], None, k))
             values.append({item["parameter"]: v})
-        v_all, X_all, D_all = _gauss_newton(model, item, ds, y, fold, folds, list(range(folds)), s0)
+        v_all, X_all, D_all = _gauss_newton(X, item, ds, y, fold, folds, list(range(folds)), s0)
         j = item["joint"] if item["joint"] is not None else 0
         before_j = np.array([b[j] for b in base])
         after_j = np.array([a[j] for a in after])
@@ -254,11 +258,11 @@ def refine_own_shapes(model, ds: Dataset, X, y, fold, folds: int, min_reduction:
     return out, np.concatenate([X] + extra, axis=2) if extra else X
 
 
-def _replace_term(X: np.ndarray, X_new: np.ndarray, item: dict) -> np.ndarray:
-    """X with the term's columns taken from X_new (the regressor at the refined shape)."""
+def _replace_term(X: np.ndarray, new: np.ndarray, item: dict, whole: bool = True) -> np.ndarray:
+    """X with the term's columns taken from `new`: a whole regressor (whole) or the term's columns."""
     a, b = item["offset"], item["offset"] + item["n"]
     out = X.copy()
-    out[:, :, a:b] = X_new[:, :, a:b]
+    out[:, :, a:b] = new[:, :, a:b] if whole else new
     return out
 
 
@@ -346,11 +350,12 @@ def _judge(effect, j: int | None, fit: CVFit, joint_names, min_reduction: float,
     return home, cand
 
 
-def _assemble(ds: Dataset, residual: np.ndarray, remaining: np.ndarray, results: dict[int, list[Candidate]],
-              settings: dict, refinements: list[dict], folds: int) -> Diagnosis:
+def _assemble(ds: Dataset, remaining: np.ndarray, results: dict[int, list[Candidate]], settings: dict,
+              refinements: list[dict], folds: int) -> Diagnosis:
     """Rank each joint's candidates (the selected ones first, in selection order), number them, and add
-    the summaries, the residual's linear correlations and what remains once the selected effects are in
-    the model depends on (`remaining`; the residual itself when nothing was selected)."""
+    the summaries, and what remains once the selected effects are in the model (`remaining`: the refit
+    with them and with the model's refined shapes, or the residual itself without a basis) correlates
+    with and depends on."""
     candidates, summary, correlations, dependence = [], {}, {}, {}
     for j, name in enumerate(ds.joint_names):
         chosen = sorted((c for c in results[j] if c.selection_step), key=lambda c: c.selection_step)
@@ -358,7 +363,7 @@ def _assemble(ds: Dataset, residual: np.ndarray, remaining: np.ndarray, results:
         for i, c in enumerate(ranked, start=1):
             c.rank = i
         candidates += ranked
-        corr = residual_correlations(ds, residual, j)
+        corr = residual_correlations(ds, remaining, j)
         dep = residual_dependence(ds, remaining, j, folds)
         correlations[name] = corr[:6]
         dependence[name] = [{"with": d["with"], "share": d["share"]} for d in dep[:6]]
