@@ -219,6 +219,10 @@ def test_residual_discovery_on_synthetic_data_and_quiet_on_noise():
     assert all(t.stderr > 0 for t in d.terms)
     assert not loud.for_joint("joint1").significant and not loud.for_joint("joint4").significant
     assert json.dumps(loud.to_json())  # plain data
+    from train.report import discovery_section
+
+    page = discovery_section(loud)  # the report page's section: sentences, terms, the fit's figure
+    assert page.count("<img") == 1 and "data:image/png;base64," in page and "https://" not in page
 
 
 

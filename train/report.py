@@ -201,6 +201,58 @@ def figure_binned(held: HeldOut, pred: np.ndarray, j: int):
     return fig
 
 
+def figure_discovery(found):
+    """A discovered expression (train.discovery.JointDiscovery) against the residual it explains (what the
+    base model leaves on the joint's moving samples, all of them): left, over a stretch of samples;
+    right, residual against the expression's value (on the diagonal when the expression explains it)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    c = found.curves
+    res, fit = np.asarray(c["residual"]), np.asarray(c["fit"])
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 3.2), gridspec_kw={"width_ratios": [2, 1]})
+    n = min(len(res), 600)
+    start = max(0, len(res) // 2 - n // 2)
+    x = np.arange(start, start + n)
+    ax1.plot(x, res[x], ".", ms=2.5, color="0.55", label="residual")
+    ax1.plot(x, fit[x], color="tab:red", lw=1.2, label="discovered expression")
+    ax1.axhline(0, color="k", lw=0.6)
+    ax1.set_xlabel("sample where the joint moves")
+    ax1.set_ylabel(f"{found.joint} [N m]")
+    ax1.legend(loc="upper right", fontsize=8, markerscale=3)
+    ax2.plot(fit, res, ".", ms=1.5, color="tab:blue", alpha=0.5)
+    lo, hi = float(min(fit.min(), res.min())), float(max(fit.max(), res.max()))
+    ax2.plot([lo, hi], [lo, hi], color="k", lw=0.8)
+    ax2.set_xlabel("discovered expression [N m]")
+    ax2.set_ylabel("residual [N m]")
+    expr = found.expression if len(found.expression) < 70 else found.expression[:67] + "..."
+    fig.suptitle(f"{found.joint}: {expr} — removes {100 * found.error_reduction:.0f} % of the held-out "
+                 "error", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def discovery_section(discovery) -> str:
+    """HTML of a discovery (train.discovery.Discovery): each joint's sentence, and for every significant
+    expression its terms with uncertainties and its fit against the residual."""
+    parts = ["<h2 id='discovery'>Discovery</h2><p>A sparse regression of each joint's residual on a "
+             "basis of physical terms; the error reduction is measured on time blocks never used to "
+             "select or fit the terms (docs/modelling.md, Discovery).</p><ul>"]
+    parts += [f"<li>{html.escape(d.sentence)}</li>" for d in discovery.discovered]
+    parts.append("</ul>")
+    for d in discovery.discovered:
+        if not (d.significant and d.curves):
+            continue
+        parts.append(f"<h3>{html.escape(d.joint)}: {html.escape(d.expression)}</h3>")
+        parts.append(_table(["term", "coefficient", "± (jackknife)", "unit"],
+                            [[t.term, _num(t.coefficient), _num(t.stderr, 2), t.unit] for t in d.terms]))
+        parts.append(f"<img alt='{html.escape(d.joint)} discovered expression against the residual' "
+                     f"src='data:image/png;base64,{_png(figure_discovery(d))}'>")
+    return "\n".join(parts)
+
+
 # ---- the page --------------------------------------------------------------------------------------
 
 def _num(v: float, digits=4) -> str:
@@ -215,8 +267,8 @@ def _table(head: list[str], rows: list[list]) -> str:
     return f"<table><tr>{th}</tr>{body}</table>"
 
 
-def report_html(model, model_dir, held: HeldOut, sessions=(), diagnosis=None) -> str:
-    """The report page as a string."""
+def report_html(model, model_dir, held: HeldOut, sessions=(), diagnosis=None, discovery=None) -> str:
+    """The report page as a string (with the discovered expressions when `discovery` is given)."""
     ds = held.data
     pred = np.asarray(model.predict(ds.q, ds.dq, ds.ddq), float)
     parts = [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
@@ -246,6 +298,8 @@ def report_html(model, model_dir, held: HeldOut, sessions=(), diagnosis=None) ->
     if diagnosis is not None:
         parts.append("<h2 id='diagnosis'>Diagnosis</h2><ul>" + "".join(
             f"<li>{html.escape(s)}</li>" for s in diagnosis.summary.values()) + "</ul>")
+    if discovery is not None:
+        parts.append(discovery_section(discovery))
 
     for j, name in enumerate(ds.joint_names):
         parts.append(f"<h2 id='joint-{html.escape(name)}'>{html.escape(name)}</h2>")
