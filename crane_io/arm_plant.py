@@ -59,6 +59,7 @@ from .sim.simple_plant import DEFAULT_INERTIA, DEFAULT_VISCOUS, SimplePlant
 from .units import AMPERE_PER_CURRENT_LSB, RAD_PER_PULSE, RADS_PER_VELOCITY_LSB
 
 _PULSE_SIGNS = np.array((-RAD_PER_PULSE, RAD_PER_PULSE))  # one-pulse position noise
+_TWO_TO_MINUS_53 = 1.0 / 9007199254740992.0  # Generator.random: (64-bit output >> 11) x 2**-53
 _SUBSTEP_KEY = struct.Struct("<13d")  # a substep's inputs (q, dq, motor and external torque, h), bit exact
 
 OVERLOAD_BIT = 0x20
@@ -472,9 +473,19 @@ class ArmPlant:
             self._errors[self.servo_ids[i]] = self._errors.get(self.servo_ids[i], 0) | OVERLOAD_BIT
 
     def read(self) -> SensorReading:
-        """What the sensors measure: the true state with an occasional one-count position error, velocity
-        and current noise. Per servo in plain Python (8 values: cheaper than numpy's fancy indexing; the
-        same IEEE operations as the array form, and the same random stream)."""
+        """What the sensors measure (arrays; `read_lists` gives the same numbers as lists)."""
+        pos, vel, cur, voltage, temperature = self.read_lists()
+        return SensorReading(position=np.array(pos), velocity=np.array(vel), current=np.array(cur),
+                             voltage=np.array(voltage), temperature=np.array(temperature))
+
+    def read_lists(self) -> tuple[list, list, list, list, list]:
+        """(position, velocity, current, voltage, temperature) lists in servo order: the true state with
+        an occasional one-count position error, velocity and current noise.
+
+        Per servo in plain Python (8 values: cheaper than numpy's fancy indexing; the same IEEE
+        operations as the array form) and with the random stream the array form drew: `rng.random(n)`
+        for which positions are off, `rng.integers(0, 2, n)` for the sign of each, `rng.normal(0, s, n)`
+        (= 0.0 + s * standard normal) for the velocity, then for the current noise."""
         n = len(self.servo_ids)
         s = self.config.sensor
         pos, vel, cur = [0.0] * n, [0.0] * n, [0.0] * n
@@ -484,42 +495,49 @@ class ArmPlant:
         for i, q, dq, c in zip(self._held_l, self._held_q.tolist(), self._held_dq.tolist(),
                                self._held_current.tolist()):
             pos[i], vel[i], cur[i] = q, dq, c
-        rng = self.rng
         if s.position_noise_probability > 0:
             p = s.position_noise_probability
-            flips = rng.random(n).tolist()
-            pos = [x + (1.0 if f < p else 0.0) * sign for x, f, sign in zip(pos, flips, self._pulse_signs(n))]
-        if s.velocity_noise_lsb > 0:
-            noise = rng.normal(0.0, s.velocity_noise_lsb * RADS_PER_VELOCITY_LSB, n).tolist()
-            vel = [x + e for x, e in zip(vel, noise)]
-        if s.current_noise_lsb > 0:
-            noise = rng.normal(0.0, s.current_noise_lsb * AMPERE_PER_CURRENT_LSB, n).tolist()
-            cur = [x + e for x, e in zip(cur, noise)]
-        return SensorReading(position=np.array(pos), velocity=np.array(vel), current=np.array(cur),
-                             voltage=np.full(n, 12.0), temperature=np.full(n, 35.0))
+            flips, signs = self._position_noise(n)
+            pos = [x + (1.0 if f < p else 0.0) * sign for x, f, sign in zip(pos, flips, signs)]
+        vel_sd = s.velocity_noise_lsb * RADS_PER_VELOCITY_LSB if s.velocity_noise_lsb > 0 else 0.0
+        cur_sd = s.current_noise_lsb * AMPERE_PER_CURRENT_LSB if s.current_noise_lsb > 0 else 0.0
+        draws = (vel_sd > 0) + (cur_sd > 0)
+        if draws:  # the velocity's n normals, then the current's: one call, the same stream
+            z = iter(self.rng.standard_normal(draws * n).tolist())
+            if vel_sd > 0:
+                vel = [x + (0.0 + vel_sd * next(z)) for x in vel]
+            if cur_sd > 0:
+                cur = [x + (0.0 + cur_sd * next(z)) for x in cur]
+        return pos, vel, cur, [12.0] * n, [35.0] * n
 
-    def _pulse_signs(self, n: int) -> list:
-        """n signed one-pulse errors, -+RAD_PER_PULSE, drawn as `rng.choice((-RAD_PER_PULSE,
-        RAD_PER_PULSE), n)` draws them (Generator.choice draws `rng.integers(0, 2, n)`).
+    def _position_noise(self, n: int) -> tuple[list, list]:
+        """(n uniforms, n signed one-pulse errors): `rng.random(n)`, then -+RAD_PER_PULSE as
+        `rng.choice((-RAD_PER_PULSE, RAD_PER_PULSE), n)` draws them (Generator.choice draws
+        `rng.integers(0, 2, n)`).
 
-        For 0..1, numpy's integers takes 32-bit halves of the PCG64 outputs, low half first (the high
-        half is kept in the bit generator for the next 32-bit draw), and Lemire's method returns the top
-        bit of each: bits 31 and 63 of every 64-bit output. An even n with no half kept from before (the
-        plant's own generator draws nothing else of 32 bits) is read from the raw outputs directly, at
-        a fifth of integers' cost; anything else goes through integers."""
+        With numpy's default bit generator (PCG64) both come from one call for its raw 64-bit outputs:
+        a uniform is (output >> 11) / 2**53, as Generator.random makes it; for 0..1, Generator.integers
+        takes 32-bit halves of the outputs, low half first (the high half is kept in the bit generator
+        for the next 32-bit draw), and Lemire's method returns the top bit of each: bits 31 and 63 of
+        every output. An even n with no half kept from before (the plant's own generator draws nothing
+        else of 32 bits) takes this path, at a fifth of the cost; anything else calls random and
+        integers."""
         rng = self.rng
         if n % 2 == 0 and self._raw_signs_ok is not rng:
             bg = rng.bit_generator
             self._raw_signs_ok = rng if type(bg) is np.random.PCG64 and not bg.state["has_uint32"] else None
         if n % 2 == 0 and self._raw_signs_ok is rng:
+            raw = rng.bit_generator.random_raw(n + n // 2).tolist()
+            flips = [(v >> 11) * _TWO_TO_MINUS_53 for v in raw[:n]]
             neg, pos = -RAD_PER_PULSE, RAD_PER_PULSE
-            out = []
-            for v in rng.bit_generator.random_raw(n // 2).tolist():
-                out.append(pos if v & 0x80000000 else neg)
-                out.append(pos if v >> 63 else neg)
-            return out
+            signs = []
+            for v in raw[n:]:
+                signs.append(pos if v & 0x80000000 else neg)
+                signs.append(pos if v >> 63 else neg)
+            return flips, signs
         self._raw_signs_ok = None  # an odd draw may leave a half behind: look again next time
-        return _PULSE_SIGNS.take(rng.integers(0, 2, size=n, dtype=np.int64)).tolist()
+        flips = rng.random(n).tolist()
+        return flips, _PULSE_SIGNS.take(rng.integers(0, 2, size=n, dtype=np.int64)).tolist()
 
     def hardware_errors(self) -> dict[int, int]:
         return dict(self._errors)

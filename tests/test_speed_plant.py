@@ -49,13 +49,14 @@ def test_the_reading_equals_the_array_form_bit_for_bit():
 
 
 @pytest.mark.parametrize("sizes", [[8], [2], [3], [8, 3, 8, 8, 1, 2]])
-def test_pulse_signs_draw_what_integers_draws(sizes):
+def test_position_noise_draws_what_random_and_integers_draw(sizes):
     plant = ArmPlant("crane-x7", seed=11)
     twin = np.random.default_rng(11)
     for k in range(300):
         n = sizes[k % len(sizes)]
+        flips = twin.random(n).tolist()
         want = _PULSE_SIGNS.take(twin.integers(0, 2, size=n, dtype=np.int64)).tolist()
-        assert plant._pulse_signs(n) == want
+        assert plant._position_noise(n) == (flips, want)
         assert plant.rng.random() == twin.random()
 
 

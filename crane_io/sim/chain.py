@@ -116,6 +116,7 @@ class SimulatedChain:
         self.time = 0.0
         self._t0 = time.monotonic()
         self._lock = threading.RLock()
+        self._read_lists = (None, None)  # (plant, its read_lists or None): see _plant_lists
         self._read_plant()
 
     @classmethod
@@ -220,6 +221,22 @@ class SimulatedChain:
             current_limit=np.array(limit, dtype=float),
         )
 
+    def _plant_lists(self) -> tuple[list, list, list, list, list]:
+        """The plant's reading as (position, velocity, current, voltage, temperature) lists of floats
+        (None for a voltage or temperature the plant does not give)."""
+        plant, (reader_of, reader) = self.plant, self._read_lists
+        if reader_of is not plant:  # first use, or the plant was replaced
+            reader = _list_reader(plant)
+            self._read_lists = (plant, reader)
+        if reader is not None:
+            return reader()
+        reading = plant.read()
+        def floats(values):
+            return [None] * len(self._order) if values is None else np.asarray(values, dtype=float).tolist()
+
+        return (floats(reading.position), floats(reading.velocity), floats(reading.current),
+                floats(reading.voltage), floats(reading.temperature))
+
     def _step(self, dt: float) -> None:
         now = self.time
         for s in self._order:
@@ -230,17 +247,11 @@ class SimulatedChain:
         self._read_plant()
 
     def _read_plant(self) -> None:
-        reading = self.plant.read()
         now = self.time
-        position = np.asarray(reading.position, dtype=float).tolist()
-        velocity = np.asarray(reading.velocity, dtype=float).tolist()
-        current = np.asarray(reading.current, dtype=float).tolist()
-        n = len(self._order)
-        voltage = [None] * n if reading.voltage is None else np.asarray(reading.voltage, dtype=float).tolist()
-        temperature = ([None] * n if reading.temperature is None
-                       else np.asarray(reading.temperature, dtype=float).tolist())
-        for i, s in enumerate(self._order):
-            s.set_sensors(position[i], velocity[i], current[i], now, voltage[i], temperature[i])
+        position, velocity, current, voltage, temperature = self._plant_lists()
+        for s, pos, vel, cur, volt, temp in zip(self._order, position, velocity, current, voltage,
+                                                temperature):
+            s.set_sensors(pos, vel, cur, now, volt, temp)
         errors = self.plant.hardware_errors()
         if errors:
             for sid, bits in errors.items():
@@ -503,3 +514,13 @@ class SimulatedChain:
             if any(address <= a < address + length for a in (GOAL_CURRENT_ADDRESS, GOAL_POSITION_ADDRESS)):
                 self._step(self.period_s)
                 return
+
+
+def _list_reader(plant):
+    """`plant.read_lists` (the reading as lists, no arrays in between) when the class whose `read` the
+    plant uses defines it too, else None: a subclass or a wrapper that changes `read` (sensor offsets,
+    a delegating __getattr__) is never bypassed."""
+    for klass in type(plant).__mro__:
+        if "read" in vars(klass):
+            return plant.read_lists if "read_lists" in vars(klass) else None
+    return None
