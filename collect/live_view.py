@@ -9,8 +9,9 @@ It must not disturb the loop. Two calls per cycle:
   sample's parts, one rerun call each (10 time series and two 3D arms: a time series costs 20-100 us, a 3D
   arm with its forward kinematics 130-400 us, the more the busier the machine), in the time the loop would
   otherwise sleep: a part is logged only while the time left to the deadline exceeds what that kind of
-  part took recently (a decaying maximum) plus a margin (`margin_s`, default 0.3 ms, beyond the timer's
-  own busy-wait). So the view's work never makes a cycle late, it only fills the wait. In lockstep (the
+  part took recently (a decaying maximum) plus a margin (`margin_s`, default 0.2 ms). So the view's work
+  does not make a cycle late (unless the machine stalls the loop mid-part), it only fills the wait. In
+  lockstep (the
   simulation runs as fast as it can, nothing waits) at most `parts_per_cycle` parts (default 2) per cycle.
 rerun sends the data from its own threads (file or viewer); nothing here waits for them. If the next
 sample is due before the previous one's parts are all logged (no slack: an overloaded machine), the rest
@@ -39,7 +40,7 @@ from crane_io.view import ARMS, SessionView, ViewError
 
 DEFAULT_EVERY = 10
 DEFAULT_PARTS_PER_CYCLE = 2
-DEFAULT_MARGIN_S = 3e-4
+DEFAULT_MARGIN_S = 2e-4
 _FIRST_GUESS_S = 5e-4  # cost assumed for a kind of part never logged yet
 _DECAY = 0.98  # per logged part: how fast a one-off slow call is forgotten
 
@@ -120,7 +121,7 @@ class LiveView:
         try:
             view, clock, cost = self.view, self._clock, self._cost
             deadline = None if timer.lockstep else getattr(timer, "_deadline", None)
-            reserve = self.margin_s + getattr(timer, "spin_s", 0.0)
+            reserve = self.margin_s
             done = 0
             n = len(parts)
             while self._next < n:

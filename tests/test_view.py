@@ -238,8 +238,8 @@ def test_lockstep_spreads_a_sample_over_cycles():
 
 
 def test_paced_loop_logs_only_in_the_time_left_to_the_deadline():
-    """A fake clock: every part takes 0.1 ms; the view logs only while the deadline stays 0.3 ms (margin)
-    + 0.2 ms (spin) + the part's recent cost away, so it never runs into the next cycle."""
+    """A fake clock: every part takes 0.1 ms; the view logs only while the deadline stays 0.2 ms (margin)
+    + the part's recent cost away, so it never runs into the next cycle."""
     now = [0.0]
 
     class SlowView(_CountingView):
@@ -252,10 +252,10 @@ def test_paced_loop_logs_only_in_the_time_left_to_the_deadline():
     est = type("E", (), {"tau_dis": np.zeros(8), "tau_res": np.ones(8)})()
     z = np.zeros(8)
     live.log_cycle(0.0, z, z, z, z, est, est, 0.002)
-    live.idle(_Timer(lockstep=False, deadline=0.9e-3))  # 0.9 ms left, first guess 0.5 ms a part: none fits
+    live.idle(_Timer(lockstep=False, deadline=0.6e-3))  # 0.6 ms left, first guess 0.5 ms a part: none fits
     assert v.logged == []
-    live.idle(_Timer(lockstep=False, deadline=2e-3))  # 2 ms: parts while 0.5 ms + 0.5 ms (guess) fit
-    assert len(v.logged) > 0 and now[0] <= 2e-3 - 5e-4 + 1e-12
+    live.idle(_Timer(lockstep=False, deadline=1.5e-3))  # parts while 0.2 ms + their cost fit
+    assert len(v.logged) > 0 and now[0] <= 1.5e-3 - 2e-4 + 1e-12
     n = len(v.logged)
     live.idle(_Timer(lockstep=False, deadline=now[0] + 1e-2))  # plenty of time: the rest of the sample
     assert len(v.logged) == 12 and n < 12
@@ -264,7 +264,7 @@ def test_paced_loop_logs_only_in_the_time_left_to_the_deadline():
     live2 = LiveView(v2, every=2, clock=lambda: 0.0)
     for k in range(20):
         live2.log_cycle(k * 0.002, z, z, z, z, est, est, 0.002)
-        live2.idle(_Timer(lockstep=False, deadline=4e-4))
+        live2.idle(_Timer(lockstep=False, deadline=2e-4))
     assert v2.logged == [] and live2.skipped_parts == 9 * 12
 
 
