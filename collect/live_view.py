@@ -9,7 +9,7 @@ It must not disturb the loop. Two calls per cycle:
   sample's parts, one rerun call each (10 time series and two 3D arms: a time series costs 20-100 us, a 3D
   arm with its forward kinematics 130-400 us, the more the busier the machine), in the time the loop would
   otherwise sleep: a part is logged only while the time left to the deadline exceeds what that kind of
-  part took recently (a decaying maximum) plus a margin (`margin_s`, default 0.2 ms). So the view's work
+  part took recently (a decaying maximum) plus a margin (`margin_s`, default 0.4 ms). So the view's work
   does not make a cycle late (unless the machine stalls the loop mid-part), it only fills the wait. In
   lockstep (the
   simulation runs as fast as it can, nothing waits) at most `parts_per_cycle` parts (default 2) per cycle.
@@ -40,7 +40,7 @@ from crane_io.view import ARMS, SessionView, ViewError
 
 DEFAULT_EVERY = 10
 DEFAULT_PARTS_PER_CYCLE = 2
-DEFAULT_MARGIN_S = 2e-4
+DEFAULT_MARGIN_S = 4e-4
 _FIRST_GUESS_S = 5e-4  # cost assumed for a kind of part never logged yet
 _DECAY = 0.98  # per logged part: how fast a one-off slow call is forgotten
 

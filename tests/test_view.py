@@ -248,7 +248,7 @@ def test_paced_loop_logs_only_in_the_time_left_to_the_deadline():
             now[0] += 1e-4
 
     v = SlowView()
-    live = LiveView(v, every=10, clock=lambda: now[0])
+    live = LiveView(v, every=10, clock=lambda: now[0], margin_s=2e-4)
     est = type("E", (), {"tau_dis": np.zeros(8), "tau_res": np.ones(8)})()
     z = np.zeros(8)
     live.log_cycle(0.0, z, z, z, z, est, est, 0.002)
@@ -261,7 +261,7 @@ def test_paced_loop_logs_only_in_the_time_left_to_the_deadline():
     assert len(v.logged) == 12 and n < 12
     # a machine without slack: samples are skipped, never logged late
     v2 = _CountingView()
-    live2 = LiveView(v2, every=2, clock=lambda: 0.0)
+    live2 = LiveView(v2, every=2, clock=lambda: 0.0, margin_s=2e-4)
     for k in range(20):
         live2.log_cycle(k * 0.002, z, z, z, z, est, est, 0.002)
         live2.idle(_Timer(lockstep=False, deadline=2e-4))
