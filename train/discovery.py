@@ -19,7 +19,8 @@ Per joint j (only the samples where j moves, as the ranking; the same K contiguo
    terms refitted by least squares - the relaxed Lasso, so shrinkage does not decide). Parsimony: the
    expression with the fewest terms whose CV error is within one standard error of the best one is
    kept. Then, one at a time, the term whose coefficient is least certain is dropped until every
-   coefficient is at least twice its delete-a-block jackknife standard error.
+   coefficient is at least twice its delete-a-block jackknife standard error (on the joint's equation,
+   then again on the refit with the base that is reported).
 3. Held-out error: for every block k the selection of step 2 runs on the other blocks only, the
    selected terms are refitted there together with the base, and the block k's squared error is
    compared with the base's alone. `error_reduction` = 1 - SSE(with terms) / SSE(base), summed over the
@@ -168,6 +169,7 @@ def discover_joint(ds: Dataset, base: np.ndarray, y: np.ndarray, j: int, fold: n
     for k in every:
         train = [i for i in every if i != k]
         S = select(T, y[:, j], base[:, j, :], rows, fold, train, max_terms)
+        S = _prune_refit(engine, T, S, j, train)
         supports.append([terms[i].name for i in S])
         sse_before[k] = baseline[k][j]
         if S:
@@ -179,14 +181,13 @@ def discover_joint(ds: Dataset, base: np.ndarray, y: np.ndarray, j: int, fold: n
     total = sse_before.sum()
     reduction = 0.0 if total <= 0 else float(1 - sse_after.sum() / total)
     fold_red = [float(1 - a / b) if b > 0 else 0.0 for a, b in zip(sse_after, sse_before)]
-    S = select(T, y[:, j], base[:, j, :], rows, fold, every, max_terms)
+    S = _prune_refit(engine, T, select(T, y[:, j], base[:, j, :], rows, fold, every, max_terms), j, every)
     found: list[FoundTerm] = []
     curves: dict = {}
     if S:
         C = _placed(T[:, S], j, ds.tau.shape[1])
         th_x, th_c, _ = engine.fit(C, every)
-        jack = np.array([engine.fit(C, [i for i in every if i != k])[1] for k in every])
-        se = np.sqrt((folds - 1) / folds * ((jack - jack.mean(0)) ** 2).sum(0))
+        se = _jackknife_refit(engine, C, every)[1]
         order = np.argsort([-abs(c) * np.std(T[rows, s]) for c, s in zip(th_c, S)])
         for o in order:
             t = terms[S[o]]
@@ -202,6 +203,32 @@ def discover_joint(ds: Dataset, base: np.ndarray, y: np.ndarray, j: int, fold: n
         fold_reductions=fold_red, significant=significant, sentence="",
         mse_before=float(total / count), mse_after=float(sse_after.sum() / count),
         fold_supports=supports, curves=curves)
+
+
+def _jackknife_refit(engine: Engine, C: np.ndarray, train: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    """(coefficients of C refitted with the base on the `train` blocks, their delete-a-block jackknife
+    standard errors)."""
+    full = engine.fit(C, train)[1]
+    if len(train) < 2:
+        return full, np.full(len(full), np.inf)
+    jack = np.array([engine.fit(C, [i for i in train if i != k])[1] for k in train])
+    K = len(train)
+    return full, np.sqrt((K - 1) / K * ((jack - jack.mean(0)) ** 2).sum(0))
+
+
+def _prune_refit(engine: Engine, T: np.ndarray, S: list[int], j: int, train: list[int]) -> list[int]:
+    """The pruning of `select` once more on the refit that is reported (the base refitted with the
+    terms, not only the joint's own equation): drop the least certain term until every coefficient is
+    at least twice its jackknife standard error."""
+    S = list(S)
+    while S:
+        coef, se = _jackknife_refit(engine, _placed(T[:, S], j, engine.y.shape[1]), train)
+        z = np.abs(coef) / np.maximum(se, 1e-300)
+        worst = int(np.argmin(z))
+        if z[worst] >= 2.0:
+            break
+        S.pop(worst)
+    return S
 
 
 def select(T: np.ndarray, y: np.ndarray, B: np.ndarray, rows: np.ndarray, fold: np.ndarray, train: list[int],
@@ -392,7 +419,7 @@ def _sentence(d: JointDiscovery) -> str:
         return (f"{d.joint}: the residual{after} is explained by {d.expression} (N m); {removes}. "
                 "Significant: add it as an effect (--write-effect-file) and refit.")
     return (f"{d.joint}: the best expression discovery finds for the residual{after}, {d.expression}, "
-            f"is not significant ({removes}): no term is claimed.")
+            f"is not significant: {removes}; no term is claimed.")
 
 
 def term_variables(term: str) -> set[str]:
