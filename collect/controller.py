@@ -170,7 +170,7 @@ class _Observer:
         w = c.g * (q - self.z)
         self.z += w * dt
         gjw = c.g * self.J * w
-        a = np.exp(-c.g * dt)
+        a = c.decay(dt)
         self.y = a * self.y + (1.0 - a) * (self.applied + gjw)
         tau_dis = self.y - gjw
         tau_res = tau_dis - grav - c.D * w
@@ -212,7 +212,17 @@ class BilateralController:
         self.inertia = InertiaModel(config.controller.inertia_model, config, self.arm, self.J,
                                     config.controller.inertia_update_cycles)
         self._nan_held = np.where(self.bil_mask, 0.0, np.nan)
+        self._decay = (None, None, None)  # (g, dt, exp(-g dt)) of the last step (decay)
         self.reset()
+
+    def decay(self, dt: float) -> np.ndarray:
+        """exp(-g dt), the DOB low-pass factor of a step of dt; the last one is kept (the loop's dt is
+        its constant period)."""
+        g, (kept_g, kept_dt, kept) = self.g, self._decay
+        if g is not kept_g or dt != kept_dt:
+            kept = np.exp(-g * dt)
+            self._decay = (g, dt, kept)
+        return kept
 
     def reset(self) -> None:
         make = self.models

@@ -168,19 +168,19 @@ class _StatusSyncRead(GroupSyncRead):
             return result
         if packet[_PKT_ID] != BROADCAST_ID:
             return COMM_RX_CORRUPT
-        packet = self.ph.removeStuffing(list(packet))
+        packet = self.ph.removeStuffing(packet)  # rxPacket's own list: unstuffed in place
         length = packet[5] | (packet[6] << 8)
-        body = packet[_PKT_FIRST_PARAM: 7 + length]  # [ERR ID DATA.. CRC CRC] per servo
-        chunk = self.data_length + 4
+        body = bytes(packet[_PKT_FIRST_PARAM: 7 + length])  # [ERR ID DATA.. CRC CRC] per servo
+        n = self.data_length
+        chunk = n + 4
         if len(body) != chunk * len(self.data_dict):
             return COMM_RX_CORRUPT
         seen = {}
-        for k in range(len(self.data_dict)):
-            part = body[k * chunk:(k + 1) * chunk]
-            dxl_id = part[1]
+        for k in range(0, len(body), chunk):
+            dxl_id = body[k + 1]
             if dxl_id not in self.data_dict or dxl_id in seen:
                 return COMM_RX_CORRUPT
-            seen[dxl_id] = (bytearray(part[2:2 + self.data_length]), part[0])
+            seen[dxl_id] = (bytearray(body[k + 2:k + 2 + n]), body[k])
         for dxl_id, (data, error) in seen.items():
             self.data_dict[dxl_id] = data
             self.errors[dxl_id] = error
@@ -506,22 +506,18 @@ class DynamixelBus:
 
     def _state_from(self, reader: _StatusSyncRead, t: float, fast: bool, check_faults: bool) -> BusState:
         data = reader.data_dict
-        cur, vel, pos = [], [], []
-        for sid in self.ids:
-            c, v, p = _PRESENT.unpack_from(data[sid])
-            cur.append(c)
-            vel.append(v)
-            pos.append(p)
+        raw = np.array([_PRESENT.unpack_from(data[sid]) for sid in self.ids], dtype=float)  # (8, 3)
         self.stats.reads += 1
         self._update_byte_stats()
         if check_faults and any(status_alert(e) for e in reader.errors.values()):
             faults = self.read_hardware_errors()
             if faults:
                 raise self._fault_error(faults)
-        # units.position_to_rad etc., written out (same arithmetic) to skip their asarray calls
-        return BusState(position=(np.array(pos, dtype=float) - units.POSITION_CENTER) * units.RAD_PER_PULSE,
-                        velocity=np.array(vel, dtype=float) * units.RADS_PER_VELOCITY_LSB,
-                        current=np.array(cur, dtype=float) * units.AMPERE_PER_CURRENT_LSB, t=t, fast=fast)
+        # units.position_to_rad etc., written out (same arithmetic) to skip their asarray calls; columns:
+        # Present Current, Velocity, Position
+        return BusState(position=(raw[:, 2] - units.POSITION_CENTER) * units.RAD_PER_PULSE,
+                        velocity=raw[:, 1] * units.RADS_PER_VELOCITY_LSB,
+                        current=raw[:, 0] * units.AMPERE_PER_CURRENT_LSB, t=t, fast=fast)
 
     def write_goal_current(self, amps) -> np.ndarray:
         """Send the goal current of every current-mode joint in ONE sync write.

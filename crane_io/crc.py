@@ -40,7 +40,9 @@ def _word_table(table: list[int]) -> list[int]:
 
 
 CRC_TABLE = _byte_table()
-CRC_TABLE16 = _word_table(CRC_TABLE)
+# 16-bit entries in one contiguous 128 KiB block: a list of 65536 Python ints is ~2.5 MB spread over the
+# heap, and in a running session (pinocchio, numpy, h5py around it) its lookups miss the CPU caches
+CRC_TABLE16 = array.array("H", _word_table(CRC_TABLE))
 _SWAP = sys.byteorder == "little"
 
 

@@ -1,29 +1,109 @@
 """dynamixel-sdk's Protocol 2.0 packet handler with its per-packet overheads removed.
 
-`CranePacketHandler` is `dynamixel_sdk.Protocol2PacketHandler` (the SDK still builds, sends, receives
-and checks every packet) with three of its helpers made cheaper, results unchanged:
+`CranePacketHandler` is `dynamixel_sdk.Protocol2PacketHandler` (the SDK still sends, receives and checks
+every packet) with some of its steps made cheaper, the bytes on the wire unchanged:
 
 - `updateCRC` uses the word-wise table of crane_io.crc instead of rebuilding a 256-entry list on every
   call and looping per byte;
 - `addStuffing` returns the packet untouched when its instruction and parameters hold no "FF FF FD"
   (the usual case) instead of copying it through a 1024-entry scratch list;
 - `removeStuffing` returns the packet untouched when it holds no stuffed "FF FF FD FD".
+- `syncReadTx` (Sync Read and Fast Sync Read) keeps the finished instruction packet (stuffed, with its
+  CRC) per request: the control loop sends the same read every cycle;
+- `syncWriteTxOnly` builds its packet as bytes from a kept header (only the parameters change) instead
+  of a list the SDK then stuffs, checks and converts.
 Packets that do need (un)stuffing go through the SDK's own code.
 """
 
 from __future__ import annotations
 
-from dynamixel_sdk.protocol2_packet_handler import Protocol2PacketHandler
+from dynamixel_sdk.protocol2_packet_handler import (
+    BROADCAST_ID,
+    COMM_PORT_BUSY,
+    COMM_SUCCESS,
+    COMM_TX_FAIL,
+    INST_FAST_SYNC_READ,
+    INST_SYNC_READ,
+    INST_SYNC_WRITE,
+    TXPACKET_MAX_LEN,
+    Protocol2PacketHandler,
+)
 
 from .crc import crc16
 
 _LEN_L, _LEN_H = 5, 6
 _STUFF = b"\xff\xff\xfd"
 _STUFFED = b"\xff\xff\xfd\xfd"
+_HEADER = b"\xff\xff\xfd\x00"
+_KEPT_READS = 16  # Sync Read packets kept (a bus sends two kinds: the Present block and the error poll)
 
 
 class CranePacketHandler(Protocol2PacketHandler):
-    """Protocol2PacketHandler with fast CRC and (un)stuffing fast paths (same bytes on the wire)."""
+    """Protocol2PacketHandler with fast CRC and (un)stuffing fast paths and kept instruction packets (same
+    bytes on the wire)."""
+
+    def __init__(self):
+        super().__init__()
+        self._sync_reads: dict[tuple, bytes] = {}  # (instruction, address, length, IDs) -> packet
+        self._headers: dict[tuple, bytes] = {}  # (instruction, address, length, n params) -> bytes before
+
+    # ---- instruction packets -------------------------------------------------------------------------
+    def syncReadTx(self, port, start_address, data_length, param, param_length, fast_option):  # noqa: N802
+        inst = INST_FAST_SYNC_READ if fast_option else INST_SYNC_READ
+        key = (inst, start_address, data_length, tuple(param[:param_length]))
+        packet = self._sync_reads.get(key)
+        if packet is None:
+            packet = self._sync_packet(inst, start_address, data_length, param, param_length)
+            if packet is None:  # needs byte stuffing: the SDK's own path
+                return super().syncReadTx(port, start_address, data_length, param, param_length, fast_option)
+            if len(self._sync_reads) >= _KEPT_READS:
+                self._sync_reads.clear()
+            self._sync_reads[key] = packet
+        result = self._send(port, packet)
+        if result == COMM_SUCCESS:
+            port.setPacketTimeout((11 + data_length) * param_length)
+        return result
+
+    def syncWriteTxOnly(self, port, start_address, data_length, param, param_length):  # noqa: N802
+        packet = self._sync_packet(INST_SYNC_WRITE, start_address, data_length, param, param_length)
+        if packet is None:
+            return super().syncWriteTxOnly(port, start_address, data_length, param, param_length)
+        result = self._send(port, packet)
+        if result == COMM_SUCCESS:
+            port.is_using = False  # a broadcast: no status packet to wait for (as txRxPacket does)
+        return result
+
+    def _sync_packet(self, inst, start_address, data_length, param, param_length) -> bytes | None:
+        """The finished broadcast packet INST ADDR LEN params (CRC appended), as the SDK's txPacket makes
+        it; None when it needs byte stuffing."""
+        key = (inst, start_address, data_length, param_length)
+        head = self._headers.get(key)
+        if head is None:
+            length = param_length + 7  # INST, address, data length, params, CRC
+            head = _HEADER + bytes((BROADCAST_ID, length & 0xFF, (length >> 8) & 0xFF, inst,
+                                    start_address & 0xFF, (start_address >> 8) & 0xFF,
+                                    data_length & 0xFF, (data_length >> 8) & 0xFF))
+            self._headers[key] = head
+        packet = head + bytes(param[:param_length])
+        if packet.find(_STUFF, 5) >= 0 or len(packet) + 2 > TXPACKET_MAX_LEN:
+            return None
+        crc = crc16(packet)
+        return packet + bytes((crc & 0xFF, crc >> 8))
+
+    @staticmethod
+    def _send(port, packet: bytes) -> int:
+        """txPacket's sending part for a finished packet: the port taken, its input cleared, the bytes
+        written (the port stays taken for the reply, as in the SDK)."""
+        if port.is_using:
+            return COMM_PORT_BUSY
+        port.is_using = True
+        port.clearPort()
+        if port.writePort(packet) != len(packet):
+            port.is_using = False
+            return COMM_TX_FAIL
+        return COMM_SUCCESS
+
+    # ---- the SDK's helpers -----------------------------------------------------------------------------
 
     def updateCRC(self, crc_accum, data_blk_ptr, data_blk_size):  # noqa: N802 (SDK name)
         if 0 <= crc_accum <= 0xFFFF:

@@ -59,3 +59,41 @@ def test_packet_handler_matches_the_sdk(params, packet_id, instruction):
     assert fast.removeStuffing(list(pkt)) == sdk.removeStuffing(list(pkt))
     for n in (0, 1, len(pkt) - 2, len(pkt)):
         assert fast.updateCRC(0, pkt, n) == sdk.updateCRC(0, pkt, n)
+
+
+class _RecordingPort:
+    """What a packet handler does to its port: the bytes written, is_using, the packet timeout."""
+
+    def __init__(self, busy=False):
+        self.is_using = busy
+        self.written: list[bytes] = []
+        self.timeouts: list[int] = []
+        self.cleared = 0
+
+    def clearPort(self):  # noqa: N802 (SDK name)
+        self.cleared += 1
+
+    def writePort(self, packet):  # noqa: N802
+        self.written.append(bytes(packet))
+        return len(packet)
+
+    def setPacketTimeout(self, length):  # noqa: N802
+        self.timeouts.append(length)
+
+
+def _port_trace(port, result):
+    return result, port.written, port.timeouts, port.is_using, port.cleared
+
+
+@settings(max_examples=300)
+@given(st.lists(_BYTE, max_size=40), st.sampled_from([126, 70, 0xFDFF, 102, 116]), st.integers(1, 300),
+       st.booleans(), st.booleans())
+def test_kept_and_built_instruction_packets_equal_the_sdks(params, address, length, fast, busy):
+    sdk, crane = Protocol2PacketHandler(), CranePacketHandler()
+    for _ in range(2):  # the second time from the kept packet
+        a, b = _RecordingPort(busy), _RecordingPort(busy)
+        assert _port_trace(b, crane.syncReadTx(b, address, length, params, len(params), fast)) == \
+            _port_trace(a, sdk.syncReadTx(a, address, length, params, len(params), fast))
+        a, b = _RecordingPort(busy), _RecordingPort(busy)
+        assert _port_trace(b, crane.syncWriteTxOnly(b, address, length, params, len(params))) == \
+            _port_trace(a, sdk.syncWriteTxOnly(a, address, length, params, len(params)))

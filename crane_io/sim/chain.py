@@ -35,13 +35,14 @@ from ..control_table import XM430_W350, ServoModel
 from ..errors import ConfigError
 from . import protocol as p
 from .plant_api import ActuatorCommand, Plant
-from .servo import EmulatedServo
+from .servo import BAUD_CODES, EmulatedServo
 
 GOAL_CURRENT_ADDRESS = 102
 GOAL_POSITION_ADDRESS = 116
 _ID_ADDRESS = 7
 STEP_BUDGET_S = 0.001  # wall clock: most real time spent stepping the plant per packet or touch
 MAX_LAG_S = 0.1  # wall clock: a plant further behind real time than this slips ahead to now
+_BAUD_CODE_OF = {rate: code for code, rate in BAUD_CODES.items()}  # bit/s -> Baud Rate register value
 
 
 @dataclass
@@ -300,7 +301,10 @@ class SimulatedChain:
     def _hearing(self, baudrate: int | None) -> list[EmulatedServo]:
         if baudrate is None:
             return [s for s in self._order if s.on_bus]
-        return [s for s in self._order if s.on_bus and s.baudrate == baudrate]
+        code = _BAUD_CODE_OF.get(baudrate)
+        if code is None:  # a speed no servo can be set to
+            return [s for s in self._order if s.on_bus and s.baudrate == baudrate]
+        return [s for s in self._order if s.on_bus and s.memory[s.baud_address] == code]
 
     def _handle(self, pkt: p.Packet, baudrate: int | None,
                 now: float | None = None) -> Iterable[tuple[bytes, float]]:

@@ -118,6 +118,7 @@ class EmulatedServo:
         self._torque_at, self._hw_error_at = at["torque_enable"], at["hardware_error_status"]
         self._watchdog_at, self._baud_at = at["bus_watchdog"], at["baud_rate"]
         self._srl_at = at["status_return_level"]
+        self.baud_address = self._baud_at  # memory[baud_address] is the Baud Rate code (BAUD_CODES)
         self._command_at = tuple(at[n] for n in (
             "torque_enable", "operating_mode", "goal_current", "goal_position", "position_d_gain",
             "current_limit"))
@@ -196,7 +197,6 @@ class EmulatedServo:
     @property
     def baudrate(self) -> int:
         return BAUD_CODES.get(self.memory[self._baud_at], 0)
-
     @property
     def return_delay_s(self) -> float:
         return self.read_register("return_delay_time") * 2e-6
