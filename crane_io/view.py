@@ -47,6 +47,19 @@ class ViewError(ConfigError):
     """The view could not be opened (a file that cannot be written, a viewer that cannot start)."""
 
 
+def _viewer_executable() -> str | None:
+    """The rerun viewer on PATH, else the one installed beside this interpreter (a virtual environment
+    that was not activated), else None (rerun then says it found none)."""
+    import shutil
+    import sys
+
+    found = shutil.which("rerun")
+    if found:
+        return found
+    beside = Path(sys.executable).parent / "rerun"
+    return str(beside) if beside.exists() else None
+
+
 def import_rerun():
     """The rerun module, or ViewUnavailableError (one sentence naming the extra to install)."""
     try:
@@ -159,10 +172,14 @@ class SessionView:
                 self.save_path.parent.mkdir(parents=True, exist_ok=True)
                 self.rec.save(str(self.save_path))
             elif self.spawn:
-                self.rec.spawn()
+                from rerun.sinks import spawn
+
+                spawn(recording=self.rec, executable_path=_viewer_executable())
         except Exception as exc:  # noqa: BLE001 - rerun raises several kinds; one sentence for the user
             where = f"write {self.save_path}" if self.save_path is not None else "start the rerun viewer"
-            raise ViewError(f"the view could not {where}: {exc}") from None
+            first = (str(exc).strip().splitlines() or [exc.__class__.__name__])[0].rstrip(".")
+            raise ViewError(f"the view could not {where}: {first} (--view-save FILE.rrd writes a file "
+                            f"instead)") from None
         self.opened = True
 
     # -- one sample -------------------------------------------------------------------------------------
