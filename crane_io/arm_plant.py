@@ -279,32 +279,41 @@ class ArmPlant:
 
     # ---- Plant protocol ------------------------------------------------------------------------------
     def step(self, command: ActuatorCommand, dt: float) -> None:
+        self.step_lists(np.asarray(command.torque_enabled, dtype=bool).tolist(),
+                        np.asarray(command.operating_mode).tolist(),
+                        np.asarray(command.goal_current, dtype=float).tolist(),
+                        np.asarray(command.goal_position, dtype=float).tolist(),
+                        np.asarray(command.position_gains, dtype=float).tolist(),
+                        np.asarray(command.current_limit, dtype=float).tolist(), dt)
+
+    def step_lists(self, en_l, mode_l, gc_l, gp_l, gains_l, lim_l, dt: float) -> None:
+        """`step` with the ActuatorCommand's fields as sequences in servo order (torque enabled, operating
+        mode, goal current A, goal position rad, (P, I, D) gains, current limit A): the simulated chain
+        hands them over without arrays in between."""
         if dt <= 0:
             return
-        enabled = np.asarray(command.torque_enabled, dtype=bool)
-        mode = np.asarray(command.operating_mode)
-        goal_current = np.asarray(command.goal_current, dtype=float)
-        limit = np.asarray(command.current_limit, dtype=float)
-        goal_position = np.asarray(command.goal_position, dtype=float)
-        self._overload(enabled, mode, goal_current, limit, dt)
+        if self.config.overload.enabled:
+            self._overload(np.array(en_l, dtype=bool), np.array(mode_l), np.array(gc_l, dtype=float),
+                           np.array(lim_l, dtype=float), dt)
         # per joint in plain Python (8 values: cheaper than numpy's fancy indexing and reductions; the
         # same IEEE operations, so the same results)
-        en_l, mode_l, gc_l = enabled.tolist(), mode.tolist(), goal_current.tolist()
-        lim_l, gp_l = limit.tolist(), goal_position.tolist()
         held = self._held_l
         self._step_held([en_l[i] for i in held], [mode_l[i] for i in held], [gc_l[i] for i in held],
                         [gp_l[i] for i in held], [lim_l[i] for i in held], dt)
         bi = self._bi_l
         kt = self._kt_l
-        current_mode = [en_l[i] and mode_l[i] == 0 for i in bi]
+        current_mode = [bool(en_l[i]) and mode_l[i] == 0 for i in bi]
         position_mode = any(en_l[i] and mode_l[i] != 0 for i in bi)
         tau_l = [kt[i] * gc_l[i] if cm else 0.0 for i, cm in zip(bi, current_mode)]
         if position_mode:
-            bi = self._bi
             tau_current = np.array(tau_l)
             current_mask = np.array(current_mode)
-            bi_cmd = ActuatorCommand(enabled[bi], mode[bi], goal_current[bi], goal_position[bi],
-                                     np.asarray(command.position_gains)[bi], limit[bi])
+
+            def pick(values, dtype=float):  # the bilateral joints' entries as an array
+                return np.array([values[i] for i in bi], dtype=dtype)
+
+            bi_cmd = ActuatorCommand(pick(en_l, bool), pick(mode_l, None), pick(gc_l), pick(gp_l),
+                                     pick(gains_l), pick(lim_l))
         n_sub = max(1, math.ceil(dt / self.h - 1e-9))
         h = dt / n_sub
         q, dq = self.q.tolist(), self.dq.tolist()

@@ -93,3 +93,31 @@ def test_the_small_solves_equal_the_general_loop_signed_zeros_included():
             b = [value() for _ in range(n)]
             want = _general_solve(a, b)
             assert struct.pack(f"{n}d", *_solve(a, b)) == struct.pack(f"{n}d", *want)
+
+
+def test_step_lists_equals_step_with_arrays():
+    """The chain hands ArmPlant its commands as lists (step_lists); step (arrays) must do the same, in
+    current and position modes, torque off, with overload tracking on."""
+    from dataclasses import replace
+
+    from crane_io.plant_config import load_plant_config
+    from crane_io.sim.plant_api import ActuatorCommand
+
+    config = load_plant_config("crane-x7")
+    config = replace(config, overload=replace(config.overload, enabled=True, time_s=0.05))
+    a, b = ArmPlant(config, seed=2), ArmPlant(config, seed=2)
+    rng = np.random.default_rng(4)
+    for k in range(400):
+        enabled = np.ones(8, bool)
+        enabled[rng.integers(0, 8)] = k % 50 > 5
+        mode = np.array([0, 0, 3, 0, 3, 3, 3, 3]) if k % 100 < 70 else np.full(8, 3)
+        current = rng.normal(0, 1.0, 8)
+        position = rng.normal(0, 0.2, 8)
+        gains = np.tile([800.0, 0.0, 0.0], (8, 1))
+        limit = np.full(8, 1.5)
+        a.step(ActuatorCommand(enabled, mode, current, position, gains, limit), 0.002)
+        b.step_lists(enabled.tolist(), mode.tolist(), current.tolist(), position.tolist(),
+                     [tuple(int(g) for g in row) for row in gains], limit.tolist(), 0.002)
+        for x, y in zip(a.state() + (a.motor_torque,), b.state() + (b.motor_torque,)):
+            assert x.tobytes() == y.tobytes()
+        assert a.hardware_errors() == b.hardware_errors()

@@ -117,7 +117,7 @@ class SimulatedChain:
         self.time = 0.0
         self._t0 = time.monotonic()
         self._lock = threading.RLock()
-        self._read_lists = (None, None)  # (plant, its read_lists or None): see _plant_lists
+        self._plant_lists_methods = (None, (None, None))  # (plant, its list methods): see _lists_of
         self._read_plant()
 
     @classmethod
@@ -225,10 +225,8 @@ class SimulatedChain:
     def _plant_lists(self) -> tuple[list, list, list, list, list]:
         """The plant's reading as (position, velocity, current, voltage, temperature) lists of floats
         (None for a voltage or temperature the plant does not give)."""
-        plant, (reader_of, reader) = self.plant, self._read_lists
-        if reader_of is not plant:  # first use, or the plant was replaced
-            reader = _list_reader(plant)
-            self._read_lists = (plant, reader)
+        plant = self.plant
+        reader = self._lists_of(plant)[0]
         if reader is not None:
             return reader()
         reading = plant.read()
@@ -238,11 +236,24 @@ class SimulatedChain:
         return (floats(reading.position), floats(reading.velocity), floats(reading.current),
                 floats(reading.voltage), floats(reading.temperature))
 
+    def _lists_of(self, plant) -> tuple:
+        """(read_lists or None, step_lists or None) of `plant` (see _list_method), found once per plant."""
+        kept_for, methods = self._plant_lists_methods
+        if kept_for is not plant:  # first use, or the plant was replaced
+            methods = (_list_method(plant, "read"), _list_method(plant, "step"))
+            self._plant_lists_methods = (plant, methods)
+        return methods
+
     def _step(self, dt: float) -> None:
         now = self.time
         for s in self._order:
             s.check_watchdog(now)
-        self.plant.step(self.actuator_command(), dt)
+        plant = self.plant
+        step_lists = self._lists_of(plant)[1]
+        if step_lists is not None:  # the commands as lists, as actuator_command's arrays would hold them
+            step_lists(*zip(*[s.command() for s in self._order]), dt)
+        else:
+            plant.step(self.actuator_command(), dt)
         self.time += dt
         self.stats.plant_steps += 1
         self._read_plant()
@@ -520,11 +531,11 @@ class SimulatedChain:
                 return
 
 
-def _list_reader(plant):
-    """`plant.read_lists` (the reading as lists, no arrays in between) when the class whose `read` the
-    plant uses defines it too, else None: a subclass or a wrapper that changes `read` (sensor offsets,
-    a delegating __getattr__) is never bypassed."""
+def _list_method(plant, name: str):
+    """`plant.<name>_lists` (the same call with lists instead of arrays) when the class whose `name` method
+    the plant uses defines it too, else None: a subclass or a wrapper that changes `read` or `step`
+    (sensor offsets, a delegating __getattr__) is never bypassed."""
     for klass in type(plant).__mro__:
-        if "read" in vars(klass):
-            return plant.read_lists if "read_lists" in vars(klass) else None
+        if name in vars(klass):
+            return getattr(plant, f"{name}_lists") if f"{name}_lists" in vars(klass) else None
     return None
