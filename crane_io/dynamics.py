@@ -126,6 +126,12 @@ class ArmDynamics:
 
     def gravity_torque(self, q) -> np.ndarray:
         """Torque the motors must supply to hold the arm still at q (N, J): g(q)."""
+        if self._identity and type(q) is np.ndarray and q.shape == (self.n_joints,) and q.dtype == float:
+            # one pose, already in the model's order (the control loop's call, every cycle): the same
+            # pinocchio call without the batch bookkeeping
+            if not np.isfinite(q).all():
+                raise ConfigError("the dynamics inputs contain NaN or infinite values")
+            return np.array(pin.computeGeneralizedGravity(self.model, self.data, q))
         (q,), single = self._batches((q, "q"))
         m, d = self.model, self.data
         out = np.empty_like(q)

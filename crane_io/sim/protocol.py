@@ -112,8 +112,9 @@ def fast_status_packet(blocks: list[tuple[int, int, bytes]]) -> bytes:
     CRC); the packet ID is the broadcast ID and LEN = 1 + sum(4 + len(data)).
     """
     # LEN counts the stuffed bytes; stuffing of the data is rare (FF FF FD in the payload).
-    stuffed_parts = [stuff(bytes((error & 0xFF, servo_id & 0xFF)) + bytes(data))
-                     for error, servo_id, data in blocks]
+    stuffed_parts = [bytes((error & 0xFF, servo_id & 0xFF)) + bytes(data) for error, servo_id, data in blocks]
+    if any(_STUFF_MARK in part for part in stuffed_parts):
+        stuffed_parts = [stuff(part) for part in stuffed_parts]
     length = 1 + sum(len(s) + 2 for s in stuffed_parts)
     head = HEADER + bytes((BROADCAST_ID, length & 0xFF, (length >> 8) & 0xFF, INST_STATUS))
     packet = bytearray(head)
