@@ -62,6 +62,11 @@ class Serial(SerialBase):
     def read(self, size=1):
         if not self.is_open:
             raise PortNotOpenError()
+        with self._cond:
+            if self._timeout == 0 or len(self._rx) >= size:  # nothing to wait for (the SDK polls with 0)
+                data = bytes(self._rx[:size])
+                del self._rx[:size]
+                return data
         deadline = None if self._timeout is None else time.monotonic() + self._timeout
         with self._cond:
             while len(self._rx) < size and self.is_open:
