@@ -414,8 +414,12 @@ class ArmPlant:
             for s in (0, 1, 2):
                 if free[s]:
                     continue
-                hold = rhs[s] - sum(m[s][a] * ddq[a] for a in idx)  # friction needed to hold joint s
-                excess = max(hold - band_pos[s], -band_neg[s] - hold)
+                coupled = 0  # sum(m[s][a] * ddq[a] for a in idx), added up as sum() does
+                for a in idx:
+                    coupled = coupled + m[s][a] * ddq[a]
+                hold = rhs[s] - coupled  # friction needed to hold joint s
+                above, below = hold - band_pos[s], -band_neg[s] - hold
+                excess = below if below > above else above  # max(above, below)
                 if excess > worst_excess:
                     worst, worst_excess, push = s, excess, hold
             if worst < 0:
