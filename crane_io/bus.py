@@ -219,6 +219,7 @@ class DynamixelBus:
         self.position_joints = tuple(i for i, m in enumerate(self.modes) if m == MODE_POSITION)
         self.current_limits = np.array([j.current_limit for j in joints])  # A; read back in configure
         self.lower = np.array([j.lower for j in joints])
+        self._present_all = struct.Struct("<" + _PRESENT.format.lstrip("<") * len(self.ids))  # every servo's
         self.upper = np.array([j.upper for j in joints])
 
         self._ph = CranePacketHandler()
@@ -506,7 +507,8 @@ class DynamixelBus:
 
     def _state_from(self, reader: _StatusSyncRead, t: float, fast: bool, check_faults: bool) -> BusState:
         data = reader.data_dict
-        raw = np.array([_PRESENT.unpack_from(data[sid]) for sid in self.ids], dtype=float)  # (8, 3)
+        raw = np.array(self._present_all.unpack(b"".join([data[sid] for sid in self.ids])),
+                       dtype=float).reshape(-1, 3)  # (8, 3)
         self.stats.reads += 1
         self._update_byte_stats()
         if check_faults and any(status_alert(e) for e in reader.errors.values()):
