@@ -2,6 +2,13 @@
 achieved rate and jitter in real-time simulation, and the wall time of a lockstep session.
 
     python benchmarks/run_all.py collect [--quick]      or      python benchmarks/bench_collect.py
+
+Lockstep speed alone, and a before/after comparison on a shared machine (issue 13): each session runs in
+its own process, the trees alternate, and the best of `--repeat` runs of each is compared:
+
+    python benchmarks/bench_collect.py --lockstep 60 --repeat 3
+    git archive OLD | tar -x -C /tmp/old      # any other source tree of the project
+    python benchmarks/bench_collect.py --lockstep 60 --repeat 3 --against /tmp/old
 """
 
 from __future__ import annotations
@@ -144,6 +151,72 @@ def run(quick: bool = False) -> list[dict]:
     return rows
 
 
+def lockstep_once(seconds: float, seed: int = 0) -> dict:
+    """One lockstep `crane-collect run --sim` session in this process: wall and CPU seconds of the whole
+    run (start-up, alignment, file) and the loop's CPU time per bilateral cycle."""
+    from collect.runner import RunOptions, run_session
+
+    mark = {}
+
+    def at_cycle(k, _ctx):
+        if k == 0:
+            mark["cpu"] = time.process_time()
+
+    with tempfile.TemporaryDirectory() as d:
+        t, cpu = time.perf_counter(), time.process_time()
+        r = run_session(RunOptions(output=Path(d) / "s.h5", sim=True, seed=seed, duration=seconds,
+                                   status=False, on_cycle=at_cycle))
+        end_cpu = time.process_time()
+        return {"wall": time.perf_counter() - t, "cpu": end_cpu - cpu, "cycles": r.cycles,
+                "loop_cpu_us": (end_cpu - mark["cpu"]) / max(r.cycles, 1) * 1e6}
+
+
+def _in_process(tree: str | None, seconds: float, seed: int) -> dict:
+    """lockstep_once in a fresh process whose `crane_io` and `collect` come from `tree` (None: these)."""
+    import json
+    import subprocess
+
+    env = dict(os.environ)
+    if tree is not None:
+        env["PYTHONPATH"] = os.pathsep.join([str(tree)] + [p for p in [env.get("PYTHONPATH")] if p])
+    out = subprocess.run([sys.executable, __file__, "--one", str(seconds), str(seed)], env=env,
+                         capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def compare_lockstep(seconds: float, repeat: int, against: str | None, seed: int = 0) -> None:
+    """Print the lockstep speed of this tree (and of `against`), runs alternated, best of `repeat`."""
+    trees = {"this tree": None} if against is None else {"against": against, "this tree": None}
+    best: dict[str, dict] = {name: {} for name in trees}
+    for _ in range(repeat):
+        for name, tree in trees.items():
+            load = os.getloadavg()[0]
+            r = _in_process(tree, seconds, seed)
+            print(f"{name:<10} wall {r['wall']:6.2f} s  CPU {r['cpu']:6.2f} s  loop CPU "
+                  f"{r['loop_cpu_us']:6.0f} us/cycle  ({seconds / r['wall']:.2f}x real time; "
+                  f"load {load:.1f})")
+            for k, v in r.items():
+                best[name][k] = min(best[name].get(k, v), v)
+    for name, b in best.items():
+        print(f"best {name:<10} {seconds / b['wall']:.2f}x real time (wall), "
+              f"{seconds / b['cpu']:.2f}x per CPU s, loop {b['loop_cpu_us']:.0f} us CPU per two-arm cycle")
+    if against is not None:
+        a, t = best["against"], best["this tree"]
+        print(f"this tree / against: wall x{a['wall'] / t['wall']:.3f}, CPU x{a['cpu'] / t['cpu']:.3f}, "
+              f"loop CPU x{a['loop_cpu_us'] / t['loop_cpu_us']:.3f}")
+
+
 if __name__ == "__main__":
-    for r in run(quick="--quick" in sys.argv):
-        print(f"{r['metric']:<42} {r['value']:>10.3f} {r['unit']:<14} {r['note']}")
+    args = sys.argv[1:]
+    if args[:1] == ["--one"]:
+        import json
+
+        print(json.dumps(lockstep_once(float(args[1]), int(args[2]))))
+    elif "--lockstep" in args:
+        def _opt(name, default):
+            return args[args.index(name) + 1] if name in args else default
+
+        compare_lockstep(float(_opt("--lockstep", 60)), int(_opt("--repeat", 3)), _opt("--against", None))
+    else:
+        for r in run(quick="--quick" in args):
+            print(f"{r['metric']:<42} {r['value']:>10.3f} {r['unit']:<14} {r['note']}")

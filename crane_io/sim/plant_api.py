@@ -4,6 +4,12 @@ The servo chain owns the control tables (raw units); once per step it hands the 
 servos command, in SI, and reads back what the servos' sensors would measure, in SI. The chain does
 the quantisation to register units; the plant may add sensor noise. Every plant (the simple
 per-joint plant, the full CRANE-X7 arm plant) implements this protocol.
+
+Optional, for speed: a plant class may define `read_lists()` -> (position, velocity, current, voltage,
+temperature) lists and `step_lists(enabled, mode, goal_current, goal_position, gains, limit, dt)` beside
+its `read` and `step`, giving exactly the same results without arrays in between (ArmPlant does). The
+chain uses them only when the class whose `read` / `step` the plant uses defines them too, so a wrapper
+or subclass that changes `read` or `step` is never bypassed.
 """
 
 from __future__ import annotations
