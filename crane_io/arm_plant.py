@@ -366,7 +366,17 @@ class ArmPlant:
             ddq = pin.aba(self.model, self.data, qa, dqa, net).tolist()
         else:
             ddq = self._stick_slip(qa, dqa, dq, drive, gen_fr)
-        return _semi_implicit_euler(q, dq, ddq, h)
+        # semi-implicit Euler: velocity first, then position; friction stops a joint, it never reverses
+        # it within a substep
+        a0, a1, a2 = ddq
+        v0, v1, v2 = dq0 + h * a0, dq1 + h * a1, dq2 + h * a2
+        if (dq0 > 0 and v0 < 0) or (dq0 < 0 and v0 > 0):
+            v0 = 0.0
+        if (dq1 > 0 and v1 < 0) or (dq1 < 0 and v1 > 0):
+            v1 = 0.0
+        if (dq2 > 0 and v2 < 0) or (dq2 < 0 and v2 > 0):
+            v2 = 0.0
+        return (q[0] + h * v0, q[1] + h * v1, q[2] + h * v2), (v0, v1, v2)
 
     def _gear_gap(self, q: list, dq: list, tau_m: list, h: float) -> list:
         """Backlash: the motor drives its own inertia; the link only gets the torque the gear passes
@@ -627,19 +637,6 @@ class ArmPlant:
         path.write_text(json.dumps(self.truth(), indent=2) + "\n")
         return path
 
-
-
-def _semi_implicit_euler(q, dq, ddq, h: float) -> tuple:
-    """((q), (dq)) after one substep h: velocity first, then position; friction stops a joint, it never
-    reverses it within a substep."""
-    v = []
-    for dqi, a in zip(dq, ddq):
-        vi = dqi + h * a
-        if (dqi > 0 and vi < 0) or (dqi < 0 and vi > 0):
-            vi = 0.0
-        v.append(vi)
-    v0, v1, v2 = v
-    return (q[0] + h * v0, q[1] + h * v1, q[2] + h * v2), (v0, v1, v2)
 
 
 def _clip(x: float, lo: float, hi: float) -> float:

@@ -145,7 +145,7 @@ def fast_status_prefix(blocks: list[tuple[int, int, bytes]], n_total: int, data_
     return bytes(packet)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Packet:
     """A parsed packet: the ID, the instruction, the unstuffed parameters, and the raw wire bytes.
 
