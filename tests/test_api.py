@@ -53,3 +53,11 @@ def test_bad_input_is_one_sentence(session, call, words):
         call(session)
     assert "\n" not in str(info.value)
     assert isinstance(info.value, (ConfigError, CraneError))
+
+
+def test_the_report_shows_the_discovery_when_asked(session, tmp_path):
+    fitted = train.fit(session, "rigid-body", scale_to_data=True)
+    fitted.save(tmp_path / "m")
+    plain = train.make_report(tmp_path / "m", session, tmp_path / "plain.html").read_text()
+    page = train.make_report(tmp_path / "m", session, tmp_path / "d.html", discover=True).read_text()
+    assert "id='discovery'" in page and "id='discovery'" not in plain

@@ -6,6 +6,7 @@
     fit = train.fit(ds, "rigid-body", scale_to_data=True)    # a FitResult: .model, .metrics, .splits
     fit.save("models/rb")
     found = train.diagnose_model("models/rb", "day1.h5")     # which effect is missing?
+    terms = train.discover_terms("models/rb", "day1.h5")     # ... and one the library lacks?
     better = train.fit(ds, "rigid-body", effects=["coulomb:joint=joint2"], scale_to_data=True)
     better.save("models/rb-coulomb")
     table = train.compare_models(["models/rb", "models/rb-coulomb"])
@@ -178,16 +179,13 @@ def load_model(model_dir: PathLike) -> Model:
     return _load(model_dir)
 
 
-def diagnose_model(model_dir: PathLike, sessions: Sessions, *, folds: int = DEFAULT_FOLDS,
-             min_reduction: float = DEFAULT_MIN_REDUCTION, effect_files: Sequence[PathLike] = (),
-             progress: bool = False) -> Diagnosis:
-    """Which physical effect is the model at `model_dir` missing on `sessions`? The library's effects
-    (and those of `effect_files`) ranked by how much of the model's held-out error each removes, with
-    cross-validation over `folds` contiguous time blocks; a candidate must remove at least
-    `min_reduction` of it to count. The Diagnosis has `.candidates`, `.summary` and `.to_json()`."""
+def diagnosis_inputs(model_dir: PathLike, sessions: Sessions,
+                     effect_files: Sequence[PathLike] = ()) -> tuple[Model, Dataset, str]:
+    """What a diagnosis works on: the model, the sessions' data preprocessed as its training was (its
+    own arm; a network only the samples it never trained on) and a phrase saying which samples those are.
+    `effect_files` are loaded first (their effects become candidates)."""
     from crane_io.effects import load_effect_file
 
-    from .diagnose import diagnose as run_diagnosis
     from .heldout import diagnosis_data, model_settings
     from .preprocess import read_preprocessed
 
@@ -196,9 +194,40 @@ def diagnose_model(model_dir: PathLike, sessions: Sessions, *, folds: int = DEFA
     model = load_model(model_dir)
     pconf = model_settings(model, model_dir)[0]
     ds, judged = diagnosis_data(model, read_preprocessed(_paths(sessions), pconf), model_dir)
+    return model, ds, judged
+
+
+def diagnose_model(model_dir: PathLike, sessions: Sessions, *, folds: int = DEFAULT_FOLDS,
+                   min_reduction: float = DEFAULT_MIN_REDUCTION, effect_files: Sequence[PathLike] = (),
+                   progress: bool = False) -> Diagnosis:
+    """Which physical effect is the model at `model_dir` missing on `sessions`? The library's effects
+    (and those of `effect_files`) ranked by how much of the model's held-out error each removes, with
+    cross-validation over `folds` contiguous time blocks and a forward, nested selection; a candidate
+    must remove at least `min_reduction` of what remains to count. The Diagnosis has `.candidates`,
+    `.summary` and `.to_json()`."""
+    from .diagnose import diagnose as run_diagnosis
+
+    model, ds, judged = diagnosis_inputs(model_dir, sessions, effect_files)
     result = run_diagnosis(model, ds, folds=folds, min_reduction=min_reduction, progress=progress)
     result.settings["judged_on"] = judged
     return result
+
+
+def discover_terms(model_dir: PathLike, sessions: Sessions, *, every_joint: bool = False,
+                   folds: int = DEFAULT_FOLDS, min_reduction: float = DEFAULT_MIN_REDUCTION,
+                   effect_files: Sequence[PathLike] = (), progress: bool = False):
+    """What term would explain the model's residual? A sparse regression per joint on a basis of physical
+    terms (train/discovery.py), on top of the library's best effect where that one is significant (from
+    the model alone on every joint with `every_joint`). Returns a train.discovery.Discovery
+    (`.discovered`: per joint the expression, its terms with coefficients and uncertainties, the held-out
+    error it removes, whether it is significant; `.to_json()`)."""
+    from .diagnose import diagnose as run_diagnosis
+    from .discovery import discover
+
+    model, ds, _ = diagnosis_inputs(model_dir, sessions, effect_files)
+    ranking = run_diagnosis(model, ds, folds=folds, min_reduction=min_reduction, progress=progress)
+    return discover(model, ds, ranking, every_joint=every_joint, folds=folds, min_reduction=min_reduction,
+                    progress=progress)
 
 
 def compare_models(model_dirs: Sequence[PathLike], sessions: Sessions | None = None,
@@ -212,9 +241,10 @@ def compare_models(model_dirs: Sequence[PathLike], sessions: Sessions | None = N
 
 
 def make_report(model_dir: PathLike, sessions: Sessions, output: PathLike, *, seed: int | None = None,
-           diagnosis: bool = True) -> Path:
+                diagnosis: bool = True, discover: bool = False) -> Path:
     """Write the self-contained HTML page of the model's error on the held-out part of `sessions` (with
-    the diagnosis sentences unless `diagnosis=False`); `seed`: the split seed (default: the model's)."""
+    the diagnosis sentences unless `diagnosis=False`, and with `discover` the terms discovery finds in
+    the residual, each against it); `seed`: the split seed (default: the model's)."""
     from .cli_options import writable_output
     from .heldout import evaluation_data
     from .report import report_html, write_report
@@ -223,14 +253,21 @@ def make_report(model_dir: PathLike, sessions: Sessions, output: PathLike, *, se
     model = load_model(model_dir)
     paths = _paths(sessions)
     ds, _, held = evaluation_data(model, paths, seed=seed, model_dir=model_dir)
-    diag = None
-    if diagnosis:
+    diag = found = None
+    if diagnosis or discover:
         from .diagnose import diagnose as run_diagnosis
         from .heldout import diagnosis_data
 
-        diag = run_diagnosis(model, diagnosis_data(model, ds, model_dir, seed)[0])
-    return write_report(output, report_html(model, model_dir, held, paths, diag))
+        judged = diagnosis_data(model, ds, model_dir, seed)[0]
+        diag = run_diagnosis(model, judged)
+        if discover:
+            from .discovery import discover as run_discovery
+
+            found = run_discovery(model, judged, diag)
+        if not diagnosis:
+            diag = None
+    return write_report(output, report_html(model, model_dir, held, paths, diag, discovery=found))
 
 
-__all__ = ["FitResult", "compare_models", "diagnose_model", "fit", "load_model", "load_sessions",
-           "load_settings", "make_report"]
+__all__ = ["FitResult", "compare_models", "diagnose_model", "diagnosis_inputs", "discover_terms", "fit",
+           "load_model", "load_sessions", "load_settings", "make_report"]

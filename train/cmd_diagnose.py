@@ -51,22 +51,14 @@ def _params_text(params: dict) -> str:
 def diagnose(model_dir, sessions, as_json, folds, min_reduction, top, effect_files, discover, discover_all,
              effect_out):
     """Rank the library's effects by how much of MODEL_DIR's error on SESSION(s) each one removes."""
-    from crane_io.effects import load_effect_file
-
     if effect_out and not str(effect_out).endswith(".py"):
         raise ConfigError(f"--write-effect-file must name a Python file (.py), got {effect_out}")
 
+    from .api import diagnosis_inputs
     from .diagnose import diagnose as run_diagnosis
-    from .heldout import diagnosis_data, model_settings
-    from .models.registry import load_model
-    from .preprocess import read_preprocessed
     from .progress import show_progress
 
-    for path in effect_files:
-        load_effect_file(path)
-    model = load_model(model_dir)
-    pconf = model_settings(model, model_dir)[0]
-    ds, judged = diagnosis_data(model, read_preprocessed(list(sessions), pconf), model_dir)  # model's arm
+    model, ds, judged = diagnosis_inputs(model_dir, list(sessions), effect_files)  # the model's arm
     result = run_diagnosis(model, ds, folds=folds, min_reduction=min_reduction,
                            progress=show_progress(not as_json))
     result.settings["judged_on"] = judged

@@ -15,15 +15,18 @@ from crane_io.errors import cli_errors
               help="The HTML file to write.")
 @click.option("--diagnosis/--no-diagnosis", default=True, show_default=True,
               help="Add the diagnosis sentences (which effect is missing) to the page.")
+@click.option("--discover", is_flag=True,
+              help="Add the terms discovery finds in the residual (crane-train diagnose --discover), each "
+                   "plotted against it.")
 @click.option("--seed", type=int, default=None,
               help="Split seed (default: the one the model was trained with).")
 @cli_errors
-def report(model_dir, sessions, output, diagnosis, seed):
+def report(model_dir, sessions, output, diagnosis, discover, seed):
     """Write an HTML report of MODEL_DIR's error on the held-out part of SESSION(s)."""
     from .api import make_report
     from .cli_options import writable_output
 
     writable_output(output, "file")
     click.echo(f"Evaluating {model_dir} on the held-out part of {', '.join(sessions)} ...", err=True)
-    path = make_report(model_dir, list(sessions), output, seed=seed, diagnosis=diagnosis)
+    path = make_report(model_dir, list(sessions), output, seed=seed, diagnosis=diagnosis, discover=discover)
     click.echo(f"Wrote {path} ({path.stat().st_size / 1e3:.0f} kB); open it in a browser (works offline).")
