@@ -91,6 +91,7 @@ class ArmPlant:
         self.kt = np.array([config.torque_constant[n] for n in names], dtype=float)
         self._compile_effects()
         self._kt_l = self.kt.tolist()  # (torque-constant-error is applied by _compile_effects)
+        self._held_kt_l = self.kt[self._held].tolist()
         self._bi_l, self._held_l = self._bi.tolist(), self._held.tolist()
         self.dyn = ArmDynamics(BILATERAL_JOINTS, locked=config.locked, payload_mass=self._payload)
         self.model = self.dyn.model
@@ -124,7 +125,7 @@ class ArmPlant:
         self._held_hi = np.array([arm.joint(n).upper + _STOP_MARGIN for n in self._held_names])
         self._held_lo_l, self._held_hi_l = self._held_lo.tolist(), self._held_hi.tolist()
         self._held_inertia_l, self._held_visc_l = self._held_inertia.tolist(), self._held_visc.tolist()
-        self._held_cache: dict[float, np.ndarray] = {}
+        self._held_cache: dict[float, tuple[float, float, float, float]] = {}
         self.external = np.zeros(3)
         self._external_all = np.zeros(len(names))  # the last set_external_torque, joint order
         self.environment = list(config.environment)  # the parsed [[environment]] objects
@@ -418,7 +419,7 @@ class ArmPlant:
                     if gen_fr is not None:
                         f = f + gen_fr[a]
                     net.append(rhs[a] - f)
-                for a, x in zip(idx, _solve([[m[a][b] for b in idx] for a in idx], net)):
+                for a, x in zip(idx, _solve_free(m, idx, net)):
                     ddq[a] = x
             worst, worst_excess, push = -1, 0.0, 0.0
             for s in (0, 1, 2):
@@ -446,13 +447,12 @@ class ArmPlant:
 
         Scalar Python over the five joints (cheaper than numpy on arrays this small); the arithmetic
         is the element-wise arithmetic of the array form, in the same order."""
-        a = self._held_matrix(dt)
-        a00, a01, a10, a11 = float(a[0, 0]), float(a[0, 1]), float(a[1, 0]), float(a[1, 1])
+        a00, a01, a10, a11 = self._held_matrix(dt)
         w = _HELD_OMEGA
         q_out, dq_out, cur_out = [], [], []
         for on, m, gc, gp, lim, q, dq, kt, inertia, visc, ext, lo, hi in zip(
                 enabled, mode, goal_current, goal_position, limit, self._held_q.tolist(),
-                self._held_dq.tolist(), self.kt[self._held].tolist(),
+                self._held_dq.tolist(), self._held_kt_l,
                 self._held_inertia_l, self._held_visc_l, self._held_ext.tolist(), self._held_lo_l,
                 self._held_hi_l):
             current = 0.0
@@ -477,13 +477,14 @@ class ArmPlant:
         self._held_dq = np.array(dq_out)
         self._held_current = np.array(cur_out)
 
-    def _held_matrix(self, dt: float) -> np.ndarray:
+    def _held_matrix(self, dt: float) -> tuple[float, float, float, float]:
+        """(a00, a01, a10, a11): the exact transition matrix over dt of x'' = -w^2 x - 2 w x' (critically
+        damped), kept per dt."""
         a = self._held_cache.get(dt)
         if a is None:
             w = _HELD_OMEGA
             e = math.exp(-w * dt)
-            # x'' = -w^2 x - 2 w x' (critically damped), exact transition matrix over dt
-            a = np.array([[e * (1 + w * dt), e * dt], [-w * w * dt * e, e * (1 - w * dt)]])
+            a = (e * (1 + w * dt), e * dt, -w * w * dt * e, e * (1 - w * dt))
             self._held_cache[dt] = a
         return a
 
@@ -644,6 +645,18 @@ def _clip(x: float, lo: float, hi: float) -> float:
     come out as numpy's do)."""
     x = x if (x != x or x > lo) else lo
     return x if (x != x or x < hi) else hi
+
+def _solve_free(m: list, idx: list, b: list) -> list:
+    """_solve of the rows and columns `idx` of m (the free joints), without building the submatrix for
+    one or two unknowns."""
+    if len(idx) == 1:
+        i = idx[0]
+        return [b[0] / m[i][i]]
+    if len(idx) == 2:
+        i, j = idx
+        return _solve(((m[i][i], m[i][j]), (m[j][i], m[j][j])), b)
+    return _solve([[m[a][c] for c in idx] for a in idx], b)
+
 
 def _solve(a: list, b: list) -> list:
     """Solve a small (1..3) symmetric positive-definite system by Gaussian elimination, in floats. The
