@@ -321,16 +321,22 @@ class EmulatedServo:
                 return p.ERR_ACCESS
         torque = self.memory[self._torque_at] == 1
         for r in touched:
-            if r.access != "RW":
-                return p.ERR_ACCESS
-            if r.eeprom and torque:
-                return p.ERR_ACCESS
-            if self.watchdog_expired and r.name in GOAL_ITEMS:
-                return p.ERR_ACCESS
             raw = int.from_bytes(data[r.address - address:r.address - address + r.size], "little")
-            value = to_signed(raw, r.size) if r.signed else raw
-            if not self._in_range(r.name, value):
-                return p.ERR_DATA_RANGE
+            error = self._item_error(r, to_signed(raw, r.size) if r.signed else raw, torque)
+            if error:
+                return error
+        return p.ERR_NONE
+
+    def _item_error(self, r: Register, value: int, torque: bool) -> int:
+        """The error number of writing `value` to item r (0 when allowed); `torque`: Torque Enable is 1."""
+        if r.access != "RW":
+            return p.ERR_ACCESS
+        if r.eeprom and torque:
+            return p.ERR_ACCESS
+        if self.watchdog_expired and r.name in GOAL_ITEMS:
+            return p.ERR_ACCESS
+        if not self._in_range(r.name, value):
+            return p.ERR_DATA_RANGE
         return p.ERR_NONE
 
     def _in_range(self, name: str, value: int) -> bool:
@@ -345,6 +351,14 @@ class EmulatedServo:
 
     def write(self, address: int, data: bytes, now: float = 0.0) -> int:
         """Apply a Write with the servo's rules; returns the error number (0 = written)."""
+        exact = self._at.get(address)
+        if exact is not None and len(data) == exact.size:  # the usual write: exactly one item
+            raw = int.from_bytes(data, "little")
+            value = to_signed(raw, exact.size) if exact.signed else raw
+            error = self._item_error(exact, value, self.memory[self._torque_at] == 1)
+            if not error:
+                self._apply(exact.name, value, now)
+            return error
         error = self.check_write(address, data)
         if error:
             return error
