@@ -188,10 +188,11 @@ def test_run_uses_the_calibration_and_the_session_records_it(tmp_path):
     bil = [NAMES.index(n) for n in ARM.bilateral_joints]
     still = slice(0, 100)  # the first 0.2 s: the arms rest where the alignment left them, no hand yet
     # uncalibrated, the leader (held where it rests by the alignment) reads its true angles plus the
-    # offsets, exactly (the median over the rows: the sensor's one-pulse noise aside); the follower and
-    # the held joints are then aligned to the wrong readings
+    # offsets (the median over the rows, to a pulse: the sensor's noise, and the hold under gravity ends a
+    # pulse apart from run to run, the wall clock pacing both); the follower and the held joints are then
+    # aligned to the wrong readings
     shift = np.median(raw["leader"][still][:, bil] - truth["leader"][still][:, bil], axis=0)
-    assert np.allclose(shift, off["leader"][bil], atol=1e-9)
+    assert np.abs(shift - off["leader"][bil]).max() <= 1.5 * RAD_PER_PULSE
     for arm in ("leader", "follower"):
         # calibrated, the session holds the true angles, as from arms without offsets (to the sensor's
         # noise and the follower's alignment, within a pulse or two of the leader)
