@@ -60,6 +60,7 @@ _STRUCTS = {(1, False): struct.Struct("<B"), (1, True): struct.Struct("<b"), (2,
 _PRESENT = struct.Struct("<hii")  # Present Current, Velocity, Position
 _TICK_MOVING = struct.Struct("<HB")  # Realtime Tick, Moving
 _SUPPLY = struct.Struct("<HB")  # Present Input Voltage, Present Temperature
+_SUPPLY_RAW: dict[tuple[float, float], tuple[int, int]] = {}  # (V, deg C) -> their register values
 _GAINS = struct.Struct("<HHH")  # Position D, I, P Gain
 # value ranges the servo accepts (e-manual); Current Limit's depends on the model, gains are 0..16383
 _RANGES = {
@@ -248,8 +249,13 @@ class EmulatedServo:
         else:  # a plant that blew up leaves the last finite reading in place
             vel = _PRESENT.unpack_from(m, self._present_at)[1]
         if voltage is not None and temperature is not None:
-            _SUPPLY.pack_into(m, self._supply_at, max(0, round(voltage * 10)) & 0xFFFF,
-                              max(0, round(temperature)) & 0xFF)
+            raw = _SUPPLY_RAW.get((voltage, temperature))  # the plant's supply rarely changes
+            if raw is None:
+                raw = (max(0, round(voltage * 10)) & 0xFFFF, max(0, round(temperature)) & 0xFF)
+                if len(_SUPPLY_RAW) >= 64:
+                    _SUPPLY_RAW.clear()
+                _SUPPLY_RAW[voltage, temperature] = raw
+            _SUPPLY.pack_into(m, self._supply_at, *raw)
         elif voltage is not None or temperature is not None:
             supply, temp = _SUPPLY.unpack_from(m, self._supply_at)
             if voltage is not None:
