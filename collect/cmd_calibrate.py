@@ -17,7 +17,7 @@ import threading
 
 import click
 
-from crane_io.errors import cli_errors
+from crane_io.cli_support import cli_errors
 
 AVERAGE_READS = 25
 RANGE_READ_PERIOD_S = 0.02

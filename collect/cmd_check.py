@@ -6,7 +6,8 @@ import math
 
 import click
 
-from crane_io.errors import ConfigError, cli_errors
+from crane_io.cli_support import cli_errors
+from crane_io.errors import ConfigError
 
 _MODES = {0: "current", 1: "velocity", 3: "position", 4: "ext. position", 5: "current-based pos.", 16: "PWM"}
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from crane_io.errors import cli_errors
+from crane_io.cli_support import cli_errors
 
 
 @click.command("recover")

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import click
 
-from crane_io.cli_support import plant_presets
-from crane_io.errors import cli_errors
+from crane_io.cli_support import cli_errors, plant_presets
 
 
 @click.command("run")

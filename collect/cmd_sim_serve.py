@@ -17,8 +17,8 @@ import threading
 
 import click
 
-from crane_io.cli_support import plant_presets
-from crane_io.errors import ConfigError, HardwareError, cli_errors
+from crane_io.cli_support import cli_errors, plant_presets
+from crane_io.errors import ConfigError, HardwareError
 
 
 def status_line(chain) -> str:

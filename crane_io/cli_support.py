@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import functools
 import importlib
 import importlib.util
+import sys
 
 import click
+
+from .errors import CraneError
 
 
 class LazyGroup(click.Group):
@@ -33,3 +37,17 @@ def plant_presets() -> list[str]:
 
     folder = resources.files("crane_io") / "plants"
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def cli_errors(func):
+    """Decorator for click commands: CraneError -> 'Error: <sentence>' on stderr and its exit code."""
+
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        try:
+            return func(*args, **kwargs)
+        except CraneError as exc:
+            click.echo(f"Error: {exc}", err=True)
+            sys.exit(exc.exit_code)
+
+    return wrapper

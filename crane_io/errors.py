@@ -1,16 +1,11 @@
 """Errors a user can act on, and the one way the command lines report them.
 
 Every bad-input error in the project derives from `CraneError`; its message is one sentence a lab
-user understands. The command lines catch it (`cli_errors`), print the sentence and exit non-zero,
-never a traceback.
+user understands. The command lines catch it (crane_io.cli_support.cli_errors), print the sentence and
+exit non-zero, never a traceback. This module imports no command-line library.
 """
 
 from __future__ import annotations
-
-import functools
-import sys
-
-import click
 
 
 class CraneError(Exception):
@@ -44,17 +39,3 @@ class HardwareError(CraneError):
     """A servo, port or bus problem (missing port, wrong model, servo silent, hardware-error bit)."""
 
     exit_code = 3
-
-
-def cli_errors(func):
-    """Decorator for click commands: CraneError -> 'Error: <sentence>' on stderr and its exit code."""
-
-    @functools.wraps(func)
-    def wrapper(*args, **kwargs):
-        try:
-            return func(*args, **kwargs)
-        except CraneError as exc:
-            click.echo(f"Error: {exc}", err=True)
-            sys.exit(exc.exit_code)
-
-    return wrapper

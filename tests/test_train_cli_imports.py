@@ -65,3 +65,21 @@ def test_diagnose_keeps_its_defaults():
     from train.diagnosis_defaults import DEFAULT_FOLDS, DEFAULT_MIN_REDUCTION
 
     assert (diagnose.DEFAULT_FOLDS, diagnose.DEFAULT_MIN_REDUCTION) == (DEFAULT_FOLDS, DEFAULT_MIN_REDUCTION)
+
+
+def test_crane_ios_library_modules_import_no_command_line_library():
+    """The command line lives at the edge: only crane_io.cli_support (shared by both CLIs) may import
+    click; every other crane_io module imports without it."""
+    import pkgutil
+
+    import crane_io
+
+    names = [m.name for m in pkgutil.walk_packages(crane_io.__path__, "crane_io.")
+             if m.name != "crane_io.cli_support"]
+    code = ("import importlib, sys\n"
+            f"for name in {names!r}:\n"
+            "    importlib.import_module(name)\n"
+            "print('click' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "False", "a crane_io library module imports click"

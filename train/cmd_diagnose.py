@@ -16,7 +16,8 @@ import json
 
 import click
 
-from crane_io.errors import ConfigError, cli_errors
+from crane_io.cli_support import cli_errors
+from crane_io.errors import ConfigError
 
 from .diagnosis_defaults import DEFAULT_FOLDS, DEFAULT_MIN_REDUCTION
 

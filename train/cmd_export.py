@@ -10,7 +10,8 @@ from pathlib import Path
 
 import click
 
-from crane_io.errors import CraneError, cli_errors
+from crane_io.cli_support import cli_errors
+from crane_io.errors import CraneError
 
 
 def export_model(directory) -> dict:

@@ -8,7 +8,7 @@ import json
 
 import click
 
-from crane_io.errors import cli_errors
+from crane_io.cli_support import cli_errors
 
 
 @click.command()

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import click
 
-from crane_io.errors import cli_errors
+from crane_io.cli_support import cli_errors
 
 from .cli_options import (
     arm_option,

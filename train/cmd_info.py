@@ -6,7 +6,7 @@ import json
 
 import click
 
-from crane_io.errors import cli_errors
+from crane_io.cli_support import cli_errors
 
 
 def session_info(paths, joints=None, alpha: float = 0.1, arm: str = "follower") -> dict:

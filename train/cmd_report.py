@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import click
 
-from crane_io.errors import cli_errors
+from crane_io.cli_support import cli_errors
 
 
 @click.command()

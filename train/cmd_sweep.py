@@ -6,7 +6,8 @@ from dataclasses import replace
 
 import click
 
-from crane_io.errors import ConfigError, cli_errors
+from crane_io.cli_support import cli_errors
+from crane_io.errors import ConfigError
 
 from .cli_options import data_options, load_config, load_dataset, parse_sizes, writable_output
 from .method_names import SWEEP_METHODS
