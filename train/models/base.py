@@ -1,9 +1,14 @@
-"""The one interface every inverse-dynamics model implements (scikit-learn-like).
+"""The one interface every inverse-dynamics model implements (scikit-learn's conventions where they fit).
 
     model = make_model("mlp-masked", joint_names=ds.joint_names, **options)
     model.fit(train_ds, val_ds)          # uses train_ds.moving as its per-joint mask as its method says
     tau_hat = model.predict(q, dq, ddq)  # SI arrays (N, J) -> (N, J) N m
     model.save(directory); model = load_model(directory)
+
+As in scikit-learn: the constructor only stores its parameters (`get_params()` returns them, and
+`type(model)(**model.get_params())` is an unfitted copy); `fit` returns the model and never changes its
+parameters; `is_fitted` says whether it learned anything (fitted or loaded); `predict` before that raises
+NotFittedError with one sentence. tests/test_model_conformance.py holds every model class to this.
 
 A saved model is a directory holding `model.json` (method, joint names, options, preprocessing
 settings the data went through, normalisation, units) plus method-specific files (weights as .pt, arrays
@@ -32,6 +37,10 @@ class ModelFileError(CraneError):
     """A model directory that cannot be loaded."""
 
 
+class NotFittedError(CraneError):
+    """A model asked to predict before it was fitted or loaded."""
+
+
 class Model(abc.ABC):
     method: str = ""
 
@@ -39,6 +48,21 @@ class Model(abc.ABC):
         self.joint_names = tuple(joint_names)
         self.preprocessing = dict(preprocessing or {})
         self.options = options
+
+    def get_params(self) -> dict:
+        """The constructor's parameters: `type(self)(**self.get_params())` is an unfitted copy."""
+        return {"joint_names": list(self.joint_names), "preprocessing": dict(self.preprocessing),
+                **self.options}
+
+    @property
+    @abc.abstractmethod
+    def is_fitted(self) -> bool:
+        """True once the model has learned its parameters (by `fit` or by loading a saved model)."""
+
+    def _check_fitted(self) -> None:
+        if not self.is_fitted:
+            raise NotFittedError(f"the {self.method} model has not been fitted or loaded yet; call "
+                                 "fit(train, val) first")
 
     @abc.abstractmethod
     def fit(self, train: Dataset, val: Dataset | None = None) -> Model: ...
@@ -70,9 +94,9 @@ class Model(abc.ABC):
                "units": dict(SI_UNITS), "options": self.options, "state": self._state()}
         (directory / MODEL_JSON).write_text(json.dumps(doc, indent=2, default=_jsonable))
         self._save_extra(directory)
-        from .loop_export import EXPORT_FILE, is_fitted, write_loop_export
+        from .loop_export import EXPORT_FILE, write_loop_export
 
-        if is_fitted(self):  # the control loop's numeric export; model.json records its digest
+        if self.is_fitted:  # the control loop's numeric export; model.json records its digest
             _, sha = write_loop_export(self, directory)
             doc["loop_export"] = {"file": EXPORT_FILE, "sha256": sha}
             (directory / MODEL_JSON).write_text(json.dumps(doc, indent=2, default=_jsonable))

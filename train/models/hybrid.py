@@ -77,9 +77,12 @@ class HybridModel(Model):
             self.preprocessing = dict(train.meta.get("preprocessing", {}))
         return self
 
+    @property
+    def is_fitted(self) -> bool:
+        return self.rigid is not None and self.mlp is not None and self.rigid.is_fitted and self.mlp.is_fitted
+
     def predict(self, q, dq, ddq) -> np.ndarray:
-        if self.rigid is None or self.mlp is None:
-            raise ModelFileError("the hybrid model has not been fitted or loaded")
+        self._check_fitted()
         return self.rigid.predict(q, dq, ddq) + self.mlp.predict(q, dq, ddq)
 
     def parameters_table(self):

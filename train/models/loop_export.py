@@ -31,15 +31,8 @@ class LoopExportError(CraneError):
 
 
 def is_fitted(model) -> bool:
-    method = getattr(model, "method", "")
-    if method in ("mlp-mse", "mlp-masked"):
-        return model.params is not None
-    if method == "rigid-body":
-        return model.theta is not None
-    if method == "hybrid":
-        return model.rigid is not None and model.mlp is not None and is_fitted(model.rigid) \
-            and is_fitted(model.mlp)
-    return False
+    """Whether `model` has learned parameters to export (train.models.base.Model.is_fitted)."""
+    return bool(getattr(model, "is_fitted", False))
 
 
 def _mlp_arrays(mlp) -> dict:

@@ -79,9 +79,12 @@ class MLPModel(Model):
             self.preprocessing = dict(train.meta.get("preprocessing", {}))
         return self
 
+    @property
+    def is_fitted(self) -> bool:
+        return self.params is not None
+
     def predict(self, q, dq, ddq) -> np.ndarray:
-        if self.params is None:
-            raise CraneError("the model has not been fitted yet")
+        self._check_fitted()
         return predict(self.params, self.norm, features(q, dq, ddq))[0].astype(float)
 
     # ---- persistence -----------------------------------------------------------------------------

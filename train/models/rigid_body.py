@@ -214,9 +214,12 @@ class RigidBodyModel(Model):
             self.preprocessing = dict(train.meta.get("preprocessing", {}))
         return self
 
+    @property
+    def is_fitted(self) -> bool:
+        return self.theta is not None
+
     def predict(self, q, dq, ddq) -> np.ndarray:
-        if self.theta is None:
-            raise CraneError("the model has not been fitted yet")
+        self._check_fitted()
         return self.regressor(q, dq, ddq) @ self.theta
 
     def parameters_table(self) -> list[dict]:
