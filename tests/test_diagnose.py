@@ -274,11 +274,11 @@ def test_a_missing_effect_leaking_into_another_joint_is_not_blamed_there():
     class SharedModel:  # a physics model with one parameter shared by both joints: tau_j = a dq_A
         method, options, theta = "rigid-body", {}, np.array([1.0])
 
-        def regressor(self, q, dq, ddq):
+        def linear_basis(self, q, dq, ddq):
             return np.repeat(dq[:, :1, None], 2, axis=1)
 
         def predict(self, q, dq, ddq):
-            return self.regressor(q, dq, ddq) @ self.theta
+            return self.linear_basis(q, dq, ddq) @ self.theta
 
     rng = np.random.default_rng(1)
     n = 3000

@@ -85,11 +85,13 @@ def model_effects(model) -> set[tuple[str, str | None]]:
 def physics_basis(model, ds: Dataset) -> np.ndarray | None:
     """(N, J, p) regressor of a physics model (rigid-body: base regressor + its effects' columns), or
     None for a model that is not linear in its parameters."""
-    regressor = getattr(model, "regressor", None)
-    if callable(regressor) and getattr(model, "theta", None) is not None:
-        X = np.asarray(regressor(ds.q, ds.dq, ds.ddq), dtype=float)
-        if X.ndim == 3 and X.shape[:2] == ds.tau.shape and np.isfinite(X).all():
-            return X
+    basis = getattr(model, "linear_basis", None)  # train.models.base.Model's; a stand-in may lack it
+    X = basis(ds.q, ds.dq, ds.ddq) if basis is not None else None
+    if X is None:
+        return None
+    X = np.asarray(X, dtype=float)
+    if X.ndim == 3 and X.shape[:2] == ds.tau.shape and np.isfinite(X).all():
+        return X
     return None
 
 

@@ -73,6 +73,12 @@ class Model(abc.ABC):
     def predict_dataset(self, ds: Dataset) -> np.ndarray:
         return self.predict(ds.q, ds.dq, ds.ddq)
 
+    def linear_basis(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray | None:
+        """(N, J, p) columns the fitted model is linear in (predict = columns @ parameters), for a model
+        that is a linear regression (the rigid body with its effects); None for any other (a network),
+        whose predictions the diagnosis then takes as they are."""
+        return None
+
     # ---- persistence -----------------------------------------------------------------------------
     def _state(self) -> dict:
         """JSON-able method-specific state; arrays go through _save_arrays."""

@@ -218,6 +218,10 @@ class RigidBodyModel(Model):
     def is_fitted(self) -> bool:
         return self.theta is not None
 
+    def linear_basis(self, q, dq, ddq) -> np.ndarray | None:
+        """The regressor (base parameters and effect columns): predict = regressor @ theta."""
+        return self.regressor(q, dq, ddq) if self.is_fitted else None
+
     def predict(self, q, dq, ddq) -> np.ndarray:
         self._check_fitted()
         return self.regressor(q, dq, ddq) @ self.theta
