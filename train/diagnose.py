@@ -47,7 +47,7 @@ import numpy as np
 from crane_io.errors import CraneError
 
 from .dataset import Dataset
-from .diagnosis_cv import CVFit, Engine, cross_validate, fold_ids, jackknife
+from .diagnosis_cv import CVFit, Engine, cross_validate, fold_ids, jackknife, sparse_joint
 from .diagnosis_defaults import DEFAULT_FOLDS, DEFAULT_MIN_FOLD_FRACTION, DEFAULT_MIN_REDUCTION
 from .diagnosis_effects import (
     bind,
@@ -278,13 +278,9 @@ def _check_data(ds: Dataset, residual: np.ndarray, folds: int) -> np.ndarray:
     if folds < 2:
         raise DiagnosisError(f"cross-validation needs at least 2 folds, not {folds}")
     fold = fold_ids(len(ds), folds)
-    need = max(MIN_SAMPLES_PER_JOINT, 5 * folds)
-    for j, name in enumerate(ds.joint_names):
-        per_fold = np.bincount(fold[ds.moving[:, j]], minlength=folds)
-        if per_fold.sum() < need or per_fold.min() == 0:
-            raise DiagnosisError(f"{name} moves in only {int(per_fold.sum())} samples (or not "
-                                 f"in every part of the recording); the diagnosis needs at least {need} "
-                                 "spread over the whole recording")
+    sparse = sparse_joint(ds.moving, fold, folds, ds.joint_names, MIN_SAMPLES_PER_JOINT)
+    if sparse is not None:
+        raise DiagnosisError(sparse.format(what="the diagnosis"))
     return fold
 
 

@@ -17,6 +17,20 @@ def fold_ids(n: int, folds: int) -> np.ndarray:
     return np.minimum((np.arange(n) * folds) // max(n, 1), folds - 1)
 
 
+def sparse_joint(moving: np.ndarray, fold: np.ndarray, folds: int, joint_names,
+                 min_samples: int = 50) -> str | None:
+    """The first joint whose moving samples are too few (fewer than max(min_samples, 5 folds)) or missing
+    from a fold, as the sentence's middle ("joint2 moves in only 40 samples (or not in every part of the
+    recording)" and what is needed), or None when every joint has enough in every fold."""
+    need = max(min_samples, 5 * folds)
+    for j, name in enumerate(joint_names):
+        per_fold = np.bincount(fold[moving[:, j]], minlength=folds)
+        if per_fold.sum() < need or per_fold.min() == 0:
+            return (f"{name} moves in only {int(per_fold.sum())} samples (or not in every part of the "
+                    f"recording); {{what}} needs at least {need} spread over the whole recording")
+    return None
+
+
 def jackknife(per_fold: list[dict[str, float]]) -> dict[str, tuple[float, float]]:
     """name -> (mean over folds, delete-a-block jackknife standard error) of the per-fold values."""
     names = [n for n in per_fold[0] if all(n in v for v in per_fold)]

@@ -42,7 +42,7 @@ import numpy as np
 from crane_io.errors import CraneError
 
 from .dataset import Dataset
-from .diagnosis_cv import Engine, fold_ids
+from .diagnosis_cv import Engine, fold_ids, sparse_joint
 from .diagnosis_defaults import DEFAULT_FOLDS, DEFAULT_MIN_REDUCTION
 from .discovery_basis import Term, columns, distinct, generate
 from .discovery_select import MAX_TERMS, select
@@ -234,13 +234,9 @@ def _placed(cols: np.ndarray, j: int, n_joints: int) -> np.ndarray:
 
 
 def _check(ds: Dataset, fold: np.ndarray, folds: int) -> None:
-    need = max(50, 5 * folds)
-    for j, name in enumerate(ds.joint_names):
-        per_fold = np.bincount(fold[ds.moving[:, j]], minlength=folds)
-        if per_fold.sum() < need or per_fold.min() == 0:
-            raise DiscoveryError(f"{name} moves in only {int(per_fold.sum())} samples (or not in every "
-                                 f"part of the recording); discovery needs at least {need} spread over "
-                                 "the whole recording")
+    sparse = sparse_joint(ds.moving, fold, folds, ds.joint_names)
+    if sparse is not None:
+        raise DiscoveryError(sparse.format(what="discovery"))
 
 
 def _library_best(diagnosis, joint: str):
