@@ -223,6 +223,12 @@ def test_residual_discovery_on_synthetic_data_and_quiet_on_noise():
 
     page = discovery_section(loud)  # the report page's section: sentences, terms, the fit's figure
     assert page.count("<img") == 1 and "data:image/png;base64," in page and "https://" not in page
+    # the effect file's header names the flag that found the terms
+    from train.effect_writer import effect_source
+
+    assert "m.h5 --discover`" in effect_source(loud, "m", ["m.h5"])
+    every = discover(Residual(planted), ds, every_joint=True)
+    assert "m.h5 --discover-all`" in effect_source(every, "m", ["m.h5"])
 
 
 

@@ -72,8 +72,9 @@ def effect_source(discovery: Discovery, model_dir="MODEL_DIR", sessions=()) -> s
     joints = tuple(discovery.joints)
     adds = " ".join(f"--effect {effect_name(d.joint)}:joint={d.joint}"
                     + (f" --effect {d.on_top_of}:joint={d.joint}" if d.on_top_of else "") for d in found)
+    flag = "--discover-all" if discovery.settings.get("every_joint") else "--discover"
     head = (f'"""Terms discovered by `crane-train diagnose {model_dir} {" ".join(map(str, sessions))} '
-            f'--discover`.\n\n'
+            f'{flag}`.\n\n'
             f"Add them to a model (with the effects it already has):\n\n"
             f"    crane-train fit SESSION... --model rigid-body --effect-file THIS_FILE.py {adds} \\\n"
             "        -o NEW_DIR\n\n"
