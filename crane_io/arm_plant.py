@@ -670,6 +670,13 @@ def _solve(a: list, b: list) -> list:
         f = a10 / a00
         x1 = (b[1] - f * b[0]) / (a11 - f * a01)
         return [(b[0] - (0.0 + a01 * x1)) / a00, x1]
+    return _eliminate(a, b)
+
+
+def _eliminate(a: list, b: list) -> list:
+    """Gaussian elimination without pivoting on lists of floats, any size (what _solve writes out for 1
+    and 2 unknowns)."""
+    n = len(b)
     a = [row[:] for row in a]
     b = b[:]
     for k in range(n):

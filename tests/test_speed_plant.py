@@ -10,7 +10,7 @@ import struct
 import numpy as np
 import pytest
 
-from crane_io.arm_plant import _PULSE_SIGNS, ArmPlant, _solve
+from crane_io.arm_plant import _PULSE_SIGNS, ArmPlant, _eliminate, _solve
 from crane_io.units import AMPERE_PER_CURRENT_LSB, RADS_PER_VELOCITY_LSB
 
 
@@ -60,24 +60,6 @@ def test_position_noise_draws_what_random_and_integers_draw(sizes):
         assert plant.rng.random() == twin.random()
 
 
-def _general_solve(a, b):
-    """The Gaussian elimination loop the written-out cases must equal."""
-    n = len(b)
-    a = [row[:] for row in a]
-    b = b[:]
-    for k in range(n):
-        p = a[k][k]
-        for r in range(k + 1, n):
-            f = a[r][k] / p
-            for c in range(k, n):
-                a[r][c] -= f * a[k][c]
-            b[r] -= f * b[k]
-    x = [0.0] * n
-    for k in range(n - 1, -1, -1):
-        x[k] = (b[k] - sum(a[k][c] * x[c] for c in range(k + 1, n))) / a[k][k]
-    return x
-
-
 def test_the_small_solves_equal_the_general_loop_signed_zeros_included():
     rnd = random.Random(3)
     special = [0.0, -0.0, 1.0, -1.0, 2.5]
@@ -91,7 +73,7 @@ def test_the_small_solves_equal_the_general_loop_signed_zeros_included():
             for i in range(n):
                 a[i][i] = rnd.uniform(0.5, 3)
             b = [value() for _ in range(n)]
-            want = _general_solve(a, b)
+            want = _eliminate(a, b)
             assert struct.pack(f"{n}d", *_solve(a, b)) == struct.pack(f"{n}d", *want)
 
 
