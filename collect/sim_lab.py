@@ -36,49 +36,19 @@ DEFAULT_HAND_DELAY_S = 1.0  # s of the arm's time between its torque coming on a
 _CURRENT_MODE = 0
 
 
-class HandOnPlant:
-    """A plant with a simulated person's hand on it (the Plant protocol of crane_io.sim.plant_api, every
-    other attribute passed through to the wrapped plant: truth, environment, errors)."""
+class PlantWrapper:
+    """A plant around another (the Plant protocol of crane_io.sim.plant_api): every call and attribute
+    passes through to the wrapped plant (truth, environment, errors) unless a subclass changes it."""
 
-    def __init__(self, plant, operator: SimulatedOperator, arm: ArmDescription,
-                 hand_delay_s: float = DEFAULT_HAND_DELAY_S):
-        if not hand_delay_s >= 0:
-            raise ConfigError(f"the hand's delay must be 0 s or more, got {hand_delay_s}")
+    def __init__(self, plant):
         self.plant = plant
-        self.operator = operator
-        self.hand_delay_s = float(hand_delay_s)
         self.servo_ids = plant.servo_ids
-        self._bil = np.array([n in arm.bilateral_joints for n in arm.joint_names])
-        self._zero = np.zeros(len(plant.servo_ids))
-        self.time = 0.0  # s of the arm's time (the sum of every step's dt)
-        self.engaged_since: float | None = None  # when the arm came alive under current control
-        self.holding = False  # the hand is on the arm and moving it
-        self.engagements = 0  # how many times the hand took hold
 
-    def __getattr__(self, name):  # everything else is the wrapped plant's
+    def __getattr__(self, name):  # everything not defined here is the wrapped plant's
         return getattr(self.__dict__["plant"], name)
 
-    def _alive(self, command) -> bool:
-        b = self._bil
-        return bool(np.all(command.torque_enabled[b]) and np.all(command.operating_mode[b] == _CURRENT_MODE))
-
     def step(self, command, dt: float) -> None:
-        if self._alive(command):
-            if self.engaged_since is None:
-                self.engaged_since = self.time
-            if not self.holding and self.time - self.engaged_since >= self.hand_delay_s:
-                self.operator.start(self.plant.read().position, self.time)
-                self.holding = True
-                self.engagements += 1
-            if self.holding:
-                s = self.plant.read()
-                self.plant.set_external_torque(self.operator.torque(self.time, s.position, s.velocity))
-        elif self.engaged_since is not None:
-            self.engaged_since = None
-            self.holding = False
-            self.plant.set_external_torque(self._zero)
         self.plant.step(command, dt)
-        self.time += dt
 
     def read(self):
         return self.plant.read()
@@ -90,20 +60,56 @@ class HandOnPlant:
         self.plant.set_external_torque(torque)
 
 
-class OffsetPlant:
+class HandOnPlant(PlantWrapper):
+    """A plant with a simulated person's hand on it."""
+
+    def __init__(self, plant, operator: SimulatedOperator, arm: ArmDescription,
+                 hand_delay_s: float = DEFAULT_HAND_DELAY_S):
+        if not hand_delay_s >= 0:
+            raise ConfigError(f"the hand's delay must be 0 s or more, got {hand_delay_s}")
+        super().__init__(plant)
+        self.operator = operator
+        self.hand_delay_s = float(hand_delay_s)
+        self._bil = np.array([n in arm.bilateral_joints for n in arm.joint_names])
+        self._zero = np.zeros(len(plant.servo_ids))
+        self.time = 0.0  # s of the arm's time (the sum of every step's dt)
+        self.engaged_since: float | None = None  # when the arm came alive under current control
+        self.holding = False  # the hand is on the arm and moving it
+        self.engagements = 0  # how many times the hand took hold
+
+    def _alive(self, command) -> bool:
+        b = self._bil
+        return bool(np.all(command.torque_enabled[b]) and np.all(command.operating_mode[b] == _CURRENT_MODE))
+
+    def step(self, command, dt: float) -> None:
+        if self._alive(command):
+            if self.engaged_since is None:
+                self.engaged_since = self.time
+            starting = not self.holding and self.time - self.engaged_since >= self.hand_delay_s
+            if self.holding or starting:
+                s = self.plant.read()
+                if starting:
+                    self.operator.start(s.position, self.time)
+                    self.holding = True
+                    self.engagements += 1
+                self.plant.set_external_torque(self.operator.torque(self.time, s.position, s.velocity))
+        elif self.engaged_since is not None:
+            self.engaged_since = None
+            self.holding = False
+            self.plant.set_external_torque(self._zero)
+        self.plant.step(command, dt)
+        self.time += dt
+
+
+class OffsetPlant(PlantWrapper):
     """A plant whose servos' encoders are off: each reads its joint's angle plus `offsets` (rad, servo
-    order) and holds a goal position that much short, as a real arm does before calibration (the Plant
-    protocol, everything else passed through)."""
+    order) and holds a goal position that much short, as a real arm does before calibration."""
 
     def __init__(self, plant, offsets):
-        self.plant = plant
+        super().__init__(plant)
         self.offsets = np.asarray(offsets, dtype=float)
-        self.servo_ids = plant.servo_ids
         if self.offsets.shape != (len(self.servo_ids),):
             raise ConfigError(f"encoder offsets need {len(self.servo_ids)} values, got {self.offsets.shape}")
-
-    def __getattr__(self, name):
-        return getattr(self.__dict__["plant"], name)
 
     def step(self, command, dt: float) -> None:
         self.plant.step(replace(command, goal_position=command.goal_position - self.offsets), dt)
@@ -111,12 +117,6 @@ class OffsetPlant:
     def read(self):
         s = self.plant.read()
         return replace(s, position=s.position + self.offsets)
-
-    def hardware_errors(self) -> dict[int, int]:
-        return self.plant.hardware_errors()
-
-    def set_external_torque(self, torque) -> None:
-        self.plant.set_external_torque(torque)
 
 
 def parse_offsets(specs, arm: ArmDescription, arms=ARMS) -> dict:
