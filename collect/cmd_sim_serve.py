@@ -158,14 +158,10 @@ def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_
 
 
 def _write_truth(plant, truth_path) -> None:
-    if truth_path is None:
-        return
-    if not hasattr(plant, "write_truth"):
-        raise ConfigError("--truth needs an arm plant (a preset or TOML file), not --plant simple")
-    try:
-        plant.write_truth(truth_path)
-    except OSError as exc:
-        raise ConfigError(f"cannot write the truth file {truth_path}: {exc.strerror or exc}") from None
+    if truth_path is not None:
+        from .sim_arms import write_plant_truth
+
+        write_plant_truth(plant, truth_path)
 
 
 def _announce(server, arm: str, plant: str, clock: str, hand: bool):

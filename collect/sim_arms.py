@@ -73,7 +73,11 @@ def make_sim_arms(opts: RunOptions, config: Config, arm: ArmDescription) -> dict
 def write_truth(sims: dict, path: str | Path) -> Path:
     """Write the follower plant's truth (effects, parameters, seed) to `path`, a file of its own: the
     session never holds it. One sentence (ConfigError) for a plant without truth or an unwritable path."""
-    plant = sims["follower"].plant
+    return write_plant_truth(sims["follower"].plant, path)
+
+
+def write_plant_truth(plant, path: str | Path) -> Path:
+    """Write `plant`'s truth to `path` (see write_truth)."""
     if not hasattr(plant, "write_truth"):
         raise ConfigError("--truth needs an arm plant (a preset or TOML file), not --plant simple")
     try:
