@@ -10,7 +10,6 @@ Every served link is announced in the user's runtime directory (crane_io.link_re
 
 from __future__ import annotations
 
-import importlib.util
 import signal
 import sys
 import threading
@@ -49,27 +48,6 @@ def slip_summary(chain) -> str:
     return (f"Simulated time slipped {times}, {s.slip_s:.2f} s in all (largest {s.max_slip_s:.3f} s): the "
             "plant could not keep up with real time (a busy or slow machine), so it skipped ahead "
             "instead of holding up the replies.")
-
-
-def _has_arm_plant() -> bool:
-    return importlib.util.find_spec("crane_io.arm_plant") is not None and \
-        importlib.util.find_spec("crane_io.plant_config") is not None
-
-
-def build_plant(name: str | None, seed: int, arm):
-    """The plant for `--plant`: "simple" (SimplePlant) or a preset / TOML path of the arm plant."""
-    from crane_io.sim.simple_plant import SimplePlant
-
-    if name is None:
-        name = "crane-x7" if _has_arm_plant() else "simple"
-    if name == "simple":
-        return SimplePlant.from_arm(arm)
-    if not _has_arm_plant():
-        raise ConfigError(f"plant {name!r} needs crane_io.arm_plant, which is not available; "
-                          "use --plant simple")
-    from crane_io import arm_plant, plant_config
-
-    return arm_plant.ArmPlant(plant_config.load_plant_config(name), seed=seed)
 
 
 @click.command("sim-serve")
@@ -194,10 +172,11 @@ def _serve_one(stop, link, plant_name, clock, period_s, seed, fast_sync_read, re
     from crane_io.sim.chain import SimulatedChain
     from crane_io.sim.transport import PtyServer
 
+    from .sim_arms import make_plant
     from .sim_lab import OffsetPlant
 
     arm = default_arm()
-    plant = build_plant(plant_name, seed, arm)
+    plant = make_plant(plant_name, seed, arm)
     _write_truth(plant, truth_path)
     kind = type(plant).__name__ + (", encoders off" if offsets is not None else "")
     if offsets is not None:

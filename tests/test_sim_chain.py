@@ -528,20 +528,20 @@ def test_sim_serve_serves_the_arm_plant_from_a_toml_file_to_the_bus(tmp_path):
 
 
 def test_sim_serve_plant_names_pick_presets():
-    from collect.cmd_sim_serve import build_plant
+    from collect.sim_arms import make_plant
     from crane_io.arm_plant import ArmPlant
     from crane_io.description import default_arm
     from crane_io.errors import ConfigError
     from crane_io.sim.simple_plant import SimplePlant
 
     arm = default_arm()
-    assert isinstance(build_plant("simple", 0, arm), SimplePlant)
-    assert build_plant(None, 0, arm).config.name == "crane-x7"
+    assert isinstance(make_plant("simple", 0, arm), SimplePlant)
+    assert make_plant(None, 0, arm).config.name == "crane-x7"
     for name in ("baseline", "hidden-coulomb", "hidden-payload"):
-        plant = build_plant(name, 3, arm)
+        plant = make_plant(name, 3, arm)
         assert isinstance(plant, ArmPlant) and plant.config.name == name and plant.seed == 3
     with pytest.raises(ConfigError):
-        build_plant("hidden-nothing", 0, arm)
+        make_plant("hidden-nothing", 0, arm)
 
 
 def test_sim_serve_reports_a_bad_link_in_one_sentence(tmp_path):
