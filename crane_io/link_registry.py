@@ -71,9 +71,7 @@ def withdraw(path: Path | None) -> None:
         return
     try:
         path.unlink()
-    except FileNotFoundError:
-        pass
-    except OSError:
+    except OSError:  # gone already, or not ours to remove: nothing to do
         pass
 
 
