@@ -27,6 +27,12 @@ DEG = math.pi / 180.0
 MIN_RATE_HZ = 100.0
 MAX_RATE_HZ = 2000.0
 GRAVITY_MODELS = ("dynamics", "coefficients", "none")
+# The joints a [bilateral] joints list (or --joints) may name, in the arm's order; "all" is the seven arm
+# joints (the gripper only when named: it closes on what it holds, see docs/collect.md).
+JOINT_NAMES = ("joint1", "joint2", "joint3", "joint4", "joint5", "joint6", "joint7", "gripper")
+ARM_JOINTS = JOINT_NAMES[:7]
+# The paper's three joints: the default bilateral set (every published figure and pinned session).
+PAPER_JOINTS = ("joint1", "joint2", "joint4")
 INERTIA_MODELS = ("dynamics", "constant")
 
 
@@ -128,6 +134,8 @@ class Config:
     operator: OperatorConfig
     values: dict  # the complete merged configuration as plain TOML data (degrees as written)
     realtime: RealtimeConfig = RealtimeConfig()
+    # [bilateral] joints: the joints under bilateral control, in the arm's order (the rest held)
+    bilateral: tuple[str, ...] = PAPER_JOINTS
 
     def to_toml(self) -> str:
         """The complete configuration used, as TOML text (stored in every session)."""
@@ -141,6 +149,13 @@ class Config:
         values["loop"]["rate_hz"] = float(rate_hz)
         return _build(values, "--rate")
 
+    def with_bilateral_joints(self, spec: str | list | tuple, where: str = "--joints") -> Config:
+        """The same configuration with another bilateral joint set: a list of joint names, or the text of
+        `--joints` (comma-separated names, or "all" for joint1..joint7). One sentence for a bad set."""
+        values = _deep_copy(self.values)
+        values["bilateral"]["joints"] = list(parse_joints(spec, where))
+        return _build(values, where)
+
     def with_operator_task(self, task: str) -> Config:
         """The same configuration with the simulated operator's task set ("free" or "contact")."""
         if task not in OPERATOR_TASKS:
@@ -148,6 +163,31 @@ class Config:
         values = _deep_copy(self.values)
         values["operator"]["task"] = task
         return _build(values, "--task")
+
+
+def parse_joints(spec: str | list | tuple, where: str = "--joints") -> tuple[str, ...]:
+    """A bilateral joint set from "all", "joint1,joint2,joint4" or a list of names: the names in the arm's
+    order (joint1 .. joint7, gripper). ConfigError (one sentence) for an unknown name, a name given twice,
+    an empty set or anything that is not text."""
+    if isinstance(spec, str):
+        text = spec.strip()
+        names = list(ARM_JOINTS) if text.lower() == "all" else [n.strip() for n in text.split(",")]
+        names = [n for n in names if n] if text else []
+    elif isinstance(spec, (list, tuple)):
+        names = list(spec)
+    else:
+        raise ConfigError(f"{where} must be a list of joint names or \"all\", got {spec!r}")
+    for n in names:
+        if not isinstance(n, str):
+            raise ConfigError(f"{where} must name joints as text, got {n!r}")
+        if n not in JOINT_NAMES:
+            raise ConfigError(f"{where} names unknown joint {n!r} (joints: {', '.join(JOINT_NAMES)}, or all)")
+    if not names:
+        raise ConfigError(f"{where} names no joint; give at least one of {', '.join(JOINT_NAMES)}, or all")
+    twice = sorted({n for n in names if names.count(n) > 1}, key=JOINT_NAMES.index)
+    if twice:
+        raise ConfigError(f"{where} names {twice[0]} twice")
+    return tuple(n for n in JOINT_NAMES if n in names)
 
 
 # ---- loading ---------------------------------------------------------------------------------------
@@ -197,10 +237,13 @@ def _merge(base: dict, user: dict, where: str, prefix: str) -> None:
         elif isinstance(default, float):
             ok = isinstance(value, (int, float)) and not isinstance(value, bool)
             value = float(value) if ok else value
+        elif isinstance(default, list):
+            ok = isinstance(value, (list, str))  # [bilateral] joints: a list of names or "all"
         else:
             ok = isinstance(value, type(default))
         if not ok:
-            what = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}.get(
+            what = {bool: "true or false", int: "an integer", float: "a number", str: "a string",
+                    list: "a list"}.get(
                 type(default), f"a {type(default).__name__}")
             raise ConfigError(f"{name!r} in {where} must be {what}, got {value!r}")
         base[key] = value
@@ -316,6 +359,9 @@ def _build(values: dict, where: str) -> Config:
     _need(operator.min_move_s <= operator.max_move_s, where, "operator.min_move_s",
           "at most operator.max_move_s", operator.min_move_s)
 
+    bilateral = parse_joints(values["bilateral"]["joints"], f"bilateral.joints in {where}")
+    _check_gravity_model(controller.gravity_model, bilateral, where)
+
     r = values["realtime"]
     _need(r["scheduling"] in SCHEDULING, where, "realtime.scheduling", "one of " + ", ".join(SCHEDULING),
           r["scheduling"])
@@ -324,7 +370,18 @@ def _build(values: dict, where: str) -> Config:
     realtime = RealtimeConfig(scheduling=r["scheduling"], priority=r["priority"], pin=r["pin"],
                               cpu=r["cpu"], lock_memory=r["lock_memory"], freeze_gc=r["freeze_gc"])
     return Config(loop=loop, controller=controller, held=held, safety=safety, operator=operator,
-                  values=values, realtime=realtime)
+                  values=values, realtime=realtime, bilateral=bilateral)
+
+
+def _check_gravity_model(model: str, bilateral: tuple[str, ...], where: str) -> None:
+    """The "coefficients" gravity model (SKL's sines) has terms for joint2 and joint4 only (joint1's
+    axis is vertical): with any other bilateral joint that joint's gravity would be missing from its
+    reaction force, so the combination is refused."""
+    other = [n for n in bilateral if n not in PAPER_JOINTS]
+    if model == "coefficients" and other:
+        raise ConfigError(f"controller.gravity_model = \"coefficients\" in {where} has no gravity term for "
+                          f"{other[0]}; use gravity_model = \"dynamics\" with the bilateral joints "
+                          f"{', '.join(bilateral)}")
 
 
 def _operator_task(o: dict, where: str) -> dict:

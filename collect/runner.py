@@ -28,7 +28,7 @@ import signal
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -54,7 +54,7 @@ from .status import StatusLine, print_summary
 from .truth_trace import TruthTraceWriter
 
 __all__ = ["ARMS", "RunContext", "RunOptions", "RunResult", "SafetyStop", "StartRefused", "make_plant",
-           "make_sim_arms", "run_session", "software_version"]
+           "make_sim_arms", "run_arm", "run_session", "software_version"]
 
 _STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP", "SIGINT") if hasattr(signal, n))
 
@@ -80,6 +80,7 @@ class RunOptions:
     leader_model: str | Path | None = None  # ... for the leader's
     hand_on: str = "leader"  # the arm the operator's hand moves ("follower": leader data free of a hand)
     task: str | None = None  # sim only: the simulated operator's task ("free", "contact"); None: config's
+    joints: str | list | tuple | None = None  # the bilateral joints (--joints text or names); None: config's
     view: bool = False  # live view in a spawned rerun viewer (collect/live_view.py)
     view_save: str | Path | None = None  # live view written to this .rrd file instead of a viewer
     view_every: int = 10  # the view samples every N-th cycle
@@ -440,8 +441,10 @@ def run_session(opts: RunOptions) -> RunResult:
         config = config.with_rate(opts.rate)
     if opts.task is not None:
         config = config.with_operator_task(opts.task)
+    if opts.joints is not None:
+        config = config.with_bilateral_joints(opts.joints)
     check_options(opts, config.loop.period_s)
-    arm = default_arm()
+    arm = run_arm(config)
     output = Path(opts.output)
     check_output(output, opts.force)
     check_ports(opts)
@@ -473,6 +476,11 @@ def run_session(opts: RunOptions) -> RunResult:
     if loop is not None and loop.breach is not None:
         raise SafetyStop(f"safety stop: {loop.breach.message} (session saved in {output})")
     return session.result
+
+
+def run_arm(config: Config) -> ArmDescription:
+    """The arm description of a run: the CRANE-X7 with the configuration's bilateral joints."""
+    return replace(default_arm(), bilateral_joints=tuple(config.bilateral))
 
 
 class _Session:

@@ -33,10 +33,29 @@ if TYPE_CHECKING:
     from .runner import RunOptions
 
 
+# The arm-plant preset of a run without --plant: "crane-x7" (the paper's three joints: every published
+# figure and pinned session) while the bilateral joints are among joint1, joint2, joint4; the seven-joint
+# CRANE-X7 once any other joint is bilateral (its joints' effects, rotor inertia and friction).
+DEFAULT_PLANT = "crane-x7"
+DEFAULT_PLANT_7DOF = "crane-x7-7dof"
+_PAPER_JOINTS = ("joint1", "joint2", "joint4")
+
+
+def default_plant(arm: ArmDescription) -> str:
+    """The preset used without --plant for the arm's bilateral joints (see DEFAULT_PLANT_7DOF)."""
+    if all(n in _PAPER_JOINTS for n in arm.bilateral_joints):
+        return DEFAULT_PLANT
+    from crane_io.cli_support import plant_presets
+
+    return DEFAULT_PLANT_7DOF if DEFAULT_PLANT_7DOF in plant_presets() else DEFAULT_PLANT
+
+
 def make_plant(spec: str | None, seed: int, arm: ArmDescription, objects: bool = True):
-    """The plant behind a simulated arm: ArmPlant from a preset/TOML (default "crane-x7"), or
-    "simple" for the light SimplePlant. `objects=False`: without the preset's [[environment]] (the
-    leader's world: only the follower touches objects)."""
+    """The plant behind a simulated arm: ArmPlant from a preset/TOML (default: default_plant(arm)) that
+    integrates the arm's bilateral joints, or "simple" for the light SimplePlant. `objects=False`:
+    without the preset's [[environment]] (the leader's world: only the follower touches objects). A
+    preset whose effects or objects sit on joints the run holds is the plant's ConfigError (one
+    sentence)."""
     from crane_io.sim.simple_plant import SimplePlant
 
     if spec == "simple":
@@ -49,8 +68,24 @@ def make_plant(spec: str | None, seed: int, arm: ArmDescription, objects: bool =
             return SimplePlant.from_arm(arm)
         raise ConfigError(f"--plant {spec} needs crane_io.arm_plant, which is not installed; "
                           "use --plant simple") from None
-    config = load_plant_config(spec or "crane-x7")
-    return ArmPlant(config if objects else config.without_environment(), seed=seed)
+    config = load_plant_config(spec or default_plant(arm))
+    config = config if objects else config.without_environment()
+    joints = tuple(arm.bilateral_joints)
+    if _takes_joints(ArmPlant):
+        return ArmPlant(config, seed=seed, joints=joints)
+    if joints != _PAPER_JOINTS:  # an arm plant from before the seven-joint work
+        raise ConfigError(f"this arm plant simulates the bilateral joints {', '.join(_PAPER_JOINTS)} only, "
+                          f"not {', '.join(joints)}; use --plant simple or the paper's joints")
+    return ArmPlant(config, seed=seed)
+
+
+def _takes_joints(cls) -> bool:
+    import inspect
+
+    try:
+        return "joints" in inspect.signature(cls).parameters
+    except (TypeError, ValueError):  # pragma: no cover
+        return False
 
 
 def make_sim_arms(opts: RunOptions, config: Config, arm: ArmDescription) -> dict:
