@@ -74,9 +74,16 @@ def slip_summary(chain) -> str:
 @click.option("--encoder-offset", "encoder_offsets", multiple=True, metavar="[ARM:]JOINT=RAD",
               help="That joint's encoder reads RAD more than the truth, as on an uncalibrated arm (for "
                    "`crane-collect calibrate`); with --pair prefix the arm (leader:joint2=0.05). Repeatable.")
+@click.option("--joints", default=None, metavar="LIST",
+              help="The joints the served arms integrate as bilateral (current-mode) joints with the full "
+                   "rigid-body dynamics, comma-separated, or 'all' for joint1..joint7 (the gripper only when "
+                   "named); with --pair also the joints the hand moves. Record with the same --joints on "
+                   "`crane-collect run`. Default: bilateral.joints of --config, the paper's "
+                   "joint1,joint2,joint4.")
 @click.option("--plant", "plant_name", default=None, metavar="PRESET_OR_TOML",
               help="Physics behind the servos: 'simple' (independent joints) or an arm-plant preset "
-                   "or TOML file. Default: the arm plant's 'crane-x7' preset when available, else 'simple'. "
+                   "or TOML file. Default: the arm plant's 'crane-x7' preset when available (crane-x7-7dof "
+                   "when --joints goes beyond joint1,joint2,joint4), else 'simple'. "
                    f"Presets: {', '.join(plant_presets())}.")
 @click.option("--clock", type=click.Choice(["wall", "lockstep"]), default=None,
               help="'wall': physics follows real time. 'lockstep': one control period per Goal "
@@ -96,7 +103,7 @@ def slip_summary(chain) -> str:
                    "follower's) to this file. Nothing else ever records it.")
 @cli_errors
 def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_s, config_path,
-              encoder_offsets, plant_name, clock, period_s, seed, no_fast_sync_read, return_delay,
+              encoder_offsets, joints, plant_name, clock, period_s, seed, no_fast_sync_read, return_delay,
               truth_path):
     """Serve a simulated CRANE-X7 (or, with --pair, a leader and a follower with a simulated hand) on
     pseudo-terminals until Ctrl+C or SIGTERM."""
@@ -116,21 +123,25 @@ def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_
                                 ("--task", task), ("--config", config_path)) if v is not None]
         if extra:
             raise ConfigError(f"{extra[0]} goes with --pair")
-    from crane_io.description import default_arm
-
+    from .config import load_config
+    from .runner import run_arm
     from .sim_lab import parse_offsets
 
-    offsets = parse_offsets(encoder_offsets, default_arm(), arms=("leader", "follower") if pair else ("arm",))
+    config = load_config(config_path)
+    if joints is not None:
+        config = config.with_bilateral_joints(joints)
+    arm = run_arm(config)
+    offsets = parse_offsets(encoder_offsets, arm, arms=("leader", "follower") if pair else ("arm",))
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
         if pair:
-            _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, config_path,
+            _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, config, arm,
                         plant_name, clock, period_s, seed, not no_fast_sync_read, return_delay, truth_path,
                         offsets)
         else:
-            _serve_one(stop, link, plant_name, clock, period_s, seed, not no_fast_sync_read, return_delay,
-                       truth_path, offsets.get("arm"))
+            _serve_one(stop, link, arm, plant_name, clock, period_s, seed, not no_fast_sync_read,
+                       return_delay, truth_path, offsets.get("arm"))
     finally:
         signal.signal(signal.SIGTERM, previous)
 
@@ -165,18 +176,18 @@ def _wait(stop: threading.Event, errors, status) -> None:
         pass
 
 
-def _serve_one(stop, link, plant_name, clock, period_s, seed, fast_sync_read, return_delay, truth_path,
+def _serve_one(stop, link, arm, plant_name, clock, period_s, seed, fast_sync_read, return_delay, truth_path,
                offsets=None):
-    from crane_io.description import default_arm
     from crane_io.link_registry import withdraw
     from crane_io.sim.chain import SimulatedChain
     from crane_io.sim.transport import PtyServer
 
     from .sim_arms import make_plant
+    from .sim_arms import default_plant
     from .sim_lab import OffsetPlant
 
-    arm = default_arm()
     plant = make_plant(plant_name, seed, arm)
+    plant_name = plant_name or default_plant(arm)
     _write_truth(plant, truth_path)
     kind = type(plant).__name__ + (", encoders off" if offsets is not None else "")
     if offsets is not None:
@@ -187,9 +198,9 @@ def _serve_one(stop, link, plant_name, clock, period_s, seed, fast_sync_read, re
     entry = None
     try:
         server.start()
-        entry = _announce(server, "arm", plant_name or "crane-x7", clock, hand=False)
-        click.echo(f"Simulated CRANE-X7 ({kind}, {clock} clock) on {link} -> "
-                   f"{server.slave_path}")
+        entry = _announce(server, "arm", plant_name, clock, hand=False)
+        click.echo(f"Simulated CRANE-X7 ({kind}, {clock} clock, bilateral joints "
+                   f"{','.join(arm.bilateral_joints)}) on {link} -> {server.slave_path}")
         click.echo(f"Point the SDK or Dynamixel Wizard 2.0 at {link} (Protocol 2.0, 3,000,000 bps, "
                    f"IDs 2-9), e.g. `crane-collect check --port {link}`. Ctrl+C stops.")
         _wait(stop, lambda: server.error, lambda: status_line(chain))
@@ -203,17 +214,18 @@ def _serve_one(stop, link, plant_name, clock, period_s, seed, fast_sync_read, re
         click.echo(slip_summary(chain))
 
 
-def _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, config_path, plant_name,
+def _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, config, arm, plant_name,
                 clock, period_s, seed, fast_sync_read, return_delay, truth_path, offsets):
     from crane_io.link_registry import withdraw
 
-    from .config import load_config
+    from .config import PAPER_JOINTS
     from .sim_lab import SimulatedLab
 
     lab = SimulatedLab.build(plant=plant_name, seed=seed, hand_on=hand_on, clock=clock, period_s=period_s,
-                             config=load_config(config_path), task=task, hand_delay_s=hand_delay_s,
+                             config=config, task=task, hand_delay_s=hand_delay_s, arm=arm,
                              fast_sync_read=fast_sync_read, return_delay_time=return_delay,
                              encoder_offsets=offsets)
+    joints = "" if tuple(arm.bilateral_joints) == PAPER_JOINTS else f" --joints {','.join(arm.bilateral_joints)}"
     _write_truth(lab.plants["follower"], truth_path)  # (a HandOnPlant passes write_truth through)
     links = {"leader": leader_link, "follower": follower_link}
     entries = []
@@ -226,7 +238,7 @@ def _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, c
                        f"{server.slave_path}")
         click.echo(f"The simulated hand is on the {hand_on}; it takes hold {hand_delay_s:g} s after the "
                    f"arm's torque comes on. Record with `crane-collect run --leader-port {leader_link} "
-                   f"--follower-port {follower_link} -o SESSION.h5`"
+                   f"--follower-port {follower_link}{joints} -o SESSION.h5`"
                    + (" --hand-on follower" if hand_on == "follower" else "") + ". Ctrl+C stops.")
         _wait(stop, lab.error, lambda: pair_status_line(lab))
     finally:

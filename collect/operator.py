@@ -3,8 +3,10 @@
 Each bilateral joint has its own on/off process: a moving phase (gamma-distributed length, mean
 `mean_on_s`) made of back-to-back minimum-jerk moves to random targets inside the workspace (the
 software joint limits shrunk by `workspace_margin`), then a pause (mean `mean_on_s (1 - duty) / duty`).
-The processes are independent, so each joint moves about `duty` (70 %) of the time and all three
-together about duty^3 (a third), as in the paper's recordings. Move sizes, durations and pauses are
+The processes are independent, so each joint moves about 70 % of the time (the moving phases take
+`duty` of it, and the reference is nearly still at the turns between moves) and all n bilateral
+joints together about 0.7^n (a third at the paper's three joints, 8 % at seven), as in the paper's
+recordings. Move sizes, durations and pauses are
 random (seeded), the peak speed of each move stays below `peak_speed`.
 
 The hand is an impedance: torque = stiffness (q_ref - q) + damping (dq_ref - dq), limited to
@@ -23,7 +25,7 @@ Tasks ([operator] task):
   running moves finish, then one object is picked at random and the hand
     1. approaches: a minimum-jerk move of the reference to the object's surface (a joint wall: the
        wall's angle on its joint; a plane: the nearest pose found by minimum-norm Newton steps on the
-       3-DOF kinematics of crane_io.dynamics, the held joints at [held]),
+       kinematics of crane_io.dynamics over the bilateral joints, the held joints at [held]),
     2. presses (`pressing` is True): ramps the reference in 0.3 s past the surface by
        target x (1/stiffness + 1/k_object) along the joint-space direction into the object (k_object:
        the object's stiffness in N m/rad along it; a plane's is stiffness |n^T J|^2), so the hand's
@@ -46,6 +48,7 @@ from crane_io.errors import ConfigError
 
 from .config import Config, load_config
 
+_PAPER_JOINTS = ("joint1", "joint2", "joint4")
 _PUSH_RAMP_S = 0.3  # s: the press force ramps up over this long
 _WALL_CLEARANCE = 0.05  # rad: free-motion targets stay this far from a joint wall
 _PLANE_CLEARANCE = 0.02  # m: free-motion poses keep the contact frame this far above a plane
@@ -58,6 +61,44 @@ def minimum_jerk(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     s = t2 * tau * (10.0 - 15.0 * tau + 6.0 * t2)
     ds = 30.0 * t2 * (1.0 - 2.0 * tau + t2)
     return s, ds
+
+
+class _Objects:
+    """The follower's objects as the operator plans with them, over the run's bilateral joints (k,):
+    joint walls indexed into them, planes on the kinematics of crane_io.dynamics.ArmDynamics over them
+    (the other joints locked at [held]). `environment`: an Environment (the follower plant's) or its
+    parsed [[environment]] list. An object on a joint the run holds cannot be pressed: one sentence."""
+
+    def __init__(self, environment, joints: tuple[str, ...], held: dict[str, float]):
+        from crane_io.environment import Environment, JointWall, Plane
+        from crane_io.plant_config import JointWallSpec
+
+        if not isinstance(environment, Environment) and not environment:
+            raise ConfigError("the operator's contact task needs the follower's objects "
+                              "(environment=, a plant with [[environment]] entries)")
+        given = environment if isinstance(environment, Environment) else None
+        specs = list(given.specs) if given is not None else list(environment)
+        paper = joints == _PAPER_JOINTS  # the plant's own planes are on these joints' kinematics
+        model = None
+        self.walls, self.planes, self.objects = [], [], []
+        for spec in specs:
+            if isinstance(spec, JointWallSpec):
+                if spec.joint not in joints:
+                    raise ConfigError(f"the follower's joint wall on {spec.joint} sits on a joint this run "
+                                      f"holds; make {spec.joint} bilateral (--joints) or use another plant")
+                obj = JointWall(spec, joints.index(spec.joint))
+                self.walls.append(obj)
+            else:
+                obj = next((p for p in given.planes if p.spec is spec), None) if given and paper else None
+                if obj is None:
+                    if model is None:
+                        from crane_io.dynamics import ArmDynamics
+
+                        locked = {n: v for n, v in held.items() if n not in joints}
+                        model = ArmDynamics(joints, locked=locked).model
+                    obj = Plane(spec, model)
+                self.planes.append(obj)
+            self.objects.append(obj)
 
 
 class SimulatedOperator:
@@ -95,32 +136,23 @@ class SimulatedOperator:
         self.env = self._contact_setup(environment) if self.task == "contact" else None
 
     def _contact_setup(self, environment):
-        """The contact task's objects (an Environment) and the free workspace kept out of the walls."""
-        from crane_io.environment import Environment
-        from crane_io.plant_config import BILATERAL_JOINTS
-
-        if tuple(self.arm.bilateral_joints) != BILATERAL_JOINTS:
-            raise ConfigError(f"the contact task needs the bilateral joints {', '.join(BILATERAL_JOINTS)}")
-        if not isinstance(environment, Environment):
-            if not environment:
-                raise ConfigError("the operator's contact task needs the follower's objects "
-                                  "(environment=, a plant with [[environment]] entries)")
-            locked = {n: v for n, v in self.config.held.items() if n not in BILATERAL_JOINTS}
-            environment = Environment(list(environment), locked=locked)
+        """The contact task's objects (an _Objects over the bilateral joints) and the free workspace kept
+        out of the walls."""
+        env = _Objects(environment, tuple(self.arm.bilateral_joints), self.config.held)
         self._reach_lo, self._reach_hi = self.lo.copy(), self.hi.copy()
-        for wall in environment.walls:
+        for wall in env.walls:
             j = wall.index
             if wall.sign > 0:
                 self.hi[j] = min(self.hi[j], wall.angle - _WALL_CLEARANCE)
             else:
                 self.lo[j] = max(self.lo[j], wall.angle + _WALL_CLEARANCE)
             if self.lo[j] > self.hi[j]:
-                raise ConfigError(f"the joint walls leave {BILATERAL_JOINTS[j]} no free workspace for the "
-                                  "simulated operator")
+                raise ConfigError(f"the joint walls leave {self.arm.bilateral_joints[j]} no free workspace "
+                                  "for the simulated operator")
         self._free_end = math.inf
         self._transit = self.o.min_move_s + self.o.max_move_s  # approach + withdraw, last episode
         self._t_start, self._pressed = 0.0, 0.0  # when the task started, the time pressed since (s)
-        return environment
+        return env
 
     @property
     def pressing(self) -> bool:

@@ -163,7 +163,7 @@ class SimulatedLab:
         hand feels the true angles)."""
         from crane_io.sim.chain import SimulatedChain
 
-        from .sim_arms import make_plant
+        from .sim_arms import default_plant, make_plant
 
         if hand_on not in ARMS:
             raise ConfigError(f"the hand goes on the leader or the follower, not {hand_on!r}")
@@ -184,7 +184,7 @@ class SimulatedLab:
             chains[name] = SimulatedChain.for_arm(arm, plants[name], clock=clock, period_s=period_s,
                                                   fast_sync_read=fast_sync_read,
                                                   return_delay_time=return_delay_time)
-        return cls(plants, chains, hand, hand_on, clock, plant or "crane-x7")
+        return cls(plants, chains, hand, hand_on, clock, plant or default_plant(arm))
 
     def serve(self, links: dict) -> dict:
         """Serve each arm on a pseudo-terminal linked at links[name]; returns {name: PtyServer}. If the
