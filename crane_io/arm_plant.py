@@ -1,7 +1,8 @@
 """The simulated CRANE-X7 arm: the physics behind the simulated servo chain for all 8 servos.
 
-Bilateral joints (joint1, joint2, joint4) are integrated with the 3-DOF pinocchio dynamics
-(crane_io.dynamics; the held joints locked at the configured angles), plus the configured physical
+The integrated joints (`joints`: any of joint1..joint7, default the config's `joints` key, whose own
+default is the paper's joint1, joint2, joint4) are integrated with the n-DOF pinocchio dynamics
+(crane_io.dynamics; the other joints locked at the configured angles), plus the configured physical
 effects (crane_io.effects), plus the actuator, plus the external torque (an operator's hand):
 
     M(q) ddq + C(q, dq) dq + g(q) + tau_effects(q, dq) + friction = Kt_true * I + tau_ext
@@ -23,15 +24,18 @@ effects (crane_io.effects), plus the actuator, plus the external torque (an oper
   spring-damper; inside the gap the motor torque moves only the motor, and the link coasts. The
   servo's encoder is on the output shaft, so Present Position is the link angle.
 - Joint limits are stiff end stops (spring-damper) just beyond the description's limits.
-- Held joints (joint3, joint5..7, gripper) follow their servos with crane_io.sim.simple_plant
-  (position controller or current, no gravity: they are locked in the 3-DOF dynamics).
+- Every effect is compiled from its effect object (Effect.add_to_plant: the effect adds its closed
+  form to a PlantTerms, or asks to be evaluated generically every substep); an effect or a joint wall
+  on a joint the plant does not integrate is refused (ConfigError).
+- Held joints (the others and the gripper) follow their servos with crane_io.sim.simple_plant-like
+  followers (position controller or current, no gravity: they are locked in the dynamics).
 - Sensors: position to the 4096-count grid is done by the chain; the plant adds an occasional
   one-count error, velocity noise and current noise (PlantConfig.sensor); present current is the
   motor torque / Kt_true.
 - Overload (optional): a joint whose goal current sits at its Current Limit for `overload.time_s`
   gets Hardware Error Status bit 5; it stays set (the chain's Shutdown logic turns torque off).
 - Contact (optional, the config's [[environment]]: joint walls and planes, crane_io.environment): the
-  objects' torque on the bilateral joints is added to the external torque in every substep, so
+  objects' torque on the integrated joints is added to the external torque in every substep, so
   stick-slip friction sees it. `contact_torque()` and `in_contact` give it at the end of the last
   step. A plant without objects computes exactly what it did before they existed.
 
@@ -43,6 +47,7 @@ from __future__ import annotations
 import json
 import math
 import struct
+from operator import add, sub
 from pathlib import Path
 
 import numpy as np
@@ -50,17 +55,27 @@ import pinocchio as pin
 
 from .description import default_arm
 from .dynamics import ArmDynamics
-from .effects import get_effect
+from .effects import PlantTerms, get_effect
 from .environment import Environment
 from .errors import ConfigError
-from .plant_config import BILATERAL_JOINTS, PlantConfig, load_plant_config
+from .plant_config import PlantConfig, check_joints, load_plant_config
 from .sim.plant_api import ActuatorCommand, SensorReading
 from .sim.simple_plant import DEFAULT_INERTIA, DEFAULT_VISCOUS, SimplePlant
 from .units import AMPERE_PER_CURRENT_LSB, RAD_PER_PULSE, RADS_PER_VELOCITY_LSB
 
 _PULSE_SIGNS = np.array((-RAD_PER_PULSE, RAD_PER_PULSE))  # one-pulse position noise
 _TWO_TO_MINUS_53 = 1.0 / 9007199254740992.0  # Generator.random: (64-bit output >> 11) x 2**-53
-_SUBSTEP_KEY = struct.Struct("<13d")  # a substep's inputs (q, dq, motor and external torque, h), bit exact
+
+
+def _SUBSTEP_KEY(n: int) -> struct.Struct:  # noqa: N802 (it names a struct, as it did for 3 joints)
+    """The struct packing a substep's inputs for n joints (q, dq, motor and external torque, h), bit exact."""
+    key = _SUBSTEP_KEYS.get(n)
+    if key is None:
+        key = _SUBSTEP_KEYS[n] = struct.Struct(f"<{4 * n + 1}d")
+    return key
+
+
+_SUBSTEP_KEYS: dict[int, struct.Struct] = {}
 
 OVERLOAD_BIT = 0x20
 _HELD_OMEGA = 30.0  # rad/s: held joints follow their goal as a critically damped 2nd-order system
@@ -73,48 +88,59 @@ _SKL_INERTIA = dict(zip(("joint1", "joint2", "joint3", "joint4", "joint5", "join
 
 class ArmPlant:
     """The simulated CRANE-X7 (see module docstring). `config`: a PlantConfig, a preset name or a
-    TOML path (default "crane-x7"); `seed`: the sensor-noise seed (default: the config's)."""
+    TOML path (default "crane-x7"); `seed`: the sensor-noise seed (default: the config's); `joints`:
+    the joints integrated with the rigid-body dynamics (any of joint1..joint7, put in arm order;
+    default the config's `joints`, itself by default joint1, joint2, joint4)."""
 
-    def __init__(self, config: PlantConfig | str | Path | None = None, seed: int | None = None):
+    def __init__(self, config: PlantConfig | str | Path | None = None, seed: int | None = None,
+                 joints=None):
         if not isinstance(config, PlantConfig):
             config = load_plant_config("crane-x7" if config is None else config)
         self.config = config
         self.seed = config.seed if seed is None else int(seed)
         self.rng = np.random.default_rng(self.seed)
+        joints = check_joints(list(config.joints if joints is None else joints), "ArmPlant joints")
+        self.joints = joints
+        n_int = len(joints)
+        self._check_objects()
         arm = default_arm()
         self.arm = arm
         self.servo_ids = arm.servo_ids
         names = arm.joint_names
-        self._bi = np.array([names.index(n) for n in BILATERAL_JOINTS])
-        self._held = np.array([i for i in range(len(names)) if names[i] not in BILATERAL_JOINTS])
+        self._bi = np.array([names.index(n) for n in joints])
+        self._held = np.array([i for i in range(len(names)) if names[i] not in joints])
         self._held_names = tuple(names[i] for i in self._held)
-        self.kt = np.array([config.torque_constant[n] for n in names], dtype=float)
         self._compile_effects()
         self._kt_l = self.kt.tolist()  # (torque-constant-error is applied by _compile_effects)
         self._held_kt_l = self.kt[self._held].tolist()
         self._bi_l, self._held_l = self._bi.tolist(), self._held.tolist()
-        self.dyn = ArmDynamics(BILATERAL_JOINTS, locked=config.locked, payload_mass=self._payload)
+        locked = {n: v for n, v in config.locked.items() if n not in joints}  # an integrated joint is free
+        self.dyn = ArmDynamics(joints, locked=locked, payload_mass=self._payload)
         self.model = self.dyn.model
         self.model.armature = self._armature.copy()
         self.data = self.model.createData()
-        lo = np.array([arm.joint(n).lower for n in BILATERAL_JOINTS]) - _STOP_MARGIN
-        hi = np.array([arm.joint(n).upper for n in BILATERAL_JOINTS]) + _STOP_MARGIN
+        lo = np.array([arm.joint(n).lower for n in joints]) - _STOP_MARGIN
+        hi = np.array([arm.joint(n).upper for n in joints]) + _STOP_MARGIN
         self._lo, self._hi = lo, hi
         self._lo_l, self._hi_l = lo.tolist(), hi.tolist()
         self._k_stop, self._d_stop = config.limits.stiffness, config.limits.damping
         init = np.array([config.initial.get(n, 0.0) for n in names])
         self.q = init[self._bi].copy()
-        self.dq = np.zeros(3)
+        self.dq = np.zeros(n_int)
         # motor side of the joints with backlash (link-side units: motor angle / gear ratio), centred
         # in the gap
-        self.motor_q, self.motor_dq = self.q.tolist(), [0.0, 0.0, 0.0]
+        self.motor_q, self.motor_dq = self.q.tolist(), [0.0] * n_int
         self.h = config.substep_s
-        # PD controller of the bilateral servos in position modes (SimplePlant's servo model)
+        self._key = _SUBSTEP_KEY(n_int)
+        self._joint_range = tuple(range(n_int))
+        self._euler, self._drive, self._mirror = _written_out(n_int)
+        # PD controller of the integrated servos in position modes (SimplePlant's servo model: the
+        # joint's nominal inertia, the servo's stall torque)
         self._pd = SimplePlant(servo_ids=tuple(self.servo_ids[i] for i in self._bi),
-                               inertia=[_SKL_INERTIA[n] for n in BILATERAL_JOINTS], viscous=0.0, coulomb=0.0,
+                               inertia=[_SKL_INERTIA[n] for n in joints], viscous=0.0, coulomb=0.0,
                                kt=self.kt[self._bi],
                                stall_torque=[10.6 if arm.joint(n).model == "XM540-W270" else 4.1
-                                             for n in BILATERAL_JOINTS])
+                                             for n in joints])
         self._held_q = init[self._held].copy()
         self._held_dq = np.zeros(len(self._held))
         self._held_current = np.zeros(len(self._held))
@@ -126,13 +152,14 @@ class ArmPlant:
         self._held_lo_l, self._held_hi_l = self._held_lo.tolist(), self._held_hi.tolist()
         self._held_inertia_l, self._held_visc_l = self._held_inertia.tolist(), self._held_visc.tolist()
         self._held_cache: dict[float, tuple[float, float, float, float]] = {}
-        self.external = np.zeros(3)
+        self.external = np.zeros(n_int)
         self._external_all = np.zeros(len(names))  # the last set_external_torque, joint order
         self.environment = list(config.environment)  # the parsed [[environment]] objects
-        self._env = Environment(self.environment, model=self.model) if self.environment else None
-        self._contact = np.zeros(3)  # the objects' torque at the end of the last step
+        self._env = (Environment(self.environment, model=self.model, joints=joints)
+                     if self.environment else None)
+        self._contact = np.zeros(n_int)  # the objects' torque at the end of the last step
         self._in_contact = False
-        self.motor_torque = np.zeros(3)
+        self.motor_torque = np.zeros(n_int)
         self._saturated_time = np.zeros(len(names))
         self._errors: dict[int, int] = {}
         self.time = 0.0
@@ -140,91 +167,49 @@ class ArmPlant:
         self._raw_signs_ok = None  # the generator _pulse_signs may read raw (see there)
         # per-joint parameters of the substep's scalar loops: (Coulomb +, Coulomb -, Stribeck terms) and
         # (viscous, offset, spring stiffness, stiffness x rest angle, lower stop, upper stop)
-        self._kinetic_l = [(self._fc_pos_l[i], self._fc_neg_l[i], tuple(self._strib_l[i])) for i in range(3)]
+        self._kinetic_l = [(self._fc_pos_l[i], self._fc_neg_l[i], tuple(self._strib_l[i]))
+                           for i in range(n_int)]
         self._other_l = list(zip(self._visc_l, self._offset_l, self._spring_k_l, self._spring_q0k_l,
                                  self._lo_l, self._hi_l))
 
     # ---- effects -> arrays ---------------------------------------------------------------------------
+    def _check_objects(self) -> None:
+        """Every joint effect and joint wall of the config is on an integrated joint (else ConfigError)."""
+        for spec in self.config.all_effects:
+            if spec.joint is not None and spec.joint not in self.joints:
+                raise ConfigError(f"effect {spec.effect!r} acts on {spec.joint}, which this plant holds as a "
+                                  f"servo instead of integrating it; integrate {spec.joint} (joints = "
+                                  f"{list(self.joints) + [spec.joint]!r}) or remove the effect")
+        for obj in self.config.environment:
+            joint = getattr(obj, "joint", None)
+            if joint is not None and joint not in self.joints:
+                raise ConfigError(f"the joint wall on {joint} needs {joint} integrated, but this plant "
+                                  f"holds it as a servo; integrate {joint} or remove the wall")
+
     def _compile_effects(self):
-        j = {n: i for i, n in enumerate(BILATERAL_JOINTS)}
-        self._fc_pos = np.zeros(3)
-        self._fc_neg = np.zeros(3)
-        self._band_pos = np.zeros(3)
-        self._band_neg = np.zeros(3)
-        strib_amp, strib_vel = [], []
-        self._visc = np.zeros(3)
-        self._offset = np.zeros(3)
-        self._spring_k = np.zeros(3)
-        self._spring_q0k = np.zeros(3)
-        self._cogging: list[tuple[int, float, float, float]] = []
-        self._armature = np.zeros(3)
-        self._payload = 0.0
-        self._generic: list[tuple] = []  # (effect, joint index or None, values)
-        backlash: dict[int, tuple[float, float]] = {}  # joint index -> (gap width rad, motor inertia)
+        """Every configured effect adds its own contribution to the plant's terms (Effect.add_to_plant),
+        in configuration order; the terms become the substep's per-joint parameters."""
+        names = self.arm.joint_names
+        n = len(self.joints)
+        index = {name: k for k, name in enumerate(self.joints)}
+        terms = PlantTerms(self.joints, {name: float(self.config.torque_constant[name]) for name in names})
         for spec in self.config.all_effects:
             eff = get_effect(spec.effect)
-            v = eff.check_values(spec.values)
-            k = j.get(spec.joint) if spec.joint is not None else None
-            name = spec.effect
-            if name == "coulomb":
-                self._fc_pos[k] += v["coulomb"]
-                self._fc_neg[k] += v["coulomb"]
-            elif name == "coulomb-asym":
-                self._fc_pos[k] += v["coulomb_pos"]
-                self._fc_neg[k] += v["coulomb_neg"]
-            elif name in ("stribeck", "stiction"):
-                if name == "stiction":
-                    self._fc_pos[k] += v["coulomb"]
-                    self._fc_neg[k] += v["coulomb"]
-                    amp, vel = v["breakaway"] - v["coulomb"], v["stiction_velocity"]
-                else:
-                    amp, vel = v["stribeck"], v["stribeck_velocity"]
-                a = np.zeros(3)
-                a[k] = amp
-                strib_amp.append(a)
-                vv = np.ones(3)
-                vv[k] = max(vel, 1e-6)
-                strib_vel.append(vv)
-            elif name == "viscous":
-                self._visc[k] += v["viscous"]
-            elif name == "offset":
-                self._offset[k] += v["offset"]
-            elif name == "spring":
-                self._spring_k[k] += v["stiffness"]
-                self._spring_q0k[k] += v["stiffness"] * v["rest_angle"]
-            elif name == "cogging":
-                c = eff.coefficients(v)
-                self._cogging.append((k, float(c[0]), float(c[1]), v["cycles_per_rev"]))
-            elif name == "rotor-inertia":
-                self._armature[k] += v["inertia"]
-            elif name == "payload":
-                self._payload += v["mass"]
-            elif name == "torque-constant-error":
-                i = self.arm.joint_names.index(spec.joint)
-                self.kt[i] = self.kt[i] / (1.0 + v["scale_error"])
-            elif name == "backlash":
-                if k in backlash:
-                    raise ConfigError(f"backlash is configured twice for {spec.joint}; give one gap per "
-                                      "joint")
-                if not (v["width"] >= 0 and v["motor_inertia"] > 0):
-                    raise ConfigError(f"backlash on {spec.joint} needs width >= 0 rad and motor_inertia > 0 "
-                                      f"kg m^2, got {v['width']} and {v['motor_inertia']}")
-                backlash[k] = (v["width"], v["motor_inertia"])
-            else:  # a user's effect: evaluated generically each substep
-                self._generic.append((eff, k, v))
-            if eff.friction and k is not None:
-                lo, hi = eff.static_band(v)
-                self._band_neg[k] += lo
-                self._band_pos[k] += hi
-        self._strib_amp = np.array(strib_amp) if strib_amp else np.zeros((0, 3))
-        self._strib_vel = np.array(strib_vel) if strib_vel else np.ones((0, 3))
-        self._zero3 = np.zeros((1, 3))
-        self._fc_pos_l, self._fc_neg_l = self._fc_pos.tolist(), self._fc_neg.tolist()
-        self._band_pos_l, self._band_neg_l = self._band_pos.tolist(), self._band_neg.tolist()
-        pairs = list(zip(self._strib_amp, self._strib_vel))
-        self._strib_l = [[(float(a[i]), float(v[i])) for a, v in pairs if a[i] != 0] for i in range(3)]
-        self._visc_l, self._offset_l = self._visc.tolist(), self._offset.tolist()
-        self._spring_k_l, self._spring_q0k_l = self._spring_k.tolist(), self._spring_q0k.tolist()
+            eff.add_to_plant(terms, index[spec.joint] if spec.joint is not None else None,
+                             eff.check_values(spec.values))
+        self.terms = terms
+        self.kt = np.array([terms.torque_constant[name] for name in names], dtype=float)
+        self._armature = np.array(terms.armature)
+        self._payload = terms.payload
+        self._cogging = list(terms.cogging)
+        self._generic = list(terms.generic)
+        self._zero_row = np.zeros((1, n))
+        self._fc_pos_l, self._fc_neg_l = list(terms.coulomb_pos), list(terms.coulomb_neg)
+        self._band_pos_l, self._band_neg_l = list(terms.band_pos), list(terms.band_neg)
+        self._strib_l = [list(t) for t in terms.stribeck]
+        self._visc_l, self._offset_l = list(terms.viscous), list(terms.offset)
+        self._spring_k_l, self._spring_q0k_l = list(terms.spring_k), list(terms.spring_q0k)
+        backlash = terms.backlash
         # backlash: (joint, half gap, motor inertia, contact stiffness, contact damping). The contact is
         # a stiff unilateral spring-damper sized to the substep h: natural frequency x h = 0.25 on the
         # motor inertia, damping ratio 1.5 (stable for semi-implicit Euler; a torque step through a
@@ -270,11 +255,12 @@ class ArmPlant:
     def _generic_torques(self, q: list, dq: list) -> tuple[list, list]:
         """(non-friction, friction) torques of user-defined effects."""
         qa, dqa = np.array([q]), np.array([dq])
-        nf, fr = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
+        n = len(q)
+        nf, fr = [0.0] * n, [0.0] * n
         for eff, k, v in self._generic:
-            t = eff.torque(qa, dqa, self._zero3, k, v)[0].tolist()
+            t = eff.torque(qa, dqa, self._zero_row, k, v)[0].tolist()
             tgt = fr if eff.friction else nf
-            for i in range(3):
+            for i in range(n):
                 tgt[i] += t[i]
         return nf, fr
 
@@ -310,7 +296,7 @@ class ArmPlant:
             tau_current = np.array(tau_l)
             current_mask = np.array(current_mode)
 
-            def pick(values, dtype=float):  # the bilateral joints' entries as an array
+            def pick(values, dtype=float):  # the integrated joints' entries as an array
                 return np.array([values[i] for i in bi], dtype=dtype)
 
             bi_cmd = ActuatorCommand(pick(en_l, bool), pick(mode_l, None), pick(gc_l), pick(gp_l),
@@ -332,14 +318,14 @@ class ArmPlant:
         self.time += dt
 
     def _substep(self, q, dq, tau_m, ext, h: float) -> tuple:
-        """One substep: ((q), (dq)) as tuples of 3 floats. Without backlash (motor-side state) and user
+        """One substep: ((q), (dq)) as tuples of n floats. Without backlash (motor-side state) and user
         effects, a substep is a pure function of its inputs: a joint set standing still (stuck) under an
         unchanged torque gives the same inputs substep after substep, so the last result is reused when
         the inputs are the same bits (pinocchio and the float arithmetic are deterministic: nothing
         changes)."""
         if self._backlash or self._generic:
             return self._substep_compute(q, dq, tau_m, ext, h)
-        key = _SUBSTEP_KEY.pack(*q, *dq, *tau_m, *ext, h)
+        key = self._key.pack(*q, *dq, *tau_m, *ext, h)
         if key != self._last_key:
             self._last_key, self._last_out = key, self._substep_compute(q, dq, tau_m, ext, h)
         return self._last_out
@@ -348,36 +334,26 @@ class ArmPlant:
         if self._backlash:
             tau_m = self._gear_gap(q, dq, tau_m, h)
         if self._env is not None:  # the objects push like a hand: a pure function of q, dq
-            contact = self._env.torque_list(q, dq)
-            ext = [ext[0] + contact[0], ext[1] + contact[1], ext[2] + contact[2]]
+            ext = list(map(add, ext, self._env.torque_list(q, dq)))
         other = self._other_torque(q, dq)
         gen_fr = None
         if self._generic:
             gen_nf, gen_fr = self._generic_torques(q, dq)
-            other = [other[i] + gen_nf[i] for i in range(3)]
-        drive = [tau_m[0] + ext[0] - other[0], tau_m[1] + ext[1] - other[1], tau_m[2] + ext[2] - other[2]]
+            other = list(map(add, other, gen_nf))
+        drive = self._drive(tau_m, ext, other)
         qa, dqa = np.array(q), np.array(dq)
-        dq0, dq1, dq2 = dq
-        if dq0 != 0.0 and dq1 != 0.0 and dq2 != 0.0:
+        if 0.0 not in dq:  # every joint moves (== : -0.0 is at rest too)
             kinetic = self._kinetic
-            f0, f1, f2 = kinetic(0, dq0), kinetic(1, dq1), kinetic(2, dq2)
+            f = [kinetic(i, v) for i, v in enumerate(dq)]
             if gen_fr is not None:
-                f0, f1, f2 = f0 + gen_fr[0], f1 + gen_fr[1], f2 + gen_fr[2]
-            net = np.array((drive[0] - f0, drive[1] - f1, drive[2] - f2))
+                f = list(map(add, f, gen_fr))
+            net = np.array(list(map(sub, drive, f)))
             ddq = pin.aba(self.model, self.data, qa, dqa, net).tolist()
         else:
             ddq = self._stick_slip(qa, dqa, dq, drive, gen_fr)
         # semi-implicit Euler: velocity first, then position; friction stops a joint, it never reverses
         # it within a substep
-        a0, a1, a2 = ddq
-        v0, v1, v2 = dq0 + h * a0, dq1 + h * a1, dq2 + h * a2
-        if (dq0 > 0 and v0 < 0) or (dq0 < 0 and v0 > 0):
-            v0 = 0.0
-        if (dq1 > 0 and v1 < 0) or (dq1 < 0 and v1 > 0):
-            v1 = 0.0
-        if (dq2 > 0 and v2 < 0) or (dq2 < 0 and v2 > 0):
-            v2 = 0.0
-        return (q[0] + h * v0, q[1] + h * v1, q[2] + h * v2), (v0, v1, v2)
+        return self._euler(q, dq, ddq, h)
 
     def _gear_gap(self, q: list, dq: list, tau_m: list, h: float) -> list:
         """Backlash: the motor drives its own inertia; the link only gets the torque the gear passes
@@ -402,16 +378,18 @@ class ArmPlant:
         """Accelerations when some joint stands still: the stuck joints are held while the friction needed
         to hold each lies inside its static band; the joint pushed furthest beyond its band breaks away
         first, in that direction (then the others are tested again)."""
-        m = pin.crba(self.model, self.data, qa).tolist()
-        m[1][0], m[2][0], m[2][1] = m[0][1], m[0][2], m[1][2]
+        m = pin.crba(self.model, self.data, qa).tolist()  # the upper triangle; mirror it
+        self._mirror(m)
         nle = pin.nonLinearEffects(self.model, self.data, qa, dqa).tolist()
-        rhs = [drive[0] - nle[0], drive[1] - nle[1], drive[2] - nle[2]]
+        rhs = list(map(sub, drive, nle))
         free = [v != 0.0 for v in dq]
         vel = list(dq)  # velocity used for friction: tiny in the break-away direction
         kinetic, band_pos, band_neg = self._kinetic, self._band_pos_l, self._band_neg_l
-        for _ in range(4):
-            idx = [i for i in (0, 1, 2) if free[i]]
-            ddq = [0.0, 0.0, 0.0]
+        joints = self._joint_range
+        n = len(joints)
+        for _ in range(n + 1):  # each pass returns or frees one joint
+            idx = [i for i in joints if free[i]]
+            ddq = [0.0] * n
             if idx:
                 net = []  # drive beyond the free joints' kinetic friction
                 for a in idx:
@@ -422,7 +400,7 @@ class ArmPlant:
                 for a, x in zip(idx, _solve_free(m, idx, net)):
                     ddq[a] = x
             worst, worst_excess, push = -1, 0.0, 0.0
-            for s in (0, 1, 2):
+            for s in joints:
                 if free[s]:
                     continue
                 coupled = 0  # sum(m[s][a] * ddq[a] for a in idx), added up as sum() does
@@ -445,7 +423,7 @@ class ArmPlant:
         (exact discretisation); current mode -> inertia + viscous friction; torque off -> at rest.
         The commands are lists over the held joints.
 
-        Scalar Python over the five joints (cheaper than numpy on arrays this small); the arithmetic
+        Scalar Python over the held joints (cheaper than numpy on arrays this small); the arithmetic
         is the element-wise arithmetic of the array form, in the same order."""
         a00, a01, a10, a11 = self._held_matrix(dt)
         w = _HELD_OMEGA
@@ -629,6 +607,7 @@ class ArmPlant:
         """The plant's hidden truth (effects, parameters, true torque constants). Never in a session."""
         t = self.config.truth()
         t["seed"] = self.seed
+        t["joints"] = list(self.joints)  # the joints this plant integrates
         t["torque_constant_effective"] = dict(zip(self.arm.joint_names, self.kt.tolist()))
         return t
 
@@ -638,6 +617,44 @@ class ArmPlant:
         path.write_text(json.dumps(self.truth(), indent=2) + "\n")
         return path
 
+
+
+def _written_out(n: int) -> tuple:
+    """(euler, drive, mirror) for n joints: the per-joint float arithmetic of the substep written out
+    (generated once per n: a loop over n small lists costs more than the arithmetic itself):
+
+    - euler(q, dq, ddq, h) -> ((q'), (dq')): semi-implicit Euler, velocity first (a velocity that would
+      change sign in the substep stops at zero: friction stops a joint, it never reverses it), then
+      position;
+    - drive(tau_m, ext, other) -> [tau_m + ext - other] per joint;
+    - mirror(m): copies the upper triangle of the n x n list-of-lists m (pinocchio's crba) below the
+      diagonal."""
+    fns = _WRITTEN_OUT.get(n)
+    if fns is None:
+        r = range(n)
+        src = ["def euler(q, dq, ddq, h):",
+               f"    {', '.join(f'q{i}' for i in r)}, = q",
+               f"    {', '.join(f'd{i}' for i in r)}, = dq",
+               f"    {', '.join(f'a{i}' for i in r)}, = ddq"]
+        for i in r:
+            src += [f"    v{i} = d{i} + h * a{i}",
+                    f"    if (d{i} > 0 and v{i} < 0) or (d{i} < 0 and v{i} > 0):",
+                    f"        v{i} = 0.0"]
+        src += [f"    return ({', '.join(f'q{i} + h * v{i}' for i in r)},), "
+                f"({', '.join(f'v{i}' for i in r)},)",
+                "def drive(t, e, o):",
+                f"    return [{', '.join(f't[{i}] + e[{i}] - o[{i}]' for i in r)}]",
+                "def mirror(m):"]
+        lower = [(a, b) for a in range(1, n) for b in range(a)]
+        src += [f"    {', '.join(f'm[{a}][{b}]' for a, b in lower)}, = "
+                f"{', '.join(f'm[{b}][{a}]' for a, b in lower)}," if lower else "    pass"]
+        space: dict = {}
+        exec(compile("\n".join(src), f"<arm_plant substep, {n} joints>", "exec"), space)  # noqa: S102
+        fns = _WRITTEN_OUT[n] = (space["euler"], space["drive"], space["mirror"])
+    return fns
+
+
+_WRITTEN_OUT: dict[int, tuple] = {}
 
 
 def _clip(x: float, lo: float, hi: float) -> float:

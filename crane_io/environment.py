@@ -1,25 +1,26 @@
 """Objects the simulated CRANE-X7 can touch: the contact physics of a plant's [[environment]].
 
 Every object is a unilateral spring-damper (penalty contact). Torques are the torque the WORLD
-applies to the arm's bilateral joints (joint1, joint2, joint4, in that order; N m): positive pushes
-the joint positive, like an operator's hand (crane_io.arm_plant adds them to the external torque in
-every substep, so the stick-slip friction sees them).
+applies to the plant's integrated joints (`joints`, arm order, n of them; default joint1, joint2,
+joint4; N m): positive pushes the joint positive, like an operator's hand (crane_io.arm_plant adds
+them to the external torque in every substep, so the stick-slip friction sees them).
 
-- JointWall: a wall in one joint's angle. side "above" stops motion above `angle` (penetration
+- JointWall: a wall in one integrated joint's angle. side "above" stops motion above `angle` (penetration
   p = q - angle > 0), "below" stops motion below it (p = angle - q). The wall pushes back with
   stiffness p + damping x penetration velocity; damping acts only while penetrating and the total is
   clamped to the pushing sign (a wall never pulls).
 - Plane: a Cartesian plane in the arm's base frame (a point of it and the normal into free space),
-  checked against one frame of the 3-DOF model (default "tool": 0.08 m beyond the gripper base, about
-  between the fingertips, rigid on joint4's body because joints 5..7 are locked). Penetration
+  checked against one frame of the integrated-joint model (default "tool": 0.08 m beyond the gripper
+  base, about between the fingertips; on the last integrated joint's body, the joints after it being
+  locked). Penetration
   d = -n . (p - p0) > 0; normal force F_n = max(0, stiffness d - damping v_n) with v_n = n . v the
   point's velocity along the normal; tangential friction F_t = -mu F_n tanh(|v_t| / v_s) v_t / |v_t|
   (opposes the sliding velocity v_t, bounded by mu F_n; smoothed, so there is no true sticking on the
   plane). Joint torque = J^T (F_n n + F_t) with the frame's linear Jacobian J (pinocchio,
-  LOCAL_WORLD_ALIGNED) of the 3-DOF model.
+  LOCAL_WORLD_ALIGNED) over the integrated joints, (3, n).
 
-    env = Environment(config.environment)           # the parsed [[environment]] list
-    env.contact_torque(q, dq) -> (3,)                # N m on joint1, joint2, joint4
+    env = Environment(config.environment, joints=("joint1", "joint2", "joint4"))
+    env.contact_torque(q, dq) -> (n,)                # N m on the integrated joints
     env.in_contact(q) -> bool
 
 Joint walls are plain float arithmetic; the kinematics (forward kinematics, and the Jacobian only
@@ -34,6 +35,7 @@ from collections.abc import Sequence
 import numpy as np
 import pinocchio as pin
 
+from .errors import ConfigError
 from .plant_config import BILATERAL_JOINTS, JointWallSpec, PlaneSpec
 
 
@@ -72,7 +74,7 @@ class JointWall:
 
 class Plane:
     """A plane against one frame of the arm (see the module docstring); `spec` a PlaneSpec, `model`
-    the pinocchio model whose configuration is the bilateral joints' angles."""
+    the pinocchio model whose configuration is the integrated joints' angles."""
 
     def __init__(self, spec: PlaneSpec, model: pin.Model):
         self.spec = spec
@@ -87,7 +89,7 @@ class Plane:
         self.friction_velocity = float(spec.friction_velocity)
 
     def position(self, q) -> np.ndarray:
-        """Position (m, base frame) of the contact frame at joint angles q (3,)."""
+        """Position (m, base frame) of the contact frame at joint angles q (n,)."""
         pin.forwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
         return pin.updateFramePlacement(self.model, self.data, self.frame).translation
 
@@ -96,7 +98,7 @@ class Plane:
         return float(self.normal @ (self.position(q) - self.point))
 
     def jacobian(self, q) -> np.ndarray:
-        """Linear Jacobian (3, 3) of the contact frame (LOCAL_WORLD_ALIGNED), m/rad."""
+        """Linear Jacobian (3, n) of the contact frame (LOCAL_WORLD_ALIGNED), m/rad."""
         return pin.computeFrameJacobian(self.model, self.data, np.asarray(q, dtype=float), self.frame,
                                         pin.LOCAL_WORLD_ALIGNED)[:3]
 
@@ -115,7 +117,7 @@ class Plane:
         return force
 
     def torque(self, q, dq) -> np.ndarray | None:
-        """The plane's torque (3,) on the joints (N m), or None when the frame is outside the plane."""
+        """The plane's torque (n,) on the joints (N m), or None when the frame is outside the plane."""
         depth = -self.distance(q)
         if depth <= 0.0:
             return None
@@ -148,20 +150,27 @@ class Plane:
 
 
 class Environment:
-    """Every object of a plant's [[environment]] (a list of JointWallSpec / PlaneSpec). `model`: the
-    pinocchio model of the bilateral joints (default: crane_io.dynamics.ArmDynamics with the other
-    joints locked at `locked`, rad, default 0); only built when there is a plane."""
+    """Every object of a plant's [[environment]] (a list of JointWallSpec / PlaneSpec) acting on the
+    integrated `joints` (arm order, default joint1, joint2, joint4; a wall on another joint ->
+    ConfigError). `model`: the pinocchio model of those joints (default: crane_io.dynamics.ArmDynamics
+    with the other joints locked at `locked`, rad, default 0); only built when there is a plane."""
 
     def __init__(self, specs: Sequence[JointWallSpec | PlaneSpec] = (), model: pin.Model | None = None,
-                 locked: dict[str, float] | None = None):
+                 locked: dict[str, float] | None = None, joints: Sequence[str] = BILATERAL_JOINTS):
         self.specs = list(specs)
-        self.walls = [JointWall(s, BILATERAL_JOINTS.index(s.joint)) for s in self.specs
+        self.joints = tuple(joints)
+        for s in self.specs:
+            if isinstance(s, JointWallSpec) and s.joint not in self.joints:
+                raise ConfigError(f"the joint wall on {s.joint} needs {s.joint} among the integrated joints "
+                                  f"({', '.join(self.joints)}); integrate it or remove the wall")
+        self.walls = [JointWall(s, self.joints.index(s.joint)) for s in self.specs
                       if isinstance(s, JointWallSpec)]
         plane_specs = [s for s in self.specs if isinstance(s, PlaneSpec)]
         if plane_specs and model is None:
             from .dynamics import ArmDynamics
 
-            model = ArmDynamics(BILATERAL_JOINTS, locked=locked).model
+            locked = {n: v for n, v in (locked or {}).items() if n not in self.joints}
+            model = ArmDynamics(self.joints, locked=locked).model
         self.planes = [Plane(s, model) for s in plane_specs]
         self.objects = [self._object(s) for s in self.specs]  # in the order given
 
@@ -173,26 +182,24 @@ class Environment:
         return len(self.specs)
 
     def torque_list(self, q: Sequence[float], dq: Sequence[float]) -> list[float]:
-        """contact_torque as a list of 3 floats (the plant's hot path)."""
-        out = [0.0, 0.0, 0.0]
+        """contact_torque as a list of n floats (the plant's hot path)."""
+        out = [0.0] * len(q)
         for wall in self.walls:
             out[wall.index] += wall.torque(q, dq)
         for plane in self.planes:
             t = plane.torque(q, dq)
             if t is not None:
-                t = t.tolist()
-                out[0] += t[0]
-                out[1] += t[1]
-                out[2] += t[2]
+                for i, x in enumerate(t.tolist()):
+                    out[i] += x
         return out
 
     def contact_torque(self, q, dq) -> np.ndarray:
-        """(3,) torque (N m) the objects apply to joint1, joint2, joint4 at angles q, velocities dq."""
+        """(n,) torque (N m) the objects apply to the integrated joints at angles q, velocities dq."""
         return np.array(self.torque_list(np.asarray(q, dtype=float).tolist(),
                                          np.asarray(dq, dtype=float).tolist()))
 
     def in_contact(self, q) -> bool:
-        """True when any object is penetrated at joint angles q (3,)."""
+        """True when any object is penetrated at joint angles q (n,)."""
         q = np.asarray(q, dtype=float)
         ql = q.tolist()
         return (any(w.penetration(ql) > 0.0 for w in self.walls)

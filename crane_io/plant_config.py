@@ -8,28 +8,37 @@ Keys (every one optional; crane_io/plants/crane-x7.toml documents each with its 
     name, description          what the preset is
     base = "PRESET"            start from another preset, then apply this file's keys
     seed = 0                   seed of the sensor noise (ArmPlant(seed=...) overrides it)
+    joints = [...]             the joints the plant integrates with the full rigid-body dynamics, any
+                               of joint1..joint7 (arm order, at least one); default the paper's three
+                               ["joint1", "joint2", "joint4"] (BILATERAL_JOINTS). The others (and the
+                               gripper) are held servos: locked in the dynamics at [locked], simple
+                               position followers. ArmPlant(joints=...) overrides it; every joint
+                               effect and joint wall must be on an integrated joint
     substep_s = 0.00025        integration substep (s); stick-slip is resolved every substep
     effect_files = []          user Python files with Effect subclasses to load first
     [torque_constant]          TRUE N m/A per joint (the recorder uses crane_io.description's values)
-    [locked]                   angle (rad) at which each held joint is locked in the 3-DOF dynamics
+    [locked]                   angle (rad) at which each held joint is locked in the dynamics (not
+                               allowed for the preset's own `joints`; an entry for a joint that
+                               ArmPlant(joints=...) integrates is not used)
     [initial]                  initial angle (rad) per joint
     [sensor]                   position_noise_probability, current_noise_lsb, velocity_noise_lsb
     [overload]                 enabled, time_s: overload bit after time_s saturated at the limit
     [limits]                   stiffness (N m/rad), damping (N m s/rad) of the hard end stops
-    [[effects]]                the plant's truth: effect = NAME, joint = JOINT (none for arm effects),
+    [[effects]]                the plant's truth: effect = NAME, joint = JOINT (an integrated joint;
+                               none for arm effects),
                                then the effect's parameters by name (defaults from the library)
     [known]                    effects = [{effect = NAME, joint = JOINT}, ...]: what a baseline model
                                is told (the truth minus the hidden effect, minus what a fitted
                                rigid-body model absorbs anyway)
     [hidden]                   one planted effect (effect, joint, parameters), simulated like the rest
     [[environment]]            objects the arm can touch (crane_io.environment; none by default):
-        kind = "joint-wall"    joint = JOINT (joint1, joint2 or joint4), angle = RAD, side = "above" or
+        kind = "joint-wall"    joint = JOINT (an integrated joint), angle = RAD, side = "above" or
                                "below" (the wall stops motion above / below angle), stiffness = 50.0
                                N m/rad, damping = 0.5 N m s/rad (damping acts only while penetrating;
                                the wall never pulls)
         kind = "plane"         point = [x, y, z] m and normal = [nx, ny, nz] (into free space,
                                normalised here) in the arm's base frame; frame = "tool" (the point
-                               on the arm checked against the plane: a frame of the 3-DOF model,
+                               on the arm checked against the plane: a frame of the arm model,
                                default the tool frame 0.08 m beyond the gripper base, roughly between
                                the fingertips), stiffness = 2000.0 N/m, damping = 20.0 N s/m,
                                friction = 0.3 (Coulomb mu, tangential force <= mu x normal force),
@@ -56,9 +65,11 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-BILATERAL_JOINTS = ("joint1", "joint2", "joint4")
-_TOP_KEYS = {"name", "description", "base", "seed", "substep_s", "effect_files", "torque_constant", "locked",
-             "initial", "sensor", "overload", "limits", "effects", "known", "hidden", "environment"}
+BILATERAL_JOINTS = ("joint1", "joint2", "joint4")  # the paper's joints: the default integrated set
+# the joints a plant can integrate (the gripper is always a held servo)
+ARM_JOINTS = ("joint1", "joint2", "joint3", "joint4", "joint5", "joint6", "joint7")
+_TOP_KEYS = {"name", "description", "base", "seed", "joints", "substep_s", "effect_files", "torque_constant",
+             "locked", "initial", "sensor", "overload", "limits", "effects", "known", "hidden", "environment"}
 ENVIRONMENT_KINDS = ("joint-wall", "plane")
 
 
@@ -76,7 +87,7 @@ class EffectSpec:
 class JointWallSpec:
     """A wall in one joint's angle (see crane_io.environment.JointWall)."""
 
-    joint: str  # a bilateral joint
+    joint: str  # an integrated joint
     angle: float  # rad
     side: str  # "above": stops motion above `angle`; "below": below it
     stiffness: float = 50.0  # N m/rad
@@ -94,7 +105,7 @@ class PlaneSpec:
 
     point: tuple[float, float, float]  # m, a point of the plane
     normal: tuple[float, float, float]  # unit vector into free space
-    frame: str = "tool"  # the point on the arm: a frame of the 3-DOF model
+    frame: str = "tool"  # the point on the arm: a frame of the arm model
     stiffness: float = 2000.0  # N/m
     damping: float = 20.0  # N s/m, only while penetrating
     friction: float = 0.3  # Coulomb coefficient mu
@@ -134,6 +145,7 @@ class PlantConfig:
     name: str = "custom"
     description: str = ""
     seed: int = 0
+    joints: tuple[str, ...] = BILATERAL_JOINTS  # integrated joints when ArmPlant(joints=None)
     substep_s: float = 0.00025
     effect_files: list[str] = field(default_factory=list)
     torque_constant: dict[str, float] = field(default_factory=dict)
@@ -270,7 +282,22 @@ def _dataclass_table(cls, data, key: str, where: str):
     return obj
 
 
-def _effect_spec(entry, where: str) -> EffectSpec:
+def check_joints(joints, where: str = "the plant") -> tuple[str, ...]:
+    """The integrated joint set as a tuple in arm order: any of joint1..joint7, at least one, each once.
+    Anything else -> ConfigError."""
+    if isinstance(joints, str) or not isinstance(joints, (list, tuple)):
+        raise ConfigError(f"{where}: joints must be a list of joint names (any of {', '.join(ARM_JOINTS)}), "
+                          f"got {joints!r}")
+    bad = [j for j in joints if j not in ARM_JOINTS]
+    if bad:
+        raise ConfigError(f"{where}: joints names {bad[0]!r}, which the plant cannot integrate (any of "
+                          f"{', '.join(ARM_JOINTS)}; the gripper is always a held servo)")
+    if len(set(joints)) != len(joints) or not joints:
+        raise ConfigError(f"{where}: joints must name at least one joint, each once, got {list(joints)!r}")
+    return tuple(j for j in ARM_JOINTS if j in joints)
+
+
+def _effect_spec(entry, where: str, joints=BILATERAL_JOINTS) -> EffectSpec:
     from .effects import get_effect
 
     if not isinstance(entry, dict) or "effect" not in entry:
@@ -280,9 +307,11 @@ def _effect_spec(entry, where: str) -> EffectSpec:
     joint = entry.pop("joint", None)
     eff = get_effect(name)
     if eff.scope == "joint":
-        if joint not in BILATERAL_JOINTS:
-            raise ConfigError(f"{where}: effect {name!r} needs joint = one of {', '.join(BILATERAL_JOINTS)}, "
-                              f"got {joint!r}")
+        if joint not in joints:
+            fix = (f" (to simulate it there, add {joint} to the plant's joints)" if joint in ARM_JOINTS
+                   else "")
+            raise ConfigError(f"{where}: effect {name!r} needs joint = one of the integrated joints "
+                              f"{', '.join(joints)}, got {joint!r}{fix}")
     elif joint is not None:
         raise ConfigError(f"{where}: effect {name!r} acts on the whole arm; remove its joint")
     values = eff.check_values(entry)
@@ -303,6 +332,7 @@ def load_plant_config(preset_or_path: str | Path = "crane-x7") -> PlantConfig:
     if isinstance(substep, bool) or not isinstance(substep, (int, float)):
         raise ConfigError(f"{where}: substep_s must be a number, got {substep!r}")
     cfg.seed, cfg.substep_s = seed, float(substep)
+    cfg.joints = check_joints(data.get("joints", list(BILATERAL_JOINTS)), where)
     if not 1e-5 <= cfg.substep_s <= 0.002:
         raise ConfigError(f"{where}: substep_s must be between 1e-05 and 0.002 s, got {cfg.substep_s}")
     files = data.get("effect_files", []) or []
@@ -318,7 +348,7 @@ def load_plant_config(preset_or_path: str | Path = "crane-x7") -> PlantConfig:
     if any(v <= 0 for v in cfg.torque_constant.values()):
         raise ConfigError(f"{where}: every torque constant must be positive")
     cfg.locked = _float_table(data, "locked", where)
-    clash = [n for n in cfg.locked if n in BILATERAL_JOINTS]
+    clash = [n for n in cfg.locked if n in cfg.joints]
     if clash:
         raise ConfigError(f"{where}: [locked] cannot lock the simulated joint(s) {', '.join(clash)}")
     cfg.initial = _float_table(data, "initial", where)
@@ -328,9 +358,9 @@ def load_plant_config(preset_or_path: str | Path = "crane-x7") -> PlantConfig:
     effects = data.get("effects", []) or []
     if not isinstance(effects, list):
         raise ConfigError(f"{where}: effects must be a list of [[effects]] tables")
-    cfg.effects = [_effect_spec(e, where) for e in effects]
+    cfg.effects = [_effect_spec(e, where, cfg.joints) for e in effects]
     if data.get("hidden"):
-        cfg.hidden = _effect_spec(data["hidden"], where + " [hidden]")
+        cfg.hidden = _effect_spec(data["hidden"], where + " [hidden]", cfg.joints)
     known_table = data.get("known") or {}
     if not isinstance(known_table, dict):
         raise ConfigError(f"{where}: known must be a table ([known] with effects = [...])")
@@ -344,7 +374,7 @@ def load_plant_config(preset_or_path: str | Path = "crane-x7") -> PlantConfig:
             raise ConfigError(f"{where}: [known] effects must be tables with an 'effect' name")
         get_effect(k["effect"])
         cfg.known.append((str(k["effect"]), k.get("joint"), k.get("shape")))
-    cfg.environment = _environment(data.get("environment", []), where)
+    cfg.environment = _environment(data.get("environment", []), where, cfg.joints)
     return cfg
 
 
@@ -354,7 +384,7 @@ _WALL_KEYS = {"kind", "joint", "angle", "side", "stiffness", "damping"}
 _PLANE_KEYS = {"kind", "point", "normal", "frame", "stiffness", "damping", "friction", "friction_velocity"}
 
 
-def _environment(entries, where: str) -> list[EnvironmentSpec]:
+def _environment(entries, where: str, joints=BILATERAL_JOINTS) -> list[EnvironmentSpec]:
     if not isinstance(entries, list):
         raise ConfigError(f"{where}: environment must be a list of [[environment]] tables")
     out = []
@@ -366,7 +396,7 @@ def _environment(entries, where: str) -> list[EnvironmentSpec]:
         if kind not in ENVIRONMENT_KINDS:
             raise ConfigError(f"{at} needs kind = one of {', '.join(map(repr, ENVIRONMENT_KINDS))}, "
                               f"got {kind!r}")
-        out.append(_joint_wall(entry, at) if kind == "joint-wall" else _plane(entry, at))
+        out.append(_joint_wall(entry, at, joints) if kind == "joint-wall" else _plane(entry, at))
     return out
 
 
@@ -393,11 +423,13 @@ def _check_keys(entry: dict, allowed: set, at: str) -> None:
                           f"(known: {', '.join(sorted(allowed))})")
 
 
-def _joint_wall(entry: dict, at: str) -> JointWallSpec:
+def _joint_wall(entry: dict, at: str, joints=BILATERAL_JOINTS) -> JointWallSpec:
     _check_keys(entry, _WALL_KEYS, at)
     joint, side = entry.get("joint"), entry.get("side")
-    if joint not in BILATERAL_JOINTS:
-        raise ConfigError(f"{at}: joint must be one of {', '.join(BILATERAL_JOINTS)}, got {joint!r}")
+    if joint not in joints:
+        fix = f" (add {joint} to the plant's joints to integrate it)" if joint in ARM_JOINTS else ""
+        raise ConfigError(f"{at}: joint must be one of the integrated joints {', '.join(joints)}, "
+                          f"got {joint!r}{fix}")
     if side not in ("above", "below"):
         raise ConfigError(f"{at}: side must be \"above\" or \"below\", got {side!r}")
     return JointWallSpec(joint=joint, angle=_number(entry, "angle", at), side=side,

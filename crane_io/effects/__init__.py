@@ -20,10 +20,11 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError
-from .base import Effect, Param
+from .base import Effect, Param, PlantTerms
 from .library import BUILTIN_EFFECTS
 
-__all__ = ["Effect", "Param", "list_effects", "get_effect", "register_effect", "load_effect_file",
+__all__ = ["Effect", "Param", "PlantTerms", "list_effects", "get_effect", "register_effect",
+           "load_effect_file",
            "effect_names", "in_rigid_body_span"]
 
 _REGISTRY: dict[str, type[Effect]] = {}

@@ -12,11 +12,17 @@ Conventions (all arrays SI, (N, J) in the dynamics' joint order):
 - Parameters: `linear=True` ones are recovered from the fitted coefficients
   (`values_from_coefficients`); `linear=False` ones are shape parameters chosen from `shape_grid`;
   `model=False` ones exist only in the simulated plant (they are not estimated from data).
+- The simulated plant (crane_io.arm_plant.ArmPlant) compiles every configured effect with
+  `add_to_plant(terms, k, values)`: the effect adds its own contribution to a `PlantTerms` (per
+  integrated joint k: Coulomb levels, Stribeck terms, viscous, offset, spring, cogging, armature, ...).
+  The base class's contribution is the generic one: the plant evaluates `torque` every substep (as
+  friction when `friction` is True). Built-in effects override `plant_terms` with their closed form, so
+  each effect's physics lives in one class.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -31,6 +37,39 @@ class Param:
     description: str
     linear: bool = True  # fitted through the linear coefficients; False = shape parameter (grid)
     model: bool = True  # False: only the simulated plant uses it; never estimated
+
+
+@dataclass
+class PlantTerms:
+    """What the configured effects contribute to the simulated plant, per integrated joint: index k =
+    0..n-1 of `joints` (the joints the plant integrates, arm order). Lists hold n floats (N m, N m s/rad,
+    N m/rad, kg m^2); every effect adds its part with `Effect.add_to_plant`, in configuration order."""
+
+    joints: tuple[str, ...]
+    torque_constant: dict[str, float]  # TRUE N m/A of every joint by name (torque-constant-error divides it)
+    coulomb_pos: list[float] = field(default_factory=list)  # kinetic friction while moving positive
+    coulomb_neg: list[float] = field(default_factory=list)  # (magnitude) while moving negative
+    stribeck: list[list[tuple[float, float]]] = field(default_factory=list)  # per joint: (amplitude, vs)
+    viscous: list[float] = field(default_factory=list)
+    offset: list[float] = field(default_factory=list)
+    spring_k: list[float] = field(default_factory=list)  # stiffness
+    spring_q0k: list[float] = field(default_factory=list)  # stiffness x rest angle
+    cogging: list[tuple[int, float, float, float]] = field(default_factory=list)  # (k, sin, cos, cycles)
+    armature: list[float] = field(default_factory=list)  # rotor inertia (the dynamics' armature)
+    payload: float = 0.0  # kg at the tool
+    backlash: dict[int, tuple[float, float]] = field(default_factory=dict)  # k -> (gap width, motor inertia)
+    generic: list[tuple] = field(default_factory=list)  # (effect, k or None, values): torque() per substep
+    band_pos: list[float] = field(default_factory=list)  # static friction band (against + motion)
+    band_neg: list[float] = field(default_factory=list)  # (against - motion)
+
+    def __post_init__(self):
+        n = len(self.joints)
+        for name in ("coulomb_pos", "coulomb_neg", "viscous", "offset", "spring_k", "spring_q0k", "armature",
+                     "band_pos", "band_neg"):
+            if not getattr(self, name):
+                setattr(self, name, [0.0] * n)
+        if not self.stribeck:
+            self.stribeck = [[] for _ in range(n)]
 
 
 class Effect:
@@ -142,6 +181,28 @@ class Effect:
         """Friction the effect can supply at rest: (against negative motion, against positive motion),
         both >= 0 N m. Only meaningful when `friction` is True."""
         return (0.0, 0.0)
+
+    # ---- the simulated plant ------------------------------------------------------------------------------
+    def add_to_plant(self, terms: PlantTerms, k: int | None, values: dict) -> None:
+        """Add this effect (on integrated joint k, None for arm-scope effects; `values` checked and
+        complete) to the plant's terms: `plant_terms`, plus the static friction band of a friction
+        effect."""
+        self.plant_terms(terms, k, values)
+        if self.friction and k is not None:
+            lo, hi = self.static_band(values)
+            terms.band_neg[k] += lo
+            terms.band_pos[k] += hi
+
+    def plant_terms(self, terms: PlantTerms, k: int | None, values: dict) -> None:
+        """This effect's contribution to the plant. Default: the plant evaluates `torque` every substep
+        (friction when `friction` is True). Built-ins override it with their closed form."""
+        terms.generic.append((self, k, values))
+
+    def _same_physics(self, cls: type) -> bool:
+        """True when this effect's torque is `cls`'s (a subclass that changes it is evaluated
+        generically instead of with cls's closed form)."""
+        t = type(self)
+        return t._columns is cls._columns and t.torque is cls.torque and t.coefficients is cls.coefficients
 
     def describe_signature(self, joint_name: str = "the joint") -> str:
         return self.signature.format(joint=joint_name)

@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 
+from ..errors import ConfigError
 from .base import Effect, Param, joint_columns
 
 
@@ -29,6 +30,12 @@ class Coulomb(Effect):
         v = self.check_values(values)
         return (abs(v["coulomb"]), abs(v["coulomb"]))
 
+    def plant_terms(self, terms, k, values):
+        if not self._same_physics(Coulomb):
+            return super().plant_terms(terms, k, values)
+        terms.coulomb_pos[k] += values["coulomb"]
+        terms.coulomb_neg[k] += values["coulomb"]
+
 
 class CoulombAsym(Effect):
     name = "coulomb-asym"
@@ -49,6 +56,12 @@ class CoulombAsym(Effect):
         v = self.check_values(values)
         return (abs(v["coulomb_neg"]), abs(v["coulomb_pos"]))
 
+    def plant_terms(self, terms, k, values):
+        if not self._same_physics(CoulombAsym):
+            return super().plant_terms(terms, k, values)
+        terms.coulomb_pos[k] += values["coulomb_pos"]
+        terms.coulomb_neg[k] += values["coulomb_neg"]
+
 
 class Viscous(Effect):
     name = "viscous"
@@ -59,6 +72,11 @@ class Viscous(Effect):
 
     def _columns(self, q, dq, ddq, joint, shape):
         return joint_columns(len(q), q.shape[1], joint, dq[:, joint])
+
+    def plant_terms(self, terms, k, values):
+        if not self._same_physics(Viscous):
+            return super().plant_terms(terms, k, values)
+        terms.viscous[k] += values["viscous"]
 
 
 class Stribeck(Effect):
@@ -82,6 +100,11 @@ class Stribeck(Effect):
     def static_band(self, values):
         v = self.check_values(values)
         return (abs(v["stribeck"]), abs(v["stribeck"]))
+
+    def plant_terms(self, terms, k, values):
+        if not self._same_physics(Stribeck):
+            return super().plant_terms(terms, k, values)
+        _stribeck_term(terms, k, values["stribeck"], values["stribeck_velocity"])
 
 
 class Stiction(Effect):
@@ -123,6 +146,15 @@ class Stiction(Effect):
         b = max(abs(v["breakaway"]), abs(v["coulomb"]))
         return (b, b)
 
+    def plant_terms(self, terms, k, values):
+        """Coulomb while moving plus the fall from breakaway as a Stribeck term; the plant's stick-slip
+        holds the joint at rest up to the breakaway (static_band)."""
+        if not self._same_physics(Stiction):
+            return super().plant_terms(terms, k, values)
+        terms.coulomb_pos[k] += values["coulomb"]
+        terms.coulomb_neg[k] += values["coulomb"]
+        _stribeck_term(terms, k, values["breakaway"] - values["coulomb"], values["stiction_velocity"])
+
 
 class Offset(Effect):
     name = "offset"
@@ -133,6 +165,11 @@ class Offset(Effect):
 
     def _columns(self, q, dq, ddq, joint, shape):
         return joint_columns(len(q), q.shape[1], joint, np.ones(len(q)))
+
+    def plant_terms(self, terms, k, values):
+        if not self._same_physics(Offset):
+            return super().plant_terms(terms, k, values)
+        terms.offset[k] += values["offset"]
 
 
 class Spring(Effect):
@@ -148,6 +185,12 @@ class Spring(Effect):
     def _columns(self, q, dq, ddq, joint, shape):
         return joint_columns(len(q), q.shape[1], joint, q[:, joint] - shape["rest_angle"])
 
+    def plant_terms(self, terms, k, values):
+        if not self._same_physics(Spring):
+            return super().plant_terms(terms, k, values)
+        terms.spring_k[k] += values["stiffness"]
+        terms.spring_q0k[k] += values["stiffness"] * values["rest_angle"]
+
 
 class RotorInertia(Effect):
     name = "rotor-inertia"
@@ -161,6 +204,12 @@ class RotorInertia(Effect):
 
     def _columns(self, q, dq, ddq, joint, shape):
         return joint_columns(len(q), q.shape[1], joint, ddq[:, joint])
+
+    def plant_terms(self, terms, k, values):
+        """Rotor inertia goes into the plant's mass matrix (pinocchio's armature)."""
+        if not self._same_physics(RotorInertia):
+            return super().plant_terms(terms, k, values)
+        terms.armature[k] += values["inertia"]
 
 
 class Cogging(Effect):
@@ -194,6 +243,12 @@ class Cogging(Effect):
         names = super().column_names(joint, shape)
         return [names[0].replace(".amplitude", ".sin"), names[1].replace(".phase", ".cos")]
 
+    def plant_terms(self, terms, k, values):
+        if not self._same_physics(Cogging):
+            return super().plant_terms(terms, k, values)
+        c = self.coefficients(values)
+        terms.cogging.append((k, float(c[0]), float(c[1]), values["cycles_per_rev"]))
+
 
 class Backlash(Effect):
     name = "backlash"
@@ -217,6 +272,17 @@ class Backlash(Effect):
         vr = max(shape["reversal_velocity"], 1e-9)
         c = ddq[:, joint] * np.exp(-((dq[:, joint] / vr) ** 2))
         return joint_columns(len(q), q.shape[1], joint, c)
+
+    def plant_terms(self, terms, k, values):
+        """The plant simulates the gear gap itself (width, motor_inertia): the motor side is a state of
+        its own, coupled to the link when the gap has closed (crane_io.arm_plant)."""
+        joint = terms.joints[k]
+        if k in terms.backlash:
+            raise ConfigError(f"backlash is configured twice for {joint}; give one gap per joint")
+        if not (values["width"] >= 0 and values["motor_inertia"] > 0):
+            raise ConfigError(f"backlash on {joint} needs width >= 0 rad and motor_inertia > 0 "
+                              f"kg m^2, got {values['width']} and {values['motor_inertia']}")
+        terms.backlash[k] = (values["width"], values["motor_inertia"])
 
 
 class _NeedsDynamics(Effect):
@@ -264,6 +330,10 @@ class Payload(_NeedsDynamics):
         self._check_dims(q)
         return self.dynamics.payload_torque(q, dq, ddq, 1.0)[:, :, None]
 
+    def plant_terms(self, terms, k, values):
+        """The payload goes into the plant's rigid-body dynamics (a point mass at the tool)."""
+        terms.payload += values["mass"]
+
 
 class TorqueConstantError(_NeedsDynamics):
     name = "torque-constant-error"
@@ -281,6 +351,17 @@ class TorqueConstantError(_NeedsDynamics):
     def _columns(self, q, dq, ddq, joint, shape):
         self._check_dims(q)
         return joint_columns(len(q), q.shape[1], joint, self.dynamics.inverse_dynamics(q, dq, ddq)[:, joint])
+
+    def plant_terms(self, terms, k, values):
+        """The plant's true torque constant is the configured one / (1 + e)."""
+        joint = terms.joints[k]
+        terms.torque_constant[joint] = terms.torque_constant[joint] / (1.0 + values["scale_error"])
+
+
+def _stribeck_term(terms, k: int, amplitude: float, velocity: float) -> None:
+    """A Stribeck-type term exp(-(v/vs)^2) sign(v) of the plant's kinetic friction (none when zero)."""
+    if amplitude != 0:
+        terms.stribeck[k].append((float(amplitude), max(velocity, 1e-6)))
 
 
 BUILTIN_EFFECTS: tuple[type[Effect], ...] = (
