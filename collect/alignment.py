@@ -93,7 +93,10 @@ def align(pair: ArmPair, ctl: BilateralController, safety: SafetyMonitor, config
     move_s = max(0.5, 1.875 * dist / s.homing_speed) if dist > s.agree_tolerance else 0.0
     say(f"aligning the arms: {np.degrees(dist):.1f} deg at most, {move_s + SETTLE_S:.1f} s")
     period = config.loop.period_s
-    ticks = 2 if lockstep else 1  # in lockstep each goal sync write advances the plant
+    # With every servo bilateral (the gripper too) there is no held joint and no goal position to send:
+    # an empty sync write is no packet at all.
+    held = not bool(bil.all())
+    ticks = 2 if lockstep and held else 1  # in lockstep each goal sync write advances the plant
     if paced is None:
         paced = not lockstep
     t = 0.0
@@ -123,7 +126,8 @@ def align(pair: ArmPair, ctl: BilateralController, safety: SafetyMonitor, config
         # Goal current first: it is what the current-mode joints act on, so it leaves right after the
         # read; the held joints' goal positions follow.
         _states(pair.write_currents(tau_l / kt, tau_f / kt))
-        _states(pair.write_positions(ref_l[0], ref_f[0]))
+        if held:
+            _states(pair.write_positions(ref_l[0], ref_f[0]))
         if between_cycles is not None:
             between_cycles()
         timer.wait()

@@ -70,10 +70,12 @@ def make_plant(spec: str | None, seed: int, arm: ArmDescription, objects: bool =
                           "use --plant simple") from None
     config = load_plant_config(spec or default_plant(arm))
     config = config if objects else config.without_environment()
-    joints = tuple(arm.bilateral_joints)
+    # The arm plant integrates arm joints only: a bilateral gripper is its simple current-driven servo
+    # (inertia and viscous friction), as every held servo is when its mode is current.
+    joints = tuple(n for n in arm.bilateral_joints if n != "gripper")
     if _takes_joints(ArmPlant):
-        return ArmPlant(config, seed=seed, joints=joints)
-    if joints != _PAPER_JOINTS:  # an arm plant from before the seven-joint work
+        return ArmPlant(config, seed=seed, joints=joints or None)
+    if joints and joints != _PAPER_JOINTS:  # an arm plant from before the seven-joint work
         raise ConfigError(f"this arm plant simulates the bilateral joints {', '.join(_PAPER_JOINTS)} only, "
                           f"not {', '.join(joints)}; use --plant simple or the paper's joints")
     return ArmPlant(config, seed=seed)
