@@ -249,6 +249,66 @@ class ArmDynamics:
             out.append(" ".join(terms))
         return out
 
+    # ---- base parameters seen from some joints' rows only ---------------------------------------------
+    # A learning model may free more joints than it learns (train: the other joints' recorded motion
+    # enters the kinematics) and then has torque data for the rows of its learning joints only. The
+    # parameters identifiable from those rows are the base parameters of the regressor restricted to
+    # them: the same construction as above (same random samples, QR with column pivoting) on the chosen
+    # rows. With every joint's row chosen these are exactly base_regressor / base_parameters.
+    def _row_index(self, rows) -> np.ndarray:
+        rows = tuple(rows)
+        bad = [r for r in rows if r not in self.joint_names]
+        if bad or not rows:
+            raise ConfigError(f"rows {', '.join(bad) or '(none)'} are not free joints of this model "
+                              f"({', '.join(self.joint_names)})")
+        return np.array([self.joint_names.index(r) for r in rows])
+
+    def _base_decomposition_rows(self, rows):
+        rows = tuple(rows)
+        if sorted(rows) == sorted(self.joint_names):
+            return self._base_decomposition()
+        cache = self.__dict__.setdefault("_base_rows", {})
+        key = tuple(sorted(self._perm[self._row_index(rows)].tolist()))  # model-order rows
+        if key not in cache:
+            rng = np.random.default_rng(_BASE_SEED)
+            lo = np.array([self.model.lowerPositionLimit[k] for k in range(self.model.nq)])
+            hi = np.array([self.model.upperPositionLimit[k] for k in range(self.model.nq)])
+            n = _BASE_SAMPLES
+            q = rng.uniform(lo, hi, size=(n, self.n_joints))
+            dq = rng.uniform(-3, 3, size=(n, self.n_joints))
+            ddq = rng.uniform(-20, 20, size=(n, self.n_joints))
+            w = self._regressor_model_order(q, dq, ddq)[:, list(key)].reshape(-1, 10 * self.nbodies)
+            _, r, piv = scipy.linalg.qr(w, mode="economic", pivoting=True)
+            diag = np.abs(np.diag(r))
+            rank = int(np.sum(diag > _RANK_TOL * diag[0]))
+            indep, dep = piv[:rank], piv[rank:]
+            beta = scipy.linalg.solve_triangular(r[:rank, :rank], r[:rank, rank:])
+            beta[np.abs(beta) < 1e-10] = 0.0
+            cache[key] = (indep, dep, beta)
+        return cache[key]
+
+    def base_regressor_rows(self, q, dq, ddq, rows) -> np.ndarray:
+        """(N, len(rows), B_rows): the torques of the joints `rows` (names, in that order) =
+        base_regressor_rows @ base_parameters_rows(rows). q, dq, ddq cover every free joint."""
+        (q, dq, ddq), single = self._batches((q, "q"), (dq, "dq"), (ddq, "ddq"))
+        indep, _, _ = self._base_decomposition_rows(rows)
+        out = self._regressor_model_order(q, dq, ddq)[:, self._perm[self._row_index(rows)]][:, :, indep]
+        return out[0] if single else out
+
+    def base_parameters_rows(self, rows) -> np.ndarray:
+        indep, dep, beta = self._base_decomposition_rows(rows)
+        phi = self.standard_parameters()
+        return phi[indep] + beta @ phi[dep]
+
+    def base_parameter_names_rows(self, rows) -> list[str]:
+        indep, dep, beta = self._base_decomposition_rows(rows)
+        names = self.standard_parameter_names()
+        return [names[c] + ("+" if np.any(beta[k] != 0) else "") for k, c in enumerate(indep)]
+
+    def base_independent_columns_rows(self, rows) -> np.ndarray:
+        """Indices of the standard parameters that are the base parameters of `rows` (their leading ones)."""
+        return self._base_decomposition_rows(rows)[0]
+
     # ---- payload -------------------------------------------------------------------------------------
     def payload_torque(self, q, dq, ddq, mass: float = 1.0) -> np.ndarray:
         """(N, J) extra motor torque caused by a point mass (kg) at the tool frame; linear in mass."""

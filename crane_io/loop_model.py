@@ -20,7 +20,11 @@ before exports existed). The export holds plain arrays only (loaded without pick
     rigid_theta_full    (10 nbodies,) standard parameters: the fitted base parameters at the independent
                         columns, zero at the dependent ones (rigid-body, hybrid)
     rigid_locked_joints, rigid_locked_angles, rigid_payload_mass
-                        how the model's ArmDynamics was built (joints = joint_names)
+                        how the model's ArmDynamics was built (joints = joint_names; the locked angles
+                        are the other joints' recorded medians for a model fitted with context)
+    rigid_context_joints  (only when present) other joints whose recorded motion the model's kinematics
+                        read; the loop gets the model's own joints only, so loading such a model is
+                        refused in one sentence
     rigid_effects       JSON list of effect terms {"name", "joint" (index or null), "shape", "n_coefs"}
     rigid_effect_coefs  their coefficients, concatenated in that order
     rigid_effect_files  user effect files (--effect-file) the terms need, loaded with crane_io.effects
@@ -438,6 +442,12 @@ class _Loader:
         lacking = [k for k in keys if k not in a]
         if lacking:
             raise self.fail(f"has a loop export without {lacking[0]}; {again}")
+        if "rigid_context_joints" in a and np.atleast_1d(a["rigid_context_joints"]).size:
+            ctx = ", ".join(str(n) for n in np.atleast_1d(a["rigid_context_joints"]))
+            raise self.fail(f"is a rigid-body model whose kinematics read the recorded motion of {ctx} "
+                            f"(context joints that moved in its training data), which the control loop "
+                            f"does not pass to a model; fit it with those joints among --joints, or on "
+                            f"data where they are held still")
         locked_names = [str(n) for n in np.atleast_1d(a["rigid_locked_joints"])]
         locked_angles = np.atleast_1d(np.asarray(a["rigid_locked_angles"], dtype=float))
         if len(locked_names) != len(locked_angles):

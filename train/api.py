@@ -120,7 +120,7 @@ def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = ()
 
     from .metrics import metrics_table
     from .models.registry import make_model
-    from .splits import make_splits
+    from .splits import eval_mask, make_splits
 
     effects = [_effect(e) for e in effects]  # bad input is refused before any work
     if (effects or effect_files) and method not in ("rigid-body", "hybrid"):
@@ -165,7 +165,8 @@ def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = ()
                "train_samples": len(pool),
                "train_samples_all_moving": int(pool.all_moving.sum()), "test_samples": len(test),
                "seed": seed,
-               "test": metrics_table(test.tau, model.predict_dataset(test), ds.joint_names),
+               "test": metrics_table(test.tau, model.predict_dataset(test), ds.joint_names, eval_mask(test)),
+               "eval_set": test.meta.get("eval_set", "all-moving"),
                "usable_fraction": ds.meta["usable_fraction"],
                "sources": [str(Path(f).resolve()) for f in ds.meta["sources"]]}  # found from any directory
     return FitResult(model, metrics, ds, splits)

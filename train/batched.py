@@ -98,12 +98,13 @@ def _epoch_batches(orders, batch_size):
 
 
 def train_mlps(X, Y, W, rows, X_val, Y_val, settings: MLPSettings | None = None, seeds=None,
-               progress=None) -> BatchedResult:
+               progress=None, W_val=None) -> BatchedResult:
     """Train len(rows) MLPs together.
 
     X (N, D), Y (N, J), W (N, J) loss weights (mask or ones), rows: list of M index arrays (each model's
     training rows), X_val (V, D), Y_val (V, J) SI validation data, seeds: M ints (default 0..M-1),
-    progress: optional callable(epoch_done, epochs) for progress bars.
+    progress: optional callable(epoch_done, epochs) for progress bars. W_val (V, J) bool: score each
+    joint's validation MSE over its True rows only (a per-joint validation set, train.splits); None: all.
     """
     s = settings or MLPSettings()
     M = len(rows)
@@ -126,6 +127,9 @@ def train_mlps(X, Y, W, rows, X_val, Y_val, settings: MLPSettings | None = None,
     xv = torch.as_tensor(np.asarray(X_val, dtype=np.float32))
     yv = torch.as_tensor(np.asarray(Y_val, dtype=np.float32))
     xv_std = (xv.unsqueeze(0) - nt["x_mean"].unsqueeze(1)) / nt["x_std"].unsqueeze(1)  # (M, V, D)
+    if W_val is not None:
+        wv = torch.as_tensor(np.asarray(W_val, dtype=np.float32))  # (V, J)
+        wv_n = wv.sum(dim=0).clamp(min=1)
 
     exp_avg = {k: torch.zeros_like(v) for k, v in params.items()}
     exp_sq = {k: torch.zeros_like(v) for k, v in params.items()}
@@ -177,7 +181,10 @@ def train_mlps(X, Y, W, rows, X_val, Y_val, settings: MLPSettings | None = None,
                     p.sub_(am * (s.lr / bc1).view(shape) * exp_avg[k] / denom)
         with torch.no_grad():
             pred = forward(params, xv_std) * y_std + y_mean
-            vm = ((pred - yv.unsqueeze(0)) ** 2).mean(dim=1)  # (M, J)
+            if W_val is None:
+                vm = ((pred - yv.unsqueeze(0)) ** 2).mean(dim=1)  # (M, J)
+            else:
+                vm = (wv * (pred - yv.unsqueeze(0)) ** 2).sum(dim=1) / wv_n
             score = vm.mean(dim=1)
             better = score < best_val
             if better.any():

@@ -75,7 +75,8 @@ def data_options(func):
     func = click.option("--alpha", default=None, type=float,
                         help="Dead-zone threshold: a joint moves when |dq| > alpha * std(dq) [0.1].")(func)
     func = click.option("--joints", default=None,
-                        help="Comma-separated learning joints [joint1,joint2,joint4].")(func)
+                        help="Comma-separated learning joints, or 'all' (every arm joint the sessions "
+                             "record) [joint1,joint2,joint4].")(func)
     func = click.option("--config", "config_path", default=None, type=click.Path(dir_okay=False),
                         help="TOML overriding train/config/train.toml.")(func)
     return func

@@ -29,7 +29,7 @@ def session_info(paths, joints=None, alpha: float = 0.1, arm: str = "follower") 
 @click.command()
 @click.argument("sessions", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--joints", default="joint1,joint2,joint4", show_default=True,
-              help="Comma-separated learning joints.")
+              help="Comma-separated learning joints, or 'all' (every arm joint recorded).")
 @click.option("--alpha", default=0.1, show_default=True, type=float, help="Dead-zone threshold factor.")
 @click.option("--arm", type=click.Choice(["leader", "follower"]), default="follower", show_default=True,
               help="The arm whose data to describe.")

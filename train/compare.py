@@ -69,8 +69,10 @@ def model_sessions(model, model_dir=None) -> list[str]:
 
 def score(model, held: HeldOut, directory: str = "") -> ModelScore:
     ds = held.data
-    pred = model.predict(ds.q, ds.dq, ds.ddq)
-    test = metrics_table(ds.tau[held.test], pred[held.test], ds.joint_names)
+    from .models.base import predict_on
+
+    pred = predict_on(model, ds)
+    test = metrics_table(ds.tau[held.test], pred[held.test], ds.joint_names, held.test_mask())
     moving = mse(ds.tau, pred, ds.moving)
     return ModelScore(directory, model.method, effect_labels(model), test,
                       {j: float(v) for j, v in zip(ds.joint_names, moving)}, int(held.test.sum()))
@@ -87,7 +89,7 @@ def _align(reference: HeldOut, other: HeldOut) -> HeldOut:
     found = np.array([r >= 0 for r in rows])
     rows = np.array([r for r in rows if r >= 0], int)
     return HeldOut(other.data.subset(rows), reference.test[found], reference.window[found],
-                   reference.block_starts, reference.description)
+                   reference.block_starts, reference.description, reference.per_joint)
 
 
 def compare_models(model_dirs, sessions=None, progress: bool = False) -> Comparison:

@@ -85,8 +85,9 @@ def model_effects(model) -> set[tuple[str, str | None]]:
 def physics_basis(model, ds: Dataset) -> np.ndarray | None:
     """(N, J, p) regressor of a physics model (rigid-body: base regressor + its effects' columns), or
     None for a model that is not linear in its parameters."""
-    basis = getattr(model, "linear_basis", None)  # train.models.base.Model's; a stand-in may lack it
-    X = basis(ds.q, ds.dq, ds.ddq) if basis is not None else None
+    from .models.base import basis_on
+
+    X = basis_on(model, ds)  # train.models.base.Model's linear_basis; a stand-in may lack it
     if X is None:
         return None
     X = np.asarray(X, dtype=float)
@@ -98,7 +99,9 @@ def physics_basis(model, ds: Dataset) -> np.ndarray | None:
 def diagnose(model, ds: Dataset, effects=None, **kwargs) -> Diagnosis:
     """Diagnose `model` on `ds` (see the module docstring): a physics model is refitted with each
     candidate; any other model keeps its predictions and the candidate explains its residual."""
-    residual = ds.tau - np.asarray(model.predict(ds.q, ds.dq, ds.ddq), dtype=float)
+    from .models.base import predict_on
+
+    residual = ds.tau - np.asarray(predict_on(model, ds), dtype=float)
     X = physics_basis(model, ds)
     if X is None:
         return _run(ds, None, residual, residual, effects, exclude=model_effects(model), **kwargs)

@@ -110,8 +110,9 @@ def discover(model, ds: Dataset, diagnosis=None, *, every_joint: bool = False, f
     result on the same data) supplies each joint's library best; with `every_joint` (or without a
     diagnosis) discovery starts from the model alone."""
     from .diagnose import physics_basis
+    from .models.base import predict_on
 
-    residual = ds.tau - np.asarray(model.predict(ds.q, ds.dq, ds.ddq), dtype=float)
+    residual = ds.tau - np.asarray(predict_on(model, ds), dtype=float)
     if not np.isfinite(residual).all():
         raise DiscoveryError("the model predicts NaN or infinite torque on these data")
     X = physics_basis(model, ds)

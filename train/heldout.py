@@ -28,9 +28,19 @@ class HeldOut:
     window: np.ndarray  # (n,) bool: rows of the continuous plotting window
     block_starts: list[int] = field(default_factory=list)  # row where each contiguous held-out block starts
     description: str = ""
+    per_joint: bool = False  # a per-joint test set (train.splits): each joint is scored where it moves
 
     def moving_rows(self, j: int) -> np.ndarray:
         return np.flatnonzero(self.data.moving[:, j])
+
+    def test_rows(self, j: int) -> np.ndarray:
+        """Rows of joint j's test samples: the test set, and for a per-joint set where j moves."""
+        rows = self.test & self.data.moving[:, j] if self.per_joint else self.test
+        return np.flatnonzero(rows)
+
+    def test_mask(self):
+        """(n_test, J) mask of the test rows' scores (per-joint sets), or None (every row counts)."""
+        return self.data.moving[self.test] if self.per_joint else None
 
 
 def held_out_rows(ds: Dataset, splits: Splits) -> np.ndarray:
@@ -62,7 +72,9 @@ def held_out(ds: Dataset, splits: Splits, sessions=(), seed: int | None = None) 
     window = np.array([r in window_set for r in rows], bool)
     starts = [0] + (np.flatnonzero((np.diff(rows) > 1) | (np.diff(ds.segment[rows]) != 0)) + 1).tolist()
     w = np.asarray(splits.index["window"])
-    desc = (f"Test blocks: {int(test.sum())} test samples (every joint moves) and "
+    per = splits.test.meta.get("eval_set") == "per-joint"
+    desc = (f"Test blocks: {int(test.sum())} test samples "
+            f"({'each joint scored where it moves' if per else 'every joint moves'}) and "
             f"{int((~test & ~window).sum())} more samples of the same blocks (some joint stands still), "
             f"in {len(starts) - 1} contiguous blocks; plus the continuous {splits.config.window_s:g} s "
             f"plotting window (t = {ds.t[w[0]]:.1f}–{ds.t[w[-1]]:.1f} s, piece {int(ds.segment[w[0]])}). "
@@ -70,7 +82,7 @@ def held_out(ds: Dataset, splits: Splits, sessions=(), seed: int | None = None) 
             "None of these samples was used for training or validation.")
     if sessions:
         desc += f" Sessions: {', '.join(str(s) for s in sessions)}."
-    return HeldOut(ds.subset(rows), test, window, starts, desc)
+    return HeldOut(ds.subset(rows), test, window, starts, desc, per)
 
 
 def fit_record(model_dir) -> dict:

@@ -36,6 +36,21 @@ from .session import ARMS, RawSession, read_sessions
 # A joint whose (filtered) angle spans less than this never moved: a joint held in position mode only
 # jitters by an encoder count or two (0.0015 rad each), and its velocity's spread is that jitter.
 MIN_TRAVEL_RAD = 0.01
+# the arm joints (joint1..joint7): what `--joints all` means and what may be a context joint; the
+# gripper is neither
+# (crane_io.arm_model.JOINT_NAMES without the gripper; not imported from there: that imports pinocchio)
+ARM_JOINTS = ("joint1", "joint2", "joint3", "joint4", "joint5", "joint6", "joint7")
+
+
+def resolve_joints(joints, available=None) -> tuple[str, ...]:
+    """Learning joints from a list or comma string; "all" means every arm joint (of `available`, the
+    joints a session records, when given)."""
+    if isinstance(joints, str):
+        joints = [j.strip() for j in joints.split(",") if j.strip()]
+    joints = tuple(joints)
+    if joints == ("all",):
+        return tuple(n for n in ARM_JOINTS if available is None or n in available)
+    return joints
 
 
 @dataclass
@@ -111,7 +126,18 @@ def preprocess(sessions: list[RawSession] | RawSession, config: PreprocessConfig
     config = config or PreprocessConfig()
     if isinstance(sessions, RawSession):
         sessions = [sessions]
-    parts = {k: [] for k in ("t", "q", "dq", "ddq", "tau", "segment")}
+    if config.joints == ("all",):  # every arm joint all the sessions record
+        values = config.to_dict()
+        values["joints"] = tuple(n for n in ARM_JOINTS if all(n in s.joint_names for s in sessions))
+        if not values["joints"]:
+            raise ConfigError("--joints all: the sessions have no arm joint (joint1..joint7) in common")
+        config = PreprocessConfig.from_dict(values)
+    parts = {k: [] for k in ("t", "q", "dq", "ddq", "tau", "segment", "cq", "cdq", "cddq")}
+    # context joints: the other arm joints every session records (their recorded angles enter the
+    # rigid-body model's kinematics); filtered together with the learning joints, column by column
+    context = [n for n in ARM_JOINTS if n not in config.joints
+               and all(n in s.joint_names for s in sessions)]
+    J = len(config.joints)
     seg = 0
     dropped = 0
     longest = 0.0  # s, of the pieces too short to use
@@ -124,9 +150,10 @@ def preprocess(sessions: list[RawSession] | RawSession, config: PreprocessConfig
             raise ConfigError(f"{s.path or 'the session'} has no joint(s) {', '.join(missing)} "
                               f"(it has {', '.join(s.joint_names)})")
         cols = [s.joint_names.index(n) for n in config.joints]
+        ccols = [s.joint_names.index(n) for n in context]
         settle = int(round(config.settle_s * s.rate_hz))
         for piece in _pieces(s.t, config.split_gap_s):
-            t, q, tau = s.t[piece], s.q[piece][:, cols], s.tau[piece][:, cols]
+            t, q, tau = s.t[piece], s.q[piece][:, cols + ccols], s.tau[piece][:, cols]
             if len(t) <= settle + 2 * s.rate_hz / config.downsample_hz:
                 dropped += 1
                 longest = max(longest, len(t) / s.rate_hz)
@@ -135,7 +162,9 @@ def preprocess(sessions: list[RawSession] | RawSession, config: PreprocessConfig
             keep = slice(settle, None)
             t, (q, dq, ddq, tau) = _downsample(t[keep], [q[keep], dq[keep], ddq[keep], tau[keep]],
                                                s.rate_hz, config.downsample_hz)
-            for k, v in zip(("t", "q", "dq", "ddq", "tau"), (t, q, dq, ddq, tau)):
+            q, cq, dq, cdq, ddq, cddq = q[:, :J], q[:, J:], dq[:, :J], dq[:, J:], ddq[:, :J], ddq[:, J:]
+            for k, v in zip(("t", "q", "dq", "ddq", "tau", "cq", "cdq", "cddq"),
+                            (t, q, dq, ddq, tau, cq, cdq, cddq)):
                 parts[k].append(v)
             parts["segment"].append(np.full(len(t), seg, dtype=int))
             seg += 1
@@ -158,9 +187,11 @@ def preprocess(sessions: list[RawSession] | RawSession, config: PreprocessConfig
     meta = {"preprocessing": config.to_dict(), "sigma": sigma.tolist(), "alpha": config.alpha,
             "sources": [s.path for s in sessions], "source_kinds": [s.source for s in sessions],
             "raw_rate_hz": [s.rate_hz for s in sessions], "arm": config.arm, "pieces_dropped": dropped,
-            "usable_fraction": moving_fractions(moving, config.joints)}
+            "usable_fraction": moving_fractions(moving, config.joints), "context_joints": list(context)}
     return Dataset(joint_names=tuple(config.joints), t=cat["t"], q=cat["q"], dq=cat["dq"], ddq=cat["ddq"],
-                   tau=cat["tau"], moving=moving, rate_hz=float(rate), segment=cat["segment"], meta=meta)
+                   tau=cat["tau"], moving=moving, rate_hz=float(rate), segment=cat["segment"], meta=meta,
+                   context_names=tuple(context), context_q=cat["cq"], context_dq=cat["cdq"],
+                   context_ddq=cat["cddq"])
 
 
 def read_preprocessed(paths, config: PreprocessConfig, hand_free: bool = True) -> Dataset:

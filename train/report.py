@@ -110,7 +110,8 @@ def summary_rows(held: HeldOut, pred: np.ndarray) -> list[dict]:
     ds = held.data
     out = []
     for j, name in enumerate(ds.joint_names):
-        test = error_stats(ds.tau[held.test, j], pred[held.test, j])
+        rows = held.test_rows(j) if hasattr(held, "test_rows") else held.test
+        test = error_stats(ds.tau[rows, j], pred[rows, j])
         mov = held.moving_rows(j)
         moving = error_stats(ds.tau[mov, j], pred[mov, j])
         out.append({"joint": name, "test": test, "moving": moving})
@@ -270,7 +271,9 @@ def _table(head: list[str], rows: list[list]) -> str:
 def report_html(model, model_dir, held: HeldOut, sessions=(), diagnosis=None, discovery=None) -> str:
     """The report page as a string (with the discovered expressions when `discovery` is given)."""
     ds = held.data
-    pred = np.asarray(model.predict(ds.q, ds.dq, ds.ddq), float)
+    from .models.base import predict_on
+
+    pred = np.asarray(predict_on(model, ds), float)
     parts = [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
              f"<title>crane-x7 model report: {html.escape(str(model_dir))}</title><style>{CSS}</style>"
              f"</head><body>"]

@@ -35,7 +35,7 @@ from .metrics import mse, torque_variance
 from .models.mlp import features
 from .models.rigid_body import RigidBodyModel
 from .progress import ProgressLines
-from .splits import SplitConfig, Splits, make_splits
+from .splits import SplitConfig, Splits, eval_mask, make_splits
 
 RESULTS_VERSION = 1
 
@@ -132,7 +132,7 @@ def run_rigid_body(splits: Splits, subsets: dict, sizes, trials, progress: bool 
             except CraneError:
                 bar.update()
                 continue  # too few all-moving samples at this size: no score (NaN)
-            out[s, trial] = mse(splits.test.tau, model.predict_dataset(splits.test))
+            out[s, trial] = mse(splits.test.tau, model.predict_dataset(splits.test), eval_mask(splits.test))
             if s == len(sizes) - 1 and trial == 0:
                 largest = model
             bar.update()
@@ -191,13 +191,13 @@ def run_mlps(splits: Splits, subsets: dict, sizes, trials, methods, settings: ML
                   + (" (trained)" if done >= total else ""), force=done >= total)
 
     res = train_mlps(job["X"], job["Y"], job["W"], rows, features(val.q, val.dq, val.ddq), val.tau, settings,
-                     seeds=job["seeds"], progress=step)
+                     seeds=job["seeds"], progress=step, W_val=eval_mask(val))
     bar.close()
     test, win = splits.test, splits.window
     pred = predict(res.params, res.norm, features(test.q, test.dq, test.ddq))  # (M, n, J)
     wpred = predict(res.params, res.norm, features(win.q, win.dq, win.ddq))
     for m, (method, s, trial) in enumerate(keys):
-        results[method][0][s, trial] = mse(test.tau, pred[m])
+        results[method][0][s, trial] = mse(test.tau, pred[m], eval_mask(test))
         results[method][1][s][trial] = len(rows[m])
         if s == len(sizes) - 1 and trial == 0:
             window_pred[method] = wpred[m]
@@ -254,7 +254,7 @@ def run_sweep(dataset: Dataset, sizes, trials: int = 10, methods=SWEEP_METHODS, 
         plural = lambda n, word: f"{n} {word}" + ("s" if n != 1 else "")  # noqa: E731
         lines(f"{plural(len(methods), 'method')} x {plural(len(sizes), 'size')} ({_span(sizes)} samples) x "
               f"{plural(trials, 'trial')}: " + ", then ".join(plan), force=True)
-    test_var = torque_variance(splits.test.tau)
+    test_var = torque_variance(splits.test.tau, eval_mask(splits.test))
     out_methods, predictions, timing = {}, {}, {}
     if "rigid-body" in methods:
         t = time.perf_counter()

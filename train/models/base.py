@@ -71,6 +71,8 @@ class Model(abc.ABC):
     def predict(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray: ...
 
     def predict_dataset(self, ds: Dataset) -> np.ndarray:
+        """Predict on a Dataset; a model whose kinematics read context joints (rigid-body, hybrid)
+        takes them from the Dataset here."""
         return self.predict(ds.q, ds.dq, ds.ddq)
 
     def linear_basis(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray | None:
@@ -107,6 +109,23 @@ class Model(abc.ABC):
             doc["loop_export"] = {"file": EXPORT_FILE, "sha256": sha}
             (directory / MODEL_JSON).write_text(json.dumps(doc, indent=2, default=_jsonable))
         return directory
+
+
+def predict_on(model, ds: Dataset) -> np.ndarray:
+    """model's prediction on the rows of `ds`, with the Dataset's context joints for a model that reads
+    them (a stand-in with only `predict(q, dq, ddq)` works too)."""
+    fn = getattr(model, "predict_dataset", None)
+    return fn(ds) if fn is not None else model.predict(ds.q, ds.dq, ds.ddq)
+
+
+def basis_on(model, ds: Dataset):
+    """model.linear_basis on the rows of `ds` (with the Dataset's context joints), or None."""
+    basis = getattr(model, "linear_basis", None)
+    if basis is None:
+        return None
+    if getattr(model, "context_joints", ()):
+        return basis(ds.q, ds.dq, ds.ddq, context=ds.context)
+    return basis(ds.q, ds.dq, ds.ddq)
 
 
 def _jsonable(obj):

@@ -50,11 +50,15 @@ def _rigid_path(model) -> RigidPath:
         raise PredictorError("the rigid-body model has not been fitted or loaded")
     from crane_io.effects import get_effect
 
+    if getattr(model, "context_joints", ()):
+        raise PredictorError(f"the rigid-body model's kinematics read the recorded angles of "
+                             f"{', '.join(model.context_joints)} (context joints), which a one-sample "
+                             f"predictor of the model's own joints does not get")
     dyn = model.dynamics
-    indep, _, _ = dyn._base_decomposition()
+    indep = model.base_independent_columns()
     theta_full = np.zeros(10 * dyn.nbodies)
-    theta_full[indep] = model.theta[:dyn.n_base]
-    terms, k = [], dyn.n_base
+    theta_full[indep] = model.theta[:len(indep)]
+    terms, k = [], len(indep)
     for term in model.terms:
         effect = get_effect(term["name"])
         n = effect.n_columns()

@@ -63,7 +63,7 @@ class HybridModel(Model):
         if ds is None:
             return None
         out = ds.subset(np.arange(len(ds)))
-        out.tau = ds.tau - physics.predict(ds.q, ds.dq, ds.ddq)
+        out.tau = ds.tau - physics.predict_dataset(ds)
         return out
 
     def fit(self, train: Dataset, val: Dataset | None = None, progress=None) -> HybridModel:
@@ -81,9 +81,17 @@ class HybridModel(Model):
     def is_fitted(self) -> bool:
         return self.rigid is not None and self.mlp is not None and self.rigid.is_fitted and self.mlp.is_fitted
 
-    def predict(self, q, dq, ddq) -> np.ndarray:
+    def predict(self, q, dq, ddq, context=None) -> np.ndarray:
         self._check_fitted()
-        return self.rigid.predict(q, dq, ddq) + self.mlp.predict(q, dq, ddq)
+        return self.rigid.predict(q, dq, ddq, context=context) + self.mlp.predict(q, dq, ddq)
+
+    def predict_dataset(self, ds: Dataset) -> np.ndarray:
+        return self.predict(ds.q, ds.dq, ds.ddq, context=ds.context)
+
+    @property
+    def context_joints(self) -> tuple[str, ...]:
+        """The physics part's context joints (train.models.rigid_body)."""
+        return tuple(getattr(self.rigid, "context_joints", ()) or ())
 
     def parameters_table(self):
         """The physics part's parameters (names, values, standard errors)."""
@@ -121,7 +129,7 @@ def _choose_weight(rigid, mlp, val: Dataset | None) -> tuple[dict[str, float], d
     names = list(rigid.joint_names)
     if val is None or len(val) == 0:
         return {n: 1.0 for n in names}, {"chosen_on": "no validation data: network weight 1"}
-    r = val.tau - rigid.predict(val.q, val.dq, val.ddq)
+    r = val.tau - rigid.predict_dataset(val)
     m = mlp.predict(val.q, val.dq, val.ddq)
     weights, info = {}, {"chosen_on": f"{len(val)} validation samples (each joint where it moves)",
                          "val_mse_physics": {}, "val_mse_sum": {}, "val_mse_hybrid": {}}

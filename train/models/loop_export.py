@@ -50,11 +50,12 @@ def _rigid_arrays(rigid) -> dict:
     from crane_io import effects as fx
 
     dyn = rigid.dynamics
-    indep, _, _ = dyn._base_decomposition()
+    indep = rigid.base_independent_columns()
+    n_base = len(indep)
     theta = np.asarray(rigid.theta, dtype=np.float64)
     theta_full = np.zeros(10 * dyn.nbodies)
-    theta_full[indep] = theta[:dyn.n_base]
-    specs, k = [], dyn.n_base
+    theta_full[indep] = theta[:n_base]
+    specs, k = [], n_base
     for term in rigid.terms:
         n = fx.get_effect(term["name"]).n_columns()
         specs.append({"name": term["name"], "joint": None if term["joint"] is None else int(term["joint"]),
@@ -63,7 +64,10 @@ def _rigid_arrays(rigid) -> dict:
     if k != len(theta):
         raise LoopExportError(f"the rigid-body model has {len(theta)} parameters but its regressor and "
                               f"effect terms have {k} columns")
-    locked = rigid.options.get("locked") or {}
+    # the angles the dynamics were built with: the still context joints at their recorded medians
+    # (train.models.rigid_body), or the options' `locked` for a model without context
+    resolved = getattr(rigid, "locked_resolved", None)
+    locked = (rigid.options.get("locked") or {}) if resolved is None else resolved
     files = [str(Path(f).resolve()) if Path(f).is_file() else str(f)
              for f in rigid.options.get("effect_files", [])]
     return {"rigid_theta_full": theta_full,
@@ -71,8 +75,11 @@ def _rigid_arrays(rigid) -> dict:
             "rigid_locked_angles": np.array([float(v) for v in locked.values()], dtype=np.float64),
             "rigid_payload_mass": np.float64(rigid.options.get("payload_mass", 0.0)),
             "rigid_effects": np.array(json.dumps(specs)),
-            "rigid_effect_coefs": theta[dyn.n_base:].copy(),
-            "rigid_effect_files": np.array(files, dtype=str)}
+            "rigid_effect_coefs": theta[n_base:].copy(),
+            "rigid_effect_files": np.array(files, dtype=str),
+            # only when the kinematics read other joints' recorded motion (the loop refuses such a model)
+            **({"rigid_context_joints": np.array(list(rigid.context_joints), dtype=str)}
+               if getattr(rigid, "context_joints", ()) else {})}
 
 
 def export_arrays(model, directory) -> dict:

@@ -65,12 +65,17 @@ class MLPModel(Model):
             raise CraneError(f"{self.method} needs at least 2 training {what}, the data has {len(rows)}")
         if val is None:
             val = train  # no separate validation data: pick the epoch by the training data itself
-        vrows = np.flatnonzero(val.all_moving)
+        from ..splits import per_joint
+
+        if per_joint(val):  # a per-joint validation set: each joint scored where it moves
+            vrows, w_val = np.arange(len(val)), val.moving
+        else:
+            vrows, w_val = np.flatnonzero(val.all_moving), None
         if len(vrows) == 0:
             raise CraneError("the validation data has no sample with every joint moving")
         Xv = features(val.q, val.dq, val.ddq)[vrows]
         res = train_mlps(X, Y, W, [rows], Xv, val.tau[vrows], self.settings, seeds=[self.seed],
-                         progress=progress)
+                         progress=progress, W_val=w_val)
         self.params, self.norm = res.model(0)
         self.history = {"best_epoch": int(res.best_epoch[0]), "best_val_mse": float(res.best_val[0]),
                         "train_loss": res.train_loss[:, 0].tolist(), "val_mse": res.val_mse[:, 0].tolist(),

@@ -18,6 +18,23 @@ Effects: `effects=[(name, joint_name or None, shape dict or None), ...]`. A join
 joint None is added once per learning joint. An effect with shape parameters (e.g. a Stribeck
 velocity) and no shape given tries every value of its grid and keeps the one with the lowest validation
 MSE (effects are tuned one after another, in the order given).
+
+Context joints (the other arm joints' recorded angles enter the kinematics, option `context`, default
+True): a Dataset carries the filtered q, dq, ddq of the session's other arm joints (joint1..joint7, not
+the gripper; train.dataset). At fit, each such joint is either
+* still in the training data (its filtered angle spans less than MIN_TRAVEL_RAD, 0.01 rad): locked in
+  the pinocchio model at its median recorded angle (rounded to 1e-3 rad), not at 0 - a held joint sits
+  wherever the session held it; or
+* moving: a free joint of the pinocchio model, its recorded q, dq and ddq entering the kinematics
+  (gravity direction, Coriolis and inertial coupling) - a "context joint".
+The dynamics are then ArmDynamics(learning joints + context joints, locked = the still joints'
+medians and any `locked` given), and the regressor is its base regressor restricted to the rows of the
+learning joints (ArmDynamics.base_regressor_rows): the base parameters identifiable from the learning
+joints' torques only, since the context joints' torques are not modelled. Arm joints the data does not
+record stay at `locked` (default 0). With no moving context joint the regressor is exactly the plain
+base regressor of the learning joints (with the still joints at their medians). A model with context
+joints records them in model.json (state "context_joints"), and predicting on data without them is
+refused in one sentence. `context=False` is the old model: every other joint at `locked` (default 0).
 """
 
 from __future__ import annotations
@@ -76,7 +93,8 @@ class RigidBodyModel(Model):
     method = "rigid-body"
 
     def __init__(self, joint_names, preprocessing: dict | None = None, effects=(), effect_files=(),
-                 block: int = 64, p0: float = 1e8, payload_mass: float = 0.0, locked: dict | None = None):
+                 block: int = 64, p0: float = 1e8, payload_mass: float = 0.0, locked: dict | None = None,
+                 context: bool = True):
         specs = []
         for spec in effects or ():
             if isinstance(spec, str):
@@ -86,9 +104,11 @@ class RigidBodyModel(Model):
         files = [str(f) for f in effect_files]
         super().__init__(joint_names, preprocessing, effects=specs, effect_files=files,
                          block=int(block), p0=float(p0), payload_mass=float(payload_mass),
-                         locked=dict(locked or {}))
+                         locked=dict(locked or {}), context=bool(context))
         self.block, self.p0 = int(block), float(p0)
         self._dyn = None
+        self.context_joints: tuple[str, ...] = ()  # other arm joints that move: free in the kinematics
+        self.locked_resolved: dict | None = None  # locked angles the dynamics use (None: options' locked)
         self.theta: np.ndarray | None = None
         self.stderr: np.ndarray | None = None
         self.names: list[str] = []
@@ -98,9 +118,62 @@ class RigidBodyModel(Model):
     # ---- regressor -------------------------------------------------------------------------------
     @property
     def dynamics(self):
+        """ArmDynamics of the learning joints followed by the context joints (the others locked)."""
         if self._dyn is None:
-            self._dyn = _arm_dynamics(self.joint_names, self.options["locked"], self.options["payload_mass"])
+            locked = self.options["locked"] if self.locked_resolved is None else self.locked_resolved
+            self._dyn = _arm_dynamics(self.joint_names + tuple(self.context_joints), locked,
+                                      self.options["payload_mass"])
         return self._dyn
+
+    @property
+    def n_base(self) -> int:
+        return len(self.dynamics.base_independent_columns_rows(self.joint_names))
+
+    def base_independent_columns(self) -> np.ndarray:
+        """Standard-parameter indices (of self.dynamics) of the base parameters."""
+        return self.dynamics.base_independent_columns_rows(self.joint_names)
+
+    def _resolve_context(self, ds: Dataset) -> None:
+        """Which of the data's other arm joints move (free, context) and where the still ones sit."""
+        given = {k: float(v) for k, v in (self.options["locked"] or {}).items()}
+        ctx = ds.context if self.options.get("context", True) else None
+        self._dyn = None
+        if ctx is None:
+            self.context_joints, self.locked_resolved = (), None
+            return
+        from ..preprocess import MIN_TRAVEL_RAD
+
+        locked, moving = dict(given), []
+        for k, name in enumerate(ctx["names"]):
+            if name in given:
+                continue
+            col = np.asarray(ctx["q"][:, k], dtype=float)
+            if len(col) and np.ptp(col) >= MIN_TRAVEL_RAD:
+                moving.append(name)
+            else:
+                locked[name] = round(float(np.median(col)), 3) if len(col) else 0.0
+        self.context_joints, self.locked_resolved = tuple(moving), locked
+
+    def _full_inputs(self, q, dq, ddq, context):
+        """q, dq, ddq of the learning joints followed by the context joints' (from `context`)."""
+        if not self.context_joints:
+            return q, dq, ddq
+        names = tuple((context or {}).get("names") or ())
+        missing = [n for n in self.context_joints if n not in names]
+        if missing:
+            raise ConfigError(f"this rigid-body model's kinematics use the recorded angles of "
+                              f"{', '.join(missing)} (context joints, moving in its training data), which "
+                              f"the data given to it lacks; give data that records them (a Dataset from "
+                              f"the sessions) or fit a model with context=False")
+        idx = [names.index(n) for n in self.context_joints]
+        out = []
+        for a, key in ((q, "q"), (dq, "dq"), (ddq, "ddq")):
+            c = np.atleast_2d(np.asarray(context[key], dtype=float))[:, idx]
+            if len(c) != len(a):
+                raise ConfigError(f"the context joints have {len(c)} samples but the learning joints "
+                                  f"{len(a)}")
+            out.append(np.hstack([a, c]))
+        return tuple(out)
 
     def _resolve_terms(self) -> list[dict]:
         fx = _effect_registry()
@@ -129,16 +202,21 @@ class RigidBodyModel(Model):
         effect = _effect_registry().get_effect(term["name"])
         return effect.columns(q, dq, ddq, term["joint"], shape if shape is not None else term["shape"])
 
-    def regressor(self, q, dq, ddq, terms=None) -> np.ndarray:
-        """(N, J, p) base regressor followed by every effect term's columns."""
+    def regressor(self, q, dq, ddq, terms=None, context=None) -> np.ndarray:
+        """(N, J, p) base regressor followed by every effect term's columns. `context`: the context
+        joints' {'names', 'q', 'dq', 'ddq'} (Dataset.context), needed when the model has any."""
         q, dq, ddq = (np.atleast_2d(np.asarray(a, dtype=float)) for a in (q, dq, ddq))
-        cols = [self.dynamics.base_regressor(q, dq, ddq)]
+        fq, fdq, fddq = self._full_inputs(q, dq, ddq, context)
+        if self.context_joints:
+            cols = [self.dynamics.base_regressor_rows(fq, fdq, fddq, self.joint_names)]
+        else:
+            cols = [self.dynamics.base_regressor(q, dq, ddq)]
         for term in (self.terms if terms is None else terms):
             cols.append(self._term_columns(term, q, dq, ddq))
         return np.concatenate(cols, axis=2)
 
     def _parameter_names(self, terms) -> list[str]:
-        names = list(self.dynamics.base_parameter_names())
+        names = list(self.dynamics.base_parameter_names_rows(self.joint_names))
         fx = _effect_registry()
         for term in terms:
             joint = None if term["joint"] is None else self.joint_names[term["joint"]]
@@ -147,7 +225,7 @@ class RigidBodyModel(Model):
 
     # ---- fitting ---------------------------------------------------------------------------------
     def _solve(self, ds: Dataset, terms):
-        Phi = self.regressor(ds.q, ds.dq, ds.ddq, terms)
+        Phi = self.regressor(ds.q, ds.dq, ds.ddq, terms, ds.context)
         scale = np.sqrt((Phi ** 2).mean(axis=(0, 1)))
         scale = np.where(scale > 1e-12, scale, 1.0)
         theta_s, P_s = rls(Phi / scale, ds.tau, self.block, self.p0)
@@ -177,15 +255,18 @@ class RigidBodyModel(Model):
             raise CraneError(f"the data has joints {', '.join(train.joint_names)} but the model was made "
                              f"for {', '.join(self.joint_names)}")
         rows = np.flatnonzero(train.all_moving)
+        self._resolve_context(train)
         terms = self._resolve_terms()
         fx = _effect_registry()
-        n_par = self.dynamics.n_base + sum(fx.get_effect(t["name"]).n_columns() for t in terms)
+        n_par = self.n_base + sum(fx.get_effect(t["name"]).n_columns() for t in terms)
         need = n_par // len(self.joint_names) + 1
         if len(rows) < need:
             raise CraneError(f"the rigid-body fit needs at least {need} samples with every joint moving; "
                              f"the training data has {len(rows)}")
         fit_ds = train.subset(rows)
         val_ds = val.subset(np.flatnonzero(val.all_moving)) if val is not None else fit_ds
+        if len(val_ds) == 0:  # a per-joint validation set (train.splits) may hold no all-moving row
+            val_ds = fit_ds
         for term in terms:
             if term["shape"] is not None:
                 self._check_given_shape(term, fit_ds)
@@ -200,7 +281,7 @@ class RigidBodyModel(Model):
                 trial = [dict(t) for t in terms]
                 trial[i]["shape"] = shape
                 theta, _, _ = self._solve(fit_ds, trial)
-                pred = self.regressor(val_ds.q, val_ds.dq, val_ds.ddq, trial) @ theta
+                pred = self.regressor(val_ds.q, val_ds.dq, val_ds.ddq, trial, val_ds.context) @ theta
                 scores.append(float(((val_ds.tau - pred) ** 2).mean()))
             best = int(np.argmin(scores))
             terms[i]["shape"] = options[best]
@@ -218,13 +299,16 @@ class RigidBodyModel(Model):
     def is_fitted(self) -> bool:
         return self.theta is not None
 
-    def linear_basis(self, q, dq, ddq) -> np.ndarray | None:
+    def linear_basis(self, q, dq, ddq, context=None) -> np.ndarray | None:
         """The regressor (base parameters and effect columns): predict = regressor @ theta."""
-        return self.regressor(q, dq, ddq) if self.is_fitted else None
+        return self.regressor(q, dq, ddq, context=context) if self.is_fitted else None
 
-    def predict(self, q, dq, ddq) -> np.ndarray:
+    def predict(self, q, dq, ddq, context=None) -> np.ndarray:
         self._check_fitted()
-        return self.regressor(q, dq, ddq) @ self.theta
+        return self.regressor(q, dq, ddq, context=context) @ self.theta
+
+    def predict_dataset(self, ds: Dataset) -> np.ndarray:
+        return self.predict(ds.q, ds.dq, ds.ddq, context=ds.context)
 
     def parameters_table(self) -> list[dict]:
         """One row per fitted parameter: name, value, standard error, relative standard error."""
@@ -237,7 +321,7 @@ class RigidBodyModel(Model):
     def effect_values(self) -> list[dict]:
         """Named physical values of every effect term (from its fitted coefficients and shape)."""
         fx = _effect_registry()
-        out, k = [], self.dynamics.n_base
+        out, k = [], self.n_base
         for term in self.terms:
             effect = fx.get_effect(term["name"])
             n = effect.n_columns()
@@ -249,7 +333,8 @@ class RigidBodyModel(Model):
 
     # ---- persistence -----------------------------------------------------------------------------
     def _state(self) -> dict:
-        return {"terms": self.terms, "names": self.names, "fit_info": self.fit_info}
+        return {"terms": self.terms, "names": self.names, "fit_info": self.fit_info,
+                "context_joints": list(self.context_joints), "locked_resolved": self.locked_resolved}
 
     def _save_extra(self, directory: Path) -> None:
         np.savez(directory / ARRAYS, theta=self.theta, stderr=self.stderr)
@@ -270,6 +355,10 @@ class RigidBodyModel(Model):
             raise ModelFileError(f"{path} is corrupt, not a readable numpy .npz file; fit the model "
                                  f"again") from None
         self.fit_info = state.get("fit_info", {})
+        self.context_joints = tuple(state.get("context_joints") or ())  # older models: none
+        lr = state.get("locked_resolved")
+        self.locked_resolved = None if lr is None else {str(k): float(v) for k, v in lr.items()}
+        self._dyn = None
         for f in self.options["effect_files"]:
             if not Path(f).is_file():
                 raise ModelFileError(f"{directory} was fitted with the effects defined in {f}, which does "
