@@ -154,7 +154,8 @@ def test_three_joint_results_with_joints_held_at_zero_are_unchanged(context_sess
     loop = LoopModel.load(tmp_path / "m")
     pred = new.predict_dataset(test)
     for i in range(0, len(test), max(len(test) // 5, 1)):
-        assert np.allclose(loop.predict_one(test.q[i], test.dq[i], test.ddq[i]), pred[i], rtol=1e-5, atol=1e-6)
+        got = loop.predict_one(test.q[i], test.dq[i], test.ddq[i])
+        assert np.allclose(got, pred[i], rtol=1e-5, atol=1e-6)
 
 
 def test_a_held_context_model_exports_to_the_loop_with_its_medians(context_sessions, tmp_path):
@@ -166,14 +167,16 @@ def test_a_held_context_model_exports_to_the_loop_with_its_medians(context_sessi
     loop = LoopModel.load(tmp_path / "m")
     pred = new.predict_dataset(test)
     for i in (0, len(test) // 2, len(test) - 1):
-        assert np.allclose(loop.predict_one(test.q[i], test.dq[i], test.ddq[i]), pred[i], rtol=1e-5, atol=1e-6)
+        got = loop.predict_one(test.q[i], test.dq[i], test.ddq[i])
+        assert np.allclose(got, pred[i], rtol=1e-5, atol=1e-6)
 
 
 def test_base_regressor_rows_equals_the_plain_one_for_every_row_and_fits_a_subset():
     dyn = ArmDynamics(joints=("joint1", "joint2", "joint4", "joint3"))
     rng = np.random.default_rng(0)
     q, dq, ddq = rng.uniform(-1, 1, (30, 4)), rng.normal(size=(30, 4)), rng.normal(size=(30, 4))
-    assert np.array_equal(dyn.base_regressor_rows(q, dq, ddq, dyn.joint_names), dyn.base_regressor(q, dq, ddq))
+    plain = dyn.base_regressor(q, dq, ddq)
+    assert np.array_equal(dyn.base_regressor_rows(q, dq, ddq, dyn.joint_names), plain)
     rows = ("joint1", "joint2", "joint4")
     y = dyn.base_regressor_rows(q, dq, ddq, rows) @ dyn.base_parameters_rows(rows)
     assert np.allclose(y, dyn.inverse_dynamics(q, dq, ddq)[:, :3], atol=1e-10)
@@ -239,7 +242,8 @@ def test_fit_sweep_diagnose_on_seven_joints_through_the_cli(seven, tmp_path):
     assert res["joints"] == list(ARM)
     for m in ("rigid-body", "mlp-mse", "mlp-masked"):
         assert len(res["methods"][m]["mse_mean"][-1]) == 7
-    assert (tmp_path / "sw" / "mse_vs_samples.png").is_file() and (tmp_path / "sw" / "window_torque.png").is_file()
+    for png in ("mse_vs_samples.png", "window_torque.png"):
+        assert (tmp_path / "sw" / png).is_file()
     # diagnosis of the plain rigid-body model: the planted wrist effects are named first
     r, dt = _timed(["diagnose", str(tmp_path / "rb"), str(seven), "--json"])
     assert r.exit_code == 0, r.output

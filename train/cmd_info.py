@@ -23,7 +23,18 @@ def session_info(paths, joints=None, alpha: float = 0.1, arm: str = "follower") 
               "complete": s.attrs.get("complete")} for s in sessions]
     return {"files": files, "arm": arm, "joints": list(ds.joint_names), "samples_preprocessed": len(ds),
             "rate_hz_preprocessed": ds.rate_hz, "sigma_rad_s": ds.meta["sigma"], "alpha": alpha,
-            "usable_fraction": ds.meta["usable_fraction"]}
+            "usable_fraction": ds.meta["usable_fraction"], "splits": _splits_need(ds)}
+
+
+def _splits_need(ds) -> dict:
+    """How much data the default splits need for these joints (train.splits), against what there is."""
+    from .splits import SplitConfig, eval_fraction, needed_samples
+
+    cfg = SplitConfig()
+    mode = cfg.mode(len(ds.joint_names))
+    need = needed_samples(cfg, eval_fraction(ds, mode), ds.rate_hz)
+    return {"eval_set": mode, "need_samples": need, "need_s": need / ds.rate_hz,
+            "have_s": len(ds) / ds.rate_hz}
 
 
 @click.command()
@@ -53,3 +64,8 @@ def info(sessions, joints, alpha, arm, as_json):
     for name, sigma in zip(doc["joints"], doc["sigma_rad_s"]):
         click.echo(f"  {name:<8} moving {uf['per_joint'][name]:6.1%}   sigma {sigma:.3f} rad/s")
     click.echo(f"  all joints moving {uf['all_joints']:6.1%}")
+    sp = doc.get("splits")
+    if sp:
+        click.echo(f"splits ({sp['eval_set']} validation and test sets for {len(doc['joints'])} joints): "
+                   f"about {sp['need_s']:.0f} s of recording needed for the full sizes, "
+                   f"{sp['have_s']:.0f} s here")

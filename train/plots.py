@@ -29,6 +29,21 @@ LABELS = {"rigid-body": "Newton-Euler (RLS)", "mlp-mse": "FF-NN, MSE", "mlp-mask
           "hybrid": "hybrid"}
 
 
+MAX_PANELS_PER_ROW = 4  # more joints than this wrap onto further rows (7 joints: 4 + 3)
+
+
+def _panels(n: int, width: float, height: float):
+    """(fig, axes list of n, first-column axes): one panel per joint, at most MAX_PANELS_PER_ROW a row
+    (one row of n for the paper's three joints, as before); the unused panels of the last row hidden."""
+    ncol = min(n, MAX_PANELS_PER_ROW)
+    nrow = -(-n // ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(width * ncol, height * nrow), squeeze=False)
+    flat = [ax for row in axes for ax in row]
+    for ax in flat[n:]:
+        ax.set_visible(False)
+    return fig, flat[:n], [row[0] for row in axes]
+
+
 def plot_mse_vs_samples(results: dict, path) -> Path:
     """`results` is the results.json document (train.sweep.SweepResult.to_json())."""
     joints = results["joints"]
@@ -38,8 +53,8 @@ def plot_mse_vs_samples(results: dict, path) -> Path:
         used, asked = results["sizes"], results["sizes_requested"]
         title += f"; sizes scaled to the data: {used[0]}..{used[-1]} instead of {asked[0]}..{asked[-1]}"
         xlabel += " (scaled to the data)"
-    fig, axes = plt.subplots(1, len(joints), figsize=(4.2 * len(joints), 3.6), squeeze=False)
-    for j, (ax, name) in enumerate(zip(axes[0], joints)):
+    fig, axes, first = _panels(len(joints), 4.2, 3.6)
+    for j, (ax, name) in enumerate(zip(axes, joints)):
         for method, r in results["methods"].items():
             sizes = np.asarray(r["sizes"], dtype=float)
             mean = np.array([row[j] for row in r["mse_mean"]], dtype=float)
@@ -51,8 +66,9 @@ def plot_mse_vs_samples(results: dict, path) -> Path:
         ax.set_xlabel(xlabel)
         ax.set_yscale("log")
         ax.grid(True, which="both", alpha=0.3)
-    axes[0][0].set_ylabel("test MSE [(N m)$^2$]")
-    axes[0][0].legend(fontsize=8)
+    for ax in first:
+        ax.set_ylabel("test MSE [(N m)$^2$]")
+    axes[0].legend(fontsize=8)
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
@@ -76,8 +92,8 @@ def plot_window(window: dict, joints, path, title: str = "") -> Path:
     t = t - t[0]
     tau = np.asarray(window["tau"], dtype=float)
     moving = np.asarray(window["moving"], dtype=bool)
-    fig, axes = plt.subplots(1, len(joints), figsize=(4.2 * len(joints), 3.4), squeeze=False)
-    for j, (ax, name) in enumerate(zip(axes[0], joints)):
+    fig, axes, first = _panels(len(joints), 4.2, 3.4)
+    for j, (ax, name) in enumerate(zip(axes, joints)):
         _shade(ax, t, ~moving[:, j])
         ax.plot(t, tau[:, j], color="k", lw=1.6, label="measured")
         for method, pred in window["predictions"].items():
@@ -86,8 +102,9 @@ def plot_window(window: dict, joints, path, title: str = "") -> Path:
         ax.set_title(name)
         ax.set_xlabel("time [s]")
         ax.grid(True, alpha=0.3)
-    axes[0][0].set_ylabel("torque [N m]")
-    axes[0][0].legend(fontsize=8)
+    for ax in first:
+        ax.set_ylabel("torque [N m]")
+    axes[0].legend(fontsize=8)
     fig.suptitle(title or "measured and predicted torque (grey: dead zone)")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
