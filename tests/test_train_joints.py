@@ -253,3 +253,30 @@ def test_fit_sweep_diagnose_on_seven_joints_through_the_cli(seven, tmp_path):
              for j in ("joint5", "joint6")}
     assert first["joint6"]["effect"] == "coulomb", first["joint6"]
     assert first["joint5"]["effect"] == "spring", first["joint5"]
+
+
+def test_adding_the_planted_wrist_effects_halves_their_error_compare_report_hybrid(seven, tmp_path):
+    """fit with the diagnosed effects, a hybrid, then compare and report, all on seven joints."""
+    common = [str(seven), "--joints", "all", "--scale-to-data", "--no-progress"]
+    for name, extra in (("rb", ["--model", "rigid-body"]),
+                        ("rb2", ["--model", "rigid-body", "--effect", "coulomb:joint=joint6",
+                                 "--effect", "spring:joint=joint5"]),
+                        ("hy", ["--model", "hybrid", "--epochs", "5"])):
+        r, dt = _timed(["fit", *common, *extra, "-o", str(tmp_path / name)])
+        assert r.exit_code == 0, r.output
+        assert dt < 30, (name, dt)
+    r, dt = _timed(["compare", str(tmp_path / "rb"), str(tmp_path / "rb2"), str(tmp_path / "hy"),
+                    "--session", str(seven), "--json"])
+    assert r.exit_code == 0, r.output
+    assert dt < 30, dt
+    doc = json.loads(r.output)
+    assert doc["joints"] == list(ARM)
+    before, after = (doc["models"][k]["test"]["mse"] for k in (0, 1))
+    for joint in ("joint5", "joint6"):
+        assert after[joint] < 0.5 * before[joint], (joint, before[joint], after[joint])
+    r, dt = _timed(["report", str(tmp_path / "rb2"), str(seven), "-o", str(tmp_path / "r.html"),
+                    "--no-diagnosis"])
+    assert r.exit_code == 0, r.output
+    assert dt < 30, dt
+    page = (tmp_path / "r.html").read_text()
+    assert all(j in page for j in ARM)

@@ -76,7 +76,10 @@ def load_sessions(sessions: Sessions, *, arm: str | None = None, joints: Sequenc
     masks, (N, J) each.
 
     arm: "follower" (default) or "leader" (only from a session recorded with the hand on the follower);
-    joints: the learning joints (default joint1, joint2, joint4); alpha: the dead-zone threshold
+    joints: the learning joints (default joint1, joint2, joint4; "all": every arm joint the sessions
+    record); the Dataset also carries the other arm joints' filtered q, dq, ddq as context
+    (`context_names`, `context_q`, ...), which the rigid-body model's kinematics use; alpha: the
+    dead-zone threshold
     (|dq| > alpha std(dq) moves, default 0.1); zero_phase: filter forward and backward instead."""
     from .cli_options import load_dataset
 

@@ -3,7 +3,8 @@
 For every size and trial a random subset of `size` samples is drawn from the training pool (the same
 subset for every method); each method trains on its own usable part of it (rigid-body and mlp-mse: the
 samples in which every joint moves; mlp-masked: all of them, with the dead-zone mask in its loss) and is
-scored on the test set (500 samples, every joint moving) with the weights of its best validation epoch.
+scored on the test set (500 samples, every joint moving; from 4 joints on per joint: each joint over the
+500+ test rows where it moves, train.splits "eval_set") with the weights of its best validation epoch.
 All MLPs of the sweep (methods x sizes x trials) train together in one batched run (train.batched);
 the rigid-body fits are cheap and run one after the other.
 
@@ -38,6 +39,7 @@ from .progress import ProgressLines
 from .splits import SplitConfig, Splits, eval_mask, make_splits
 
 RESULTS_VERSION = 1
+TABLE_JOINTS = 4  # joint columns per printed table (7 joints: a table of 4, then one of 3)
 
 
 class SweepError(CraneError):
@@ -282,7 +284,8 @@ def run_sweep(dataset: Dataset, sizes, trials: int = 10, methods=SWEEP_METHODS, 
             "test_torque_variance": test_var.tolist(),
             "usable_fraction_all_data": moving_fractions(dataset.moving, dataset.joint_names),
             "preprocessing": dataset.meta.get("preprocessing"), "sigma": dataset.meta.get("sigma"),
-            "sources": dataset.meta.get("sources"), "timing": timing}
+            "sources": dataset.meta.get("sources"), "timing": timing,
+            "eval_set": splits.test.meta.get("eval_set", "all-moving")}
     return SweepResult(list(dataset.joint_names), sizes, trials, out_methods,
                        moving_fractions(splits.pool.moving, dataset.joint_names), window, meta,
                        sizes_requested=requested, sizes_scaled=sizes_scaled)
@@ -299,19 +302,24 @@ def format_table(result: SweepResult | dict) -> str:
     scaled = scaled_sizes_sentence(doc)
     if scaled:
         lines.append(scaled[0].upper() + scaled[1:] + ".")
-    lines += ["", "test MSE [(N m)^2], mean +- 95% CI over {} trials".format(doc["trials"])]
-    head = f"{'method':<12}{'size':>6}" + "".join(f"{j:>24}" for j in joints)
-    lines += [head, "-" * len(head)]
+    per_joint = doc.get("meta", {}).get("eval_set") == "per-joint"
+    lines += ["", "test MSE [(N m)^2], mean +- 95% CI over {} trials".format(doc["trials"])
+              + (", each joint on the test rows where it moves" if per_joint else "")]
 
     def cell(m, c):
         if m is None:
             return f"{'-':>24}"
         return f"{m:>12.3g} +- {c:<8.2g}" if c is not None else f"{m:>12.3g}{'':12}"
 
-    for method, r in doc["methods"].items():
-        for s, size in enumerate(r["sizes"]):
-            row = "".join(cell(r["mse_mean"][s][j], r["mse_ci95"][s][j]) for j in range(len(joints)))
-            lines.append(f"{method:<12}{size:>6}{row}")
+    # at most TABLE_JOINTS joint columns side by side (a terminal's width); more joints: further tables
+    for start in range(0, len(joints), TABLE_JOINTS):
+        cols = range(start, min(start + TABLE_JOINTS, len(joints)))
+        head = f"{'method':<12}{'size':>6}" + "".join(f"{joints[j]:>24}" for j in cols)
+        lines += ([""] if start else []) + [head, "-" * len(head)]
+        for method, r in doc["methods"].items():
+            for s, size in enumerate(r["sizes"]):
+                row = "".join(cell(r["mse_mean"][s][j], r["mse_ci95"][s][j]) for j in cols)
+                lines.append(f"{method:<12}{size:>6}{row}")
     return "\n".join(lines)
 
 

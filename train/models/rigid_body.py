@@ -151,7 +151,7 @@ class RigidBodyModel(Model):
             if len(col) and np.ptp(col) >= MIN_TRAVEL_RAD:
                 moving.append(name)
             else:
-                locked[name] = round(float(np.median(col)), 3) if len(col) else 0.0
+                locked[name] = round(float(np.median(col)), 3) + 0.0 if len(col) else 0.0  # no -0.0
         self.context_joints, self.locked_resolved = tuple(moving), locked
 
     def _full_inputs(self, q, dq, ddq, context):
