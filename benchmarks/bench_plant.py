@@ -6,6 +6,8 @@
    (crane_io.bus.DynamixelBus: one fast sync read + one Goal Current sync write per 2 ms cycle, real
    Protocol 2.0 bytes through dxlsim://). Goal (issue 3): at least 5x real time, i.e. < 0.4 ms a cycle.
 3. Two such arms (leader and follower, as in a bilateral session) stepped alternately in one thread.
+4. The same with all seven joints integrated (preset crane-x7-7dof, issue 11): the plant alone and two
+   arms in lockstep.
 
 The machine these run on is shared, so every figure is measured in `REPEATS` blocks: the wall-clock
 figure is the best block (least disturbed by other jobs) and the CPU figure counts only this process's
@@ -22,16 +24,31 @@ from crane_io.arm_plant import ArmPlant
 from crane_io.sim.plant_api import ActuatorCommand
 
 PERIOD = 0.002
-BI = [0, 1, 3]
+# amplitude (N m) of the varying torque on each integrated joint: above breakaway, so joints move, stop
+# and stick (joints 1, 2, 4 as before the plant took any joint set)
+AMPLITUDE = {"joint1": 0.35, "joint2": 0.5, "joint3": 0.3, "joint4": 0.3, "joint5": 0.25, "joint6": 0.25,
+             "joint7": 0.2}
 GOAL = 5.0  # x real time, one arm through the chain in lockstep (issue 3)
 REPEATS = 5
+
+
+_PER_JOINT: dict[tuple[str, ...], tuple[list[int], np.ndarray]] = {}
+
+
+def _per_joint(joints: tuple[str, ...]) -> tuple[list[int], np.ndarray]:
+    """(servo indices, amplitudes) of the integrated joints (kept: the drive is in the timed loop)."""
+    if joints not in _PER_JOINT:
+        names = ("joint1", "joint2", "joint3", "joint4", "joint5", "joint6", "joint7", "gripper")
+        _PER_JOINT[joints] = ([names.index(n) for n in joints], np.array([AMPLITUDE[n] for n in joints]))
+    return _PER_JOINT[joints]
 
 
 def _drive(plant: ArmPlant, i: int) -> np.ndarray:
     cur = np.zeros(8)
     wave = np.sin(2 * np.pi * 0.4 * i * PERIOD)
-    tau = plant.dyn.gravity_torque(plant.q) + np.array([0.35, 0.5, 0.3]) * wave
-    cur[BI] = tau / plant.kt[BI]
+    idx, amplitude = _per_joint(plant.joints)
+    tau = plant.dyn.gravity_torque(plant.q) + amplitude * wave
+    cur[idx] = tau / plant.kt[idx]
     return cur
 
 
@@ -48,8 +65,8 @@ def _timed(cycle, steps: int) -> tuple[float, float]:
     return best, (time.process_time() - cpu0) / done
 
 
-def plant_alone(steps: int) -> tuple[float, float]:
-    plant = ArmPlant("crane-x7", seed=0)
+def plant_alone(steps: int, preset: str = "crane-x7") -> tuple[float, float]:
+    plant = ArmPlant(preset, seed=0)
     n = 8
     enabled, mode = np.ones(n, bool), np.zeros(n, int)
     gains, limit, goal = np.tile([800, 0, 0], (n, 1)), np.full(n, 3.2), np.zeros(n)
@@ -61,7 +78,7 @@ def plant_alone(steps: int) -> tuple[float, float]:
     return _timed(cycle, steps)
 
 
-def through_chain(steps: int, arms: int = 1) -> tuple[float, float]:
+def through_chain(steps: int, arms: int = 1, preset: str = "crane-x7") -> tuple[float, float]:
     """Seconds per lockstep cycle of `arms` simulated arms, each behind its own chain and bus."""
     from contextlib import ExitStack
 
@@ -71,7 +88,7 @@ def through_chain(steps: int, arms: int = 1) -> tuple[float, float]:
     with ExitStack() as stack:
         pairs = []
         for _ in range(arms):
-            plant = ArmPlant("crane-x7", seed=0)
+            plant = ArmPlant(preset, seed=0)
             sim = simulated_arm(plant=plant, clock="lockstep", period_s=PERIOD)
             stack.callback(sim.close)
             bus = stack.enter_context(DynamixelBus(sim.url))
@@ -112,6 +129,11 @@ def run(quick: bool = False) -> list[dict]:
                       f"{steps} cycles: fast sync read + Goal Current sync write, dxlsim://", goal=GOAL)
         rows += _rows("2 arms, bus + chain, lockstep", *through_chain(steps // 2, arms=2),
                       f"{steps // 2} cycles of leader + follower in one thread")
+        rows += _rows("7 joints: ArmPlant alone", *plant_alone(steps // 2, "crane-x7-7dof"),
+                      f"{steps // 2} steps of 2 ms, preset crane-x7-7dof (all seven integrated)")
+        rows += _rows("7 joints: 2 arms, bus + chain, lockstep",
+                      *through_chain(steps // 4, arms=2, preset="crane-x7-7dof"),
+                      f"{steps // 4} cycles of leader + follower, preset crane-x7-7dof")
     except ImportError as exc:  # the chain or bus layer is not there
         rows.append({"benchmark": "plant", "metric": "ArmPlant + servo chain, lockstep",
                      "value": float("nan"), "unit": "x real time", "note": f"skipped: {exc}"})

@@ -58,7 +58,7 @@ from .dynamics import ArmDynamics
 from .effects import PlantTerms, get_effect
 from .environment import Environment
 from .errors import ConfigError
-from .plant_config import PlantConfig, check_joints, load_plant_config
+from .plant_config import ARM_JOINTS, PlantConfig, check_joints, load_plant_config
 from .sim.plant_api import ActuatorCommand, SensorReading
 from .sim.simple_plant import DEFAULT_INERTIA, DEFAULT_VISCOUS, SimplePlant
 from .units import AMPERE_PER_CURRENT_LSB, RAD_PER_PULSE, RADS_PER_VELOCITY_LSB
@@ -99,7 +99,7 @@ class ArmPlant:
         self.config = config
         self.seed = config.seed if seed is None else int(seed)
         self.rng = np.random.default_rng(self.seed)
-        joints = check_joints(list(config.joints if joints is None else joints), "ArmPlant joints")
+        joints = check_joints(config.joints if joints is None else joints, "ArmPlant joints")
         self.joints = joints
         n_int = len(joints)
         self._check_objects()
@@ -177,9 +177,10 @@ class ArmPlant:
         """Every joint effect and joint wall of the config is on an integrated joint (else ConfigError)."""
         for spec in self.config.all_effects:
             if spec.joint is not None and spec.joint not in self.joints:
+                wanted = [j for j in ARM_JOINTS if j in self.joints or j == spec.joint]
                 raise ConfigError(f"effect {spec.effect!r} acts on {spec.joint}, which this plant holds as a "
                                   f"servo instead of integrating it; integrate {spec.joint} (joints = "
-                                  f"{list(self.joints) + [spec.joint]!r}) or remove the effect")
+                                  f"{wanted!r}) or remove the effect")
         for obj in self.config.environment:
             joint = getattr(obj, "joint", None)
             if joint is not None and joint not in self.joints:
@@ -292,23 +293,27 @@ class ArmPlant:
         current_mode = [bool(en_l[i]) and mode_l[i] == 0 for i in bi]
         position_mode = any(en_l[i] and mode_l[i] != 0 for i in bi)
         tau_l = [kt[i] * gc_l[i] if cm else 0.0 for i, cm in zip(bi, current_mode)]
+        pd = None  # per joint: (kp, kd, -cap, cap, goal) of a servo in a position mode, else None
         if position_mode:
-            tau_current = np.array(tau_l)
-            current_mask = np.array(current_mode)
-
             def pick(values, dtype=float):  # the integrated joints' entries as an array
                 return np.array([values[i] for i in bi], dtype=dtype)
 
             bi_cmd = ActuatorCommand(pick(en_l, bool), pick(mode_l, None), pick(gc_l), pick(gp_l),
                                      pick(gains_l), pick(lim_l))
+            pos, kp, kd, cap = self._pd.position_controller(bi_cmd)
+            if kp is not None:
+                pd = [(a, b, -c, c, float(g)) if p else None
+                      for p, a, b, c, g in zip(pos.tolist(), kp.tolist(), kd.tolist(), cap.tolist(),
+                                               bi_cmd.goal_position)]
+        tau_base = tau_l  # current mode: Kt x goal current; otherwise none
         n_sub = max(1, math.ceil(dt / self.h - 1e-9))
         h = dt / n_sub
         q, dq = self.q.tolist(), self.dq.tolist()
         ext = self.external.tolist()
         for _ in range(n_sub):
-            if position_mode:
-                self._pd.q, self._pd.dq = np.array(q), np.array(dq)
-                tau_l = np.where(current_mask, tau_current, self._pd.motor_torque(bi_cmd)).tolist()
+            if pd is not None:  # the servo's PD (SimplePlant.motor_torque, the same operations in floats)
+                tau_l = [b if c is None else _clip(c[0] * (c[4] - qi) - c[1] * dqi, c[2], c[3])
+                         for c, b, qi, dqi in zip(pd, tau_base, q, dq)]
             q, dq = self._substep(q, dq, tau_l, ext, h)
         self.q, self.dq = np.array(q), np.array(dq)
         if self._env is not None:
@@ -676,10 +681,13 @@ def _solve_free(m: list, idx: list, b: list) -> list:
 
 
 def _solve(a: list, b: list) -> list:
-    """Solve a small (1..3) symmetric positive-definite system by Gaussian elimination, in floats. The
-    1- and 2-unknown cases are the general loop written out (the same operations in the same order,
-    `sum` included: it adds from 0.0)."""
+    """Solve a small symmetric positive-definite system. Up to 3 unknowns by Gaussian elimination in
+    floats (the 1- and 2-unknown cases are the general loop written out: the same operations in the same
+    order, `sum` included: it adds from 0.0); more (4..7 integrated joints) with LAPACK, which is cheaper
+    there than the loop."""
     n = len(b)
+    if n > 3:
+        return np.linalg.solve(np.array(a), np.array(b)).tolist()
     if n == 1:
         return [b[0] / a[0][0]]
     if n == 2:

@@ -17,9 +17,9 @@ Keys (every one optional; crane_io/plants/crane-x7.toml documents each with its 
     substep_s = 0.00025        integration substep (s); stick-slip is resolved every substep
     effect_files = []          user Python files with Effect subclasses to load first
     [torque_constant]          TRUE N m/A per joint (the recorder uses crane_io.description's values)
-    [locked]                   angle (rad) at which each held joint is locked in the dynamics (not
-                               allowed for the preset's own `joints`; an entry for a joint that
-                               ArmPlant(joints=...) integrates is not used)
+    [locked]                   angle (rad) at which each held joint is locked in the dynamics; an
+                               entry for an integrated joint is not used (PlantConfig.locked holds
+                               only the held joints'; a joint left out is locked at 0)
     [initial]                  initial angle (rad) per joint
     [sensor]                   position_noise_probability, current_noise_lsb, velocity_noise_lsb
     [overload]                 enabled, time_s: overload bit after time_s saturated at the limit
@@ -285,9 +285,10 @@ def _dataclass_table(cls, data, key: str, where: str):
 def check_joints(joints, where: str = "the plant") -> tuple[str, ...]:
     """The integrated joint set as a tuple in arm order: any of joint1..joint7, at least one, each once.
     Anything else -> ConfigError."""
-    if isinstance(joints, str) or not isinstance(joints, (list, tuple)):
+    if isinstance(joints, (str, bytes)) or not hasattr(joints, "__iter__"):
         raise ConfigError(f"{where}: joints must be a list of joint names (any of {', '.join(ARM_JOINTS)}), "
                           f"got {joints!r}")
+    joints = list(joints)
     bad = [j for j in joints if j not in ARM_JOINTS]
     if bad:
         raise ConfigError(f"{where}: joints names {bad[0]!r}, which the plant cannot integrate (any of "
@@ -347,10 +348,8 @@ def load_plant_config(preset_or_path: str | Path = "crane-x7") -> PlantConfig:
     cfg.torque_constant.update(_float_table(data, "torque_constant", where))
     if any(v <= 0 for v in cfg.torque_constant.values()):
         raise ConfigError(f"{where}: every torque constant must be positive")
-    cfg.locked = _float_table(data, "locked", where)
-    clash = [n for n in cfg.locked if n in cfg.joints]
-    if clash:
-        raise ConfigError(f"{where}: [locked] cannot lock the simulated joint(s) {', '.join(clash)}")
+    # an integrated joint is free: its [locked] entry (e.g. inherited from a base preset) is not used
+    cfg.locked = {n: v for n, v in _float_table(data, "locked", where).items() if n not in cfg.joints}
     cfg.initial = _float_table(data, "initial", where)
     cfg.sensor = _dataclass_table(SensorConfig, data, "sensor", where)
     cfg.overload = _dataclass_table(OverloadConfig, data, "overload", where)

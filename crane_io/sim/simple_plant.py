@@ -112,21 +112,34 @@ class SimplePlant:
         tau = np.zeros(n)
         enabled = np.asarray(command.torque_enabled, dtype=bool)
         mode = np.asarray(command.operating_mode)
-        limit = np.asarray(command.current_limit, dtype=float) * self.kt
         cur = enabled & (mode == 0)
         tau[cur] = self.kt[cur] * np.asarray(command.goal_current, dtype=float)[cur]
-        pos = enabled & ((mode == 3) | (mode == 4) | (mode == 5))  # POSITION_MODES
+        pos, kp, kd, cap = self.position_controller(command)
         if np.any(pos):
-            gains = np.asarray(command.position_gains, dtype=float)
-            per_pulse = self.stall_torque / 885.0
-            kp = gains[:, 0] / 128.0 * per_pulse / RAD_PER_PULSE
-            kd_servo = gains[:, 2] / 16.0 * per_pulse / RAD_PER_PULSE * 1e-3
-            kd = np.maximum(kd_servo, 1.4 * np.sqrt(np.maximum(kp, 0.0) * self.inertia))
             err = np.asarray(command.goal_position, dtype=float) - self.q
             t = kp * err - kd * self.dq
-            cap = np.where(mode == 5, np.abs(np.asarray(command.goal_current, dtype=float)) * self.kt, limit)
             tau[pos] = np.clip(t, -cap, cap)[pos]
         return tau
+
+    def position_controller(self, command: ActuatorCommand) -> tuple[np.ndarray, ...]:
+        """The servo's position controller for a command: (pos, kp, kd, cap), each (n,): which servos
+        are in a position mode, and torque = clip(kp (goal - q) - kd dq, -cap, cap) for them (stiffness
+        P/128 x stall torque/885 per pulse, damping D's or at least 0.7 of critical, cap = the current
+        limit, or |goal current| in current-based position mode, times Kt). kp, kd, cap are None when
+        no servo is in a position mode."""
+        enabled = np.asarray(command.torque_enabled, dtype=bool)
+        mode = np.asarray(command.operating_mode)
+        pos = enabled & ((mode == 3) | (mode == 4) | (mode == 5))  # POSITION_MODES
+        if not np.any(pos):
+            return pos, None, None, None
+        limit = np.asarray(command.current_limit, dtype=float) * self.kt
+        gains = np.asarray(command.position_gains, dtype=float)
+        per_pulse = self.stall_torque / 885.0
+        kp = gains[:, 0] / 128.0 * per_pulse / RAD_PER_PULSE
+        kd_servo = gains[:, 2] / 16.0 * per_pulse / RAD_PER_PULSE * 1e-3
+        kd = np.maximum(kd_servo, 1.4 * np.sqrt(np.maximum(kp, 0.0) * self.inertia))
+        cap = np.where(mode == 5, np.abs(np.asarray(command.goal_current, dtype=float)) * self.kt, limit)
+        return pos, kp, kd, cap
 
     def step(self, command: ActuatorCommand, dt: float) -> None:
         if dt <= 0:
