@@ -223,7 +223,7 @@ class ArmPlant:
             self._backlash.append((k, 0.5 * width, jm, stiffness,
                                    2 * _CONTACT_DAMPING_RATIO * math.sqrt(stiffness * jm)))
 
-    # ---- forces (the hot path: plain Python floats for the 3 joints, pinocchio for the arm) ------------
+    # ---- forces (the hot path: plain Python floats per integrated joint, pinocchio for the arm) --------
     def _kinetic(self, i: int, v: float) -> float:
         """Kinetic friction of joint i at velocity v (v = +-tiny for a joint breaking away)."""
         fc_pos, fc_neg, stribeck = self._kinetic_l[i]

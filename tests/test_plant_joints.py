@@ -333,3 +333,56 @@ def test_a_plane_pushes_every_integrated_joint_through_the_jacobian_of_the_seven
     plant.set_state(full, np.zeros(8))
     plant.step(command(enabled=np.zeros(8, bool)), plant.config.substep_s)
     assert plant.in_contact and plant.contact_torque()[:7] @ torque > 0
+
+
+# ---- one implementation of each effect ---------------------------------------------------------------
+
+@pytest.mark.parametrize("effect, values", [
+    ("coulomb", {"coulomb": 0.2}), ("coulomb-asym", {"coulomb_pos": 0.2, "coulomb_neg": 0.1}),
+    ("viscous", {"viscous": 0.04}), ("stribeck", {"stribeck": 0.1, "stribeck_velocity": 0.05}),
+    ("stiction", {"coulomb": 0.12, "breakaway": 0.2, "stiction_velocity": 0.02}),
+    ("offset", {"offset": -0.07}), ("spring", {"stiffness": 0.4, "rest_angle": 0.5}),
+    ("cogging", {"amplitude": 0.08, "phase": 0.5, "cycles_per_rev": 12.0}),
+])
+def test_the_plant_terms_of_an_effect_are_its_torque_on_any_joint(tmp_path, effect, values):
+    """Each built-in's closed form in the plant (Effect.plant_terms) is the effect's own torque(), on a
+    wrist joint of a 7-joint plant (moving joints: kinetic friction plus the other terms)."""
+    from crane_io.effects import get_effect
+
+    body = "".join(f"{k} = {v}\n" for k, v in values.items())
+    path = write(tmp_path, "one", f'joints = {list(ARM_JOINTS)!r}\n'.replace("'", '"')
+                 + f'[[effects]]\neffect = "{effect}"\njoint = "joint6"\n{body}')
+    plant = ArmPlant(path)
+    rng = np.random.default_rng(0)
+    q = rng.uniform(-1.0, 1.0, (50, 7))
+    q[:, 3] = rng.uniform(-2.0, -0.1, 50)  # inside joint4's limits (no end stop)
+    dq = rng.normal(0.0, 0.1, (50, 7))
+    want = get_effect(effect).torque(q, dq, np.zeros_like(q), 5, values)
+    for qi, dqi, w in zip(q, dq, want):
+        got = np.array(plant._other_torque(qi.tolist(), dqi.tolist()))
+        got += [plant._kinetic(i, v) for i, v in enumerate(dqi.tolist())]
+        np.testing.assert_allclose(got, w, rtol=1e-12, atol=1e-14)
+
+
+def test_an_effect_without_a_closed_form_is_evaluated_from_its_torque(monkeypatch):
+    """A subclass of a built-in that changes the torque is not compiled with the built-in's closed form."""
+    import crane_io.effects as effects
+    from crane_io.effects import PlantTerms
+    from crane_io.effects.base import joint_columns
+    from crane_io.effects.library import Viscous
+
+    class Quadratic(Viscous):
+        name = "joints-test-quadratic-viscous"
+
+        def _columns(self, q, dq, ddq, joint, shape):
+            return joint_columns(len(q), q.shape[1], joint, dq[:, joint] * np.abs(dq[:, joint]))
+
+    class Renamed(Viscous):
+        name = "joints-test-renamed-viscous"
+
+    monkeypatch.setattr(effects, "_REGISTRY", dict(effects._REGISTRY))
+    terms = PlantTerms(ARM_JOINTS, {})
+    Quadratic().add_to_plant(terms, 4, {"viscous": 0.1})
+    Renamed().add_to_plant(terms, 5, {"viscous": 0.2})
+    assert terms.viscous == [0.0, 0.0, 0.0, 0.0, 0.0, 0.2, 0.0]
+    assert [(type(e), k) for e, k, _ in terms.generic] == [(Quadratic, 4)]
