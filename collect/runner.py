@@ -269,7 +269,8 @@ class _Loop:
         if wall is not None:
             rms_deg = np.degrees(np.sqrt(self.err_sq / max(self.cycles, 1)))[self.bil]
             self.status.show(self.t_session, wall, timer, rms_deg, self.errors, not self.paced,
-                             self.realtime.short() if self.realtime is not None else "", self._model_tag())
+                             self.realtime.short() if self.realtime is not None else "", self._model_tag(),
+                             joints=self.arm.bilateral_joints)
         return None, t
 
     def _session_time(self, k: int, leader_state) -> float:

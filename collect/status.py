@@ -52,17 +52,28 @@ class StatusLine:
         return now - self.wall0
 
     def show(self, t_session: float, wall: float, timer, tracking_rms_deg, errors: int,
-             lockstep: bool, realtime: str = "", models: str = "") -> None:
+             lockstep: bool, realtime: str = "", models: str = "", joints=None) -> None:
+        """`tracking_rms_deg` per bilateral joint; `joints` their names, shown short ("1 0.35 2 0.50 ...",
+        "g" for the gripper) so that a line of seven numbers says which is which."""
         r = timer.recent()
         speed = f" x{t_session / wall:.1f} real time" if lockstep and wall > 0 else ""
+        if joints is None:
+            track = " ".join(f"{x:.2f}" for x in tracking_rms_deg)
+        else:
+            track = " ".join(f"{_short(n)} {x:.2f}" for n, x in zip(joints, tracking_rms_deg))
         text = (f"{t_session:7.1f} s | {r['rate_hz']:6.0f} Hz{speed} | jitter {r['jitter_s'] * 1e3:.3f} ms | "
                 f"max {r['max_s'] * 1e3:.2f} ms | overruns {timer.overruns} | errors {errors} | "
-                f"track rms {' '.join(f'{x:.2f}' for x in tracking_rms_deg)} deg")
+                f"track rms {track} deg")
         if realtime:  # what the OS granted the loop, e.g. "FIFO 40" or "no RT"
             text += f" | {realtime}"
         if models:  # the observers' models, e.g. "model L nominal F rigid-body 3j (fallback 0)"
             text += f" | {models}"
         print(("\r" + text) if self.tty else text, end="" if self.tty else "\n", file=self.out, flush=True)
+
+
+def _short(joint: str) -> str:
+    """A joint's short name on the status line: joint4 -> j4, gripper -> g."""
+    return f"j{joint[5:]}" if joint.startswith("joint") else joint[:1]
 
 
 # How the summary's first line says why the run ended (RunResult.end_reason).
