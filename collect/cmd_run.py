@@ -28,9 +28,9 @@ from crane_io.cli_support import cli_errors, plant_presets
                    "with pressing the follower against the plant's objects (a plant with [[environment]], "
                    "e.g. --plant contact-wall). Default: operator.task of the configuration (free).")
 @click.option("--joints", default=None, metavar="LIST",
-              help="The joints under bilateral control, comma-separated (joint1,joint2,joint4,joint6), or "
-                   "'all' for joint1..joint7; the gripper only when named. The others are held in position "
-                   "mode at [held]. Default: bilateral.joints of the configuration, the paper's "
+              help="The joints under bilateral control, comma-separated (joint1,joint2,joint4,joint6); "
+                   "'all' stands for joint1..joint7 (the gripper only when named: all,gripper). The others "
+                   "are held in position mode at [held]. Default: bilateral.joints of the configuration, the paper's "
                    "joint1,joint2,joint4. With --sim and no --plant, a set beyond those three uses the "
                    "seven-joint plant preset crane-x7-7dof. Recorded in the session (bilateral_joints).")
 @click.option("--hand-on", type=click.Choice(["leader", "follower"]), default="leader", show_default=True,

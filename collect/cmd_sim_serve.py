@@ -76,8 +76,8 @@ def slip_summary(chain) -> str:
                    "`crane-collect calibrate`); with --pair prefix the arm (leader:joint2=0.05). Repeatable.")
 @click.option("--joints", default=None, metavar="LIST",
               help="The joints the served arms integrate as bilateral (current-mode) joints with the full "
-                   "rigid-body dynamics, comma-separated, or 'all' for joint1..joint7 (the gripper only when "
-                   "named); with --pair also the joints the hand moves. Record with the same --joints on "
+                   "rigid-body dynamics, comma-separated; 'all' stands for joint1..joint7 (the gripper only when "
+                   "named: all,gripper); with --pair also the joints the hand moves. Record with the same --joints on "
                    "`crane-collect run`. Default: bilateral.joints of --config, the paper's "
                    "joint1,joint2,joint4.")
 @click.option("--plant", "plant_name", default=None, metavar="PRESET_OR_TOML",

@@ -166,15 +166,15 @@ class Config:
 
 
 def parse_joints(spec: str | list | tuple, where: str = "--joints") -> tuple[str, ...]:
-    """A bilateral joint set from "all", "joint1,joint2,joint4" or a list of names: the names in the arm's
-    order (joint1 .. joint7, gripper). ConfigError (one sentence) for an unknown name, a name given twice,
+    """A bilateral joint set from "all", "all,gripper", "joint1,joint2,joint4" or a list of names: the names
+    in the arm's order (joint1 .. joint7, gripper; "all" stands for joint1 .. joint7). ConfigError (one sentence) for an unknown name, a name given twice,
     an empty set or anything that is not text."""
     if isinstance(spec, str):
         text = spec.strip()
-        names = list(ARM_JOINTS) if text.lower() == "all" else [n.strip() for n in text.split(",")]
-        names = [n for n in names if n] if text else []
+        names = [n.strip() for n in text.split(",")] if text else []
+        names = [m for n in names if n for m in (ARM_JOINTS if n.lower() == "all" else (n,))]
     elif isinstance(spec, (list, tuple)):
-        names = list(spec)
+        names = [m for n in spec for m in (ARM_JOINTS if isinstance(n, str) and n.lower() == "all" else (n,))]
     else:
         raise ConfigError(f"{where} must be a list of joint names or \"all\", got {spec!r}")
     for n in names:

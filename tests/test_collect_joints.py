@@ -68,13 +68,14 @@ def test_a_bad_joint_set_in_the_toml_is_one_sentence(tmp_path, value, words):
 @pytest.mark.parametrize("text, expect", [
     ("all", SEVEN), ("ALL", SEVEN), ("joint6, joint1", ("joint1", "joint6")),
     ("joint1,joint2,joint4,gripper", ("joint1", "joint2", "joint4", "gripper")),
+    ("all,gripper", SEVEN + ("gripper",)),
 ])
 def test_the_joints_option_text(text, expect):
     assert parse_joints(text) == expect
     assert load_config().with_bilateral_joints(text).bilateral == expect
 
 
-@pytest.mark.parametrize("text", ["", ",", "joint8", "joint1,joint1", "all,gripper"])
+@pytest.mark.parametrize("text", ["", ",", "joint8", "joint1,joint1", "all,joint3"])
 def test_a_bad_joints_option_is_refused(text):
     with pytest.raises(ConfigError) as err:
         load_config().with_bilateral_joints(text)
