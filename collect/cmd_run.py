@@ -29,9 +29,9 @@ from crane_io.cli_support import cli_errors, plant_presets
                    "e.g. --plant contact-wall). Default: operator.task of the configuration (free).")
 @click.option("--joints", default=None, metavar="LIST",
               help="The joints under bilateral control, comma-separated (joint1,joint2,joint4,joint6); "
-                   "'all' stands for joint1..joint7 (the gripper only when named: all,gripper). The others "
-                   "are held in position mode at [held]. Default: bilateral.joints of the configuration, the paper's "
-                   "joint1,joint2,joint4. With --sim and no --plant, a set beyond those three uses the "
+                   "'all' stands for joint1..joint7 (the gripper only when named: all,gripper). "
+                   "The others are held in position mode at [held]. Default: bilateral.joints of the "
+                   "configuration, the paper's joint1,joint2,joint4. With --sim and no --plant, a set beyond those three uses the "
                    "seven-joint plant preset crane-x7-7dof. Recorded in the session (bilateral_joints).")
 @click.option("--hand-on", type=click.Choice(["leader", "follower"]), default="leader", show_default=True,
               help="The arm the operator's hand moves. 'follower' swaps the roles so that the leader moves "
@@ -75,7 +75,8 @@ from crane_io.cli_support import cli_errors, plant_presets
 @click.option("--view-every", "view_every", type=click.IntRange(min=1), default=10, show_default=True,
               metavar="N", help="The view samples every N-th control cycle (50 samples a second at 500 Hz).")
 @cli_errors
-def run(output, sim, plant, truth_path, truth_trace, task, joints, hand_on, model_dir, leader_model_dir, seed,
+def run(output, sim, plant, truth_path, truth_trace, task, joints, hand_on, model_dir, leader_model_dir,
+        seed,
         duration, rate, config_path, realtime, leader_port, follower_port, leader_calibration,
         follower_calibration, no_calibration, force, quiet, view, view_save, view_every):
     """Drive leader and follower under 4-channel bilateral control and record a session.
@@ -95,7 +96,8 @@ def run(output, sim, plant, truth_path, truth_trace, task, joints, hand_on, mode
     run_session(RunOptions(output=output, sim=sim, plant=plant, seed=seed, duration=duration, rate=rate,
                            config=config_path, realtime=realtime, leader_port=leader_port,
                            follower_port=follower_port, force=force, status=not quiet, truth=truth_path,
-                           truth_trace=truth_trace, task=task, joints=joints, hand_on=hand_on, model=model_dir,
+                           truth_trace=truth_trace, task=task, joints=joints, hand_on=hand_on,
+                           model=model_dir,
                            leader_model=leader_model_dir, view=view, view_save=view_save,
                            view_every=view_every, leader_calibration=leader_calibration,
                            follower_calibration=follower_calibration, calibrate=not no_calibration))

@@ -76,10 +76,10 @@ def slip_summary(chain) -> str:
                    "`crane-collect calibrate`); with --pair prefix the arm (leader:joint2=0.05). Repeatable.")
 @click.option("--joints", default=None, metavar="LIST",
               help="The joints the served arms integrate as bilateral (current-mode) joints with the full "
-                   "rigid-body dynamics, comma-separated; 'all' stands for joint1..joint7 (the gripper only when "
-                   "named: all,gripper); with --pair also the joints the hand moves. Record with the same --joints on "
-                   "`crane-collect run`. Default: bilateral.joints of --config, the paper's "
-                   "joint1,joint2,joint4.")
+                   "rigid-body dynamics, comma-separated; 'all' stands for joint1..joint7 (the gripper "
+                   "only when named: all,gripper); with --pair also the joints the hand moves. Record with "
+                   "the same --joints on `crane-collect run`. Default: bilateral.joints of --config, the "
+                   "paper's joint1,joint2,joint4.")
 @click.option("--plant", "plant_name", default=None, metavar="PRESET_OR_TOML",
               help="Physics behind the servos: 'simple' (independent joints) or an arm-plant preset "
                    "or TOML file. Default: the arm plant's 'crane-x7' preset when available (crane-x7-7dof "
@@ -182,8 +182,7 @@ def _serve_one(stop, link, arm, plant_name, clock, period_s, seed, fast_sync_rea
     from crane_io.sim.chain import SimulatedChain
     from crane_io.sim.transport import PtyServer
 
-    from .sim_arms import make_plant
-    from .sim_arms import default_plant
+    from .sim_arms import default_plant, make_plant
     from .sim_lab import OffsetPlant
 
     plant = make_plant(plant_name, seed, arm)
@@ -225,7 +224,8 @@ def _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, c
                              config=config, task=task, hand_delay_s=hand_delay_s, arm=arm,
                              fast_sync_read=fast_sync_read, return_delay_time=return_delay,
                              encoder_offsets=offsets)
-    joints = "" if tuple(arm.bilateral_joints) == PAPER_JOINTS else f" --joints {','.join(arm.bilateral_joints)}"
+    paper = tuple(arm.bilateral_joints) == PAPER_JOINTS
+    joints = "" if paper else f" --joints {','.join(arm.bilateral_joints)}"
     _write_truth(lab.plants["follower"], truth_path)  # (a HandOnPlant passes write_truth through)
     links = {"leader": leader_link, "follower": follower_link}
     entries = []

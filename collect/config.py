@@ -166,9 +166,9 @@ class Config:
 
 
 def parse_joints(spec: str | list | tuple, where: str = "--joints") -> tuple[str, ...]:
-    """A bilateral joint set from "all", "all,gripper", "joint1,joint2,joint4" or a list of names: the names
-    in the arm's order (joint1 .. joint7, gripper; "all" stands for joint1 .. joint7). ConfigError (one sentence) for an unknown name, a name given twice,
-    an empty set or anything that is not text."""
+    """A bilateral joint set from "all", "all,gripper", "joint1,joint2,joint4" or a list of names: the
+    names in the arm's order (joint1 .. joint7, gripper; "all" stands for joint1 .. joint7). ConfigError
+    (one sentence) for an unknown name, a name given twice, an empty set or anything that is not text."""
     if isinstance(spec, str):
         text = spec.strip()
         names = [n.strip() for n in text.split(",")] if text else []
