@@ -31,8 +31,9 @@ from crane_io.cli_support import cli_errors, plant_presets
               help="The joints under bilateral control, comma-separated (joint1,joint2,joint4,joint6); "
                    "'all' stands for joint1..joint7 (the gripper only when named: all,gripper). "
                    "The others are held in position mode at [held]. Default: bilateral.joints of the "
-                   "configuration, the paper's joint1,joint2,joint4. With --sim and no --plant, a set beyond those three uses the "
-                   "seven-joint plant preset crane-x7-7dof. Recorded in the session (bilateral_joints).")
+                   "configuration, the paper's joint1,joint2,joint4. With --sim and no --plant, a set beyond "
+                   "those three uses the seven-joint plant preset crane-x7-7dof. Recorded in the session "
+                   "(bilateral_joints).")
 @click.option("--hand-on", type=click.Choice(["leader", "follower"]), default="leader", show_default=True,
               help="The arm the operator's hand moves. 'follower' swaps the roles so that the leader moves "
                    "on its own: leader data free of a hand, for crane-train fit --arm leader. Recorded in "
