@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from collect.alignment import SafetyStop
 from collect.cli import main
 from collect.config import ARM_JOINTS, PAPER_JOINTS, load_config, parse_joints
 from collect.operator import SimulatedOperator
@@ -21,6 +22,7 @@ from collect.recorder import read_events
 from collect.runner import RunOptions, run_arm, run_session
 from crane_io.description import default_arm
 from crane_io.errors import ConfigError
+from tests.recording import torque_off_everywhere
 
 SEVEN = ARM_JOINTS
 NO_JOINT3 = ("joint1", "joint2", "joint4", "joint5", "joint6", "joint7")
@@ -191,6 +193,33 @@ def test_held_joints_stay_held_when_the_set_is_a_subset(tmp_path):
             j6 = names.index("joint6")
             assert np.isnan(goal[:, j6]).all()
             assert np.ptp(q[:, j6]) > 0.05  # the operator moves the bilateral wrist joint
+
+
+@pytest.mark.parametrize("fault, words", [
+    ("vanish", "joint7"),  # the follower's wrist-twist servo drops off the bus
+    ("overload", "joint6 (ID 7): overload"),  # a wrist servo's overload bit
+])
+def test_a_fault_on_a_wrist_joint_ends_in_a_safe_stop(tmp_path, fault, words):
+    seen = {}
+
+    def inject(k, ctx):
+        seen["sims"] = ctx.sims
+        if k == 250:
+            if fault == "vanish":
+                ctx.sims["follower"].chain.remove_servo(8)  # joint7
+            else:
+                ctx.sims["leader"].chain.servos[7].set_hardware_error(0x20)  # joint6
+
+    with pytest.raises(SafetyStop) as info:
+        run_session(RunOptions(output=tmp_path / "s.h5", sim=True, seed=1, duration=3.0, status=False,
+                               joints="all", config=_fast_alignment(tmp_path), on_cycle=inject))
+    assert words in str(info.value)
+    with h5py.File(tmp_path / "s.h5") as f:
+        assert f.attrs["complete"] and f.attrs["end_reason"] == "safety_stop"
+        stops = [e for e in read_events(f) if e["kind"] == "safety_stop"]
+        assert len(stops) == 1 and words in stops[0]["message"]
+        assert 240 <= f["follower/t"].shape[0] <= 260  # stopped right away
+    assert torque_off_everywhere(seen["sims"], min_servos=15)
 
 
 # ---- the simulated operator ------------------------------------------------------------------------
