@@ -186,7 +186,7 @@ def test_base_regressor_rows_equals_the_plain_one_for_every_row_and_fits_a_subse
 @pytest.fixture(scope="module")
 def seven(tmp_path_factory):
     """A short 7-joint session with a Coulomb friction on joint6 and a spring on joint5."""
-    path, _ = seven_joint_session(tmp_path_factory.mktemp("seven") / "seven.h5", 120, seed=7,
+    path, _ = seven_joint_session(tmp_path_factory.mktemp("seven") / "seven.h5", 60, seed=7,
                                   coulomb={"joint6": 0.3}, spring={"joint5": (1.5, 0.0)})
     return path
 
@@ -196,16 +196,16 @@ def test_per_joint_evaluation_sets_at_seven_joints(seven):
 
     ds = _dataset(seven, ARM)
     assert ds.all_moving.mean() < 0.2
-    cfg = SplitConfig(n_pool=2000, n_val=200, n_test=200)
+    cfg = SplitConfig(n_pool=1000, n_val=150, n_test=150)
     splits = make_splits(ds, cfg, seed=0)
     assert splits.test.meta["eval_set"] == "per-joint"
-    assert (splits.test.moving.sum(axis=0) >= 200).all() and (splits.val.moving.sum(axis=0) >= 200).all()
+    assert (splits.test.moving.sum(axis=0) >= 150).all() and (splits.val.moving.sum(axis=0) >= 150).all()
     assert splits.test.moving.any(axis=1).all()
     used = [set(np.asarray(splits.index[k]).tolist()) for k in ("pool", "val", "test", "window")]
     assert all(not (a & b) for i, a in enumerate(used) for b in used[i + 1:])
     # the paper's all-moving sets on the same data need far more recording
     with pytest.raises(CraneError, match="need about"):
-        make_splits(ds, SplitConfig(n_pool=2000, n_val=200, n_test=200, eval_set="all-moving"), seed=0)
+        make_splits(ds, SplitConfig(n_pool=1000, n_val=150, n_test=150, eval_set="all-moving"), seed=0)
 
 
 def test_too_short_for_seven_joints_is_one_sentence_with_the_seconds_needed(seven):

@@ -18,6 +18,7 @@ from __future__ import annotations
 import csv
 import json
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -87,7 +88,9 @@ def scaled_sizes_sentence(doc: dict) -> str | None:
 def _ci95(values: np.ndarray) -> np.ndarray:
     """Half-width of the 95 % t confidence interval of the mean along axis 0 (NaN-aware)."""
     n = np.sum(np.isfinite(values), axis=0)
-    sd = np.nanstd(values, axis=0, ddof=1) if values.shape[0] > 1 else np.full(values.shape[1:], np.nan)
+    with warnings.catch_warnings():  # a joint with fewer than 2 scored trials: NaN, said by n below
+        warnings.simplefilter("ignore", RuntimeWarning)
+        sd = np.nanstd(values, axis=0, ddof=1) if values.shape[0] > 1 else np.full(values.shape[1:], np.nan)
     with np.errstate(invalid="ignore", divide="ignore"):
         t = stats.t.ppf(0.975, np.maximum(n - 1, 1))
         return np.where(n > 1, t * sd / np.sqrt(np.maximum(n, 1)), np.nan)
