@@ -156,9 +156,12 @@ def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = ()
     dead_zone = [float(ds.meta["alpha"]) * float(s) for s in ds.meta["sigma"]]
     # the poses the model saw: the loop trusts it only there (collect/model_reaction.py)
     q_range = {"q_min": ds.q.min(axis=0).tolist(), "q_max": ds.q.max(axis=0).tolist()}
+    # the kind of evaluation sets (train.splits), so report, compare and diagnose split alike (heldout)
+    eval_set = {"eval_set": splits.test.meta.get("eval_set", "all-moving")}
     model = make_model(method, ds.joint_names, preprocessing={**ds.meta["preprocessing"],
                                                               "dead_zone_rad_s": dead_zone,
-                                                              "input_range": q_range}, **options)
+                                                              "input_range": q_range, "splits": eval_set},
+                       **options)
     if has_net and progress is not None:
         model.fit(pool, splits.val, progress=progress)
     else:
