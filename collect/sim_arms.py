@@ -68,13 +68,21 @@ def make_plant(spec: str | None, seed: int, arm: ArmDescription, objects: bool =
             return SimplePlant.from_arm(arm)
         raise ConfigError(f"--plant {spec} needs crane_io.arm_plant, which is not installed; "
                           "use --plant simple") from None
-    config = load_plant_config(spec or default_plant(arm))
+    name = spec or default_plant(arm)
+    config = load_plant_config(name)
     config = config if objects else config.without_environment()
     # The arm plant integrates arm joints only: a bilateral gripper is its simple current-driven servo
     # (inertia and viscous friction), as every held servo is when its mode is current.
     joints = tuple(n for n in arm.bilateral_joints if n != "gripper")
     if _takes_joints(ArmPlant):
-        return ArmPlant(config, seed=seed, joints=joints or None)
+        try:
+            return ArmPlant(config, seed=seed, joints=joints or None)
+        except ConfigError as exc:  # e.g. an effect on a joint the run holds: say which plant, which joints
+            what = "" if spec else " (the default for these joints)"
+            bil = ", ".join(arm.bilateral_joints)
+            raise ConfigError(f"plant {name}{what} with the bilateral joints {bil}: "
+                              f"{str(exc).rstrip('.')}; pass --plant with one whose effects and objects sit "
+                              "on those joints") from None
     if joints and joints != _PAPER_JOINTS:  # an arm plant from before the seven-joint work
         raise ConfigError(f"this arm plant simulates the bilateral joints {', '.join(_PAPER_JOINTS)} only, "
                           f"not {', '.join(joints)}; use --plant simple or the paper's joints")
