@@ -82,7 +82,8 @@ def fit(sessions, method, out_dir, train_size, seed, effects, effect_files, epoc
         raise HandOnArmError(hand_on_hint(exc), exc.path, exc.arm) from None
     click.echo(f"{method} on the {doc['arm']}: trained on {doc['train_samples']} samples "
                f"({doc['train_samples_all_moving']} with every joint moving); "
-               f"test on {doc['test_samples']} samples")
+               f"test on {doc['test_samples']} samples"
+               + (" (each joint scored where it moves)" if doc.get("eval_set") == "per-joint" else ""))
     click.echo(f"{'joint':<10}{'MSE (N m)^2':>14}{'RMSE N m':>12}{'NMSE':>10}")
     for j in doc["joints"]:
         t = doc["test"]
