@@ -195,6 +195,27 @@ def test_held_joints_stay_held_when_the_set_is_a_subset(tmp_path):
             assert np.ptp(q[:, j6]) > 0.05  # the operator moves the bilateral wrist joint
 
 
+def test_all_eight_servos_bilateral_with_the_gripper(tmp_path):
+    # no held joint: the alignment sends no goal position (an empty sync write used to fail as a bus error)
+    result, out = _run(tmp_path, "all,gripper", 0, duration=1.0)
+    assert result.end_reason == "duration" and tuple(result.tracking_rms) == SEVEN + ("gripper",)
+    assert np.degrees(max(result.tracking_rms.values())) < 2.0
+    with h5py.File(out) as f:
+        assert np.isnan(f["follower/q_goal"][()]).all()
+        assert [str(n) for n in f.attrs["bilateral_joints"]] == list(SEVEN) + ["gripper"]
+
+
+def test_the_served_lab_integrates_and_moves_the_chosen_joints():
+    from collect.sim_lab import SimulatedLab
+
+    cfg = load_config().with_bilateral_joints("all")
+    lab = SimulatedLab.build(seed=1, clock="lockstep", config=cfg, arm=run_arm(cfg))
+    assert lab.plant_name == "crane-x7-7dof"
+    for name in ("leader", "follower"):
+        assert tuple(lab.plants[name].joints) == SEVEN  # through the hand's and the offsets' wrappers
+    assert len(lab.hand.operator.idx) == 7
+
+
 @pytest.mark.parametrize("fault, words", [
     ("vanish", "joint7"),  # the follower's wrist-twist servo drops off the bus
     ("overload", "joint6 (ID 7): overload"),  # a wrist servo's overload bit
