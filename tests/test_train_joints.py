@@ -280,3 +280,19 @@ def test_adding_the_planted_wrist_effects_halves_their_error_compare_report_hybr
     assert dt < 30, dt
     page = (tmp_path / "r.html").read_text()
     assert all(j in page for j in ARM)
+
+
+def test_eval_set_option_and_the_model_records_it(seven, tmp_path):
+    r = CliRunner().invoke(main, ["fit", str(seven), "--joints", "joint1,joint2,joint4",
+                                  "--model", "rigid-body", "--eval-set", "per-joint", "--scale-to-data",
+                                  "-o", str(tmp_path / "m"), "--no-progress"])
+    assert r.exit_code == 0, r.output
+    assert "each joint scored where it moves" in r.output
+    assert json.loads((tmp_path / "m" / "fit_metrics.json").read_text())["eval_set"] == "per-joint"
+    doc = json.loads((tmp_path / "m" / "model.json").read_text())
+    assert doc["preprocessing"]["splits"] == {"eval_set": "per-joint"}
+    # 3 joints by default: the paper's all-moving sets
+    r = CliRunner().invoke(main, ["fit", str(seven), "--model", "rigid-body", "--scale-to-data",
+                                  "-o", str(tmp_path / "p"), "--no-progress"])
+    assert r.exit_code == 0, r.output
+    assert json.loads((tmp_path / "p" / "fit_metrics.json").read_text())["eval_set"] == "all-moving"

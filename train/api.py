@@ -108,7 +108,8 @@ def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = ()
         effect_files: Sequence[PathLike] = (), train_size: int | None = None, seed: int = 0,
         epochs: int | None = None, scale_to_data: bool = False, config: PathLike | None = None,
         arm: str | None = None, joints: Sequence[str] | str | None = None, alpha: float | None = None,
-        zero_phase: bool = False, progress: Callable[[int, int], None] | None = None) -> FitResult:
+        zero_phase: bool = False, progress: Callable[[int, int], None] | None = None,
+        eval_set: str | None = None) -> FitResult:
     """Fit one model the paper's way: split the data (pool, validation, test; `scale_to_data` shrinks the
     sizes to short data), fit on `train_size` samples of the pool (all by default) and score on the test
     set.
@@ -129,6 +130,10 @@ def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = ()
     if (effects or effect_files) and method not in ("rigid-body", "hybrid"):
         raise ConfigError(f"effects apply to rigid-body and hybrid models, not {method}")
     settings = load_settings(config)
+    if eval_set is not None:  # "auto", "all-moving" or "per-joint" (train.splits), over the config's
+        from .splits import SplitConfig
+
+        settings["splits"] = SplitConfig(**{**vars(settings["splits"]), "eval_set": eval_set})
     if not hasattr(data, "tau"):  # session file(s), not a Dataset
         data = load_sessions(data, arm=arm, joints=joints, alpha=alpha, zero_phase=zero_phase, config=config)
     ds = data

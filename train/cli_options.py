@@ -66,7 +66,11 @@ def load_config(path=None) -> dict:
 
 
 def data_options(func):
-    """--joints, --alpha, --zero-phase, --scale-to-data (applied bottom-up by click)."""
+    """--joints, --alpha, --zero-phase, --scale-to-data, --eval-set (applied bottom-up by click)."""
+    func = click.option("--eval-set", type=click.Choice(["auto", "all-moving", "per-joint"]), default=None,
+                        help="Validation and test sets: the paper's samples with every joint moving, or "
+                             "per joint (each joint scored where it moves); auto: all-moving up to 3 "
+                             "learning joints, per-joint from 4 [auto].")(func)
     func = click.option("--scale-to-data", is_flag=True,
                         help="Shrink the split sizes (pool 6000, validation 500, test 500) to fit short data "
                              "instead of stopping with an error.")(func)

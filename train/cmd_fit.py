@@ -22,7 +22,7 @@ from .progress import show_progress
 def fit_model(sessions, method: str, out_dir, train_size: int | None = None, seed: int = 0,
               effects=(), effect_files=(), joints=None, alpha=None, zero_phase=False,
               scale_to_data=False, epochs: int | None = None, progress: bool = True,
-              config_path=None, arm: str | None = None) -> dict:
+              config_path=None, arm: str | None = None, eval_set: str | None = None) -> dict:
     """train.api.fit on `arm`'s data of the sessions, saved to out_dir (with fit_metrics.json); returns the
     metrics document. The output is checked before any work; a session whose arm the operator's hand moved
     is refused (train.session.HandOnArmError) before anything is written."""
@@ -41,7 +41,8 @@ def fit_model(sessions, method: str, out_dir, train_size: int | None = None, see
 
     result = fit(list(sessions), method, effects=effects, effect_files=effect_files, train_size=train_size,
                  seed=seed, epochs=epochs, scale_to_data=scale_to_data, config=config_path, arm=arm,
-                 joints=joints, alpha=alpha, zero_phase=zero_phase, progress=step if bar else None)
+                 joints=joints, alpha=alpha, zero_phase=zero_phase, progress=step if bar else None,
+                 eval_set=eval_set)
     if bar is not None:
         bar.close()
     result.save(out_dir)
@@ -69,7 +70,7 @@ def fit_model(sessions, method: str, out_dir, train_size: int | None = None, see
               help="No progress bar (there is none anyway when stderr is not a terminal).")
 @cli_errors
 def fit(sessions, method, out_dir, train_size, seed, effects, effect_files, epochs, arm, config_path, joints,
-        alpha, zero_phase, scale_to_data, no_progress):
+        alpha, zero_phase, scale_to_data, eval_set, no_progress):
     """Train one model on session files (the follower's data, or the leader's with --arm leader) and
     save it."""
     from .session import HandOnArmError
@@ -77,7 +78,7 @@ def fit(sessions, method, out_dir, train_size, seed, effects, effect_files, epoc
     try:
         doc = fit_model(sessions, method, out_dir, train_size, seed, [parse_effect(e) for e in effects],
                         effect_files, joints, alpha, zero_phase, scale_to_data, epochs,
-                        show_progress(not no_progress), config_path, arm)
+                        show_progress(not no_progress), config_path, arm, eval_set)
     except HandOnArmError as exc:
         raise HandOnArmError(hand_on_hint(exc), exc.path, exc.arm) from None
     click.echo(f"{method} on the {doc['arm']}: trained on {doc['train_samples']} samples "

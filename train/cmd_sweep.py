@@ -31,7 +31,7 @@ from .progress import progress_lines, show_progress
               help="No progress bars on a terminal, no progress lines (at most one every 10 s) in a log.")
 @cli_errors
 def sweep(sessions, out_dir, sizes, trials, methods, seed, epochs, batch_size, config_path, joints, alpha,
-          zero_phase, scale_to_data, no_progress):
+          zero_phase, scale_to_data, eval_set, no_progress):
     """Test MSE against the number of training samples for each method (mean and 95 % CI)."""
     from .sweep import format_table, run_sweep, write_results  # torch, scipy: for the work, not --help
 
@@ -46,6 +46,8 @@ def sweep(sessions, out_dir, sizes, trials, methods, seed, epochs, batch_size, c
         settings = replace(settings, batch_size=batch_size)
     if settings.epochs < 1 or settings.batch_size < 1:
         raise ConfigError("the number of epochs and the batch size must be at least 1")
+    if eval_set is not None:
+        cfg["splits"] = replace(cfg["splits"], eval_set=eval_set)
     ds = load_dataset(sessions, joints, alpha, zero_phase, cfg["preprocess"])
     # a terminal gets bars; a log (stderr redirected) plain lines at a bounded rate
     progress = show_progress(not no_progress) or progress_lines(not no_progress, prefix="sweep: ") or False
