@@ -74,28 +74,16 @@ def make_plant(spec: str | None, seed: int, arm: ArmDescription, objects: bool =
     # The arm plant integrates arm joints only: a bilateral gripper is its simple current-driven servo
     # (inertia and viscous friction), as every held servo is when its mode is current.
     joints = tuple(n for n in arm.bilateral_joints if n != "gripper")
-    if _takes_joints(ArmPlant):
-        try:
-            return ArmPlant(config, seed=seed, joints=joints or None)
-        except ConfigError as exc:  # e.g. an effect on a joint the run holds: say which plant, which joints
-            what = "" if spec else " (the default for these joints)"
-            bil = ", ".join(arm.bilateral_joints)
-            raise ConfigError(f"plant {name}{what} with the bilateral joints {bil}: "
-                              f"{str(exc).rstrip('.')}; pass --plant with one whose effects and objects sit "
-                              "on those joints") from None
-    if joints and joints != _PAPER_JOINTS:  # an arm plant from before the seven-joint work
-        raise ConfigError(f"this arm plant simulates the bilateral joints {', '.join(_PAPER_JOINTS)} only, "
-                          f"not {', '.join(joints)}; use --plant simple or the paper's joints")
-    return ArmPlant(config, seed=seed)
-
-
-def _takes_joints(cls) -> bool:
-    import inspect
-
+    if spec is None and joints:
+        # the default arm with some of its joints held (e.g. joint 3): their friction is no part of the
+        # physics; a plant the user names is taken as it is (and refused below if it does not fit)
+        config = config.restricted_to(joints)
     try:
-        return "joints" in inspect.signature(cls).parameters
-    except (TypeError, ValueError):  # pragma: no cover
-        return False
+        return ArmPlant(config, seed=seed, joints=joints or None)
+    except ConfigError as exc:  # e.g. an effect on a joint the run holds: say which plant, which joints
+        bil = ", ".join(arm.bilateral_joints)
+        raise ConfigError(f"plant {name} with the bilateral joints {bil}: {str(exc).rstrip('.')}; pass "
+                          "--plant with one whose effects and objects sit on those joints") from None
 
 
 def make_sim_arms(opts: RunOptions, config: Config, arm: ArmDescription) -> dict:

@@ -549,6 +549,8 @@ class DynamixelBus:
         self._need_port()
         rad = self._command_array(rad, "goal position", self.position_joints)
         sent = np.zeros(len(self.ids))
+        if not self.position_joints:  # every joint in current mode: nothing to send (an empty sync write
+            return sent               # is no packet the servos accept)
         for i in self.position_joints:
             raw = int(units.rad_to_position(np.clip(rad[i], self.lower[i], self.upper[i])))
             sent[i] = float(units.position_to_rad(raw))

@@ -178,6 +178,26 @@ class PlantConfig:
             out["environment"] = [e.as_dict() for e in self.environment]
         return out
 
+    def restricted_to(self, joints) -> PlantConfig:
+        """A copy that integrates `joints` (arm order as given) and simulates only the effects, the
+        hidden effect, the [known] entries and the joint walls on those joints (arm-scope effects and
+        planes stay). For running a preset's arm with some of its joints held: a held joint is a servo
+        in position mode, so its friction has no part in the physics the run records. The copy's
+        `description` says what was left out."""
+        joints = tuple(joints)
+        keep = set(joints)
+        cfg = copy.copy(self)
+        cfg.joints = joints
+        cfg.effects = [e for e in self.effects if e.joint is None or e.joint in keep]
+        cfg.hidden = self.hidden if self.hidden is None or self.hidden.joint in (None, *joints) else None
+        cfg.known = [k for k in self.known if k[1] is None or k[1] in keep]
+        cfg.environment = [e for e in self.environment if not isinstance(e, JointWallSpec) or e.joint in keep]
+        dropped = sorted({e.joint for e in self.all_effects if e.joint is not None and e.joint not in keep})
+        if dropped:
+            cfg.description = (f"{self.description} Restricted to {', '.join(joints)}: the effects on "
+                               f"{', '.join(dropped)} (held) are not simulated.").strip()
+        return cfg
+
     def without_environment(self) -> PlantConfig:
         """A copy with no [[environment]] objects (e.g. for the leader arm, which touches nothing)."""
         cfg = copy.copy(self)

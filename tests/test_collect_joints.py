@@ -112,7 +112,7 @@ def test_a_bad_joints_option_on_the_command_line_is_one_sentence(tmp_path, cmd, 
 
 @pytest.mark.parametrize("args, held", [
     (["--plant", "crane-x7", "--joints", "joint1"], "joint2"),  # the paper's preset: effects on 2 and 4
-    (["--joints", ",".join(NO_JOINT3)], "joint3"),  # crane-x7-7dof (the default here): effects on all 7
+    (["--plant", "crane-x7-7dof", "--joints", ",".join(NO_JOINT3)], "joint3"),  # named: effects on all 7
 ])
 def test_a_preset_with_effects_on_a_held_joint_is_one_sentence(tmp_path, args, held):
     r = CliRunner().invoke(main, ["run", "--sim", *args, "--duration", "1", "-o", str(tmp_path / "s.h5")])
@@ -193,6 +193,28 @@ def test_held_joints_stay_held_when_the_set_is_a_subset(tmp_path):
             j6 = names.index("joint6")
             assert np.isnan(goal[:, j6]).all()
             assert np.ptp(q[:, j6]) > 0.05  # the operator moves the bilateral wrist joint
+
+
+def test_the_default_plant_runs_with_joint3_held(tmp_path):
+    # without --plant the seven-joint arm is restricted to the bilateral joints: the held joint's
+    # friction is no part of the physics (a plant the user names is taken as it is, above)
+    result, out = _run(tmp_path, ",".join(NO_JOINT3), 3, duration=2.0)
+    assert result.end_reason == "duration" and tuple(result.tracking_rms) == NO_JOINT3
+    with h5py.File(out) as f:
+        i = default_arm().joint_names.index("joint3")
+        assert np.degrees(np.ptp(f["follower/q"][:, i])) < 1.0
+
+
+def test_the_restricted_preset_keeps_only_the_integrated_joints_effects():
+    from crane_io.plant_config import load_plant_config
+
+    full = load_plant_config("hidden-wrist-coulomb")
+    part = full.restricted_to(NO_JOINT3)
+    assert part.joints == NO_JOINT3 and part.hidden == full.hidden
+    assert {e.joint for e in part.effects} == set(NO_JOINT3)
+    assert all(k[1] != "joint3" for k in part.known) and "joint3" in part.description
+    gone = full.restricted_to(("joint1", "joint2", "joint4"))
+    assert gone.hidden is None and {e.joint for e in gone.effects} == {"joint1", "joint2", "joint4"}
 
 
 def test_all_eight_servos_bilateral_with_the_gripper(tmp_path):
