@@ -70,6 +70,7 @@ class ArmDynamics:
         self._identity = bool(np.all(self._perm == np.arange(len(joints))))
         self.nbodies = self.model.njoints - 1
         self._base = None
+        self._base_rows: dict[tuple, tuple] = {}  # _base_decomposition_rows, per set of model-order rows
         tool = self.model.getFrameId(TOOL_FRAME)
         self._tool_joint = self.model.frames[tool].parentJoint
         self._tool_placement = self.model.frames[tool].placement.copy()
@@ -194,23 +195,31 @@ class ArmDynamics:
 
     def _base_decomposition(self):
         if self._base is None:
-            rng = np.random.default_rng(_BASE_SEED)
-            lo = np.array([self.model.lowerPositionLimit[k] for k in range(self.model.nq)])
-            hi = np.array([self.model.upperPositionLimit[k] for k in range(self.model.nq)])
-            n = _BASE_SAMPLES
-            q = rng.uniform(lo, hi, size=(n, self.n_joints))
-            dq = rng.uniform(-3, 3, size=(n, self.n_joints))
-            ddq = rng.uniform(-20, 20, size=(n, self.n_joints))
-            w = self._regressor_model_order(q, dq, ddq).reshape(-1, 10 * self.nbodies)
-            _, r, piv = scipy.linalg.qr(w, mode="economic", pivoting=True)
-            diag = np.abs(np.diag(r))
-            rank = int(np.sum(diag > _RANK_TOL * diag[0]))
-            indep, dep = piv[:rank], piv[rank:]
-            beta = scipy.linalg.solve_triangular(r[:rank, :rank], r[:rank, rank:])
-            # tidy numerical dust so combinations read cleanly
-            beta[np.abs(beta) < 1e-10] = 0.0
-            self._base = (indep, dep, beta)
+            self._base = self._decompose()
         return self._base
+
+    def _decompose(self, model_rows=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(independent columns, dependent columns, beta) of the regressor stacked over the fixed random
+        samples (module docstring), over the rows `model_rows` (model order; None: every row)."""
+        rng = np.random.default_rng(_BASE_SEED)
+        lo = np.array([self.model.lowerPositionLimit[k] for k in range(self.model.nq)])
+        hi = np.array([self.model.upperPositionLimit[k] for k in range(self.model.nq)])
+        n = _BASE_SAMPLES
+        q = rng.uniform(lo, hi, size=(n, self.n_joints))
+        dq = rng.uniform(-3, 3, size=(n, self.n_joints))
+        ddq = rng.uniform(-20, 20, size=(n, self.n_joints))
+        w = self._regressor_model_order(q, dq, ddq)
+        if model_rows is not None:
+            w = w[:, list(model_rows)]
+        w = w.reshape(-1, 10 * self.nbodies)
+        _, r, piv = scipy.linalg.qr(w, mode="economic", pivoting=True)
+        diag = np.abs(np.diag(r))
+        rank = int(np.sum(diag > _RANK_TOL * diag[0]))
+        indep, dep = piv[:rank], piv[rank:]
+        beta = scipy.linalg.solve_triangular(r[:rank, :rank], r[:rank, rank:])
+        # tidy numerical dust so combinations read cleanly
+        beta[np.abs(beta) < 1e-10] = 0.0
+        return indep, dep, beta
 
     def base_regressor(self, q, dq, ddq) -> np.ndarray:
         """(N, J, B): inverse_dynamics = base_regressor @ base_parameters()."""
@@ -267,25 +276,10 @@ class ArmDynamics:
         rows = tuple(rows)
         if sorted(rows) == sorted(self.joint_names):
             return self._base_decomposition()
-        cache = self.__dict__.setdefault("_base_rows", {})
         key = tuple(sorted(self._perm[self._row_index(rows)].tolist()))  # model-order rows
-        if key not in cache:
-            rng = np.random.default_rng(_BASE_SEED)
-            lo = np.array([self.model.lowerPositionLimit[k] for k in range(self.model.nq)])
-            hi = np.array([self.model.upperPositionLimit[k] for k in range(self.model.nq)])
-            n = _BASE_SAMPLES
-            q = rng.uniform(lo, hi, size=(n, self.n_joints))
-            dq = rng.uniform(-3, 3, size=(n, self.n_joints))
-            ddq = rng.uniform(-20, 20, size=(n, self.n_joints))
-            w = self._regressor_model_order(q, dq, ddq)[:, list(key)].reshape(-1, 10 * self.nbodies)
-            _, r, piv = scipy.linalg.qr(w, mode="economic", pivoting=True)
-            diag = np.abs(np.diag(r))
-            rank = int(np.sum(diag > _RANK_TOL * diag[0]))
-            indep, dep = piv[:rank], piv[rank:]
-            beta = scipy.linalg.solve_triangular(r[:rank, :rank], r[:rank, rank:])
-            beta[np.abs(beta) < 1e-10] = 0.0
-            cache[key] = (indep, dep, beta)
-        return cache[key]
+        if key not in self._base_rows:
+            self._base_rows[key] = self._decompose(key)
+        return self._base_rows[key]
 
     def base_regressor_rows(self, q, dq, ddq, rows) -> np.ndarray:
         """(N, len(rows), B_rows): the torques of the joints `rows` (names, in that order) =
