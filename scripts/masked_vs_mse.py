@@ -43,7 +43,8 @@ def main(argv: list[str]) -> None:
         cells = (r["joint"], f"{r['masked_below']} of {r['sizes']} sizes",
                  f"{r['masked_300']:.3g} / {r['mse_300']:.3g}", f"{r['masked_max']:.3g} / {r['mse_max']:.3g}",
                  r["factor"])
-        print("| " + " | ".join(cells) + " |" if "--markdown" in argv else "  ".join(f"{c:<28}" for c in cells))
+        markdown = "--markdown" in argv
+        print("| " + " | ".join(cells) + " |" if markdown else "  ".join(f"{c:<28}" for c in cells))
     print(f"\nmlp-masked below mlp-mse at every size on {wins} of {len(rows)} joints")
 
 
