@@ -1,4 +1,5 @@
-"""Crash-safe HDF5 session recording (format "crane-session", documented in the README).
+"""Crash-safe HDF5 session recording (format "crane-session": its names, dtypes and writing constants
+are declared in crane_io/session_format.py and documented in the README).
 
 All datasets are created up front (chunked, resizable along N, gzip level 1 + shuffle + fletcher32
 checksums, float fill NaN) and all metadata is written as root attributes, including placeholders for
@@ -29,42 +30,14 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from crane_io import session_format as sf
 from crane_io.errors import SessionCloseError, SessionFileError
+from crane_io.session_format import EVENT_DTYPE, FILTERS, FORMAT, FORMAT_VERSION  # noqa: F401 - re-exported
 
-from .pacing import SECTIONS
-
-FORMAT = "crane-session"
-FORMAT_VERSION = 1
-
-# per-arm members: name -> (dtype, per-joint columns?)
-ARM_MEMBERS = {
-    "t": (np.float64, False),
-    "q": (np.float64, True),
-    "tau": (np.float64, True),
-    "dq_servo": (np.float32, True),
-    "current": (np.float32, True),
-    "goal_current": (np.float32, True),
-    "dq": (np.float32, True),
-    "tau_dis": (np.float32, True),
-    "tau_res": (np.float32, True),
-    "q_goal": (np.float32, True),
-}
-TIMING_MEMBERS = {
-    "cycle_start": np.float64,
-    "period": np.float32,
-    "bus_time_leader": np.float32,
-    "bus_time_follower": np.float32,
-    "compute_time": np.float32,
-    "overrun": np.bool_,
-}
-FILTERS = {"compression": "gzip", "compression_opts": 1, "shuffle": True, "fletcher32": True}
 # end-of-run attributes written by close(), created with placeholders before the SWMR switch
-SUMMARY_KEYS = ("cycles", "overruns", "skipped_deadlines", "nominal_period_s", "period_mean_s",
-                "period_std_s", "period_p99_s", "period_max_s", "rate_hz",
-                *(f"{s}_{w}_s" for s in SECTIONS for w in ("mean", "max")))
-DEFAULT_END_ATTRS = {"/": {"end_reason": str, "rate_hz_achieved": float},
-                     "timing": {**dict.fromkeys(SUMMARY_KEYS, float), "lockstep": bool}}
-EVENT_DTYPE = np.dtype([("t", "<f8"), ("kind", "S24"), ("joint", "S16"), ("message", "S240")])
+SUMMARY_KEYS = sf.TIMING_SUMMARY_ATTRS
+DEFAULT_END_ATTRS = {"/": {sf.END_REASON_ATTR: str, sf.RATE_ACHIEVED_ATTR: float},
+                     sf.TIMING: {**dict.fromkeys(SUMMARY_KEYS, float), sf.TIMING_LOCKSTEP: bool}}
 
 
 def _enc(text: str, size: int) -> bytes:
@@ -74,7 +47,9 @@ def _enc(text: str, size: int) -> bytes:
 
 def event_row(t: float, kind: str, message: str, joint: str = "") -> np.void:
     """One record of `/events` (strings cut to their fixed widths on a UTF-8 character boundary)."""
-    return np.array([(float(t), _enc(kind, 24), _enc(joint, 16), _enc(message, 240))], dtype=EVENT_DTYPE)[0]
+    w = sf.EVENT_WIDTHS
+    return np.array([(float(t), _enc(kind, w["kind"]), _enc(joint, w["joint"]), _enc(message, w["message"]))],
+                    dtype=EVENT_DTYPE)[0]
 
 
 class SessionRecorder:
@@ -90,9 +65,10 @@ class SessionRecorder:
     reader that has the file open sees it only after reopening; declare keys to be safe)."""
 
     def __init__(self, path: str | Path, *, joint_names, rate_hz: float, source: str,
-                 attrs: dict | None = None, arms=("leader", "follower"), force: bool = False,
-                 flush_interval_s: float = 0.5, max_unsaved_s: float = 0.9, lockstep: bool = False,
-                 chunk_rows: int | None = None, end_attrs: dict | None = None, compact_above: float = 0.15,
+                 attrs: dict | None = None, arms=sf.ARMS, force: bool = False,
+                 flush_interval_s: float = sf.CHUNK_S, max_unsaved_s: float = sf.MAX_UNSAVED_S,
+                 lockstep: bool = False, chunk_rows: int | None = None, end_attrs: dict | None = None,
+                 compact_above: float = sf.COMPACT_ABOVE,
                  clock=time.monotonic):
         self.path = Path(path)
         if self.path.exists():
@@ -124,25 +100,26 @@ class SessionRecorder:
         self.closed = False
         self._lock = None
         f = self._f
-        f.attrs["format"] = FORMAT
-        f.attrs["format_version"] = FORMAT_VERSION
-        f.attrs["rate_hz"] = self.rate_hz
-        f.attrs["joint_names"] = np.array(self.joint_names, dtype=h5py.string_dtype())
-        f.attrs["source"] = str(source)
-        f.attrs["complete"] = False
+        # the required attributes (sf.REQUIRED_ROOT), then `complete`
+        f.attrs[sf.FORMAT_ATTR] = FORMAT
+        f.attrs[sf.VERSION_ATTR] = FORMAT_VERSION
+        f.attrs[sf.RATE_ATTR] = self.rate_hz
+        f.attrs[sf.JOINT_NAMES_ATTR] = np.array(self.joint_names, dtype=h5py.string_dtype())
+        f.attrs[sf.SOURCE_ATTR] = str(source)
+        f.attrs[sf.COMPLETE_ATTR] = False
         for key, value in (attrs or {}).items():
             f.attrs[key] = _attr(value)
         self._ds: dict[str, h5py.Dataset] = {}
         self._buf: dict[str, np.ndarray] = {}
         for arm in arms:
             g = f.create_group(arm)
-            for name, (dtype, per_joint) in ARM_MEMBERS.items():
-                self._add(f"{arm}/{name}", g, name, dtype, (J,) if per_joint else ())
-        g = f.create_group("timing")
-        for name, dtype in TIMING_MEMBERS.items():
-            self._add(f"timing/{name}", g, name, dtype, ())
-        self._events = f.create_dataset("events", shape=(0,), maxshape=(None,), dtype=EVENT_DTYPE,
-                                        chunks=(64,), fletcher32=True)
+            for m in sf.ARM_MEMBERS:
+                self._add(sf.arm_path(arm, m.name), g, m.name, m.dtype, m.row_shape(J))
+        g = f.create_group(sf.TIMING)
+        for m in sf.TIMING_MEMBERS:
+            self._add(f"{sf.TIMING}/{m.name}", g, m.name, m.dtype, m.row_shape(J))
+        self._events = f.create_dataset(sf.EVENTS, shape=(0,), maxshape=(None,), dtype=EVENT_DTYPE,
+                                        chunks=(sf.EVENT_CHUNK_ROWS,), fletcher32=True)
         for group, keys in (DEFAULT_END_ATTRS if end_attrs is None else end_attrs).items():
             obj = f if group in ("/", "") else f.require_group(group)
             for key, kind in keys.items():
@@ -155,8 +132,7 @@ class SessionRecorder:
         self._lock = WriterLock(self.path)
 
     def _add(self, key: str, group: h5py.Group, name: str, dtype, row_shape: tuple) -> None:
-        floating = np.issubdtype(dtype, np.floating)
-        fill = np.nan if floating else 0
+        fill = sf.fill_value(dtype)
         ds = group.create_dataset(name, shape=(0,) + row_shape, maxshape=(None,) + row_shape, dtype=dtype,
                                   chunks=(self.chunk_rows,) + row_shape, fillvalue=fill, **FILTERS)
         self._ds[key] = ds
@@ -235,7 +211,7 @@ class SessionRecorder:
                     except Exception:  # noqa: BLE001 - named in the sentence below
                         failed.append(f"{group.rstrip('/')}/{key}".lstrip("/") if group != "/" else key)
             if complete and not failed:
-                self._f.attrs.modify("complete", True)
+                self._f.attrs.modify(sf.COMPLETE_ATTR, True)
                 self._f.flush()
         finally:
             closed = True
@@ -336,10 +312,10 @@ def _attr(value):
 
 def read_events(f: h5py.File) -> list[dict]:
     """The events of an open session as dicts with str fields (helper for tests and tools)."""
-    if "events" not in f:
+    if sf.EVENTS not in f:
         return []
     out = []
-    for rec in f["events"][()]:
+    for rec in f[sf.EVENTS][()]:
         out.append({"t": float(rec["t"]), "kind": rec["kind"].decode(), "joint": rec["joint"].decode(),
                     "message": rec["message"].decode()})
     return out

@@ -29,9 +29,11 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from crane_io import session_format as sf
 from crane_io.errors import NotRecoverableError, SessionFileError
+from crane_io.session_format import EVENT_DTYPE, FORMAT
 
-from .recorder import EVENT_DTYPE, FORMAT, event_row
+from .recorder import event_row
 from .session_copy import read_rows, row_datasets, write_copy
 from .session_lock import is_being_written
 
@@ -70,11 +72,11 @@ def _refuse_ordinary(path: Path) -> None:
             return  # the crashed state recovery is for
         raise NotRecoverableError(f"{path} cannot be read as HDF5 ({exc})") from None
     with f:
-        fmt = _text(f.attrs.get("format"))
+        fmt = _text(f.attrs.get(sf.FORMAT_ATTR))
         if fmt != FORMAT:
             raise NotRecoverableError(f"{path} is not a crane-session file (format {fmt!r}), so there is "
                                       "nothing to recover")
-        state = "complete" if bool(f.attrs.get("complete", False)) else "closed but incomplete"
+        state = "complete" if bool(f.attrs.get(sf.COMPLETE_ATTR, False)) else "closed but incomplete"
         raise NotRecoverableError(f"{path} is an ordinary session file already ({state}); only a session "
                                   "whose recording crashed needs recovering")
 
@@ -93,8 +95,9 @@ def _complete_rows(f: h5py.File, path) -> tuple[int, int]:
     lengths = [d.shape[0] for d in data]
     n = min(lengths)
     # rows are written time first; a time never written reads as the NaN fill value
+    times = (sf.T, sf.CYCLE_START)
     for d in data:
-        if d.ndim == 1 and d.dtype.kind == "f" and d.name.rsplit("/", 1)[-1] in ("t", "cycle_start") and n:
+        if d.ndim == 1 and d.dtype.kind == "f" and d.name.rsplit("/", 1)[-1] in times and n:
             values = read_rows(d, 0, n, path)
             finite = np.flatnonzero(np.isfinite(values))
             if finite.size:
@@ -107,8 +110,8 @@ def _drops(f: h5py.File, end_reason_written: bool) -> dict[str, set]:
     for key, value in f.attrs.items():
         if isinstance(value, (float, np.floating)) and np.isnan(value):
             drop["/"].add(key)
-    if not end_reason_written and "timing" in f:
-        drop["timing"] = set(f["timing"].attrs)
+    if not end_reason_written and sf.TIMING in f:
+        drop[sf.TIMING] = set(f[sf.TIMING].attrs)
     return drop
 
 
@@ -137,16 +140,16 @@ def recover_session(path, output=None) -> Recovery:
     staged = None
     try:
         with src:
-            fmt = _text(src.attrs.get("format"))
+            fmt = _text(src.attrs.get(sf.FORMAT_ATTR))
             if fmt != FORMAT:
                 raise NotRecoverableError(f"{path} is not a crane-session file (format {fmt!r}), so there "
                                           "is nothing to recover")
-            written = _text(src.attrs.get("end_reason")) or ""
+            written = _text(src.attrs.get(sf.END_REASON_ATTR)) or ""
             end_reason = written or "crashed"
             n, longest = _complete_rows(src, path)
             fd, staged = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=".recovered", dir=dest.parent)
             os.close(fd)
-            write_copy(src, staged, rows=n, attrs={"complete": False, "end_reason": end_reason},
+            write_copy(src, staged, rows=n, attrs={sf.COMPLETE_ATTR: False, sf.END_REASON_ATTR: end_reason},
                        drop_attrs=_drops(src, bool(written)), source_path=path)
         duration = _finish_copy(Path(staged), path, n, longest)
         if in_place:
@@ -168,19 +171,20 @@ def recover_session(path, output=None) -> Recovery:
 
 def _finish_copy(staged: Path, path: Path, n: int, longest: int) -> float:
     """Add the `recovered` event to the fresh copy and check that it opens as an ordinary file."""
+    t_path = sf.arm_path(sf.REQUIRED_ARM, sf.T)
     with h5py.File(staged, "r+") as f:
-        t = f["follower/t"][max(0, n - 1):n] if "follower/t" in f else np.zeros(0)
+        t = f[t_path][max(0, n - 1):n] if t_path in f else np.zeros(0)
         t_end = float(t[-1]) if t.size and np.isfinite(t[-1]) else 0.0
-        t0 = float(f["follower/t"][0]) if n and "follower/t" in f else 0.0
-        if "events" in f and f["events"].dtype == EVENT_DTYPE:
-            ev = f["events"]
+        t0 = float(f[t_path][0]) if n and t_path in f else 0.0
+        if sf.EVENTS in f and f[sf.EVENTS].dtype == EVENT_DTYPE:
+            ev = f[sf.EVENTS]
             msg = (f"recovered by crane-collect recover after a crash: {n} rows kept"
                    + (f", {longest - n} incomplete rows left out" if longest > n else ""))
             ev.resize(ev.shape[0] + 1, axis=0)
             ev[-1] = event_row(t_end, "recovered", msg)
     with h5py.File(staged, "r") as f:
         bad = [d.name for d in row_datasets(f) if d.shape[0] != n]
-        if bad or f.attrs.get("format") != FORMAT:
+        if bad or f.attrs.get(sf.FORMAT_ATTR) != FORMAT:
             raise SessionFileError(f"the recovered copy of {path} did not come out whole ({', '.join(bad)}); "
                                    "the file was left as it was")
     return t_end - t0 if n else 0.0

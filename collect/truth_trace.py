@@ -24,10 +24,13 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from crane_io import session_format as sf
 from crane_io.errors import ConfigError
+from crane_io.session_format import TRUTH_TRACE_FORMAT as FORMAT
+from crane_io.session_format import TRUTH_TRACE_VERSION as FORMAT_VERSION
 
-FORMAT = "crane-truth-trace"
-FORMAT_VERSION = 1
+# the datasets, in the order they are created and appended
+_NAMES = (sf.TRUTH_TRACE_T, sf.TRUTH_TRACE_TAU_EXT, sf.TRUTH_TRACE_LEADER_TAU_EXT, sf.TRUTH_TRACE_IN_CONTACT)
 SIGN = ("world on the arm: a positive value pushes the joint positive; a reaction-force observer's "
         "tau_res estimates -tau_ext")
 
@@ -57,18 +60,19 @@ class TruthTraceWriter:
             raise ConfigError(f"cannot create the truth trace {self.path} ({exc})") from None
         J = len(joint_names)
         f = self._f
-        f.attrs.update({"format": FORMAT, "format_version": FORMAT_VERSION, "session": str(session),
-                        "joint_names": np.array([str(n) for n in joint_names], dtype=h5py.string_dtype()),
-                        "sign": SIGN, "complete": False})
+        f.attrs.update({sf.FORMAT_ATTR: FORMAT, sf.VERSION_ATTR: FORMAT_VERSION, "session": str(session),
+                        sf.JOINT_NAMES_ATTR: np.array([str(n) for n in joint_names],
+                                                      dtype=h5py.string_dtype()),
+                        "sign": SIGN, sf.COMPLETE_ATTR: False})
         opts = {"chunks": True, "compression": "gzip", "compression_opts": 1, "shuffle": True}
+        t, ext, leader_ext, contact = _NAMES
         self._sets = {
-            "t": f.create_dataset("t", (0,), np.float64, maxshape=(None,), **opts),
-            "tau_ext": f.create_dataset("tau_ext", (0, J), np.float64, maxshape=(None, J), **opts),
-            "leader/tau_ext": f.create_dataset("leader/tau_ext", (0, J), np.float64, maxshape=(None, J),
-                                               **opts),
-            "in_contact": f.create_dataset("in_contact", (0,), np.bool_, maxshape=(None,), **opts),
+            t: f.create_dataset(t, (0,), np.float64, maxshape=(None,), **opts),
+            ext: f.create_dataset(ext, (0, J), np.float64, maxshape=(None, J), **opts),
+            leader_ext: f.create_dataset(leader_ext, (0, J), np.float64, maxshape=(None, J), **opts),
+            contact: f.create_dataset(contact, (0,), np.bool_, maxshape=(None,), **opts),
         }
-        for name, unit in (("t", "s"), ("tau_ext", "N m"), ("leader/tau_ext", "N m")):
+        for name, unit in ((t, "s"), (ext, "N m"), (leader_ext, "N m")):
             self._sets[name].attrs["unit"] = unit
         self.block = int(block)
         self._rows: list[tuple] = []
@@ -86,7 +90,7 @@ class TruthTraceWriter:
             return
         t, fe, le, c = zip(*self._rows)
         n0, n = self.rows, len(t)
-        for name, values in (("t", t), ("tau_ext", fe), ("leader/tau_ext", le), ("in_contact", c)):
+        for name, values in zip(_NAMES, (t, fe, le, c)):
             ds = self._sets[name]
             ds.resize(n0 + n, axis=0)
             ds[n0:] = np.array(values)
@@ -100,6 +104,6 @@ class TruthTraceWriter:
         self.closed = True
         try:
             self._flush()
-            self._f.attrs["complete"] = True
+            self._f.attrs[sf.COMPLETE_ATTR] = True
         finally:
             self._f.close()

@@ -34,12 +34,13 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from crane_io import session_format as sf
 from crane_io.errors import CraneError, SessionFileError
+from crane_io.session_format import TRUTH_TRACE_FORMAT as TRUTH_FORMAT
+from crane_io.session_format import TRUTH_TRACE_VERSION as TRUTH_FORMAT_VERSION
 
 from .session import _decode, _open, _read, check_version, read_session
 
-TRUTH_FORMAT = "crane-truth-trace"
-TRUTH_FORMAT_VERSION = 1
 NOMINAL = "nominal model"
 DEAD_ZONE_ALPHA = 0.1  # a joint moves when |dq| > alpha std(dq) (the paper's dead-zone rule)
 T_TOLERANCE_S = 1e-6  # the trace's t must equal the session's follower/t within this
@@ -92,7 +93,7 @@ def _rms(x: np.ndarray) -> float | None:
 
 
 def _model_attr(attrs: dict, arm: str):
-    value = attrs.get(f"{arm}_model")
+    value = attrs.get(sf.model_attr(arm))
     if value in (None, ""):
         return NOMINAL
     try:
@@ -102,7 +103,7 @@ def _model_attr(attrs: dict, arm: str):
 
 
 def _arm_member(path: Path, f: h5py.File, arm: str, key: str, n: int, joints: int) -> np.ndarray:
-    name = f"{arm}/{key}"
+    name = sf.arm_path(arm, key)
     if name not in f or not isinstance(f[name], h5py.Dataset):
         raise SessionFileError(f"{path} has no /{name} dataset, so its force channel cannot be measured")
     ds = f[name]
@@ -125,19 +126,21 @@ def _read_trace(path: Path, joint_names: tuple[str, ...]) -> _Trace:
             raise SessionFileError(f"{path} cannot be opened as HDF5 ({exc})") from None
     with f:
         attrs = {k: _decode(v) for k, v in f.attrs.items()}
-        if attrs.get("format") != TRUTH_FORMAT:
-            raise SessionFileError(f"{path} is not a truth trace (its format is {attrs.get('format')!r}, "
-                                   f"not {TRUTH_FORMAT!r})")
+        if attrs.get(sf.FORMAT_ATTR) != TRUTH_FORMAT:
+            raise SessionFileError(f"{path} is not a truth trace (its format is "
+                                   f"{attrs.get(sf.FORMAT_ATTR)!r}, not {TRUTH_FORMAT!r})")
         check_version(path, attrs, TRUTH_FORMAT, TRUTH_FORMAT_VERSION)
-        names = attrs.get("joint_names")
+        names = attrs.get(sf.JOINT_NAMES_ATTR)
         names = tuple(names) if isinstance(names, list) else (names,)
         if names != tuple(joint_names):
             raise FidelityError(f"{path} names the joints {', '.join(map(str, names))} but the session has "
                                 f"{', '.join(joint_names)}; it is the truth trace of another session")
         j = len(joint_names)
-        shapes = {"t": 1, "tau_ext": 2, "in_contact": 1, "leader/tau_ext": 2}
+        t_key, ext_key, leader_key, contact_key = (sf.TRUTH_TRACE_T, sf.TRUTH_TRACE_TAU_EXT,
+                                                   sf.TRUTH_TRACE_LEADER_TAU_EXT, sf.TRUTH_TRACE_IN_CONTACT)
+        shapes = {t_key: 1, ext_key: 2, contact_key: 1, leader_key: 2}
         for key, ndim in shapes.items():
-            if key == "leader/tau_ext" and key not in f:
+            if key == leader_key and key not in f:
                 continue
             if key not in f or not isinstance(f[key], h5py.Dataset):
                 raise SessionFileError(f"{path} lacks the dataset /{key} of a truth trace")
@@ -146,13 +149,13 @@ def _read_trace(path: Path, joint_names: tuple[str, ...]) -> _Trace:
                                        f"{'(N,)' if ndim == 1 else f'(N, {j})'}")
         keys = [k for k in shapes if k in f]
         n = min(f[k].shape[0] for k in keys)
-        t = _read(path, f["t"], n)
-        tau_ext = _read(path, f["tau_ext"], n)
-        leader = _read(path, f["leader/tau_ext"], n) if "leader/tau_ext" in f else None
+        t = _read(path, f[t_key], n)
+        tau_ext = _read(path, f[ext_key], n)
+        leader = _read(path, f[leader_key], n) if leader_key in f else None
         try:
-            in_contact = np.asarray(f["in_contact"][:n], dtype=bool)
+            in_contact = np.asarray(f[contact_key][:n], dtype=bool)
         except (OSError, ValueError, TypeError) as exc:
-            raise SessionFileError(f"{path}: /in_contact cannot be read ({exc})") from None
+            raise SessionFileError(f"{path}: /{contact_key} cannot be read ({exc})") from None
     return _Trace(t, tau_ext, leader, in_contact)
 
 
@@ -183,8 +186,8 @@ def measure_fidelity(session, truth_trace=None, settle_s: float = 1.0,
     if len(fol) != len(lead):
         notes.append(f"the leader has {len(lead)} rows and the follower {len(fol)}: the first {n} are used.")
     with _open(path) as f:
-        res = {arm: _arm_member(path, f, arm, "tau_res", n, len(names)) for arm in ("leader", "follower")}
-        dq_f = _arm_member(path, f, "follower", "dq", n, len(names))
+        res = {arm: _arm_member(path, f, arm, sf.TAU_RES, n, len(names)) for arm in sf.ARMS}
+        dq_f = _arm_member(path, f, "follower", sf.DQ, n, len(names))
     t = fol.t[:n]
     trace = None
     if truth_trace is not None:

@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from crane_io import session_format as sf
 from crane_io.description import default_arm
 from crane_io.errors import CraneError
 from crane_io.units import AMPERE_PER_CURRENT_LSB, POSITION_CENTER, RAD_PER_PULSE
@@ -310,23 +311,22 @@ def write_session(out, s: ImportedSession, *, source: str = "import", attrs: dic
     os.close(fd)
     try:
         with h5py.File(tmp, "w") as f:
-            f.attrs["format"] = "crane-session"
-            f.attrs["format_version"] = 1
-            f.attrs["rate_hz"] = float(s.rate_hz)
-            f.attrs["joint_names"] = np.array(list(s.joint_names), dtype=h5py.string_dtype())
-            f.attrs["source"] = str(source)
-            f.attrs["complete"] = True
-            f.attrs["tau_source"] = np.array(list(s.tau_source), dtype=h5py.string_dtype())
-            f.attrs["torque_constants"] = s.torque_constants
+            f.attrs[sf.FORMAT_ATTR] = sf.FORMAT
+            f.attrs[sf.VERSION_ATTR] = sf.FORMAT_VERSION
+            f.attrs[sf.RATE_ATTR] = float(s.rate_hz)
+            f.attrs[sf.JOINT_NAMES_ATTR] = np.array(list(s.joint_names), dtype=h5py.string_dtype())
+            f.attrs[sf.SOURCE_ATTR] = str(source)
+            f.attrs[sf.COMPLETE_ATTR] = True
+            f.attrs[sf.TAU_SOURCE_ATTR] = np.array(list(s.tau_source), dtype=h5py.string_dtype())
+            f.attrs[sf.TORQUE_CONSTANTS_ATTR] = s.torque_constants
             for k, v in (attrs or {}).items():
                 f.attrs[k] = v
-            g = f.create_group("follower")
-            opts = {"compression": "gzip", "compression_opts": 1, "shuffle": True, "fletcher32": True}
-            g.create_dataset("t", data=s.t, **opts)
-            g.create_dataset("q", data=s.q, **opts)
-            g.create_dataset("tau", data=s.tau, **opts)
+            g = f.create_group(sf.REQUIRED_ARM)
+            for name, data in ((sf.T, s.t), (sf.Q, s.q), (sf.TAU, s.tau)):
+                g.create_dataset(name, data=data, **sf.FILTERS)
             if s.current is not None:
-                g.create_dataset("current", data=s.current.astype(np.float32), **opts)
+                current = s.current.astype(sf.ARM_MEMBER[sf.CURRENT].dtype)
+                g.create_dataset(sf.CURRENT, data=current, **sf.FILTERS)
         os.replace(tmp, out)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -345,8 +345,9 @@ def import_session(input_path, out, spec: ImportMap, units: ImportUnits = Import
         raise ImportMapError(f"{out} exists; give --force to overwrite it")
     columns = read_columns(input_path, list(dict.fromkeys(spec.columns())))
     s = convert(columns, spec, units, torque_constants, rate_hz, source_name=str(input_path))
-    attrs = {"imported_from": input_path.name, "import_map": spec.to_json(),
-             "import_units": json.dumps({"angle": units.angle, "time": units.time, "current": units.current}),
-             "import_time_offset_s": s.t_offset_s}
+    imported_from, import_map, import_units, offset = (a.name for a in sf.IMPORT_ROOT)
+    attrs = {imported_from: input_path.name, import_map: spec.to_json(),
+             import_units: json.dumps({"angle": units.angle, "time": units.time, "current": units.current}),
+             offset: s.t_offset_s}
     write_session(out, s, source=source, attrs=attrs, force=force)
     return s

@@ -1,4 +1,5 @@
-"""Read crane-session HDF5 files (format documented in the README) into plain numpy arrays.
+"""Read crane-session HDF5 files (format declared in crane_io/session_format.py, documented in the README)
+into plain numpy arrays.
 
 Only the contract minimum is needed: root attributes `format`, `format_version`, `rate_hz`,
 `joint_names`, `source`, and `/<arm>/t`, `/<arm>/q`, `/<arm>/tau`. Files are opened read-only (SWMR
@@ -24,13 +25,24 @@ import numpy as np
 
 from crane_io.errors import SessionFileError
 from crane_io.h5check import damaged_dataset
+from crane_io.session_format import (  # noqa: F401 - FORMAT_VERSION: the newest version this reader understands
+    ARMS,
+    DEFAULT_HAND_ON,
+    FORMAT,
+    FORMAT_ATTR,
+    FORMAT_VERSION,
+    HAND_ON,
+    JOINT_NAMES_ATTR,
+    RATE_ATTR,
+    REQUIRED_ATTRS,
+    SOURCE_ATTR,
+    TAU,
+    VERSION_ATTR,
+    Q,
+    T,
+)
 
-FORMAT = "crane-session"
-FORMAT_VERSION = 1  # newest version this reader understands
 MIN_SAMPLES = 100  # fewer raw samples than this cannot be filtered and split meaningfully
-REQUIRED_ATTRS = ("format", "format_version", "rate_hz", "joint_names", "source")
-ARMS = ("leader", "follower")
-DEFAULT_HAND_ON = "leader"  # a session without `hand_on`: the operator moved the leader (normal use)
 _TRUNCATED = re.compile(r"truncated file: eof = (?P<eof>\d+).*stored_eof = (?P<stored>\d+)")
 
 
@@ -68,9 +80,9 @@ class HandOnArmError(SessionFileError):
 def hand_on(attrs: dict, path="the session") -> str:
     """Which arm the operator's hand moved ("leader" or "follower"), from a session's root attributes;
     "leader" when `hand_on` is absent. Any other value is a SessionFileError."""
-    value = attrs.get("hand_on", DEFAULT_HAND_ON)
+    value = attrs.get(HAND_ON, DEFAULT_HAND_ON)
     if value not in ARMS:
-        raise SessionFileError(f"{path} has hand_on = {value!r}; expected 'leader' or 'follower'")
+        raise SessionFileError(f"{path} has {HAND_ON} = {value!r}; expected 'leader' or 'follower'")
     return value
 
 
@@ -78,7 +90,7 @@ def check_hand_free(session: RawSession) -> None:
     """Refuse (HandOnArmError) a session whose arm the operator's hand moved."""
     if hand_on(session.attrs, session.path) == session.arm:
         raise HandOnArmError(f"{session.path}: the operator's hand moved the {session.arm} in this session "
-                             f"(hand_on = {session.arm}), so its torque holds the hand's force, not only "
+                             f"({HAND_ON} = {session.arm}), so its torque holds the hand's force, not only "
                              f"the arm's own dynamics", session.path, session.arm)
 
 
@@ -131,10 +143,10 @@ def check_version(path: Path, attrs: dict, fmt: str, newest: int) -> int:
     """The file's format_version; one sentence (SessionFileError) when it is unreadable or newer than
     `newest`, the version this reader understands."""
     try:
-        version = int(attrs.get("format_version"))
+        version = int(attrs.get(VERSION_ATTR))
     except (TypeError, ValueError):
-        raise SessionFileError(f"{path} has an unreadable format_version "
-                               f"{attrs.get('format_version')!r}") from None
+        raise SessionFileError(f"{path} has an unreadable {VERSION_ATTR} "
+                               f"{attrs.get(VERSION_ATTR)!r}") from None
     if version > newest:
         raise SessionFileError(f"{path} is {fmt} version {version}, newer than this reader's version "
                                f"{newest}; update crane-x7")
@@ -146,7 +158,7 @@ def read_session(path, arm: str = "follower") -> RawSession:
     path = Path(path)
     with _open(path) as f:
         attrs = {k: _decode(v) for k, v in f.attrs.items()}
-        fmt = attrs.get("format")
+        fmt = attrs.get(FORMAT_ATTR)
         if fmt != FORMAT:
             what = "has no 'format' attribute" if fmt is None else f"has format {fmt!r}"
             raise SessionFileError(f"{path} is not a crane-session file (it {what})")
@@ -155,23 +167,23 @@ def read_session(path, arm: str = "follower") -> RawSession:
             raise SessionFileError(f"{path} lacks the required attribute(s) {', '.join(missing)}")
         check_version(path, attrs, FORMAT, FORMAT_VERSION)
         try:
-            rate = float(attrs["rate_hz"])
+            rate = float(attrs[RATE_ATTR])
         except (TypeError, ValueError):
             rate = float("nan")
         if not np.isfinite(rate) or rate <= 0:
-            raise SessionFileError(f"{path} has an invalid rate_hz {attrs['rate_hz']!r}")
-        names = attrs["joint_names"]
+            raise SessionFileError(f"{path} has an invalid {RATE_ATTR} {attrs[RATE_ATTR]!r}")
+        names = attrs[JOINT_NAMES_ATTR]
         names = tuple(names) if isinstance(names, list) else (str(names),)
         if arm not in f or not isinstance(f[arm], h5py.Group):
             raise SessionFileError(f"{path} has no /{arm} group")
         group = f[arm]
-        for key in ("t", "q", "tau"):
+        for key in (T, Q, TAU):
             if key not in group or not isinstance(group[key], h5py.Dataset):
                 raise SessionFileError(f"{path} lacks the required dataset /{arm}/{key}")
-        dt, dq, dtau = group["t"], group["q"], group["tau"]
+        dt, dq, dtau = group[T], group[Q], group[TAU]
         if dt.ndim != 1:
-            raise SessionFileError(f"{path}: /{arm}/t has shape {dt.shape}, expected (N,)")
-        for name, d in (("q", dq), ("tau", dtau)):
+            raise SessionFileError(f"{path}: /{arm}/{T} has shape {dt.shape}, expected (N,)")
+        for name, d in ((Q, dq), (TAU, dtau)):
             if d.ndim != 2 or d.shape[1] != len(names):
                 raise SessionFileError(f"{path}: /{arm}/{name} has shape {d.shape}, expected (N, "
                                        f"{len(names)}) to match the {len(names)} joint_names")
@@ -180,7 +192,7 @@ def read_session(path, arm: str = "follower") -> RawSession:
         t, q, tau = (_read(path, d, n) for d in (dt, dq, dtau))
     if n < MIN_SAMPLES:
         raise SessionFileError(f"{path} has only {n} samples; at least {MIN_SAMPLES} are needed")
-    for name, arr in (("t", t), ("q", q), ("tau", tau)):
+    for name, arr in ((T, t), (Q, q), (TAU, tau)):
         bad = ~np.isfinite(arr)
         if bad.any():
             row = int(np.argwhere(bad)[0][0])
@@ -189,7 +201,7 @@ def read_session(path, arm: str = "follower") -> RawSession:
     if np.any(np.diff(t) <= 0):
         row = int(np.argmax(np.diff(t) <= 0))
         raise SessionFileError(f"{path}: /{arm}/t is not strictly increasing (at sample {row + 1})")
-    return RawSession(t=t, q=q, tau=tau, rate_hz=rate, joint_names=names, source=str(attrs["source"]),
+    return RawSession(t=t, q=q, tau=tau, rate_hz=rate, joint_names=names, source=str(attrs[SOURCE_ATTR]),
                       path=str(path), attrs=attrs, truncated=truncated, arm=arm)
 
 
