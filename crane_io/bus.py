@@ -56,8 +56,10 @@ from .control_table import (
     MODE_POSITION,
     PRESENT_BLOCK_ADDRESS,
     PRESENT_BLOCK_SIZE,
+    X_SERIES,
     ServoModel,
     model_by_number,
+    span,
 )
 from .description import ArmDescription, default_arm
 from .errors import ConfigError, CraneError
@@ -78,21 +80,24 @@ from .faults import (
 )
 from .packets import CranePacketHandler
 from .port import CranePortHandler, open_port
+from .servo_report import LATE_REPLY_LISTEN_S  # noqa: F401 - `crane-collect check` reads it from here
+from .servo_report import servo_report as _servo_report
 
 log = logging.getLogger(__name__)
 
 _PKT_ID = 4
 _PKT_FIRST_PARAM = 8  # fast sync read: the first servo's error byte
-_REPORT_BLOCK = 147  # addresses 0..146: everything servo_report shows, in one read per servo
-# servo_report's second look at a servo that did not answer in time: a read of Model Number (2 bytes),
-# whose short reply cannot be mistaken for a late reply to the report's own reads, and how long to wait
-_LATE_PROBE_ADDRESS, _LATE_PROBE_SIZE = 0, 2
-LATE_REPLY_LISTEN_S = 0.5  # what `crane-collect check` gives a servo that missed every try
 _FAST_TRIES_BEFORE_FALLBACK = 2
 _PRESENT = struct.Struct("<hii")  # Present Current, Velocity, Position (addresses 126, 128, 132)
-# the hardware-error poll: ONE sync read of Hardware Error Status (70) .. Bus Watchdog (98)
-_POLL_ADDRESS, _POLL_WATCHDOG = 70, 98
-_POLL_SIZE = _POLL_WATCHDOG - _POLL_ADDRESS + 1
+assert _PRESENT.size == PRESENT_BLOCK_SIZE
+_GOAL_CURRENT, _GOAL_POSITION = X_SERIES["goal_current"], X_SERIES["goal_position"]  # the goal sync writes
+# the hardware-error poll: ONE sync read of Hardware Error Status (70) .. Bus Watchdog (98); offsets in it
+_POLL_ADDRESS, _POLL_SIZE = span("hardware_error_status", "bus_watchdog")
+_POLL_ERRORS = X_SERIES["hardware_error_status"].address - _POLL_ADDRESS
+_POLL_WATCHDOG = X_SERIES["bus_watchdog"].address - _POLL_ADDRESS
+# what a transfer whose port failed returns, in the shape of the SDK call: a result code, (data or
+# model number, result, error), (result, error)
+_NO_READ, _NO_WRITE = (None, COMM_TX_FAIL, 0), (COMM_TX_FAIL, 0)
 _STALL_FRACTION = 0.5  # a pause longer than this share of the watchdog time makes the bus check it
 
 
@@ -124,7 +129,7 @@ class BusState:
 class BusStats:
     reads: int = 0  # read_state calls that returned data
     writes: int = 0  # goal sync writes sent
-    attempts: int = 0  # read transfers tried (including retries)
+    attempts: int = 0  # transfers tried (including retries)
     retries: int = 0  # transfers repeated after a missing or corrupted reply
     failures: int = 0  # calls that finally raised CommunicationError
     fast: bool | None = None  # fast sync read in use (None: not decided yet)
@@ -230,6 +235,8 @@ class DynamixelBus:
         self._closed = False
         self._fast_misses = 0
         self._last_port_error = ""
+        self._last_result = COMM_SUCCESS  # the SDK result of the latest failed try (for messages)
+        self._why = "no reply"  # read_state: why the latest try failed
         self._poll_reader: _StatusSyncRead | None = None
         self._last_tx: float | None = None  # self._now() of the latest transfer
         # the clock the stall check measures pauses with: the servos' own notion of time. Real servos
@@ -253,12 +260,13 @@ class DynamixelBus:
         self._reader = _StatusSyncRead(self._port, self._ph, PRESENT_BLOCK_ADDRESS, PRESENT_BLOCK_SIZE)
         for sid in self.ids:
             self._reader.addParam(sid)
-        self._current_writer = GroupSyncWrite(self._port, self._ph, 102, 2)
+        cur, pos = _GOAL_CURRENT, _GOAL_POSITION
+        self._current_writer = GroupSyncWrite(self._port, self._ph, cur.address, cur.size)
         for i in self.current_joints:
-            self._current_writer.addParam(self.ids[i], [0, 0])
-        self._position_writer = GroupSyncWrite(self._port, self._ph, 116, 4)
+            self._current_writer.addParam(self.ids[i], [0] * cur.size)
+        self._position_writer = GroupSyncWrite(self._port, self._ph, pos.address, pos.size)
         for i in self.position_joints:
-            self._position_writer.addParam(self.ids[i], [0, 0, 0, 0])
+            self._position_writer.addParam(self.ids[i], [0] * pos.size)
         self._poll_reader = _StatusSyncRead(self._port, self._ph, _POLL_ADDRESS, _POLL_SIZE)
         for sid in self.ids:
             self._poll_reader.addParam(sid)
@@ -430,13 +438,8 @@ class DynamixelBus:
         port.is_using = False  # an exception in the middle of a transfer may have left it set
         if self.current_joints:
             for i in self.current_joints:
-                self._current_writer.changeParam(self.ids[i], [0, 0])
-            for _ in range(1 + self.retries):
-                try:
-                    if self._current_writer.txPacket() == COMM_SUCCESS:
-                        break
-                except (serial.SerialException, OSError):
-                    port.is_using = False
+                self._current_writer.changeParam(self.ids[i], [0] * _GOAL_CURRENT.size)
+            self._retry(self._group_once, self._current_writer.txPacket)  # unconfirmed: torque off follows
         for joint, sid in zip(self.joint_names, self.ids):
             try:
                 self._write(sid, "torque_enable", 0, joint)
@@ -461,30 +464,10 @@ class DynamixelBus:
         self._need_port()
         self._last_port_error = ""
         self._check_stall()
-        reader = self._reader
-        last = "no reply"
-        for attempt in range(1 + self.retries):
-            if attempt:
-                self.stats.retries += 1
-            t = time.monotonic()
-            fast = self.stats.fast is not False
-            result = self._transfer(reader.fastSyncRead if fast else reader.txRxPacket)
-            if result != COMM_SUCCESS and self.stats.fast is None:
-                plain_t = time.monotonic()
-                if self._transfer(reader.txRxPacket) == COMM_SUCCESS:
-                    self._fast_miss()
-                    result, fast, t = COMM_SUCCESS, False, plain_t
-            if result == COMM_SUCCESS and any(e & 0x7F for e in reader.errors.values()):
-                bad = {s: e for s, e in reader.errors.items() if e & 0x7F}
-                last = "; ".join(f"ID {s}: {', '.join(decode_status_error(e))}" for s, e in bad.items())
-                result = COMM_RX_CORRUPT
-            if result == COMM_SUCCESS:
-                if fast and self.stats.fast is None:
-                    self.stats.fast = True
-                return self._state_from(reader, t, fast, check_faults)
-            if result != COMM_RX_CORRUPT or last == "no reply":
-                last = self._ph.getTxRxResult(result).split("] ")[-1].rstrip("!").lower() or str(result)
-            self._spend_error_budget()
+        self._why = "no reply"
+        state = self._retry(self._read_state_once, self._reader, check_faults, budget=True)
+        if state is not None:
+            return state
         self.stats.failures += 1
         missing = self._silent_servos()
         if missing:
@@ -493,8 +476,31 @@ class DynamixelBus:
             raise CommunicationError(f"the port {self.port_name} stopped working ({self._last_port_error}); "
                                      "is the U2D2 still plugged in?")
         raise CommunicationError(
-            f"reading the servos on {self.port_name} failed {1 + self.retries} times in a row ({last}); "
+            f"reading the servos on {self.port_name} failed {1 + self.retries} times in a row ({self._why}); "
             "check the cable, the power and the latency timer")
+
+    def _read_state_once(self, reader: _StatusSyncRead, check_faults: bool) -> BusState | None:
+        """One try of read_state (for `_retry`): the (fast) sync read, and while fast sync read is
+        undecided a plain one right after a failed fast one. None when it failed (why: `_why`)."""
+        t = time.monotonic()
+        fast = self.stats.fast is not False
+        result = self._transfer(reader.fastSyncRead if fast else reader.txRxPacket)
+        if result != COMM_SUCCESS and self.stats.fast is None:
+            plain_t = time.monotonic()
+            if self._transfer(reader.txRxPacket) == COMM_SUCCESS:
+                self._fast_miss()
+                result, fast, t = COMM_SUCCESS, False, plain_t
+        if result == COMM_SUCCESS and any(e & 0x7F for e in reader.errors.values()):
+            bad = {s: e for s, e in reader.errors.items() if e & 0x7F}
+            self._why = "; ".join(f"ID {s}: {', '.join(decode_status_error(e))}" for s, e in bad.items())
+            result = COMM_RX_CORRUPT
+        if result == COMM_SUCCESS:
+            if fast and self.stats.fast is None:
+                self.stats.fast = True
+            return self._state_from(reader, t, fast, check_faults)
+        if result != COMM_RX_CORRUPT or self._why == "no reply":
+            self._why = self._reason(result) or str(result)
+        return None
 
     def _fast_miss(self) -> None:
         self._fast_misses += 1
@@ -571,13 +577,9 @@ class DynamixelBus:
 
     def _send(self, writer: GroupSyncWrite, what: str) -> None:
         self._check_stall()
-        for attempt in range(1 + self.retries):
-            if attempt:
-                self.stats.retries += 1
-            if self._transfer(writer.txPacket) == COMM_SUCCESS:
-                self.stats.writes += 1
-                return
-            self._spend_error_budget()
+        if self._retry(self._group_once, writer.txPacket, budget=True):
+            self.stats.writes += 1
+            return
         self.stats.failures += 1
         raise CommunicationError(f"sending the {what} on {self.port_name} failed {1 + self.retries} times")
 
@@ -589,12 +591,8 @@ class DynamixelBus:
         does not answer is listed as ['not answering']."""
         self._need_port()
         reader = self._poll_reader
-        for attempt in range(1 + self.retries):
-            if attempt:
-                self.stats.retries += 1
-            if self._transfer(reader.txRxPacket) == COMM_SUCCESS:
-                blocks = {sid: bytes(reader.data_dict[sid]) for sid in self.ids}
-                break
+        if self._retry(self._group_once, reader.txRxPacket):
+            blocks = {sid: bytes(reader.data_dict[sid]) for sid in self.ids}
         else:
             blocks = {}
             for joint, sid in zip(self.joint_names, self.ids):
@@ -609,8 +607,8 @@ class DynamixelBus:
             if block is None:
                 faults[joint] = ["not answering"]
                 continue
-            names = decode_hardware_error(block[0])
-            if block[_POLL_WATCHDOG - _POLL_ADDRESS] == 0xFF:  # Bus Watchdog = -1: expired
+            names = decode_hardware_error(block[_POLL_ERRORS])
+            if block[_POLL_WATCHDOG] == 0xFF:  # Bus Watchdog = -1: expired
                 names.append(WATCHDOG_EXPIRED)
             if names:
                 faults[joint] = names
@@ -652,90 +650,11 @@ class DynamixelBus:
             faults=faults)
 
     def servo_report(self, late_listen_s: float = 0.0) -> list[dict]:
-        """One dict per servo (for `crane-collect check`): id, joint, answering, model, firmware, mode,
-        torque, return delay, limits (SI), watchdog, hardware errors, voltage, temperature, position.
+        """`crane_io.servo_report.servo_report(self, late_listen_s)`: one dict per servo for
+        `crane-collect check` and the stop's torque read-back (see there)."""
+        return _servo_report(self, late_listen_s)
 
-        A servo that does not answer in time gets `answering` False, `tries`, `timeout_s` (the reply
-        timeout of each try), `listen_s` and `late_reply_s`. With `late_listen_s` > 0 (a check, never a
-        stop that must be quick) it is asked once more and given that long to answer: `late_reply_s`
-        is the seconds its reply took, or None when nothing came (silence; also without a second look)."""
-        self._need_port()
-        rows = []
-        for j, (joint, sid) in enumerate(zip(self.joint_names, self.ids)):
-            row = {"id": sid, "joint": joint, "expected_model": self.arm.joints[j].model}
-            try:
-                block = self._read_block(sid, 0, _REPORT_BLOCK, joint)
-            except CommunicationError:
-                late = self._late_reply_s(sid, late_listen_s) if late_listen_s > 0 else None
-                row.update(answering=False, tries=1 + self.retries,
-                           timeout_s=self._reply_timeout_s(_REPORT_BLOCK), listen_s=late_listen_s,
-                           late_reply_s=late)
-                rows.append(row)
-                continue
-            model = model_by_number(int.from_bytes(block[0:2], "little"))
-            table = model or self.arm.joints[j].servo_model
-
-            def reg(name, _block=block, _table=table):
-                r = _table.register(name)
-                return int.from_bytes(_block[r.address:r.address + r.size], "little", signed=r.signed)
-
-            row.update(
-                answering=True,
-                model_number=reg("model_number"),
-                model=model.name if model else f"unknown model {reg('model_number')}",
-                firmware=reg("firmware_version"),
-                operating_mode=reg("operating_mode"),
-                torque_enabled=bool(reg("torque_enable")),
-                return_delay_s=reg("return_delay_time") * units.SECONDS_PER_RETURN_DELAY_LSB,
-                drive_mode=reg("drive_mode"),
-                current_limit_a=float(units.current_to_ampere(reg("current_limit"))),
-                velocity_limit_rads=float(units.velocity_to_rads(reg("velocity_limit"))),
-                min_position_rad=float(units.position_to_rad(reg("min_position_limit"))),
-                max_position_rad=float(units.position_to_rad(reg("max_position_limit"))),
-                bus_watchdog_s=(float(units.watchdog_to_seconds(reg("bus_watchdog")))
-                                if reg("bus_watchdog") >= 0 else None),
-                watchdog_expired=reg("bus_watchdog") < 0,
-                hardware_errors=decode_hardware_error(reg("hardware_error_status")),
-                voltage_v=float(units.voltage_to_volt(reg("present_input_voltage"))),
-                temperature_c=float(reg("present_temperature")),
-                position_rad=float(units.position_to_rad(reg("present_position"))),
-            )
-            rows.append(row)
-        return rows
-
-    def _reply_timeout_s(self, data_length: int) -> float:
-        """How long each try waits for the reply to a read of `data_length` bytes (as the SDK computes it)."""
-        self._port.setPacketTimeout(data_length + 11)  # the SDK's own arithmetic, with this port's latency
-        return self._port.packet_timeout / 1000.0
-
-    def _late_reply_s(self, sid: int, listen_s: float) -> float | None:
-        """Ask servo `sid` for its Model Number once and listen up to `listen_s` for that reply (late
-        replies to earlier reads, of another length, are skipped): the seconds it took, or None.
-        For reports only: it waits far longer than any control cycle may."""
-        port, ph = self._port, self._ph
-        self.stats.attempts += 1
-        sent = time.monotonic()
-        try:
-            if ph.readTx(port, sid, _LATE_PROBE_ADDRESS, _LATE_PROBE_SIZE) != COMM_SUCCESS:
-                port.is_using = False
-                return None
-            port.setPacketTimeoutMillis(listen_s * 1000.0)
-            while True:
-                packet, result = ph.rxPacket(port, False)
-                if result == COMM_SUCCESS:
-                    length = packet[5] | packet[6] << 8
-                    if packet[_PKT_ID] == sid and length == _LATE_PROBE_SIZE + 4:  # INST ERR DATA CRC
-                        return time.monotonic() - sent
-                elif port.isPacketTimeout():
-                    return None
-        except (serial.SerialException, OSError) as exc:
-            port.is_using = False
-            self._last_port_error = str(exc)
-            return None
-        finally:
-            self._update_byte_stats()
-
-    # ---- low level -----------------------------------------------------------------------------
+    # ---- low level: the one transfer wrapper and the one retry loop ------------------------------
     def _need_port(self) -> CranePortHandler:
         if self._port is None or not self._port.is_open:
             if self._closed:
@@ -743,17 +662,74 @@ class DynamixelBus:
             raise CommunicationError(f"the bus on {self.port_name} is not open; call open() or use `with`")
         return self._port
 
-    def _transfer(self, fn, *args):
-        """Run one SDK transfer; a serial-level exception counts as a failed transfer."""
+    def _transfer(self, fn, *args, failed=COMM_TX_FAIL):
+        """Run one SDK transfer `fn(*args)`, counted in stats.attempts and time-stamped for the stall
+        check. A serial-level exception (the port itself failed) makes it a failed transfer: it returns
+        `failed` (shaped like fn's own result) and the port's reason is kept for the message."""
         self.stats.attempts += 1
         self._last_tx = self._now()
         try:
-            out = fn(*args)
+            return fn(*args)
         except (serial.SerialException, OSError) as exc:
             self._port.is_using = False
             self._last_port_error = str(exc)
-            return COMM_TX_FAIL
-        return out
+            return failed
+
+    def _retry(self, attempt, *args, budget: bool = False, tries: int | None = None):
+        """THE retry loop of the bus: every transfer that is repeated on a missing or corrupted reply
+        goes through here. `attempt(*args)` makes one try (through `_transfer`) and returns what it got,
+        or None when it failed. At most `tries` (default 1 + retries) tries; each repeat counts in
+        stats.retries; with `budget` (the control cycle's read and writes) each failed try spends the
+        error budget, which raises when the link is unusable. Returns the first result that is not None,
+        else None; the caller decides what a failure means (raise, fall back, or go on stopping)."""
+        for k in range(tries or 1 + self.retries):
+            if k:
+                self.stats.retries += 1
+            out = attempt(*args)
+            if out is not None:
+                return out
+            if budget:
+                self._spend_error_budget()
+        return None
+
+    # one try of each kind of transfer, for `_retry`: the value on success, None on failure
+    def _group_once(self, fn) -> bool | None:
+        """A sync write's txPacket or a sync read's txRxPacket (data in the reader's data_dict)."""
+        result = self._transfer(fn)
+        if result == COMM_SUCCESS:
+            return True
+        self._last_result = result
+        return None
+
+    def _ping_once(self, sid: int) -> int | None:
+        """Ping: the model number."""
+        number, result, _error = self._transfer(self._ph.ping, self._port, sid, failed=_NO_READ)
+        if result == COMM_SUCCESS:
+            return number
+        self._last_result = result
+        return None
+
+    def _read_once(self, sid: int, address: int, size: int) -> tuple[bytes, int] | None:
+        """Read: (data, status error byte)."""
+        data, result, error = self._transfer(self._ph.readTxRx, self._port, sid, address, size,
+                                             failed=_NO_READ)
+        if result == COMM_SUCCESS and len(data) == size:
+            return data, error
+        self._last_result = result
+        return None
+
+    def _write_once(self, sid: int, address: int, size: int, payload: list[int]) -> int | None:
+        """Write (acknowledged): the status error byte."""
+        result, error = self._transfer(self._ph.writeTxRx, self._port, sid, address, size, payload,
+                                       failed=_NO_WRITE)
+        if result == COMM_SUCCESS:
+            return error
+        self._last_result = result
+        return None
+
+    def _reason(self, result: int) -> str:
+        """The SDK's words for a transfer result, as a phrase ("" for none)."""
+        return self._ph.getTxRxResult(result).split("] ")[-1].rstrip("!").lower()
 
     def _spend_error_budget(self) -> None:
         now = time.monotonic()
@@ -768,39 +744,21 @@ class DynamixelBus:
                 f"{self.error_window_s:g} s (budget {self.error_budget}); check the cable, the RS-485 "
                 "termination and the latency timer")
 
+    # ---- register access by name, one servo at a time -----------------------------------------------
     def _ping(self, sid: int) -> int | None:
-        for _ in range(1 + self.retries):
-            number, result, _err = self._call(self._ph.ping, sid)
-            if result == COMM_SUCCESS:
-                return number
-        return None
-
-    def _call(self, fn, *args):
-        """SDK call returning a tuple whose second item is the result; port errors become failures."""
-        self.stats.attempts += 1
-        self._last_tx = self._now()
-        try:
-            return fn(self._port, *args)
-        except (serial.SerialException, OSError) as exc:
-            self._port.is_using = False
-            self._last_port_error = str(exc)
-            return None, COMM_TX_FAIL, 0
+        return self._retry(self._ping_once, sid)
 
     def _read_block(self, sid: int, address: int, size: int, joint: str) -> bytes:
-        last = 0
-        for attempt in range(1 + self.retries):
-            if attempt:
-                self.stats.retries += 1
-            data, result, error = self._call(self._ph.readTxRx, sid, address, size)
-            if result == COMM_SUCCESS and len(data) == size:
-                self._raise_if_rejected(error, sid, joint, f"reading address {address}")
-                return bytes(data)
-            last = result
-        self._update_byte_stats()
-        reason = self._ph.getTxRxResult(last).split("] ")[-1].rstrip("!").lower()
-        raise CommunicationError(f"servo {servo_label(joint, sid)} on {self.port_name} did not answer a "
-                                 f"read of address {address} after {1 + self.retries} tries "
-                                 f"({reason or 'no reply'})")
+        out = self._retry(self._read_once, sid, address, size)
+        if out is None:
+            self._update_byte_stats()
+            reason = self._reason(self._last_result)
+            raise CommunicationError(f"servo {servo_label(joint, sid)} on {self.port_name} did not answer a "
+                                     f"read of address {address} after {1 + self.retries} tries "
+                                     f"({reason or 'no reply'})")
+        data, error = out
+        self._raise_if_rejected(error, sid, joint, f"reading address {address}")
+        return bytes(data)
 
     def _read(self, sid: int, name: str, joint: str) -> int:
         reg = self.arm.by_id(sid).servo_model.register(name)
@@ -810,28 +768,12 @@ class DynamixelBus:
     def _write(self, sid: int, name: str, value: int, joint: str) -> None:
         reg = self.arm.by_id(sid).servo_model.register(name)
         payload = list(units.to_unsigned(int(value), reg.size).to_bytes(reg.size, "little"))
-        last = 0
-        for attempt in range(1 + self.retries):
-            if attempt:
-                self.stats.retries += 1
-            result, error = self._call_write(sid, reg.address, reg.size, payload)
-            if result == COMM_SUCCESS:
-                self._raise_if_rejected(error, sid, joint, f"writing {name} = {value}")
-                return
-            last = result
-        reason = self._ph.getTxRxResult(last).split("] ")[-1].rstrip("!").lower()
-        raise CommunicationError(f"servo {servo_label(joint, sid)} on {self.port_name} did not acknowledge "
-                                 f"writing {name} after {1 + self.retries} tries ({reason or 'no reply'})")
-
-    def _call_write(self, sid, address, size, payload):
-        self.stats.attempts += 1
-        self._last_tx = self._now()
-        try:
-            return self._ph.writeTxRx(self._port, sid, address, size, payload)
-        except (serial.SerialException, OSError) as exc:
-            self._port.is_using = False
-            self._last_port_error = str(exc)
-            return COMM_TX_FAIL, 0
+        error = self._retry(self._write_once, sid, reg.address, reg.size, payload)
+        if error is None:
+            reason = self._reason(self._last_result) or "no reply"
+            raise CommunicationError(f"servo {servo_label(joint, sid)} on {self.port_name} did not "
+                                     f"acknowledge writing {name} after {1 + self.retries} tries ({reason})")
+        self._raise_if_rejected(error, sid, joint, f"writing {name} = {value}")
 
     def _raise_if_rejected(self, error: int, sid: int, joint: str, what: str) -> None:
         names = [n for n in decode_status_error(error) if n != "alert"]
@@ -840,14 +782,9 @@ class DynamixelBus:
                                      f"{what}: {', '.join(names)}")
 
     def _silent_servos(self) -> dict[str, int]:
-        """Ping each servo once to learn which ones went silent (after a failed read)."""
-        silent = {}
-        for joint, sid in zip(self.joint_names, self.ids):
-            _n, result, _e = self._call(self._ph.ping, sid)
-            if result != COMM_SUCCESS:
-                _n, result, _e = self._call(self._ph.ping, sid)
-            if result != COMM_SUCCESS:
-                silent[joint] = sid
+        """Ping each servo (once more if it failed) to learn which ones went silent (after a failed read)."""
+        silent = {joint: sid for joint, sid in zip(self.joint_names, self.ids)
+                  if self._retry(self._ping_once, sid, tries=2) is None}
         if len(silent) == len(self.ids):
             return {}  # nobody answers: a link problem, not a servo problem
         return silent

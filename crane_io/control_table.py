@@ -21,8 +21,12 @@ class Register:
     default: int | None = None
 
 
+EEPROM_END = 64  # addresses below this are the EEPROM area
+CONTROL_TABLE_SIZE = 662  # the X-series control table ends with Indirect Data 56 at address 661
+
+
 def _r(name, address, size, access, signed=False, unit="", default=None):
-    return Register(name, address, size, access, address < 64, signed, unit, default)
+    return Register(name, address, size, access, address < EEPROM_END, signed, unit, default)
 
 
 _COMMON = [
@@ -117,6 +121,20 @@ def _model(name, number, gear, kt, cur_default, vel_default) -> ServoModel:
 XM430_W350 = _model("XM430-W350", 1020, 353.5, 1.783, 1193, 350)
 XM540_W270 = _model("XM540-W270", 1120, 272.5, 2.409, 2047, 128)
 
+# The layout both models share: one sync read or sync write reaches every servo of the arm only because
+# the address is the same in each. Code that addresses the whole chain at once takes addresses from here.
+X_SERIES: dict[str, Register] = {r.name: r for r in _COMMON}
+
+
+def span(first: str, last: str) -> tuple[int, int]:
+    """(address, size) of the X-series items from `first` through `last`: what one read of them all
+    covers, gaps included. `span("present_current", "present_position")` is (126, 10)."""
+    a, b = X_SERIES[first], X_SERIES[last]
+    if b.address < a.address:
+        raise ValueError(f"{last!r} comes before {first!r} in the control table")
+    return a.address, b.address + b.size - a.address
+
+
 MODELS: dict[str, ServoModel] = {m.name: m for m in (XM430_W350, XM540_W270)}
 MODELS_BY_NUMBER: dict[int, ServoModel] = {m.model_number: m for m in MODELS.values()}
 
@@ -128,9 +146,8 @@ MODE_EXTENDED_POSITION = 4
 MODE_CURRENT_BASED_POSITION = 5
 MODE_PWM = 16
 
-# The contiguous block read every control cycle: Present Current, Velocity, Position.
-PRESENT_BLOCK_ADDRESS = 126
-PRESENT_BLOCK_SIZE = 10
+# The contiguous block read every control cycle: Present Current, Velocity, Position (126, 10 bytes).
+PRESENT_BLOCK_ADDRESS, PRESENT_BLOCK_SIZE = span("present_current", "present_position")
 
 # Hardware Error Status (address 70) bits
 HARDWARE_ERROR_BITS = {

@@ -31,15 +31,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..control_table import XM430_W350, ServoModel
+from ..control_table import X_SERIES, XM430_W350, ServoModel
 from ..errors import ConfigError
 from . import protocol as p
 from .plant_api import ActuatorCommand, Plant
 from .servo import BAUD_CODES, EmulatedServo
 
-GOAL_CURRENT_ADDRESS = 102
-GOAL_POSITION_ADDRESS = 116
-_ID_ADDRESS = 7
+# a write to Goal Current or Goal Position is a lockstep tick
+GOAL_CURRENT_ADDRESS = X_SERIES["goal_current"].address
+GOAL_POSITION_ADDRESS = X_SERIES["goal_position"].address
+_ID_ADDRESS = X_SERIES["id"].address
 STEP_BUDGET_S = 0.001  # wall clock: most real time spent stepping the plant per packet or touch
 MAX_LAG_S = 0.1  # wall clock: a plant further behind real time than this slips ahead to now
 _BAUD_CODE_OF = {rate: code for code, rate in BAUD_CODES.items()}  # bit/s -> Baud Rate register value

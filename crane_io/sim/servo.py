@@ -27,6 +27,8 @@ import math
 import struct
 
 from ..control_table import (
+    CONTROL_TABLE_SIZE,
+    EEPROM_END,
     MODE_CURRENT_BASED_POSITION,
     MODE_EXTENDED_POSITION,
     MODE_POSITION,
@@ -45,8 +47,7 @@ from ..units import (
 )
 from . import protocol as p
 
-MEMORY_SIZE = 662  # the X-series control table ends with Indirect Data 56 at address 661
-EEPROM_END = 64
+MEMORY_SIZE = CONTROL_TABLE_SIZE  # the whole X-series control table, Indirect Data included
 BAUD_CODES = {0: 9600, 1: 57600, 2: 115200, 3: 1_000_000, 4: 2_000_000, 5: 3_000_000, 6: 4_000_000,
               7: 4_500_000}
 VALID_MODES = (0, 1, 3, 4, 5, 16)
@@ -118,7 +119,7 @@ class EmulatedServo:
         self._moving_at, self._threshold_at = at["moving"], at["moving_threshold"]
         self._torque_at, self._hw_error_at = at["torque_enable"], at["hardware_error_status"]
         self._watchdog_at, self._baud_at = at["bus_watchdog"], at["baud_rate"]
-        self._srl_at = at["status_return_level"]
+        self._srl_at, self._id_at = at["status_return_level"], at["id"]
         self.baud_address = self._baud_at  # memory[baud_address] is the Baud Rate code (BAUD_CODES)
         self._command_at = tuple(at[n] for n in (
             "torque_enable", "operating_mode", "goal_current", "goal_position", "position_d_gain",
@@ -156,7 +157,7 @@ class EmulatedServo:
     # ---- raw register access (no access rules; for the chain and for tests) ---------------------
     @property
     def id(self) -> int:
-        return self.memory[7]
+        return self.memory[self._id_at]
 
     def read_register(self, name: str) -> int:
         try:

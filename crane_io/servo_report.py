@@ -1,0 +1,126 @@
+"""The per-servo diagnostics report behind `crane-collect check` and the stop's torque read-back.
+
+    from crane_io.servo_report import servo_report
+    rows = servo_report(bus)                 # one dict per servo, in arm.joints order
+    rows = servo_report(bus, late_listen_s=LATE_REPLY_LISTEN_S)   # a check: give a silent servo a second look
+
+It reads the control table of each servo in one read (addresses 0..146) and converts what a person
+checks (model, firmware, mode, torque, limits, watchdog, errors, voltage, temperature, angle) to SI
+units. It is no part of the control cycle: it goes through the bus's own transfers (retries, counters,
+port errors) but may wait far longer than a cycle may (`late_listen_s`). `DynamixelBus.servo_report`
+calls it.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING
+
+from dynamixel_sdk import COMM_SUCCESS
+from dynamixel_sdk.protocol2_packet_handler import PKT_ID, PKT_LENGTH_H, PKT_LENGTH_L
+
+from . import units
+from .control_table import X_SERIES, model_by_number, span
+from .faults import CommunicationError, decode_hardware_error
+
+if TYPE_CHECKING:
+    from .bus import DynamixelBus
+
+LATE_REPLY_LISTEN_S = 0.5  # what `crane-collect check` gives a servo that missed every try
+# addresses 0..146 (Model Number .. Present Temperature): everything the report shows, one read per servo
+REPORT_ADDRESS, REPORT_SIZE = span("model_number", "present_temperature")
+# the second look at a servo that did not answer in time: a read of Model Number (2 bytes), whose short
+# reply cannot be mistaken for a late reply to the report's own reads
+_PROBE = X_SERIES["model_number"]
+
+
+def servo_report(bus: DynamixelBus, late_listen_s: float = 0.0) -> list[dict]:
+    """One dict per servo: id, joint, expected_model, answering, model_number, model, firmware,
+    operating_mode, torque_enabled, return_delay_s, drive_mode, current_limit_a, velocity_limit_rads,
+    min/max_position_rad, bus_watchdog_s, watchdog_expired, hardware_errors, voltage_v, temperature_c,
+    position_rad.
+
+    A servo that does not answer in time gets `answering` False, `tries`, `timeout_s` (the reply
+    timeout of each try), `listen_s` and `late_reply_s`. With `late_listen_s` > 0 (a check, never a
+    stop that must be quick) it is asked once more and given that long to answer: `late_reply_s`
+    is the seconds its reply took, or None when nothing came (silence; also without a second look)."""
+    bus._need_port()
+    rows = []
+    for j, (joint, sid) in enumerate(zip(bus.joint_names, bus.ids)):
+        row = {"id": sid, "joint": joint, "expected_model": bus.arm.joints[j].model}
+        try:
+            block = bus._read_block(sid, REPORT_ADDRESS, REPORT_SIZE, joint)
+        except CommunicationError:
+            late = late_reply_s(bus, sid, late_listen_s) if late_listen_s > 0 else None
+            row.update(answering=False, tries=1 + bus.retries, timeout_s=reply_timeout_s(bus, REPORT_SIZE),
+                       listen_s=late_listen_s, late_reply_s=late)
+            rows.append(row)
+            continue
+        model = model_by_number(_value(block, _PROBE))
+        table = model or bus.arm.joints[j].servo_model
+
+        def reg(name, _block=block, _table=table):
+            return _value(_block, _table.register(name))
+
+        row.update(
+            answering=True,
+            model_number=reg("model_number"),
+            model=model.name if model else f"unknown model {reg('model_number')}",
+            firmware=reg("firmware_version"),
+            operating_mode=reg("operating_mode"),
+            torque_enabled=bool(reg("torque_enable")),
+            return_delay_s=reg("return_delay_time") * units.SECONDS_PER_RETURN_DELAY_LSB,
+            drive_mode=reg("drive_mode"),
+            current_limit_a=float(units.current_to_ampere(reg("current_limit"))),
+            velocity_limit_rads=float(units.velocity_to_rads(reg("velocity_limit"))),
+            min_position_rad=float(units.position_to_rad(reg("min_position_limit"))),
+            max_position_rad=float(units.position_to_rad(reg("max_position_limit"))),
+            bus_watchdog_s=(float(units.watchdog_to_seconds(reg("bus_watchdog")))
+                            if reg("bus_watchdog") >= 0 else None),
+            watchdog_expired=reg("bus_watchdog") < 0,
+            hardware_errors=decode_hardware_error(reg("hardware_error_status")),
+            voltage_v=float(units.voltage_to_volt(reg("present_input_voltage"))),
+            temperature_c=float(reg("present_temperature")),
+            position_rad=float(units.position_to_rad(reg("present_position"))),
+        )
+        rows.append(row)
+    return rows
+
+
+def _value(block: bytes, r) -> int:
+    """Register `r` out of a block read from address REPORT_ADDRESS."""
+    start = r.address - REPORT_ADDRESS
+    return int.from_bytes(block[start:start + r.size], "little", signed=r.signed)
+
+
+def reply_timeout_s(bus: DynamixelBus, data_length: int) -> float:
+    """How long each try waits for the reply to a read of `data_length` bytes (as the SDK computes it)."""
+    bus._port.setPacketTimeout(data_length + 11)  # the SDK's own arithmetic, with this port's latency
+    return bus._port.packet_timeout / 1000.0
+
+
+def late_reply_s(bus: DynamixelBus, sid: int, listen_s: float) -> float | None:
+    """Ask servo `sid` for its Model Number once and listen up to `listen_s` for that reply (late
+    replies to earlier reads, of another length, are skipped): the seconds it took, or None.
+    For reports only: it waits far longer than any control cycle may."""
+    port, ph = bus._port, bus._ph
+
+    def probe():
+        sent = time.monotonic()
+        if ph.readTx(port, sid, _PROBE.address, _PROBE.size) != COMM_SUCCESS:
+            port.is_using = False
+            return None
+        port.setPacketTimeoutMillis(listen_s * 1000.0)
+        while True:
+            packet, result = ph.rxPacket(port, False)
+            if result == COMM_SUCCESS:
+                length = packet[PKT_LENGTH_L] | packet[PKT_LENGTH_H] << 8
+                if packet[PKT_ID] == sid and length == _PROBE.size + 4:  # INST ERR DATA CRC
+                    return time.monotonic() - sent
+            elif port.isPacketTimeout():
+                return None
+
+    try:
+        return bus._transfer(probe, failed=None)  # a port error: no reply
+    finally:
+        bus._update_byte_stats()
