@@ -1,10 +1,16 @@
 """The physics model: torque = base regressor (crane_io.dynamics) @ base parameters, plus the columns of
 any chosen physical effects (crane_io.effects), fitted by recursive least squares.
 
-Fitting uses only the training samples in which every joint moves (as the paper does for its
-Newton-Euler baseline). The estimator is a real recursive least-squares filter with forgetting factor 1:
-starting from theta = 0, P = p0 I, it takes the data in time order, `block` samples (J rows each) per
-update
+Which torque equations the fit uses (option `rows`): "all-moving", the paper's, every joint's equation
+of the training samples in which every joint moves (as the paper does for its Newton-Euler baseline);
+"per-joint", each joint's equation of the samples in which that joint moves (the masked loss's and the
+diagnosis's choice: a standing joint's row holds an unknown static friction, a moving joint's row is
+valid whatever the others do); "auto" (default): per-joint where the splits' validation set is
+per-joint (from 4 learning joints on: at seven joints only ~8 % of samples have every joint moving, and
+a 300-sample training set would leave some 25 equations per joint for ~60 parameters), all-moving
+otherwise. Shape grids are then scored the same way on the validation set. The estimator is a real
+recursive least-squares filter with forgetting factor 1: starting from theta = 0, P = p0 I, it takes the
+data in time order, `block` samples (J rows each; one row each per-joint) per update
 
     K = P Phi^T (I + Phi P Phi^T)^-1,   theta += K (y - Phi theta),   P -= K Phi P.
 
@@ -46,6 +52,8 @@ import numpy as np
 from crane_io.errors import ConfigError, CraneError
 
 from ..dataset import Dataset
+from ..splits import AUTO_ALL_MOVING_MAX_JOINTS
+from ..splits import per_joint as per_joint_set
 from .base import Model, ModelFileError
 
 ARRAYS = "rigid_body.npz"
@@ -81,6 +89,9 @@ def rls(Phi: np.ndarray, y: np.ndarray, block: int = 64, p0: float = 1e8):
     return theta, P
 
 
+FIT_ROWS = ("auto", "all-moving", "per-joint")
+
+
 def _effect_registry():
     try:
         from crane_io import effects
@@ -94,7 +105,9 @@ class RigidBodyModel(Model):
 
     def __init__(self, joint_names, preprocessing: dict | None = None, effects=(), effect_files=(),
                  block: int = 64, p0: float = 1e8, payload_mass: float = 0.0, locked: dict | None = None,
-                 context: bool = True):
+                 context: bool = True, rows: str = "auto"):
+        if rows not in FIT_ROWS:
+            raise ConfigError(f"rows must be one of {', '.join(FIT_ROWS)}, got {rows!r}")
         specs = []
         for spec in effects or ():
             if isinstance(spec, str):
@@ -104,7 +117,7 @@ class RigidBodyModel(Model):
         files = [str(f) for f in effect_files]
         super().__init__(joint_names, preprocessing, effects=specs, effect_files=files,
                          block=int(block), p0=float(p0), payload_mass=float(payload_mass),
-                         locked=dict(locked or {}), context=bool(context))
+                         locked=dict(locked or {}), context=bool(context), rows=rows)
         self.block, self.p0 = int(block), float(p0)
         self._dyn = None
         self.context_joints: tuple[str, ...] = ()  # other arm joints that move: free in the kinematics
@@ -224,13 +237,18 @@ class RigidBodyModel(Model):
         return names
 
     # ---- fitting ---------------------------------------------------------------------------------
-    def _solve(self, ds: Dataset, terms):
+    def _solve(self, ds: Dataset, terms, per_joint: bool = False):
+        """Least squares of the torque equations: every joint's of every sample, or (per_joint) each
+        joint's only where that joint moves."""
         Phi = self.regressor(ds.q, ds.dq, ds.ddq, terms, ds.context)
+        y = ds.tau
+        if per_joint:
+            Phi, y = Phi[ds.moving][:, None, :], y[ds.moving][:, None]
         scale = np.sqrt((Phi ** 2).mean(axis=(0, 1)))
         scale = np.where(scale > 1e-12, scale, 1.0)
-        theta_s, P_s = rls(Phi / scale, ds.tau, self.block, self.p0)
+        theta_s, P_s = rls(Phi / scale, y, self.block, self.p0)
         theta = theta_s / scale
-        resid = ds.tau - Phi @ theta
+        resid = y - Phi @ theta
         dof = max(resid.size - len(theta), 1)
         s2 = float((resid ** 2).sum() / dof)
         stderr = np.sqrt(np.clip(np.diag(P_s), 0, None) * s2) / scale
@@ -254,17 +272,28 @@ class RigidBodyModel(Model):
         if tuple(train.joint_names) != self.joint_names:
             raise CraneError(f"the data has joints {', '.join(train.joint_names)} but the model was made "
                              f"for {', '.join(self.joint_names)}")
-        rows = np.flatnonzero(train.all_moving)
+        per_joint = self._rows_mode(val) == "per-joint"
+        rows = np.flatnonzero(train.moving.any(axis=1) if per_joint else train.all_moving)
         self._resolve_context(train)
         terms = self._resolve_terms()
         fx = _effect_registry()
         n_par = self.n_base + sum(fx.get_effect(t["name"]).n_columns() for t in terms)
         need = n_par // len(self.joint_names) + 1
-        if len(rows) < need:
+        if per_joint:
+            counts = train.moving.sum(axis=0)
+            if counts.min() < need:
+                j = int(np.argmin(counts))
+                raise CraneError(f"the rigid-body fit needs at least {need} samples in which each joint "
+                                 f"moves; {self.joint_names[j]} moves in {int(counts[j])} of the training "
+                                 "data")
+        elif len(rows) < need:
             raise CraneError(f"the rigid-body fit needs at least {need} samples with every joint moving; "
                              f"the training data has {len(rows)}")
         fit_ds = train.subset(rows)
-        val_ds = val.subset(np.flatnonzero(val.all_moving)) if val is not None else fit_ds
+        if per_joint:
+            val_ds = val.subset(np.flatnonzero(val.moving.any(axis=1))) if val is not None else fit_ds
+        else:
+            val_ds = val.subset(np.flatnonzero(val.all_moving)) if val is not None else fit_ds
         if len(val_ds) == 0:  # a per-joint validation set (train.splits) may hold no all-moving row
             val_ds = fit_ds
         for term in terms:
@@ -280,20 +309,35 @@ class RigidBodyModel(Model):
             for shape in options:
                 trial = [dict(t) for t in terms]
                 trial[i]["shape"] = shape
-                theta, _, _ = self._solve(fit_ds, trial)
+                theta, _, _ = self._solve(fit_ds, trial, per_joint)
                 pred = self.regressor(val_ds.q, val_ds.dq, val_ds.ddq, trial, val_ds.context) @ theta
-                scores.append(float(((val_ds.tau - pred) ** 2).mean()))
+                err = (val_ds.tau - pred) ** 2
+                scores.append(float(err[val_ds.moving].mean() if per_joint else err.mean()))
             best = int(np.argmin(scores))
             terms[i]["shape"] = options[best]
             tuned.append({"effect": term["name"], "joint": term["joint"], "shape": options[best],
                           "val_mse": scores[best], "grid": options, "grid_val_mse": scores})
         self.terms = terms
-        self.theta, self.stderr, s2 = self._solve(fit_ds, terms)
+        self.theta, self.stderr, s2 = self._solve(fit_ds, terms, per_joint)
         self.names = self._parameter_names(terms)
-        self.fit_info = {"rows": int(len(rows)), "residual_variance": s2, "shape_search": tuned}
+        self.fit_info = {"rows": int(len(rows)), "residual_variance": s2, "shape_search": tuned,
+                         "rows_used": "per-joint" if per_joint else "all-moving"}
         if not self.preprocessing:
             self.preprocessing = dict(train.meta.get("preprocessing", {}))
         return self
+
+    def _rows_mode(self, val: Dataset | None) -> str:
+        """Which torque equations the fit uses: "all-moving" (the paper's: every joint's, of the samples
+        in which every joint moves) or "per-joint" (each joint's where that joint moves, as the
+        diagnosis and the masked loss do). "auto": per-joint where the validation set is per-joint
+        (train.splits: from 4 learning joints on, where samples with every joint moving grow scarce;
+        without a validation set, by the same joint count)."""
+        mode = self.options.get("rows", "auto")
+        if mode != "auto":
+            return mode
+        if val is not None:
+            return "per-joint" if per_joint_set(val) else "all-moving"
+        return "per-joint" if len(self.joint_names) > AUTO_ALL_MOVING_MAX_JOINTS else "all-moving"
 
     @property
     def is_fitted(self) -> bool:
