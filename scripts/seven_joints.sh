@@ -9,7 +9,8 @@
 #    joint5): a ${PLANTED_S} s session, the baseline model (rigid body + the preset's [known] effects),
 #    diagnose, the model with the named effect, compare.
 # Results land in $OUT (default out/seven): info.txt, sweep/, planted-*/ (diagnosis.json, compare.json).
-# Environment: DURATION (simulated s, default 600), PLANTED_S (default 300), SEED (default 1).
+# Environment: DURATION (simulated s, default 600), PLANTED_S (default 300), SEED (default 1); REUSE=1
+# keeps the sessions already in $OUT (re-runs the training steps only).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -20,9 +21,11 @@ PLANTED_S=${PLANTED_S:-300}
 SEED=${SEED:-1}
 mkdir -p "$OUT"
 S="$OUT/session.h5"
+# have PATH: with REUSE=1, PATH exists already (skip the step that makes it)
+have() { [ -n "${REUSE:-}" ] && [ -e "$1" ]; }
 
 echo "== 1/3 collect: ${DURATION} s of 4-channel bilateral control of all seven joints (lockstep)"
-$BIN/crane-collect run --sim --joints all --seed "$SEED" --duration "$DURATION" -o "$S" --force
+have "$S" || $BIN/crane-collect run --sim --joints all --seed "$SEED" --duration "$DURATION" -o "$S" --force
 $BIN/crane-train info "$S" --joints all | tee "$OUT/info.txt"
 
 echo "== 2/3 the paper's sweep at seven joints: rigid-body, mlp-mse, mlp-masked, 10 sizes x 10 trials"
@@ -34,8 +37,9 @@ echo "== 3/3 planted effects on the wrist"
 for preset in hidden-wrist-coulomb hidden-wrist-spring; do
     P="$OUT/planted-$preset"
     mkdir -p "$P"
-    $BIN/crane-collect run --sim --joints all --plant "$preset" --seed "$SEED" --duration "$PLANTED_S" \
-        -o "$P/session.h5" --force --quiet
+    have "$P/session.h5" ||
+        $BIN/crane-collect run --sim --joints all --plant "$preset" --seed "$SEED" --duration "$PLANTED_S" \
+            -o "$P/session.h5" --force --quiet
     # the baseline model is told what the preset's [known] table lists; the hidden effect is not in it
     read -r -a KNOWN <<< "$($BIN/python -c "
 from crane_io.plant_config import load_plant_config
