@@ -20,7 +20,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
-SECTIONS = ("bus_leader", "bus_follower", "compute", "record")
+from crane_io.session_format import TIMING_SECTIONS as SECTIONS  # the sections /timing records
 
 
 class CycleTimer:

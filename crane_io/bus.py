@@ -80,7 +80,6 @@ from .faults import (
 )
 from .packets import CranePacketHandler
 from .port import CranePortHandler, open_port
-from .servo_report import LATE_REPLY_LISTEN_S  # noqa: F401 - `crane-collect check` reads it from here
 from .servo_report import servo_report as _servo_report
 
 log = logging.getLogger(__name__)
