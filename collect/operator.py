@@ -46,9 +46,8 @@ import numpy as np
 from crane_io.description import ArmDescription, default_arm
 from crane_io.errors import ConfigError
 
-from .config import Config, load_config
+from .config import PAPER_JOINTS, Config, load_config
 
-_PAPER_JOINTS = ("joint1", "joint2", "joint4")
 _PUSH_RAMP_S = 0.3  # s: the press force ramps up over this long
 _WALL_CLEARANCE = 0.05  # rad: free-motion targets stay this far from a joint wall
 _PLANE_CLEARANCE = 0.02  # m: free-motion poses keep the contact frame this far above a plane
@@ -78,7 +77,7 @@ class _Objects:
                               "(environment=, a plant with [[environment]] entries)")
         given = environment if isinstance(environment, Environment) else None
         specs = list(given.specs) if given is not None else list(environment)
-        paper = joints == _PAPER_JOINTS  # the plant's own planes are on these joints' kinematics
+        paper = joints == PAPER_JOINTS  # the plant's own planes are on these joints' kinematics
         model = None
         self.walls, self.planes, self.objects = [], [], []
         for spec in specs:

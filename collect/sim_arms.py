@@ -27,7 +27,7 @@ from crane_io.description import ArmDescription
 from crane_io.errors import ConfigError
 
 from .arm_pair import ARMS
-from .config import Config
+from .config import PAPER_JOINTS, Config
 
 if TYPE_CHECKING:
     from .runner import RunOptions
@@ -38,16 +38,11 @@ if TYPE_CHECKING:
 # CRANE-X7 once any other joint is bilateral (its joints' effects, rotor inertia and friction).
 DEFAULT_PLANT = "crane-x7"
 DEFAULT_PLANT_7DOF = "crane-x7-7dof"
-_PAPER_JOINTS = ("joint1", "joint2", "joint4")
 
 
 def default_plant(arm: ArmDescription) -> str:
     """The preset used without --plant for the arm's bilateral joints (see DEFAULT_PLANT_7DOF)."""
-    if all(n in _PAPER_JOINTS for n in arm.bilateral_joints):
-        return DEFAULT_PLANT
-    from crane_io.cli_support import plant_presets
-
-    return DEFAULT_PLANT_7DOF if DEFAULT_PLANT_7DOF in plant_presets() else DEFAULT_PLANT
+    return DEFAULT_PLANT if all(n in PAPER_JOINTS for n in arm.bilateral_joints) else DEFAULT_PLANT_7DOF
 
 
 def make_plant(spec: str | None, seed: int, arm: ArmDescription, objects: bool = True):
