@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from crane_io.bus import DynamixelBus
+from crane_io.dynamixel.bus import DynamixelBus
 from crane_io.sim import simulated_arm
 from crane_io.sim.transport import PtyServer
 

@@ -1,9 +1,9 @@
-"""Simulated seconds per wall-clock second of the CRANE-X7 arm plant (crane_io.arm_plant.ArmPlant).
+"""Simulated seconds per wall-clock second of the CRANE-X7 arm plant (crane_io.sim.arm_plant.ArmPlant).
 
 1. The plant alone, stepped at 500 Hz (2 ms steps, 0.25 ms substeps) under a slowly varying current
    that makes the joints move, stop and stick (preset crane-x7).
 2. The plant behind the simulated servo chain in lockstep mode, driven through the real client
-   (crane_io.bus.DynamixelBus: one fast sync read + one Goal Current sync write per 2 ms cycle, real
+   (crane_io.dynamixel.bus.DynamixelBus: one fast sync read + one Goal Current sync write per 2 ms cycle, real
    Protocol 2.0 bytes through dxlsim://). Goal (issue 3): at least 5x real time, i.e. < 0.4 ms a cycle.
 3. Two such arms (leader and follower, as in a bilateral session) stepped alternately in one thread.
 4. The same with all seven joints integrated (preset crane-x7-7dof, issue 11): the plant alone and two
@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 
-from crane_io.arm_plant import ArmPlant
+from crane_io.sim.arm_plant import ArmPlant
 from crane_io.sim.plant_api import ActuatorCommand
 
 PERIOD = 0.002
@@ -82,7 +82,7 @@ def through_chain(steps: int, arms: int = 1, preset: str = "crane-x7") -> tuple[
     """Seconds per lockstep cycle of `arms` simulated arms, each behind its own chain and bus."""
     from contextlib import ExitStack
 
-    from crane_io.bus import DynamixelBus
+    from crane_io.dynamixel.bus import DynamixelBus
     from crane_io.sim import simulated_arm
 
     with ExitStack() as stack:

@@ -1,7 +1,7 @@
 """One arm's torque prediction for one sample, as the bilateral loop needs it every 2 ms cycle: the float64
 numpy path (train.models.fast_predict.NumpyPredictor) against the model's own `predict` (torch for the
 networks, the vectorised regressor and effect columns for the physics), in the same process; and what the
-control loop really runs, `crane_io.loop_model.LoopModel.load(dir).predict_one` (the saved model's
+control loop really runs, `crane_io.physics.loop_model.LoopModel.load(dir).predict_one` (the saved model's
 loop_model.npz, no torch), for mlp-masked, rigid-body and hybrid, against the goal of 20 us per call.
 
 Models: each method fitted on 400 synthetic samples of joints 1, 2, 4 (the CRANE-X7 rigid-body dynamics
@@ -30,7 +30,7 @@ EFFECTS = [["coulomb", None, None], ["viscous", None, None],
 
 
 def _data(n: int, seed: int):
-    from crane_io.dynamics import ArmDynamics
+    from crane_io.physics.dynamics import ArmDynamics
     from train.dataset import Dataset
 
     rng = np.random.default_rng(seed)
@@ -65,7 +65,7 @@ def _times_us(call, inputs) -> np.ndarray:
 def run(quick: bool = False) -> list[dict]:
     import torch
 
-    from crane_io.loop_model import LoopModel
+    from crane_io.physics.loop_model import LoopModel
     from train.models.fast_predict import NumpyPredictor
 
     torch.set_num_threads(1)

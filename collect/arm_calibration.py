@@ -1,4 +1,5 @@
-"""Which calibration each arm of a run uses (crane_io.calibration), said once and recorded in the session.
+"""Which calibration each arm of a run uses (crane_io.dynamixel.calibration), said once and recorded in
+the session.
 
 Hardware ports: the stored calibration of each arm's adapter (by its USB serial, or a simulated link's
 name), unless `--no-calibration`; `--leader-calibration FILE` / `--follower-calibration FILE` name one
@@ -9,7 +10,7 @@ from __future__ import annotations
 
 import json
 
-from crane_io.calibration import Calibration, find_calibration, load_calibration
+from crane_io.dynamixel.calibration import Calibration, find_calibration, load_calibration
 
 from .arm_pair import ARMS
 

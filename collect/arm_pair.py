@@ -8,7 +8,7 @@ Every transfer returns (value, error, seconds): a CraneError is handed back, not
 decides whether a failed cycle is a fault. `safe_stop` (goal current 0, torque off) reaches both arms
 even if one fails; `torque_report` reads the torque state back from the servos afterwards.
 
-Calibrated angles (crane_io.calibration): with `offsets[arm]` set, every state read has the arm's
+Calibrated angles (crane_io.dynamixel.calibration): with `offsets[arm]` set, every state read has the arm's
 offsets subtracted from its positions and every goal position has them added, so everything above the
 pair (controller, safety, alignment, session) sees calibrated angles only.
 """
@@ -32,7 +32,7 @@ class ArmPair:
         self.pool = concurrent.futures.ThreadPoolExecutor(2, "crane-bus") if concurrent_io else None
         self._inflight: list = []  # bus transfers a signal may have left running in the pool
         self.stopped = False  # both arms confirmed stopped (goal current 0, torque off)
-        self.offsets: dict = {}  # arm name -> (n,) rad encoder offsets (crane_io.calibration)
+        self.offsets: dict = {}  # arm name -> (n,) rad encoder offsets (crane_io.dynamixel.calibration)
 
     def attach(self, buses: dict) -> None:
         """The opened, configured buses (torque on) to drive."""

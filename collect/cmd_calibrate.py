@@ -1,5 +1,5 @@
 """`crane-collect calibrate --port P --arm NAME`: find where each joint's zero really is and the range it
-moves through, and store it for the arm's adapter (crane_io.calibration).
+moves through, and store it for the arm's adapter (crane_io.dynamixel.calibration).
 
 Torque stays off the whole time: the person moves the arm by hand.
   1. Every joint on its zero mark, Enter: the angles read there (averaged over AVERAGE_READS reads) are
@@ -55,8 +55,9 @@ def _sample_range(bus, recorder, stop: threading.Event, errors: list, live: bool
 @cli_errors
 def calibrate(port, arm_name, no_range, output):
     """Guided calibration of one arm: zero marks, then ranges; stored per adapter (USB serial)."""
-    from crane_io.bus import DynamixelBus
-    from crane_io.calibration import (
+    from crane_io.description import default_arm
+    from crane_io.dynamixel.bus import DynamixelBus
+    from crane_io.dynamixel.calibration import (
         RangeRecorder,
         adapter_key,
         build_calibration,
@@ -64,7 +65,6 @@ def calibrate(port, arm_name, no_range, output):
         offsets_at_marks,
         save_calibration,
     )
-    from crane_io.description import default_arm
 
     arm = default_arm()
     names = arm.joint_names

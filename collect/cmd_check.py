@@ -68,11 +68,11 @@ def check(sim, ports, calibration_path):
     (and the calibrated angle, with the calibration in use named).
 
     The check reads registers only; on the way out it leaves every servo with torque off."""
-    from crane_io.bus import DynamixelBus
-    from crane_io.calibration import find_calibration, load_calibration
     from crane_io.description import default_arm
-    from crane_io.ports import port_warnings
-    from crane_io.servo_report import LATE_REPLY_LISTEN_S
+    from crane_io.dynamixel.bus import DynamixelBus
+    from crane_io.dynamixel.calibration import find_calibration, load_calibration
+    from crane_io.dynamixel.ports import port_warnings
+    from crane_io.dynamixel.servo_report import LATE_REPLY_LISTEN_S
 
     arm = default_arm()
     sims = []

@@ -1,5 +1,5 @@
 """`crane-collect ports`: the candidate U2D2 ports, their stable names and latency timers, and the links
-of simulated arms that `crane-collect sim-serve` announced (crane_io.link_registry)."""
+of simulated arms that `crane-collect sim-serve` announced (crane_io.dynamixel.link_registry)."""
 
 from __future__ import annotations
 
@@ -14,8 +14,8 @@ from crane_io.cli_support import cli_errors
 def ports(all_ports):
     """List U2D2 adapters (FTDI 0403:6014: device, by-id path, USB serial, latency timer) and the links of
     running `crane-collect sim-serve` processes (marked simulated)."""
-    from crane_io.link_registry import live_links
-    from crane_io.ports import list_u2d2_ports
+    from crane_io.dynamixel.link_registry import live_links
+    from crane_io.dynamixel.ports import list_u2d2_ports
 
     found = list_u2d2_ports(all_ports=all_ports)
     links = live_links()

@@ -4,7 +4,7 @@ Any Dynamixel tool that opens a serial port (the SDK, Dynamixel Wizard 2.0, `cra
 with `--leader-port/--follower-port`) can then talk Protocol 2.0 to eight emulated servos (IDs 2..9,
 3 Mbps) at the link. `--pair` serves a leader and a follower with a simulated person's hand on one of
 them (collect/sim_lab.py), so a `crane-collect run` over the two links records a session to train on.
-Every served link is announced in the user's runtime directory (crane_io.link_registry) for
+Every served link is announced in the user's runtime directory (crane_io.dynamixel.link_registry) for
 `crane-collect ports`, and withdrawn on exit.
 """
 
@@ -156,7 +156,7 @@ def _write_truth(plant, truth_path) -> None:
 def _announce(server, arm: str, plant: str, clock: str, hand: bool):
     import os
 
-    from crane_io.link_registry import SimLink, announce
+    from crane_io.dynamixel.link_registry import SimLink, announce
 
     return announce(SimLink(link=os.path.abspath(server.link), pty=server.slave_path, arm=arm, plant=plant,
                             clock=clock, hand=hand, pid=os.getpid()))
@@ -178,7 +178,7 @@ def _wait(stop: threading.Event, errors, status) -> None:
 
 def _serve_one(stop, link, arm, plant_name, clock, period_s, seed, fast_sync_read, return_delay, truth_path,
                offsets=None):
-    from crane_io.link_registry import withdraw
+    from crane_io.dynamixel.link_registry import withdraw
     from crane_io.sim.chain import SimulatedChain
     from crane_io.sim.transport import PtyServer
 
@@ -215,7 +215,7 @@ def _serve_one(stop, link, arm, plant_name, clock, period_s, seed, fast_sync_rea
 
 def _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, config, arm, plant_name,
                 clock, period_s, seed, fast_sync_read, return_delay, truth_path, offsets):
-    from crane_io.link_registry import withdraw
+    from crane_io.dynamixel.link_registry import withdraw
 
     from .config import PAPER_JOINTS
     from .sim_lab import SimulatedLab

@@ -79,9 +79,10 @@ class GravityModel:
         self._m = (c.gravity_m0, c.gravity_m1, c.gravity_m2)
         if kind == "dynamics":
             try:
-                from crane_io.dynamics import ArmDynamics
+                from crane_io.physics.dynamics import ArmDynamics
             except ImportError:
-                warnings.warn("crane_io.dynamics is not available; using the sine gravity coefficients",
+                warnings.warn("crane_io.physics.dynamics is not available; using the sine gravity "
+                              "coefficients",
                               stacklevel=2)
                 self.kind = "coefficients"
             else:
@@ -109,7 +110,7 @@ class InertiaModel:
 
     "constant": the configured J. "dynamics": the configured J is taken as the inertia at the zero
     pose (upright, elbow straight) and the change of the link inertia with the pose, M_ii(q) - M_ii(0)
-    from crane_io.dynamics, is added (never below half the configured value). Joint 1's inertia
+    from crane_io.physics.dynamics, is added (never below half the configured value). Joint 1's inertia
     grows about 60x from upright to arm outstretched; a constant J then makes the DOB loop ring.
     """
 
@@ -120,9 +121,9 @@ class InertiaModel:
         self._dyn = None
         if kind == "dynamics":
             try:
-                from crane_io.dynamics import ArmDynamics
+                from crane_io.physics.dynamics import ArmDynamics
             except ImportError:
-                warnings.warn("crane_io.dynamics is not available; using constant nominal inertias",
+                warnings.warn("crane_io.physics.dynamics is not available; using constant nominal inertias",
                               stacklevel=2)
                 self.kind = "constant"
             else:

@@ -4,7 +4,7 @@ loaded, checked against the arm and the run, and described for the status line a
     models = load_reaction_models({"follower": "models/mlp"}, arm)   # before any torque is on
     ctl = BilateralController(config, arm, models=reaction_factories(models, arm, config))
 
-Every refusal is one sentence (crane_io.loop_model.LoopModelError) raised before the
+Every refusal is one sentence (crane_io.physics.loop_model.LoopModelError) raised before the
 buses are opened: a missing or damaged model directory, a model without its loop export, units other
 than SI, zero-phase preprocessing, joints that are not bilateral joints of this arm, a model fitted on
 the other arm's data. Bilateral joints a model does not cover keep the nominal model.
@@ -31,7 +31,7 @@ class ArmModel:
     """A learned model in one arm's observer."""
 
     arm: str  # "leader" or "follower": the arm whose observer uses it
-    model: object  # crane_io.loop_model.LoopModel
+    model: object  # crane_io.physics.loop_model.LoopModel
     limit: np.ndarray  # (J,) N m: larger predictions are not used (the joint's maximum motor torque)
 
     @property
@@ -58,7 +58,9 @@ def load_reaction_models(paths: dict, arm: ArmDescription) -> dict[str, ArmModel
         path = paths.get(name)
         if path is None:
             continue
-        from crane_io.loop_model import LoopModel  # (pinocchio for a rigid-body model: only when asked)
+        from crane_io.physics.loop_model import (
+            LoopModel,  # (pinocchio for a rigid-body model: only when asked)
+        )
 
         model = LoopModel.load(path)
         model.check_for_arm(arm.bilateral_joints, name)

@@ -36,7 +36,7 @@ adapter) is filtered with Tustin coefficients for its own dt, as the controller'
 model's velocity and acceleration stay in rad/s and rad/s^2; at the nominal period they are exactly the
 training's.
 
-Per cycle the model is evaluated once (crane_io.loop_model: numpy, a few microseconds). A prediction
+Per cycle the model is evaluated once (crane_io.physics.loop_model: numpy, a few microseconds). A prediction
 that is not finite or exceeds `limit` on a joint is not used: that joint falls back to the nominal
 reaction torque for that cycle (`ModelReaction.update` returns which joints did). A model is trusted
 only near the poses it was trained on: when a filtered angle lies more than POSE_MARGIN_RAD outside the
@@ -128,7 +128,7 @@ class ModelInputs:
 class ModelReaction:
     """The learned-model reaction torque of one arm (see the module docstring).
 
-    `model`: a crane_io.loop_model.LoopModel (anything with `joint_names`, `preprocessing` and
+    `model`: a crane_io.physics.loop_model.LoopModel (anything with `joint_names`, `preprocessing` and
     `predict_one(q, dq, ddq)`); `arm_joint_names`: the arm's joints in the controller's order;
     `limit`: (J,) N m per model joint, the largest plausible prediction (the joint's maximum motor
     torque); `rate_hz`: the loop's rate, at which the filters are discretised."""

@@ -16,7 +16,7 @@ bilateral get no torque (the servos hold them).
 Tasks ([operator] task):
 - "free" (default): the above, nothing else.
 - "contact": the operator is told the follower's objects (`environment=`: the follower plant's
-  parsed [[environment]] list, crane_io.plant_config; or a crane_io.environment.Environment). The
+  parsed [[environment]] list, crane_io.sim.plant_config; or a crane_io.sim.environment.Environment). The
   leader and follower start at the same pose and the follower tracks the leader, so the operator
   plans on the leader's joint angles. Free-motion phases as above (targets kept out of the objects:
   joint walls shrink the joint's workspace by 0.05 rad of clearance, a plane's contact frame stays
@@ -25,7 +25,7 @@ Tasks ([operator] task):
   running moves finish, then one object is picked at random and the hand
     1. approaches: a minimum-jerk move of the reference to the object's surface (a joint wall: the
        wall's angle on its joint; a plane: the nearest pose found by minimum-norm Newton steps on the
-       kinematics of crane_io.dynamics over the bilateral joints, the held joints at [held]),
+       kinematics of crane_io.physics.dynamics over the bilateral joints, the held joints at [held]),
     2. presses (`pressing` is True): ramps the reference in 0.3 s past the surface by
        target x (1/stiffness + 1/k_object) along the joint-space direction into the object (k_object:
        the object's stiffness in N m/rad along it; a plane's is stiffness |n^T J|^2), so the hand's
@@ -64,13 +64,13 @@ def minimum_jerk(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 class _Objects:
     """The follower's objects as the operator plans with them, over the run's bilateral joints (k,):
-    joint walls indexed into them, planes on the kinematics of crane_io.dynamics.ArmDynamics over them
+    joint walls indexed into them, planes on the kinematics of crane_io.physics.dynamics.ArmDynamics over them
     (the other joints locked at [held]). `environment`: an Environment (the follower plant's) or its
     parsed [[environment]] list. An object on a joint the run holds cannot be pressed: one sentence."""
 
     def __init__(self, environment, joints: tuple[str, ...], held: dict[str, float]):
-        from crane_io.environment import Environment, JointWall, Plane
-        from crane_io.plant_config import JointWallSpec
+        from crane_io.sim.environment import Environment, JointWall, Plane
+        from crane_io.sim.plant_config import JointWallSpec
 
         if not isinstance(environment, Environment) and not environment:
             raise ConfigError("the operator's contact task needs the follower's objects "
@@ -91,7 +91,7 @@ class _Objects:
                 obj = next((p for p in given.planes if p.spec is spec), None) if given and paper else None
                 if obj is None:
                     if model is None:
-                        from crane_io.dynamics import ArmDynamics
+                        from crane_io.physics.dynamics import ArmDynamics
 
                         locked = {n: v for n, v in held.items() if n not in joints}
                         model = ArmDynamics(joints, locked=locked).model

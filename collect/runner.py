@@ -84,7 +84,7 @@ class RunOptions:
     view: bool = False  # live view in a spawned rerun viewer (collect/live_view.py)
     view_save: str | Path | None = None  # live view written to this .rrd file instead of a viewer
     view_every: int = 10  # the view samples every N-th cycle
-    leader_calibration: str | Path | None = None  # a calibration file for the leader (crane_io.calibration)
+    leader_calibration: str | Path | None = None  # the leader's calibration file (crane_io.dynamixel)
     follower_calibration: str | Path | None = None  # ... for the follower
     calibrate: bool = True  # hardware: use each adapter's stored calibration (False: --no-calibration)
     # test hook: called every bilateral cycle with (cycle index, RunContext) before the bus reads
@@ -409,7 +409,7 @@ class _Loop:
                                 fol.in_contact)
 
     def _fault_breach(self, name: str, exc: Exception, t: float) -> Breach | None:
-        from crane_io.faults import CommunicationError, ServoMissingError
+        from crane_io.dynamixel.faults import CommunicationError, ServoMissingError
 
         if isinstance(exc, ServoMissingError) or not isinstance(exc, CommunicationError):
             kind = "servo_missing" if isinstance(exc, ServoMissingError) else "hardware_error"
@@ -492,7 +492,7 @@ class _Session:
         self.opts, self.config, self.arm, self.output, self.out = opts, config, arm, output, out
         self.stop = stop
         self.sims: dict = {}
-        self.calibrations: dict = {}  # arm -> crane_io.calibration.Calibration or None
+        self.calibrations: dict = {}  # arm -> crane_io.dynamixel.calibration.Calibration or None
         self.buses: dict = {}
         self.loop: _Loop | None = None
         self.end_reason: str | None = None  # set by the loop when it ends by itself

@@ -56,12 +56,12 @@ def make_plant(spec: str | None, seed: int, arm: ArmDescription, objects: bool =
     if spec == "simple":
         return SimplePlant.from_arm(arm)
     try:
-        from crane_io.arm_plant import ArmPlant
-        from crane_io.plant_config import load_plant_config
+        from crane_io.sim.arm_plant import ArmPlant
+        from crane_io.sim.plant_config import load_plant_config
     except ImportError:
         if spec is None:
             return SimplePlant.from_arm(arm)
-        raise ConfigError(f"--plant {spec} needs crane_io.arm_plant, which is not installed; "
+        raise ConfigError(f"--plant {spec} needs crane_io.sim.arm_plant, which is not installed; "
                           "use --plant simple") from None
     name = spec or default_plant(arm)
     config = load_plant_config(name)

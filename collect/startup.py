@@ -109,8 +109,8 @@ def open_buses(opts: RunOptions, arm: ArmDescription, config: Config, ports: dic
     """Both buses open, every servo checked and configured, torque on: (buses, {"infos", "warnings"}).
     `checkpoint()` is called between the steps (it raises to abandon the start-up: a stop request)."""
     checkpoint = checkpoint or (lambda: None)
-    from crane_io.bus import DynamixelBus
-    from crane_io.ports import port_warnings
+    from crane_io.dynamixel.bus import DynamixelBus
+    from crane_io.dynamixel.ports import port_warnings
 
     buses: dict = {}
     infos: dict = {}

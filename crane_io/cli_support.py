@@ -9,7 +9,7 @@ import sys
 
 import click
 
-from .errors import CraneError
+from crane_io.errors import CraneError
 
 
 class LazyGroup(click.Group):
@@ -31,11 +31,11 @@ class LazyGroup(click.Group):
 
 
 def plant_presets() -> list[str]:
-    """Names of the shipped plant presets (crane_io/plants/*.toml), read from the folder without importing
+    """Names of the shipped plant presets (crane_io/sim/plants/*.toml), read from the folder without importing
     the simulator, so that a command's --help can list them."""
     from importlib import resources
 
-    folder = resources.files("crane_io") / "plants"
+    folder = resources.files("crane_io.sim") / "plants"
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
 
 

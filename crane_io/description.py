@@ -15,8 +15,8 @@ import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from .control_table import MODELS, ServoModel
-from .errors import ConfigError
+from crane_io.dynamixel.control_table import MODELS, ServoModel
+from crane_io.errors import ConfigError
 
 if sys.version_info >= (3, 11):
     import tomllib

@@ -14,7 +14,7 @@ Both write the same entities, on the timeline `session_time` (the session's `t`,
 | `arms/leader`, `arms/follower` | the arm in 3D (line strip and points) | m |
 
 The 3D arm: the base, the joint origins 1..7 and the tool point, from the project's own kinematic model
-(crane_io/arm_model.py, pinocchio forward kinematics); the two arms side by side, `ARM_OFFSET_M` apart
+(crane_io/physics/arm_model.py, pinocchio forward kinematics); the two arms side by side, `ARM_OFFSET_M` apart
 along y.
 
 rerun is imported only when a view is made (`import_rerun`), never at import time of this module, so the
@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import ConfigError
+from crane_io.errors import ConfigError
 
 INSTALL_HINT = "pip install 'crane-x7[view]'"
 TIMELINE = "session_time"
@@ -77,7 +77,7 @@ class ArmKinematics:
     def __init__(self, joint_names):
         import pinocchio as pin
 
-        from .arm_model import JOINT_NAMES, TOOL_FRAME, full_model
+        from crane_io.physics.arm_model import JOINT_NAMES, TOOL_FRAME, full_model
 
         self._pin = pin
         self.model = full_model()

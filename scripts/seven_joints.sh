@@ -42,10 +42,10 @@ for preset in hidden-wrist-coulomb hidden-wrist-spring; do
             -o "$P/session.h5" --force --quiet
     # the baseline model is told what the preset's [known] table lists; the hidden effect is not in it
     read -r -a KNOWN <<< "$($BIN/python -c "
-from crane_io.plant_config import load_plant_config
+from crane_io.sim.plant_config import load_plant_config
 print(' '.join(f'--effect {n}:joint={j}' for n, j, _ in load_plant_config('$preset').known))")"
     HIDDEN=$($BIN/python -c "
-from crane_io.plant_config import load_plant_config
+from crane_io.sim.plant_config import load_plant_config
 h = load_plant_config('$preset').hidden
 print(f'{h.effect}:joint={h.joint}')")
     FIT="$BIN/crane-train fit $P/session.h5 --joints all --model rigid-body --scale-to-data --no-progress"

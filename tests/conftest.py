@@ -1,12 +1,12 @@
 """Suite-wide isolation: the user's own calibrations and announced simulator links never reach a test.
 
-Every test gets its own (empty) configuration directory (crane_io.calibration) and runtime directory
-(crane_io.link_registry); subprocesses a test starts inherit them through the environment."""
+Every test gets its own (empty) configuration directory (crane_io.dynamixel.calibration) and runtime directory
+(crane_io.dynamixel.link_registry); subprocesses a test starts inherit them through the environment."""
 
 import pytest
 
-from crane_io.calibration import CONFIG_ENV
-from crane_io.link_registry import RUNTIME_ENV
+from crane_io.dynamixel.calibration import CONFIG_ENV
+from crane_io.dynamixel.link_registry import RUNTIME_ENV
 
 
 @pytest.fixture(autouse=True)

@@ -3,7 +3,7 @@
 Why not `crane-collect run --sim`: the full pipeline (two arms, the servo chain's protocol bytes, the
 bilateral controller) runs at about 1.4x real time on the 2-core CI machine, i.e. ~45 s of wall time
 per minute of session and several minutes for the seven presets the diagnosis tests need. The physics
-is what the diagnosis is about, so these sessions drive crane_io.arm_plant.ArmPlant (the same plant
+is what the diagnosis is about, so these sessions drive crane_io.sim.arm_plant.ArmPlant (the same plant
 `crane-collect run --sim --plant PRESET` uses) directly, at the control rate (500 Hz), with what a
 human operator does to the follower under bilateral control: each driven joint (`joints`, default
 joints 1, 2 and 4, the paper's set; any of joint1..joint7, e.g. all seven for the wrist presets)
@@ -23,12 +23,12 @@ from pathlib import Path
 
 import numpy as np
 
-from crane_io.arm_plant import ArmPlant
 from crane_io.description import default_arm
-from crane_io.dynamics import ArmDynamics
-from crane_io.plant_config import ARM_JOINTS, check_joints, load_plant_config
+from crane_io.dynamixel.units import RAD_PER_PULSE
+from crane_io.physics.dynamics import ArmDynamics
+from crane_io.sim.arm_plant import ArmPlant
 from crane_io.sim.plant_api import ActuatorCommand
-from crane_io.units import RAD_PER_PULSE
+from crane_io.sim.plant_config import ARM_JOINTS, check_joints, load_plant_config
 from tests.sessions import write_minimal_session
 
 LEARN = ("joint1", "joint2", "joint4")  # the default driven joints (the paper's set)

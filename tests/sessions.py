@@ -3,9 +3,10 @@
 `write_synthetic_session(path, duration_s)` writes the contract minimum of the session format (README)
 (plus `complete`) for an 8-column arm (joint1..joint7, gripper). Joints 1, 2 and 4 move in strokes
 separated by stick phases (each joint independently, about `stick_fraction` of the time still); the
-other columns are held. The torque of the moving joints is the arm's inverse dynamics (crane_io.dynamics
-when available, else a small analytic stand-in) plus Coulomb and viscous friction; while a joint sticks
-its torque wanders inside the static-friction band (the dead zone the paper masks).
+other columns are held. The torque of the moving joints is the arm's inverse dynamics
+(crane_io.physics.dynamics when available, else a small analytic stand-in) plus Coulomb and viscous
+friction; while a joint sticks its torque wanders inside the static-friction band (the dead zone the
+paper masks).
 """
 
 from __future__ import annotations
@@ -51,7 +52,7 @@ def analytic_dynamics(q, dq, ddq):
 
 def default_dynamics():
     try:
-        from crane_io.dynamics import ArmDynamics
+        from crane_io.physics.dynamics import ArmDynamics
     except ImportError:
         return analytic_dynamics
     arm = ArmDynamics(joints=LEARN)

@@ -4,8 +4,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from crane_io.arm_model import JOINT_NAMES, full_model, reduced_model
 from crane_io.errors import ConfigError
+from crane_io.physics.arm_model import JOINT_NAMES, full_model, reduced_model
 
 
 def test_full_model_has_eight_joints_and_the_urdf_mass():

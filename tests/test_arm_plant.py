@@ -6,10 +6,10 @@ import json
 import numpy as np
 import pytest
 
-from crane_io.arm_plant import OVERLOAD_BIT, ArmPlant
 from crane_io.errors import ConfigError
-from crane_io.plant_config import load_plant_config, presets
+from crane_io.sim.arm_plant import OVERLOAD_BIT, ArmPlant
 from crane_io.sim.plant_api import ActuatorCommand, Plant
+from crane_io.sim.plant_config import load_plant_config, presets
 
 N = 8
 BI = [0, 1, 3]  # joint1, joint2, joint4 in servo order

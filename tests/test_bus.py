@@ -7,11 +7,11 @@ import warnings
 import numpy as np
 import pytest
 
-from crane_io import units
-from crane_io.bus import BusState, CommandError, DynamixelBus
 from crane_io.description import default_arm
+from crane_io.dynamixel import units
+from crane_io.dynamixel.bus import BusState, CommandError, DynamixelBus
+from crane_io.dynamixel.faults import ServoMissingError, WatchdogExpiredError, WrongModelError
 from crane_io.errors import ConfigError, HardwareError
-from crane_io.faults import ServoMissingError, WatchdogExpiredError, WrongModelError
 from crane_io.sim import simulated_arm
 from crane_io.sim.transport import PtyServer
 

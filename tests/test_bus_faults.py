@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from fakes import DropReplies, FlipCrcByte, OverloadBit, VanishingServo
 
-from crane_io.bus import DynamixelBus
-from crane_io.faults import CommunicationError, ServoFaultError, ServoMissingError
+from crane_io.dynamixel.bus import DynamixelBus
+from crane_io.dynamixel.faults import CommunicationError, ServoFaultError, ServoMissingError
 from crane_io.shutdown import Terminated, handle_termination
 from crane_io.sim import simulated_arm
 from crane_io.sim.transport import PtyServer
@@ -144,7 +144,7 @@ def test_sigterm_raises_terminated_and_restores_the_old_handler():
 CHILD = textwrap.dedent("""
     import sys
     import numpy as np
-    from crane_io.bus import DynamixelBus
+    from crane_io.dynamixel.bus import DynamixelBus
     from crane_io.shutdown import handle_termination
 
     with handle_termination(), DynamixelBus(sys.argv[1], latency_ms=250) as bus:  # patient: a busy CPU

@@ -10,7 +10,7 @@ import pytest
 from fakes import DropReplies, LateReplies
 
 from collect.cmd_check import _row
-from crane_io.bus import DynamixelBus
+from crane_io.dynamixel.bus import DynamixelBus
 from crane_io.sim import simulated_arm
 
 DELAY_S = 1.5  # far beyond three tries of the 0.2 s timeout below: every try of the report read fails
@@ -66,10 +66,10 @@ def test_check_prints_which_servo_is_late_and_exits_1(sim, tmp_path, monkeypatch
     """The whole command over a pty: the late servo's line, the others' rows, exit status 1."""
     from click.testing import CliRunner
 
-    import crane_io.servo_report
+    import crane_io.dynamixel.servo_report
     from collect.cli import main
 
-    monkeypatch.setattr(crane_io.servo_report, "LATE_REPLY_LISTEN_S", DELAY_S * 4)
+    monkeypatch.setattr(crane_io.dynamixel.servo_report, "LATE_REPLY_LISTEN_S", DELAY_S * 4)
     link = tmp_path / "crane"
     with LateReplies(sim.chain, link, delay_s=DELAY_S, servo_id=7):
         result = CliRunner().invoke(main, ["check", "--port", str(link)])

@@ -9,8 +9,8 @@ import time
 import numpy as np
 import pytest
 
-from crane_io.bus import DynamixelBus
-from crane_io.faults import WatchdogExpiredError
+from crane_io.dynamixel.bus import DynamixelBus
+from crane_io.dynamixel.faults import WatchdogExpiredError
 from crane_io.sim import simulated_arm
 
 

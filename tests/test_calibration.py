@@ -16,8 +16,9 @@ from click.testing import CliRunner
 from collect.cli import main as collect_main
 from collect.runner import RunOptions, run_session
 from collect.sim_lab import OffsetPlant, SimulatedLab, parse_offsets
-from crane_io import calibration as cal_mod
-from crane_io.calibration import (
+from crane_io.description import default_arm
+from crane_io.dynamixel import calibration as cal_mod
+from crane_io.dynamixel.calibration import (
     Calibration,
     CalibrationError,
     JointCalibration,
@@ -26,12 +27,11 @@ from crane_io.calibration import (
     load_calibration,
     save_calibration,
 )
-from crane_io.description import default_arm
+from crane_io.dynamixel.units import RAD_PER_PULSE
 from crane_io.errors import ConfigError
 from crane_io.sim.chain import SimulatedChain
 from crane_io.sim.simple_plant import SimplePlant
 from crane_io.sim.transport import PtyServer
-from crane_io.units import RAD_PER_PULSE
 
 ARM = default_arm()
 NAMES = ARM.joint_names

@@ -103,7 +103,7 @@ def test_rfob_removes_gravity_with_the_coefficient_model():
 
 
 def test_gravity_model_signs_agree_with_the_dynamics():
-    pytest.importorskip("crane_io.dynamics")
+    pytest.importorskip("crane_io.physics.dynamics")
     cfg, ctl, _, _ = _setup("dynamics")
     cfg2, ctl2, _, _ = _setup("coefficients")
     q = np.array([0.0, 0.7, 0.0, -0.5, 0, 0, 0, 0])
@@ -139,7 +139,7 @@ def test_hold_brings_both_arms_to_their_references():
 
 
 def test_pose_dependent_inertia_follows_the_arm():
-    pytest.importorskip("crane_io.dynamics")
+    pytest.importorskip("crane_io.physics.dynamics")
     ctl = BilateralController(load_config(), ARM)
     assert ctl.inertia.kind == "dynamics"
     upright = ctl.inertia(np.zeros(8))

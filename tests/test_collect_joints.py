@@ -206,7 +206,7 @@ def test_the_default_plant_runs_with_joint3_held(tmp_path):
 
 
 def test_the_restricted_preset_keeps_only_the_integrated_joints_effects():
-    from crane_io.plant_config import load_plant_config
+    from crane_io.sim.plant_config import load_plant_config
 
     full = load_plant_config("hidden-wrist-coulomb")
     part = full.restricted_to(NO_JOINT3)
@@ -292,7 +292,7 @@ def test_the_operator_moves_each_joint_about_seventy_percent_of_the_time(joints)
 
 
 def test_the_operators_contact_task_presses_on_any_bilateral_joint():
-    from crane_io.plant_config import JointWallSpec
+    from crane_io.sim.plant_config import JointWallSpec
 
     cfg = load_config().with_operator_task("contact").with_bilateral_joints("all")
     arm = replace(default_arm(), bilateral_joints=cfg.bilateral)

@@ -18,7 +18,7 @@ from click.testing import CliRunner
 from collect.cli import main as collect_main
 from collect.recorder import read_events
 from collect.runner import RunOptions, run_session
-from crane_io.loop_model import LoopModel, LoopModelError
+from crane_io.physics.loop_model import LoopModel, LoopModelError
 from train.cli_options import parse_effect
 from train.cmd_fit import fit_model
 from train.fidelity import measure_fidelity

@@ -240,14 +240,14 @@ def test_sigkill_loses_at_most_the_last_second(tmp_path):
 def test_hardware_path_over_ptys_refuses_arms_that_disagree(tmp_path, monkeypatch):
     """The hardware code path (real ports, one bus thread per arm) against two simulated chains served
     on pseudo-terminals: arms 90 deg apart are not brought together automatically."""
-    import crane_io.port
+    import crane_io.dynamixel.port
     from collect.runner import StartRefused
     from crane_io.sim.chain import SimulatedChain
     from crane_io.sim.simple_plant import SimplePlant
     from crane_io.sim.transport import PtyServer
 
     # the pty servers' threads may wait for a core on a busy machine: replies get ~0.5 s, not ~35 ms
-    monkeypatch.setattr(crane_io.port, "SDK_LATENCY_MS", 250.0)
+    monkeypatch.setattr(crane_io.dynamixel.port, "SDK_LATENCY_MS", 250.0)
 
     poses = {"leader": np.zeros(8), "follower": np.where(np.arange(8) == 1, np.pi / 2, 0.0)}
     servers, chains = [], {}
@@ -278,8 +278,8 @@ def test_truth_of_the_follower_plant_goes_to_its_own_file_only_when_asked(tmp_pa
     from click.testing import CliRunner
 
     from collect.cli import main
-    from crane_io.arm_plant import ArmPlant
-    from crane_io.plant_config import load_plant_config
+    from crane_io.sim.arm_plant import ArmPlant
+    from crane_io.sim.plant_config import load_plant_config
 
     common = ["run", "--sim", "--plant", "hidden-coulomb", "--seed", "3", "--duration", "0.2",
               "--config", str(cfg), "--quiet"]

@@ -10,8 +10,8 @@ from collect.pacing import CycleTimer
 from collect.recorder import SessionRecorder, read_events
 from collect.safety import SafetyMonitor
 from crane_io.description import default_arm
+from crane_io.dynamixel.faults import CommunicationError
 from crane_io.errors import CraneError
-from crane_io.faults import CommunicationError
 
 ARM = default_arm()
 BIL = np.array([n in ARM.bilateral_joints for n in ARM.joint_names])

@@ -12,7 +12,7 @@ from collect.config import load_config
 from collect.runner import RunResult
 from collect.status import print_summary
 from crane_io.errors import ConfigError, HardwareError
-from crane_io.plant_config import load_plant_config
+from crane_io.sim.plant_config import load_plant_config
 
 
 def _run(*args):
@@ -114,7 +114,7 @@ def test_a_port_that_is_a_regular_file_is_named_as_such_and_left_alone(tmp_path)
 
 
 def test_a_character_device_that_is_not_a_tty_is_not_a_serial_port():
-    from crane_io.port import open_port
+    from crane_io.dynamixel.port import open_port
 
     with pytest.raises(HardwareError, match="/dev/null is not a serial port"):
         open_port("/dev/null")

@@ -2,7 +2,7 @@
 
 import pytest
 
-from crane_io import control_table as ct
+from crane_io.dynamixel import control_table as ct
 
 
 @pytest.mark.parametrize("model", list(ct.MODELS.values()), ids=list(ct.MODELS))

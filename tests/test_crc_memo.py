@@ -1,6 +1,7 @@
-"""crane_io.crc remembers the CRCs of recent packets (issue 13): a receiver checking the bytes its sender
-just framed, or the control loop's unchanging Sync Read, looks the CRC up. The memo is keyed by the exact
-bytes, so it can never vouch for a changed byte, and the CRCs it files equal dynamixel-sdk's own."""
+"""crane_io.dynamixel.crc remembers the CRCs of recent packets (issue 13): a receiver checking the bytes
+its sender just framed, or the control loop's unchanging Sync Read, looks the CRC up. The memo is keyed
+by the exact bytes, so it can never vouch for a changed byte, and the CRCs it files equal dynamixel-sdk's
+own."""
 
 from __future__ import annotations
 
@@ -8,11 +9,11 @@ import random
 
 from dynamixel_sdk.protocol2_packet_handler import Protocol2PacketHandler
 
-from crane_io import crc as crc_mod
-from crane_io.crc import crc16
+from crane_io.dynamixel import crc as crc_mod
+from crane_io.dynamixel.crc import crc16
 from crane_io.sim import protocol as p
 
-_SDK = Protocol2PacketHandler()  # the SDK's own byte-wise CRC, independent of crane_io.crc
+_SDK = Protocol2PacketHandler()  # the SDK's own byte-wise CRC, independent of crane_io.dynamixel.crc
 
 
 def _sdk_crc(data: bytes) -> int:

@@ -1,6 +1,6 @@
 """Find the missing physics on simulated data with a planted (hidden) effect.
 
-For six planted-effect presets of crane_io/plants, each on the joint its preset names: a simulated
+For six planted-effect presets of crane_io/sim/plants, each on the joint its preset names: a simulated
 session with the effect hidden (tests/planted.py: the real ArmPlant driven like a follower under an
 operator, 60 simulated seconds, seeded), a baseline rigid-body model fitted the way `crane-train fit`
 does with the preset's [known] effects, then: the diagnosis ranks the hidden effect first on that joint
@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from crane_io.plant_config import load_plant_config
+from crane_io.sim.plant_config import load_plant_config
 from tests.planted import simulate_session
 from train.cli import main
 from train.cmd_fit import fit_model
@@ -155,7 +155,7 @@ def test_diagnose_bad_input_is_one_sentence(case, tmp_path):
 
 def test_residual_diagnosis_names_a_planted_term_and_stays_quiet_on_noise():
     """The residual path (used for network models) on a synthetic residual: Coulomb on one joint."""
-    from crane_io.effects import get_effect
+    from crane_io.physics.effects import get_effect
     from train.dataset import Dataset
 
     rng = np.random.default_rng(0)
@@ -177,7 +177,7 @@ def test_residual_diagnosis_names_a_planted_term_and_stays_quiet_on_noise():
 
 
 def test_effects_command_lists_the_library_with_units_and_signatures(tmp_path, monkeypatch):
-    import crane_io.effects as fx
+    import crane_io.physics.effects as fx
 
     monkeypatch.setattr(fx, "_REGISTRY", dict(fx._REGISTRY))  # the user effect leaves with the test
     r = CliRunner().invoke(main, ["effects"])
@@ -188,7 +188,7 @@ def test_effects_command_lists_the_library_with_units_and_signatures(tmp_path, m
     user = tmp_path / "mine.py"
     user.write_text(
         "import numpy as np\n"
-        "from crane_io.effects.base import Effect, Param, joint_columns\n"
+        "from crane_io.physics.effects.base import Effect, Param, joint_columns\n"
         "class Squeal(Effect):\n"
         "    name = 'squeal-test'\n"
         "    title = 'test squeal'\n"
@@ -258,8 +258,8 @@ def test_a_missing_effect_leaking_into_another_joint_is_not_blamed_there():
     """Spill-over: joint A's missing Coulomb friction bends a parameter A and B share; a candidate acting
     on B alone buys that back and looks significant on its own. Once A's Coulomb is in the model it
     explains nothing, so it is demoted (not significant, `explained_by` names the leader)."""
-    from crane_io.effects import get_effect
-    from crane_io.effects.base import Effect, Param, joint_columns
+    from crane_io.physics.effects import get_effect
+    from crane_io.physics.effects.base import Effect, Param, joint_columns
     from train.dataset import Dataset
 
     class CrossVelocity(Effect):  # test-only candidate: joint A's velocity acting on another joint

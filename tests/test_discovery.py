@@ -25,8 +25,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-import crane_io.effects as fx
-from crane_io.plant_config import load_plant_config
+import crane_io.physics.effects as fx
+from crane_io.sim.plant_config import load_plant_config
 from tests.planted import simulate_session
 from train.cli import main
 from train.cmd_fit import fit_model

@@ -4,8 +4,8 @@ dynamics inverts inverse dynamics."""
 import numpy as np
 import pytest
 
-from crane_io.dynamics import ArmDynamics
 from crane_io.errors import ConfigError
+from crane_io.physics.dynamics import ArmDynamics
 
 
 @pytest.fixture(scope="module")

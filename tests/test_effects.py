@@ -7,8 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from crane_io.dynamics import ArmDynamics
-from crane_io.effects import (
+from crane_io.errors import ConfigError
+from crane_io.physics.dynamics import ArmDynamics
+from crane_io.physics.effects import (
     Effect,
     effect_names,
     get_effect,
@@ -17,7 +18,6 @@ from crane_io.effects import (
     load_effect_file,
     register_effect,
 )
-from crane_io.errors import ConfigError
 
 BUILTINS = ["coulomb", "coulomb-asym", "viscous", "stribeck", "stiction", "offset", "spring", "payload",
             "rotor-inertia", "cogging", "backlash", "torque-constant-error"]
@@ -148,7 +148,7 @@ def test_broken_effect_files_raise_one_sentence_config_errors(tmp_path):
         load_effect_file(empty)
     broken = tmp_path / "broken.py"
     broken.write_text(textwrap.dedent('''
-        from crane_io.effects import Effect, Param
+        from crane_io.physics.effects import Effect, Param
         class Broken(Effect):
             name = "broken-effect"
             title = "broken"; description = "d"; signature = "s {joint}"

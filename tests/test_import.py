@@ -9,7 +9,7 @@ import pytest
 from click.testing import CliRunner
 
 from crane_io.description import default_arm
-from crane_io.units import AMPERE_PER_CURRENT_LSB, POSITION_CENTER, RAD_PER_PULSE
+from crane_io.dynamixel.units import AMPERE_PER_CURRENT_LSB, POSITION_CENTER, RAD_PER_PULSE
 from tests.sessions import write_synthetic_session
 from train.cli import main
 from train.importer import ImportMapError, ImportUnits, import_session, parse_map

@@ -1,11 +1,12 @@
-"""crane_io.loop_model: a saved model as the control loop loads it (loop_model.npz, no train, no torch).
+"""crane_io.physics.loop_model: a saved model as the control loop loads it (loop_model.npz, no train,
+no torch).
 
 - LoopModel.load(dir).predict_one equals the train model's own load_model(dir).predict for every method
   (tolerance: |diff| <= 1e-5 |expected| + 1e-6 N m, float64 here against torch's float32 network);
 - every refusal is a LoopModelError whose sentence names the directory;
 - the export's SHA-256 depends on the weights only (same weights, same digest; other weights, another);
 - `crane-train export DIR` writes the export of a model saved without one and touches nothing else;
-- importing crane_io.loop_model imports neither torch nor train.
+- importing crane_io.physics.loop_model imports neither torch nor train.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from crane_io.loop_model import EXPORT_FILE, SI_UNITS, LoopModel, LoopModelError, check_for_arm
+from crane_io.physics.loop_model import EXPORT_FILE, SI_UNITS, LoopModel, LoopModelError, check_for_arm
 from train.dataset import Dataset
 from train.models.loop_export import npz_bytes
 from train.models.registry import load_model, make_model
@@ -37,7 +38,7 @@ RTOL, ATOL = 1e-5, 1e-6  # N m
 
 
 def _data(n, seed, joints=JOINTS):
-    from crane_io.dynamics import ArmDynamics
+    from crane_io.physics.dynamics import ArmDynamics
 
     rng = np.random.default_rng(seed)
     q, dq, ddq = rng.uniform(-1, 1, (n, 3)), rng.uniform(-2, 2, (n, 3)), rng.uniform(-10, 10, (n, 3))
@@ -109,8 +110,8 @@ def test_rigid_body_in_another_joint_order_with_locked_joints_and_payload_effect
 def test_a_user_effect_file_is_loaded_and_a_missing_one_refused(tmp_path):
     effect_file = tmp_path / "my_effects.py"
     effect_file.write_text(textwrap.dedent('''
-        from crane_io.effects import Effect, Param
-        from crane_io.effects.base import joint_columns
+        from crane_io.physics.effects import Effect, Param
+        from crane_io.physics.effects.base import joint_columns
 
         class CubicDrag(Effect):
             name = "loop-test-cubic-drag"
@@ -299,7 +300,7 @@ def test_crane_train_export_refuses_bad_input_in_one_sentence(tmp_path):
 
 
 def test_importing_the_loop_model_imports_neither_torch_nor_train():
-    code = ("import crane_io.loop_model, sys; "
+    code = ("import crane_io.physics.loop_model, sys; "
             "assert 'torch' not in sys.modules and 'train' not in sys.modules, "
             "[m for m in ('torch', 'train') if m in sys.modules]")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
@@ -308,7 +309,7 @@ def test_importing_the_loop_model_imports_neither_torch_nor_train():
 
 
 def test_loading_and_predicting_imports_neither_torch_nor_train(saved):
-    code = ("import sys, numpy as np; from crane_io.loop_model import LoopModel; "
+    code = ("import sys, numpy as np; from crane_io.physics.loop_model import LoopModel; "
             f"m = LoopModel.load({str(saved['hybrid'])!r}); "
             "m.predict_one(np.zeros(3), np.ones(3), np.zeros(3)); "
             "assert 'torch' not in sys.modules and 'train' not in sys.modules")

@@ -23,7 +23,7 @@ torch.set_num_threads(1)
 
 @pytest.fixture(scope="module")
 def data():
-    from crane_io.dynamics import ArmDynamics
+    from crane_io.physics.dynamics import ArmDynamics
 
     rng = np.random.default_rng(7)
     n = 600

@@ -17,7 +17,7 @@ RATE = 500.0
 
 
 class LinearModel:
-    """A stand-in for crane_io.loop_model.LoopModel: tau = a q + b dq + c ddq per joint."""
+    """A stand-in for crane_io.physics.loop_model.LoopModel: tau = a q + b dq + c ddq per joint."""
 
     def __init__(self, joint_names, a=1.0, b=0.5, c=0.1, cutoff=25.0, diff=25.0):
         self.joint_names = tuple(joint_names)

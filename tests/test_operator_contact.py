@@ -8,10 +8,10 @@ import pytest
 
 from collect.config import load_config
 from collect.operator import SimulatedOperator
-from crane_io.arm_plant import ArmPlant
 from crane_io.errors import ConfigError
-from crane_io.plant_config import load_plant_config
+from crane_io.sim.arm_plant import ArmPlant
 from crane_io.sim.plant_api import ActuatorCommand
+from crane_io.sim.plant_config import load_plant_config
 
 N = 8
 BI = [0, 1, 3]

@@ -1,5 +1,5 @@
 """Contact in the simulated arm (issue 10): [[environment]] joint walls and planes in the plant TOML,
-their physics (crane_io.environment) and the plant's contact API (crane_io.arm_plant)."""
+their physics (crane_io.sim.environment) and the plant's contact API (crane_io.sim.arm_plant)."""
 
 from __future__ import annotations
 
@@ -7,11 +7,11 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from crane_io.arm_plant import ArmPlant
-from crane_io.environment import Environment
 from crane_io.errors import ConfigError
-from crane_io.plant_config import JointWallSpec, PlaneSpec, load_plant_config, presets
+from crane_io.sim.arm_plant import ArmPlant
+from crane_io.sim.environment import Environment
 from crane_io.sim.plant_api import ActuatorCommand
+from crane_io.sim.plant_config import JointWallSpec, PlaneSpec, load_plant_config, presets
 
 N = 8
 BI = [0, 1, 3]  # joint1, joint2, joint4 in the servo order

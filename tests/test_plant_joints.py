@@ -9,11 +9,11 @@ import hashlib
 import numpy as np
 import pytest
 
-from crane_io.arm_plant import ArmPlant
-from crane_io.dynamics import ArmDynamics
 from crane_io.errors import ConfigError
-from crane_io.plant_config import ARM_JOINTS, BILATERAL_JOINTS, load_plant_config, presets
+from crane_io.physics.dynamics import ArmDynamics
+from crane_io.sim.arm_plant import ArmPlant
 from crane_io.sim.plant_api import ActuatorCommand
+from crane_io.sim.plant_config import ARM_JOINTS, BILATERAL_JOINTS, load_plant_config, presets
 
 PERIOD = 0.002
 GAINS = np.tile([800.0, 0.0, 0.0], (8, 1))
@@ -46,8 +46,8 @@ def write(tmp_path, name: str, text: str):
 
 _USER_EFFECTS = '''
 import numpy as np
-from crane_io.effects import Effect, Param
-from crane_io.effects.base import joint_columns
+from crane_io.physics.effects import Effect, Param
+from crane_io.physics.effects.base import joint_columns
 
 class QuadDrag(Effect):
     name = "joints-test-quad-drag"
@@ -123,7 +123,7 @@ def _trajectory_hash(plant: ArmPlant, steps: int = 200) -> str:
 
 @pytest.mark.parametrize("key", list(_REFERENCE))
 def test_the_default_three_joints_give_the_trajectory_of_the_three_joint_plant(tmp_path, monkeypatch, key):
-    import crane_io.effects as effects
+    import crane_io.physics.effects as effects
 
     monkeypatch.setattr(effects, "_REGISTRY", dict(effects._REGISTRY))  # the test's effects go away after it
     config = _reference_config(tmp_path, key)
@@ -347,7 +347,7 @@ def test_a_plane_pushes_every_integrated_joint_through_the_jacobian_of_the_seven
 def test_the_plant_terms_of_an_effect_are_its_torque_on_any_joint(tmp_path, effect, values):
     """Each built-in's closed form in the plant (Effect.plant_terms) is the effect's own torque(), on a
     wrist joint of a 7-joint plant (moving joints: kinetic friction plus the other terms)."""
-    from crane_io.effects import get_effect
+    from crane_io.physics.effects import get_effect
 
     body = "".join(f"{k} = {v}\n" for k, v in values.items())
     path = write(tmp_path, "one", f'joints = {list(ARM_JOINTS)!r}\n'.replace("'", '"')
@@ -366,10 +366,10 @@ def test_the_plant_terms_of_an_effect_are_its_torque_on_any_joint(tmp_path, effe
 
 def test_an_effect_without_a_closed_form_is_evaluated_from_its_torque(monkeypatch):
     """A subclass of a built-in that changes the torque is not compiled with the built-in's closed form."""
-    import crane_io.effects as effects
-    from crane_io.effects import PlantTerms
-    from crane_io.effects.base import joint_columns
-    from crane_io.effects.library import Viscous
+    import crane_io.physics.effects as effects
+    from crane_io.physics.effects import PlantTerms
+    from crane_io.physics.effects.base import joint_columns
+    from crane_io.physics.effects.library import Viscous
 
     class Quadratic(Viscous):
         name = "joints-test-quadratic-viscous"

@@ -39,7 +39,7 @@ import os
 
 import pytest
 
-from crane_io.plant_config import load_plant_config
+from crane_io.sim.plant_config import load_plant_config
 from tests.planted import simulate_session
 from train.cmd_fit import fit_model
 from train.compare import compare_models

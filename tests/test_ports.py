@@ -7,9 +7,9 @@ from types import SimpleNamespace
 
 import pytest
 
+from crane_io.dynamixel.port import open_port
+from crane_io.dynamixel.ports import latency_warning, list_u2d2_ports, port_warnings, read_latency_timer
 from crane_io.errors import HardwareError
-from crane_io.port import open_port
-from crane_io.ports import latency_warning, list_u2d2_ports, port_warnings, read_latency_timer
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -24,8 +24,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from crane_io.effects import get_effect
-from crane_io.plant_config import load_plant_config
+from crane_io.physics.effects import get_effect
+from crane_io.sim.plant_config import load_plant_config
 from tests.planted import simulate_session
 from train.cli import main
 from train.cmd_fit import fit_model

@@ -20,11 +20,11 @@ from dynamixel_sdk import (
     PortHandler,
 )
 
-from crane_io.control_table import MODE_CURRENT, MODE_POSITION
+from crane_io.dynamixel.control_table import MODE_CURRENT, MODE_POSITION
+from crane_io.dynamixel.units import position_to_rad
 from crane_io.sim import protocol as p
 from crane_io.sim import simulated_arm
 from crane_io.sim.transport import PtyServer
-from crane_io.units import position_to_rad
 
 IDS = list(range(2, 10))
 TORQUE, MODE, GOAL_CURRENT, GOAL_POSITION = 64, 11, 102, 116
@@ -489,7 +489,7 @@ def test_sim_serve_serves_the_arm_plant_from_a_toml_file_to_the_bus(tmp_path):
     import sys
     from pathlib import Path
 
-    from crane_io.bus import DynamixelBus
+    from crane_io.dynamixel.bus import DynamixelBus
 
     plant = tmp_path / "my_arm.toml"
     plant.write_text('base = "crane-x7"\nname = "my-arm"\n[initial]\njoint2 = 0.3\njoint4 = -0.6\n')
@@ -529,9 +529,9 @@ def test_sim_serve_serves_the_arm_plant_from_a_toml_file_to_the_bus(tmp_path):
 
 def test_sim_serve_plant_names_pick_presets():
     from collect.sim_arms import make_plant
-    from crane_io.arm_plant import ArmPlant
     from crane_io.description import default_arm
     from crane_io.errors import ConfigError
+    from crane_io.sim.arm_plant import ArmPlant
     from crane_io.sim.simple_plant import SimplePlant
 
     arm = default_arm()

@@ -18,8 +18,8 @@ from collect.cli import main as collect_main
 from collect.config import load_config
 from collect.operator import SimulatedOperator
 from collect.sim_lab import HandOnPlant, SimulatedLab
-from crane_io import link_registry
 from crane_io.description import default_arm
+from crane_io.dynamixel import link_registry
 from crane_io.sim.plant_api import ActuatorCommand
 from crane_io.sim.simple_plant import SimplePlant
 

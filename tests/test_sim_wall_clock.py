@@ -11,8 +11,8 @@ import pytest
 from dynamixel_sdk import COMM_SUCCESS, GroupSyncWrite, PacketHandler, PortHandler
 from fakes import SlowPlant
 
-from crane_io.control_table import MODE_CURRENT
 from crane_io.description import default_arm
+from crane_io.dynamixel.control_table import MODE_CURRENT
 from crane_io.sim import protocol as p
 from crane_io.sim.chain import SimulatedChain
 from crane_io.sim.simple_plant import SimplePlant

@@ -10,8 +10,8 @@ import struct
 import numpy as np
 import pytest
 
-from crane_io.arm_plant import _PULSE_SIGNS, ArmPlant, _eliminate, _solve
-from crane_io.units import AMPERE_PER_CURRENT_LSB, RADS_PER_VELOCITY_LSB
+from crane_io.dynamixel.units import AMPERE_PER_CURRENT_LSB, RADS_PER_VELOCITY_LSB
+from crane_io.sim.arm_plant import _PULSE_SIGNS, ArmPlant, _eliminate, _solve
 
 
 def _array_read(plant: ArmPlant, rng: np.random.Generator):
@@ -82,8 +82,8 @@ def test_step_lists_equals_step_with_arrays():
     current and position modes, torque off, with overload tracking on."""
     from dataclasses import replace
 
-    from crane_io.plant_config import load_plant_config
     from crane_io.sim.plant_api import ActuatorCommand
+    from crane_io.sim.plant_config import load_plant_config
 
     config = load_plant_config("crane-x7")
     config = replace(config, overload=replace(config.overload, enabled=True, time_s=0.05))

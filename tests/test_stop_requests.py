@@ -15,7 +15,7 @@ import pytest
 
 from collect.recorder import read_events
 from collect.runner import RunOptions, SafetyStop, run_session
-from crane_io.bus import DynamixelBus
+from crane_io.dynamixel.bus import DynamixelBus
 from crane_io.shutdown import Terminated, handle_termination
 from tests.recording import torque_off_everywhere
 

@@ -25,7 +25,7 @@ ALL_EFFECTS = [("coulomb", "joint1", None), ("coulomb-asym", "joint2", None), ("
 
 
 def _states(n, seed, joints=JOINTS):
-    from crane_io.dynamics import ArmDynamics
+    from crane_io.physics.dynamics import ArmDynamics
 
     rng = np.random.default_rng(seed)
     q, dq, ddq = rng.uniform(-1, 1, (n, 3)), rng.uniform(-2, 2, (n, 3)), rng.uniform(-10, 10, (n, 3))
@@ -94,7 +94,7 @@ def test_a_model_not_fitted_is_refused():
 
 
 def test_the_numpy_path_imports_no_torch():
-    code = ("import sys, train.models.fast_predict, crane_io.dynamics; "
+    code = ("import sys, train.models.fast_predict, crane_io.physics.dynamics; "
             "print('torch' in sys.modules)")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr

@@ -3,8 +3,8 @@ per-joint evaluation sets at many joints, `--joints all` through the command lin
 
 The sessions are synthetic and made here WITHOUT the simulated plant: every arm joint (joint1..joint7)
 either moves in strokes with stick phases (tests/sessions.py's stroke_trajectory) or is held at an angle;
-the torque is crane_io.dynamics.ArmDynamics over all seven joints (nothing locked but the gripper) plus
-the friction, springs and noise a test plants, written in the session format (tests/sessions.py).
+the torque is crane_io.physics.dynamics.ArmDynamics over all seven joints (nothing locked but the gripper)
+plus the friction, springs and noise a test plants, written in the session format (tests/sessions.py).
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from crane_io.dynamics import ArmDynamics
 from crane_io.errors import ConfigError, CraneError
+from crane_io.physics.dynamics import ArmDynamics
 from tests.sessions import stroke_trajectory, write_minimal_session
 from train.cli import main
 
@@ -132,7 +132,7 @@ def test_a_subset_model_uses_the_moving_joints_recorded_motion(context_sessions,
         again.predict(test.q, test.dq, test.ddq)
     assert "joint3, joint5" in str(exc.value) and str(exc.value).count(". ") == 0
     # the control loop passes the model's own joints only: loading it for the loop is one sentence
-    from crane_io.loop_model import LoopModel, LoopModelError
+    from crane_io.physics.loop_model import LoopModel, LoopModelError
 
     with pytest.raises(LoopModelError, match="context joints") as exc:
         LoopModel.load(tmp_path / "m")
@@ -148,7 +148,7 @@ def test_three_joint_results_with_joints_held_at_zero_are_unchanged(context_sess
     assert rms_new == pytest.approx(rms_old, rel=1e-3)
     assert np.allclose(new.theta, old.theta, rtol=1e-6, atol=1e-9)
     new.save(tmp_path / "m")
-    from crane_io.loop_model import LoopModel
+    from crane_io.physics.loop_model import LoopModel
 
     loop = LoopModel.load(tmp_path / "m")
     pred = new.predict_dataset(test)
@@ -161,7 +161,7 @@ def test_a_held_context_model_exports_to_the_loop_with_its_medians(context_sessi
     ds = _dataset(context_sessions["held"])
     new, _, test = _fit_rigid(ds)
     new.save(tmp_path / "m")
-    from crane_io.loop_model import LoopModel
+    from crane_io.physics.loop_model import LoopModel
 
     loop = LoopModel.load(tmp_path / "m")
     pred = new.predict_dataset(test)

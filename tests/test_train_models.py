@@ -25,7 +25,7 @@ def _random_states(n, seed):
 
 @pytest.fixture(scope="module")
 def arm():
-    from crane_io.dynamics import ArmDynamics
+    from crane_io.physics.dynamics import ArmDynamics
     return ArmDynamics(joints=JOINTS)
 
 

@@ -19,7 +19,7 @@ import os
 from click.testing import CliRunner
 
 from collect.cli import main as collect_main
-from crane_io.plant_config import load_plant_config
+from crane_io.sim.plant_config import load_plant_config
 from train.cli import main as train_main
 
 PRESET = "hidden-coulomb"

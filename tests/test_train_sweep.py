@@ -152,12 +152,12 @@ def test_config_file_overrides_defaults_and_bad_config_is_one_sentence(session, 
 def test_fit_with_a_custom_effect_from_the_users_file(session, tmp_path, monkeypatch):
     """`fit --effect-file mine.py --effect NAME:joint=...`: the user's effect becomes a fitted column, and
     the saved model re-loads the file by itself (a fresh process knows nothing of the effect)."""
-    import crane_io.effects as fx
+    import crane_io.physics.effects as fx
 
     monkeypatch.setattr(fx, "_REGISTRY", dict(fx._REGISTRY))  # the user effect leaves with the test
     user = tmp_path / "mine.py"
     user.write_text(
-        "from crane_io.effects.base import Effect, Param, joint_columns\n"
+        "from crane_io.physics.effects.base import Effect, Param, joint_columns\n"
         "class Drag(Effect):\n"
         "    name = 'drag-test'\n"
         "    title = 'quadratic drag'\n"

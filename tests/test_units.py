@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from crane_io import units
+from crane_io.dynamixel import units
 
 
 def test_center_is_joint_zero_and_half_turn_is_pi():

@@ -165,7 +165,6 @@ def test_without_rerun_both_commands_refuse_in_one_sentence(tmp_path, monkeypatc
 
 def test_a_view_failure_warns_once_and_the_recording_goes_on(tmp_path, monkeypatch):
     from crane_io import view as view_mod
-
     calls = []
 
     def broken(self, key, t, sample):

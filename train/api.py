@@ -196,7 +196,7 @@ def diagnosis_inputs(model_dir: PathLike, sessions: Sessions,
     """What a diagnosis works on: the model, the sessions' data preprocessed as its training was (its
     own arm; a network only the samples it never trained on) and a phrase saying which samples those are.
     `effect_files` are loaded first (their effects become candidates)."""
-    from crane_io.effects import load_effect_file
+    from crane_io.physics.effects import load_effect_file
 
     from .heldout import diagnosis_data, model_settings
     from .preprocess import read_preprocessed

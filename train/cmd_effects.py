@@ -13,7 +13,7 @@ from crane_io.cli_support import cli_errors
 
 def effect_rows(effect_files=()) -> list[dict]:
     """One dict per library effect (after loading the given effect files)."""
-    from crane_io.effects import list_effects, load_effect_file
+    from crane_io.physics.effects import list_effects, load_effect_file
 
     for path in effect_files:
         load_effect_file(path)

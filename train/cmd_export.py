@@ -1,7 +1,7 @@
 """`crane-train export MODEL_DIR...`: write the control loop's numeric export `loop_model.npz` into model
 directories saved before crane-train wrote it with every model (`crane-train fit` does it now). Only
 that file is written; the model itself (model.json, weights) is read, never changed. The written export
-is loaded back as the loop would (crane_io.loop_model.LoopModel) and any reason the loop would still
+is loaded back as the loop would (crane_io.physics.loop_model.LoopModel) and any reason the loop would still
 refuse the model (e.g. zero-phase preprocessing) is reported."""
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from crane_io.errors import CraneError
 
 def export_model(directory) -> dict:
     """Write `directory`/loop_model.npz for the saved model there; {path, sha256, method, joints, usable}."""
-    from crane_io.loop_model import LoopModel, LoopModelError
+    from crane_io.physics.loop_model import LoopModel, LoopModelError
 
     from .models.base import ModelFileError
     from .models.loop_export import write_loop_export

@@ -61,7 +61,7 @@ def fit_model(sessions, method: str, out_dir, train_size: int | None = None, see
               help="Add a physical effect's columns (rigid-body, hybrid); repeatable. Without joint= a "
                    "joint effect goes on every learning joint.")
 @click.option("--effect-file", "effect_files", multiple=True, type=click.Path(dir_okay=False, exists=True),
-              help="Python file defining extra effects (see crane_io.effects).")
+              help="Python file defining extra effects (see crane_io.physics.effects).")
 @click.option("--epochs", type=click.IntRange(min=1), default=None,
               help="Epochs of the network (mlp-mse, mlp-masked, hybrid) [100].")
 @arm_option

@@ -164,8 +164,7 @@ def _own_shape_terms(model, ds: Dataset) -> list[dict]:
     dyn = getattr(model, "dynamics", None)
     if not terms or theta is None or dyn is None or not callable(getattr(model, "regressor", None)):
         return []
-    from crane_io import effects as fx
-
+    from crane_io.physics import effects as fx
     out, k = [], int(dyn.n_base)
     for i, term in enumerate(terms):
         try:

@@ -86,7 +86,7 @@ def bind(effect, joint_names):
     if dyn is not None and tuple(getattr(dyn, "joint_names", ())) == tuple(joint_names):
         return effect
     try:
-        from crane_io.dynamics import ArmDynamics
+        from crane_io.physics.dynamics import ArmDynamics
 
         return effect.bind(ArmDynamics(joints=tuple(joint_names)))
     except CraneError as exc:
@@ -95,8 +95,8 @@ def bind(effect, joint_names):
 
 
 def library_effects():
-    """An instance of every effect in the library (crane_io.effects)."""
-    from crane_io.effects import list_effects
+    """An instance of every effect in the library (crane_io.physics.effects)."""
+    from crane_io.physics.effects import list_effects
 
     out = []
     for e in list_effects():

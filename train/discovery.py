@@ -248,7 +248,7 @@ def _library_best(diagnosis, joint: str):
 
 
 def _library_columns(candidate, ds: Dataset, j: int) -> np.ndarray:
-    from crane_io.effects import get_effect
+    from crane_io.physics.effects import get_effect
 
     from .diagnosis_effects import bind
 

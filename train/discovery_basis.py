@@ -51,7 +51,7 @@ class Term:
 
 def evaluate(term: Term, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
     """(N,) column of `term` (its code run on our own generated expression, never on user input)."""
-    from crane_io.effects import get_effect
+    from crane_io.physics.effects import get_effect
 
     out = eval(term.code, {"np": np, "get_effect": get_effect, "__builtins__": {}},  # noqa: S307
                {"q": q, "dq": dq, "ddq": ddq})
@@ -150,7 +150,7 @@ def generate(joint_names, j: int, library=True) -> list[Term]:
 
 def library_terms(joint_names, j: int) -> list[Term]:
     """The library's joint-scope effects as terms on joint j: one per column and point of the shape grid."""
-    from crane_io.effects import list_effects
+    from crane_io.physics.effects import list_effects
 
     from .diagnosis_effects import shape_options
 

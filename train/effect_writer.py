@@ -1,5 +1,5 @@
 """`crane-train diagnose --discover --write-effect-file PATH.py`: the discovered terms as an effect file
-in the format `--effect-file` loads (crane_io.effects.load_effect_file): one Effect subclass per joint
+in the format `--effect-file` loads (crane_io.physics.effects.load_effect_file): one Effect subclass per joint
 with a significant discovery, one named linear parameter per term (its estimate as the default, the
 jackknife uncertainty in its description), the expression and how it was found in the docstring. The
 terms' code is the very code the discovery evaluated (train/discovery_basis.py), so a refit with the
@@ -83,8 +83,8 @@ def effect_source(discovery: Discovery, model_dir="MODEL_DIR", sessions=()) -> s
             f"by their column in {joints}; edit freely (drop a term, rename a parameter).\n"
             '"""\n\n')
     body = ("import numpy as np  # noqa: F401  (used by the terms)\n\n"
-            "from crane_io.effects import Effect, Param, get_effect  # noqa: F401\n"
-            "from crane_io.effects.base import joint_columns\n"
+            "from crane_io.physics.effects import Effect, Param, get_effect  # noqa: F401\n"
+            "from crane_io.physics.effects.base import joint_columns\n"
             "from crane_io.errors import ConfigError\n\n"
             f"JOINTS = {joints!r}  # the column order the terms' indices refer to\n\n\n"
             "def _check(q):\n"

@@ -41,8 +41,8 @@ import numpy as np
 
 from crane_io import session_format as sf
 from crane_io.description import default_arm
+from crane_io.dynamixel.units import AMPERE_PER_CURRENT_LSB, POSITION_CENTER, RAD_PER_PULSE
 from crane_io.errors import CraneError
-from crane_io.units import AMPERE_PER_CURRENT_LSB, POSITION_CENTER, RAD_PER_PULSE
 
 from .session import MIN_SAMPLES as MIN_ROWS  # what crane-train reads
 

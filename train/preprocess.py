@@ -38,7 +38,8 @@ from .session import ARMS, RawSession, read_sessions
 MIN_TRAVEL_RAD = 0.01
 # the arm joints (joint1..joint7): what `--joints all` means and what may be a context joint; the
 # gripper is neither
-# (crane_io.arm_model.JOINT_NAMES without the gripper; not imported from there: that imports pinocchio)
+# (crane_io.physics.arm_model.JOINT_NAMES without the gripper; not imported from there: that imports
+# pinocchio)
 ARM_JOINTS = ("joint1", "joint2", "joint3", "joint4", "joint5", "joint6", "joint7")
 
 

@@ -12,7 +12,7 @@ class SimulatedArm:
     """A simulated arm reachable in-process at `url` (dxlsim://NAME): `chain`, `plant`, `close()`."""
 
     def __init__(self, name: str, chain, plant):
-        from . import transport
+        from crane_io.sim import transport
 
         self.name = name
         self.chain = chain
@@ -22,7 +22,7 @@ class SimulatedArm:
 
     def close(self) -> None:
         if not self._closed:
-            from . import transport
+            from crane_io.sim import transport
 
             transport.unregister_chain(self.name)
             self._closed = True
@@ -47,16 +47,16 @@ def simulated_arm(name=None, plant=None, clock="lockstep", period_s=0.002, arm=N
     fast_sync_read: False makes the servos ignore Fast Sync Read (to exercise the fallback).
     return_delay_time: raw Return Delay Time of every servo (default: the factory 250 = 500 us).
     """
-    from ..description import default_arm
-    from .chain import SimulatedChain
-    from .simple_plant import SimplePlant
+    from crane_io.description import default_arm
+    from crane_io.sim.chain import SimulatedChain
+    from crane_io.sim.simple_plant import SimplePlant
 
     arm = default_arm() if arm is None else arm
     plant = SimplePlant.from_arm(arm) if plant is None else plant
     chain = SimulatedChain.for_arm(arm, plant, clock=clock, period_s=period_s,
                                    fast_sync_read=fast_sync_read, return_delay_time=return_delay_time)
     if name is None:
-        from . import transport
+        from crane_io.sim import transport
 
         while True:
             name = f"arm{next(_counter)}"

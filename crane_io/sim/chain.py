@@ -31,11 +31,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..control_table import X_SERIES, XM430_W350, ServoModel
-from ..errors import ConfigError
-from . import protocol as p
-from .plant_api import ActuatorCommand, Plant
-from .servo import BAUD_CODES, EmulatedServo
+from crane_io.dynamixel.control_table import X_SERIES, XM430_W350, ServoModel
+from crane_io.errors import ConfigError
+from crane_io.sim import protocol as p
+from crane_io.sim.plant_api import ActuatorCommand, Plant
+from crane_io.sim.servo import BAUD_CODES, EmulatedServo
 
 # a write to Goal Current or Goal Position is a lockstep tick
 GOAL_CURRENT_ADDRESS = X_SERIES["goal_current"].address

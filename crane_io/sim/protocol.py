@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..crc import crc16, crc16_append, crc16_chain, remember
+from crane_io.dynamixel.crc import crc16, crc16_append, crc16_chain, remember
 
 HEADER = b"\xff\xff\xfd\x00"
 BROADCAST_ID = 0xFE

@@ -24,7 +24,7 @@ class Serial(SerialBase):
         super().__init__(*args, **kwargs)
 
     def open(self):
-        from . import transport
+        from crane_io.sim import transport
 
         if self.is_open:
             raise SerialException("Port is already open.")
@@ -93,7 +93,7 @@ class Serial(SerialBase):
         return len(data)
 
     def servo_time(self) -> float:
-        """The servos' clock in seconds (crane_io.bus measures host pauses with it): the chain's
+        """The servos' clock in seconds (crane_io.dynamixel.bus measures host pauses with it): the chain's
         simulated time in lockstep, where no wall-clock pause can reach a servo's watchdog."""
         if not self.is_open:
             raise PortNotOpenError()

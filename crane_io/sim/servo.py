@@ -1,6 +1,6 @@
 """One emulated Dynamixel X-series servo: its control table and what writing to it does.
 
-The memory is the Protocol 2.0 control table of the servo's model (crane_io.control_table), in raw
+The memory is the Protocol 2.0 control table of the servo's model (crane_io.dynamixel.control_table), in raw
 little-endian bytes. Rules follow the ROBOTIS e-manual (see shared/crane_x7_facts.md section 2):
 
 - Read-only items (R) cannot be written (Access Error 0x07); neither can the EEPROM area (address
@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 import struct
 
-from ..control_table import (
+from crane_io.dynamixel.control_table import (
     CONTROL_TABLE_SIZE,
     EEPROM_END,
     MODE_CURRENT_BASED_POSITION,
@@ -37,7 +37,7 @@ from ..control_table import (
     Register,
     ServoModel,
 )
-from ..units import (
+from crane_io.dynamixel.units import (
     AMPERE_PER_CURRENT_LSB,
     POSITION_CENTER,
     RAD_PER_PULSE,
@@ -45,7 +45,7 @@ from ..units import (
     SECONDS_PER_WATCHDOG_LSB,
     to_signed,
 )
-from . import protocol as p
+from crane_io.sim import protocol as p
 
 MEMORY_SIZE = CONTROL_TABLE_SIZE  # the whole X-series control table, Indirect Data included
 BAUD_CODES = {0: 9600, 1: 57600, 2: 115200, 3: 1_000_000, 4: 2_000_000, 5: 3_000_000, 6: 4_000_000,
@@ -239,7 +239,8 @@ class EmulatedServo:
         """Quantise what the plant measured into the Present items; update Moving and Realtime Tick."""
         m = self.memory
         if math.isfinite(position) and math.isfinite(velocity) and math.isfinite(current):
-            # the Present block, quantised like crane_io.units (rad_to_position etc.) in scalar arithmetic
+            # the Present block, quantised like crane_io.dynamixel.units (rad_to_position etc.),
+            # in scalar arithmetic
             pos = round(position / RAD_PER_PULSE) + POSITION_CENTER
             vel = round(velocity / RADS_PER_VELOCITY_LSB)
             cur = round(current / AMPERE_PER_CURRENT_LSB)

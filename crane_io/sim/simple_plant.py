@@ -12,7 +12,7 @@ Each joint is a rigid inertia J with viscous friction b*dq and Coulomb friction 
 - any other mode (velocity, PWM), or torque disabled: no motor torque.
 
 The motor current the servo reports is the motor torque divided by Kt. The arm's full dynamics
-(gravity, coupling, effects) live in crane_io/arm_plant.py; this plant is for tests and rehearsals
+(gravity, coupling, effects) live in crane_io/sim/arm_plant.py; this plant is for tests and rehearsals
 where that does not matter.
 """
 
@@ -23,8 +23,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..units import RAD_PER_PULSE
-from .plant_api import ActuatorCommand, SensorReading
+from crane_io.dynamixel.units import RAD_PER_PULSE
+from crane_io.sim.plant_api import ActuatorCommand, SensorReading
 
 # Defaults per CRANE-X7 servo ID 2..9 (joint1..joint7, gripper). Inertia: the SKL bilateral
 # program's nominal J; viscous: its identified D where known (0.1 where it gave none);

@@ -23,8 +23,8 @@ from pathlib import Path
 
 import serial
 
-from ..errors import ConfigError, HardwareError
-from .chain import SimulatedChain
+from crane_io.errors import ConfigError, HardwareError
+from crane_io.sim.chain import SimulatedChain
 
 URL_SCHEME = "dxlsim"
 _HANDLER_PACKAGE = "crane_io.sim"

@@ -9,8 +9,8 @@ The tests load this very file, so the example stays working.
 
 import numpy as np
 
-from crane_io.effects import Effect, Param
-from crane_io.effects.base import joint_columns
+from crane_io.physics.effects import Effect, Param
+from crane_io.physics.effects.base import joint_columns
 
 
 class CableDrag(Effect):

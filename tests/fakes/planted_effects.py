@@ -4,8 +4,8 @@ of the right structure for each. Joint indices are the plant's learning joints (
 
 import numpy as np
 
-from crane_io.effects import Effect, Param
-from crane_io.effects.base import joint_columns
+from crane_io.physics.effects import Effect, Param
+from crane_io.physics.effects.base import joint_columns
 
 JOINT2 = 1  # column of joint2 among (joint1, joint2, joint4)
 

@@ -13,7 +13,7 @@ NotFittedError with one sentence. tests/test_model_conformance.py holds every mo
 A saved model is a directory holding `model.json` (method, joint names, options, preprocessing
 settings the data went through, normalisation, units) plus method-specific files (weights as .pt, arrays
 as .npz), and for a fitted model the control loop's numeric export `loop_model.npz` (train/models/
-loop_export.py; read by crane_io.loop_model without torch), whose SHA-256 model.json records under
+loop_export.py; read by crane_io.physics.loop_model without torch), whose SHA-256 model.json records under
 "loop_export". Loading never needs the training data.
 """
 
@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from crane_io.errors import CraneError
-from crane_io.loop_model import SI_UNITS
+from crane_io.physics.loop_model import SI_UNITS
 
 from ..dataset import Dataset
 

@@ -3,13 +3,13 @@
     predictor = NumpyPredictor.from_model(load_model("models/masked"))
     tau = predictor.predict_one(q, dq, ddq)   # (J,) float64 arrays in the model's joint order -> (J,) N m
 
-A thin adapter: the forward paths live in crane_io.loop_model (where the control loop loads them from a
-saved model's loop_model.npz without train or torch); this builds the same paths straight from a
+A thin adapter: the forward paths live in crane_io.physics.loop_model (where the control loop loads them
+from a saved model's loop_model.npz without train or torch); this builds the same paths straight from a
 fitted train model. Every method is covered and gives the model's own `predict` to 1e-6 relative
 (float64 here; the torch network runs in float32):
-- mlp-mse, mlp-masked: crane_io.loop_model.MLPPath, the standardisation folded into the weights;
-- rigid-body: crane_io.loop_model.RigidPath, pinocchio's joint-torque regressor of the one sample times
-  the base parameters spread over the standard ones (dependent columns zero), plus each effect term
+- mlp-mse, mlp-masked: crane_io.physics.loop_model.MLPPath, the standardisation folded into the weights;
+- rigid-body: crane_io.physics.loop_model.RigidPath, pinocchio's joint-torque regressor of the one sample
+  times the base parameters spread over the standard ones (dependent columns zero), plus each effect term
   (built-in one-joint effects as scalars, any other effect through its `columns`);
 - hybrid: the rigid-body path plus the network path.
 
@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from crane_io.errors import CraneError
-from crane_io.loop_model import MLPPath, PathSum, RigidPath
+from crane_io.physics.loop_model import MLPPath, PathSum, RigidPath
 
 
 class PredictorError(CraneError):
@@ -48,7 +48,7 @@ def _rigid_path(model) -> RigidPath:
     """The RigidPath of a fitted train.models.rigid_body.RigidBodyModel (its own cached dynamics)."""
     if model.theta is None:
         raise PredictorError("the rigid-body model has not been fitted or loaded")
-    from crane_io.effects import get_effect
+    from crane_io.physics.effects import get_effect
 
     if getattr(model, "context_joints", ()):
         raise PredictorError(f"the rigid-body model's kinematics read the recorded angles of "

@@ -1,5 +1,5 @@
 """The numeric export of a fitted model for the control loop: `loop_model.npz` next to model.json, read by
-crane_io.loop_model.LoopModel without train or torch (the keys are described there).
+crane_io.physics.loop_model.LoopModel without train or torch (the keys are described there).
 
     path, sha256 = write_loop_export(model, "models/masked")   # Model.save calls it for every fitted model
 
@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from crane_io.errors import CraneError
-from crane_io.loop_model import EXPORT_FILE, EXPORT_FORMAT_VERSION, SI_UNITS, sources_sha256
+from crane_io.physics.loop_model import EXPORT_FILE, EXPORT_FORMAT_VERSION, SI_UNITS, sources_sha256
 
 # the weight files of each method, relative to the model directory (what the export was made from)
 SOURCE_FILES = {"mlp-mse": ("mlp.pt",), "mlp-masked": ("mlp.pt",), "rigid-body": ("rigid_body.npz",),
@@ -47,8 +47,7 @@ def _mlp_arrays(mlp) -> dict:
 
 
 def _rigid_arrays(rigid) -> dict:
-    from crane_io import effects as fx
-
+    from crane_io.physics import effects as fx
     dyn = rigid.dynamics
     indep = rigid.base_independent_columns()
     n_base = len(indep)

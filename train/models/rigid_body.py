@@ -1,5 +1,5 @@
-"""The physics model: torque = base regressor (crane_io.dynamics) @ base parameters, plus the columns of
-any chosen physical effects (crane_io.effects), fitted by recursive least squares.
+"""The physics model: torque = base regressor (crane_io.physics.dynamics) @ base parameters, plus the
+columns of any chosen physical effects (crane_io.physics.effects), fitted by recursive least squares.
 
 Which torque equations the fit uses (option `rows`): "all-moving", the paper's, every joint's equation
 of the training samples in which every joint moves (as the paper does for its Newton-Euler baseline);
@@ -63,7 +63,7 @@ _DYNAMICS_CACHE: dict = {}  # building the pinocchio model and its base decompos
 def _arm_dynamics(joints, locked, payload_mass):
     key = (tuple(joints), tuple(sorted((locked or {}).items())), float(payload_mass))
     if key not in _DYNAMICS_CACHE:
-        from crane_io.dynamics import ArmDynamics
+        from crane_io.physics.dynamics import ArmDynamics
         _DYNAMICS_CACHE[key] = ArmDynamics(joints=tuple(joints), locked=locked or None,
                                            payload_mass=payload_mass)
     return _DYNAMICS_CACHE[key]
@@ -94,9 +94,9 @@ FIT_ROWS = ("auto", "all-moving", "per-joint")
 
 def _effect_registry():
     try:
-        from crane_io import effects
+        from crane_io.physics import effects
     except ImportError:
-        raise CraneError("the physical-effects library crane_io.effects is not available") from None
+        raise CraneError("the physical-effects library crane_io.physics.effects is not available") from None
     return effects
 
 

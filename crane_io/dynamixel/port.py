@@ -20,8 +20,8 @@ import stat
 import serial
 from dynamixel_sdk import PortHandler
 
-from .errors import HardwareError
-from .ports import read_latency_timer
+from crane_io.dynamixel.ports import read_latency_timer
+from crane_io.errors import HardwareError
 
 try:
     import termios
@@ -139,7 +139,7 @@ def _io_reason(exc: BaseException) -> str:
 def _open_serial(port: str, baudrate: int):
     url = is_url(port)
     if port.startswith("dxlsim://"):
-        from .sim import transport  # noqa: F401 - registers the dxlsim:// URL handler with pyserial
+        from crane_io.sim import transport  # noqa: F401 - registers the dxlsim:// URL handler with pyserial
     if not url and not os.path.exists(port):
         raise HardwareError(f"port {port} does not exist (is the U2D2 plugged in? see `crane-collect ports`)")
     if not url and not stat.S_ISCHR(os.stat(port).st_mode):

@@ -1,9 +1,9 @@
-"""Configuration of the simulated CRANE-X7 arm plant (crane_io.arm_plant.ArmPlant), in TOML.
+"""Configuration of the simulated CRANE-X7 arm plant (crane_io.sim.arm_plant.ArmPlant), in TOML.
 
-    cfg = load_plant_config("crane-x7")            # a named preset from crane_io/plants/*.toml
+    cfg = load_plant_config("crane-x7")            # a named preset from crane_io/sim/plants/*.toml
     cfg = load_plant_config("my_plant.toml")       # or a file of your own
 
-Keys (every one optional; crane_io/plants/crane-x7.toml documents each with its default):
+Keys (every one optional; crane_io/sim/plants/crane-x7.toml documents each with its default):
 
     name, description          what the preset is
     base = "PRESET"            start from another preset, then apply this file's keys
@@ -31,7 +31,7 @@ Keys (every one optional; crane_io/plants/crane-x7.toml documents each with its 
                                is told (the truth minus the hidden effect, minus what a fitted
                                rigid-body model absorbs anyway)
     [hidden]                   one planted effect (effect, joint, parameters), simulated like the rest
-    [[environment]]            objects the arm can touch (crane_io.environment; none by default):
+    [[environment]]            objects the arm can touch (crane_io.sim.environment; none by default):
         kind = "joint-wall"    joint = JOINT (an integrated joint), angle = RAD, side = "above" or
                                "below" (the wall stops motion above / below angle), stiffness = 50.0
                                N m/rad, damping = 0.5 N m s/rad (damping acts only while penetrating;
@@ -57,8 +57,8 @@ from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
-from .description import default_arm
-from .errors import ConfigError
+from crane_io.description import default_arm
+from crane_io.errors import ConfigError
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -85,7 +85,7 @@ class EffectSpec:
 
 @dataclass(frozen=True)
 class JointWallSpec:
-    """A wall in one joint's angle (see crane_io.environment.JointWall)."""
+    """A wall in one joint's angle (see crane_io.sim.environment.JointWall)."""
 
     joint: str  # an integrated joint
     angle: float  # rad
@@ -101,7 +101,8 @@ class JointWallSpec:
 
 @dataclass(frozen=True)
 class PlaneSpec:
-    """A plane in the arm's base frame checked against one frame of the arm (crane_io.environment.Plane)."""
+    """A plane in the arm's base frame checked against one frame of the arm
+    (crane_io.sim.environment.Plane)."""
 
     point: tuple[float, float, float]  # m, a point of the plane
     normal: tuple[float, float, float]  # unit vector into free space
@@ -206,8 +207,8 @@ class PlantConfig:
 
 
 def presets() -> list[str]:
-    """Names of the shipped presets (crane_io/plants/*.toml)."""
-    folder = resources.files("crane_io") / "plants"
+    """Names of the shipped presets (crane_io/sim/plants/*.toml)."""
+    folder = resources.files("crane_io.sim") / "plants"
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
 
 
@@ -224,7 +225,7 @@ def _raw(preset_or_path: str | Path, depth: int = 0) -> tuple[dict, str]:
     key = str(preset_or_path)
     path = Path(key)
     if key in presets():
-        text = (resources.files("crane_io") / "plants" / f"{key}.toml").read_text()
+        text = (resources.files("crane_io.sim") / "plants" / f"{key}.toml").read_text()
         where = f"preset {key!r}"
     elif key.endswith(".toml") or path.exists():
         if not path.exists():
@@ -319,7 +320,7 @@ def check_joints(joints, where: str = "the plant") -> tuple[str, ...]:
 
 
 def _effect_spec(entry, where: str, joints=BILATERAL_JOINTS) -> EffectSpec:
-    from .effects import get_effect
+    from crane_io.physics.effects import get_effect
 
     if not isinstance(entry, dict) or "effect" not in entry:
         raise ConfigError(f"{where}: every effect entry needs an 'effect' name")
@@ -341,7 +342,7 @@ def _effect_spec(entry, where: str, joints=BILATERAL_JOINTS) -> EffectSpec:
 
 def load_plant_config(preset_or_path: str | Path = "crane-x7") -> PlantConfig:
     """A PlantConfig from a preset name (see presets()) or a TOML path. Bad input -> ConfigError."""
-    from .effects import load_effect_file
+    from crane_io.physics.effects import load_effect_file
 
     data, where = _raw(preset_or_path)
     cfg = PlantConfig(source=str(preset_or_path))
@@ -386,7 +387,7 @@ def load_plant_config(preset_or_path: str | Path = "crane-x7") -> PlantConfig:
     known = known_table.get("effects", [])
     if not isinstance(known, list):
         raise ConfigError(f"{where}: [known] effects must be a list of tables with an 'effect' name")
-    from .effects import get_effect
+    from crane_io.physics.effects import get_effect
 
     for k in known:
         if not isinstance(k, dict) or "effect" not in k:
@@ -468,7 +469,7 @@ def _vector(entry: dict, key: str, at: str) -> tuple[float, float, float]:
 
 
 def _frame_names() -> list[str]:
-    from .arm_model import JOINTS, TOOL_FRAME
+    from crane_io.physics.arm_model import JOINTS, TOOL_FRAME
 
     return [j[0] for j in JOINTS] + [j[4] for j in JOINTS] + [TOOL_FRAME]
 

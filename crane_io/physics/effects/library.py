@@ -1,4 +1,4 @@
-"""The built-in physical effects. See crane_io/effects/base.py for the conventions and
+"""The built-in physical effects. See crane_io/physics/effects/base.py for the conventions and
 docs/arm-model.md for the table (parameters, units, residual signature)."""
 
 from __future__ import annotations
@@ -7,8 +7,8 @@ import math
 
 import numpy as np
 
-from ..errors import ConfigError
-from .base import Effect, Param, joint_columns
+from crane_io.errors import ConfigError
+from crane_io.physics.effects.base import Effect, Param, joint_columns
 
 
 def _sign(x):
@@ -275,7 +275,7 @@ class Backlash(Effect):
 
     def plant_terms(self, terms, k, values):
         """The plant simulates the gear gap itself (width, motor_inertia): the motor side is a state of
-        its own, coupled to the link when the gap has closed (crane_io.arm_plant)."""
+        its own, coupled to the link when the gap has closed (crane_io.sim.arm_plant)."""
         joint = terms.joints[k]
         if k in terms.backlash:
             raise ConfigError(f"backlash is configured twice for {joint}; give one gap per joint")
@@ -295,7 +295,7 @@ class _NeedsDynamics(Effect):
     @property
     def dynamics(self):
         if self._dynamics is None:
-            from ..dynamics import ArmDynamics
+            from crane_io.physics.dynamics import ArmDynamics
 
             self._dynamics = ArmDynamics()
         return self._dynamics
@@ -306,7 +306,7 @@ class _NeedsDynamics(Effect):
 
     def _check_dims(self, q):
         if q.shape[1] != self.dynamics.n_joints:
-            from ..errors import ConfigError
+            from crane_io.errors import ConfigError
 
             raise ConfigError(f"effect {self.name!r} is bound to dynamics of {self.dynamics.n_joints} joints "
                               f"({', '.join(self.dynamics.joint_names)}) but the data has "

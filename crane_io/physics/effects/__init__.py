@@ -1,7 +1,7 @@
 """The one library of named physical effects, shared by the simulated plant (the truth), the physics
 model (columns to fit) and the diagnosis (candidates).
 
-    from crane_io.effects import get_effect, list_effects, load_effect_file
+    from crane_io.physics.effects import get_effect, list_effects, load_effect_file
     eff = get_effect("coulomb")                  # a fresh instance
     cols = eff.columns(q, dq, ddq, joint=1)      # (N, J, 1)
     eff.values_from_coefficients(coefs)          # {"coulomb": 0.21}, units in eff.units
@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ConfigError
-from .base import Effect, Param, PlantTerms
-from .library import BUILTIN_EFFECTS
+from crane_io.errors import ConfigError
+from crane_io.physics.effects.base import Effect, Param, PlantTerms
+from crane_io.physics.effects.library import BUILTIN_EFFECTS
 
 __all__ = ["Effect", "Param", "PlantTerms", "list_effects", "get_effect", "register_effect",
            "load_effect_file",
@@ -120,7 +120,7 @@ def in_rigid_body_span(effect: Effect, joint: int | None, dynamics=None, shape: 
     rigid-body model that fits its own base parameters absorbs the effect (e.g. rotor inertia on
     joint1, a payload). Checked numerically on random states."""
     if dynamics is None:
-        from ..dynamics import ArmDynamics
+        from crane_io.physics.dynamics import ArmDynamics
 
         dynamics = ArmDynamics()
     rng = np.random.default_rng(seed)

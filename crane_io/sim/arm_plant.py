@@ -2,8 +2,8 @@
 
 The integrated joints (`joints`: any of joint1..joint7, default the config's `joints` key, whose own
 default is the paper's joint1, joint2, joint4) are integrated with the n-DOF pinocchio dynamics
-(crane_io.dynamics; the other joints locked at the configured angles), plus the configured physical
-effects (crane_io.effects), plus the actuator, plus the external torque (an operator's hand):
+(crane_io.physics.dynamics; the other joints locked at the configured angles), plus the configured physical
+effects (crane_io.physics.effects), plus the actuator, plus the external torque (an operator's hand):
 
     M(q) ddq + C(q, dq) dq + g(q) + tau_effects(q, dq) + friction = Kt_true * I + tau_ext
 
@@ -34,7 +34,7 @@ effects (crane_io.effects), plus the actuator, plus the external torque (an oper
   motor torque / Kt_true.
 - Overload (optional): a joint whose goal current sits at its Current Limit for `overload.time_s`
   gets Hardware Error Status bit 5; it stays set (the chain's Shutdown logic turns torque off).
-- Contact (optional, the config's [[environment]]: joint walls and planes, crane_io.environment): the
+- Contact (optional, the config's [[environment]]: joint walls and planes, crane_io.sim.environment): the
   objects' torque on the integrated joints is added to the external torque in every substep, so
   stick-slip friction sees it. `contact_torque()` and `in_contact` give it at the end of the last
   step. A plant without objects computes exactly what it did before they existed.
@@ -53,15 +53,15 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from .description import default_arm
-from .dynamics import ArmDynamics
-from .effects import PlantTerms, get_effect
-from .environment import Environment
-from .errors import ConfigError
-from .plant_config import ARM_JOINTS, PlantConfig, check_joints, load_plant_config
-from .sim.plant_api import ActuatorCommand, SensorReading
-from .sim.simple_plant import DEFAULT_INERTIA, DEFAULT_VISCOUS, SimplePlant
-from .units import AMPERE_PER_CURRENT_LSB, RAD_PER_PULSE, RADS_PER_VELOCITY_LSB
+from crane_io.description import default_arm
+from crane_io.dynamixel.units import AMPERE_PER_CURRENT_LSB, RAD_PER_PULSE, RADS_PER_VELOCITY_LSB
+from crane_io.errors import ConfigError
+from crane_io.physics.dynamics import ArmDynamics
+from crane_io.physics.effects import PlantTerms, get_effect
+from crane_io.sim.environment import Environment
+from crane_io.sim.plant_api import ActuatorCommand, SensorReading
+from crane_io.sim.plant_config import ARM_JOINTS, PlantConfig, check_joints, load_plant_config
+from crane_io.sim.simple_plant import DEFAULT_INERTIA, DEFAULT_VISCOUS, SimplePlant
 
 _PULSE_SIGNS = np.array((-RAD_PER_PULSE, RAD_PER_PULSE))  # one-pulse position noise
 _TWO_TO_MINUS_53 = 1.0 / 9007199254740992.0  # Generator.random: (64-bit output >> 11) x 2**-53

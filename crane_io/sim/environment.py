@@ -2,7 +2,7 @@
 
 Every object is a unilateral spring-damper (penalty contact). Torques are the torque the WORLD
 applies to the plant's integrated joints (`joints`, arm order, n of them; default joint1, joint2,
-joint4; N m): positive pushes the joint positive, like an operator's hand (crane_io.arm_plant adds
+joint4; N m): positive pushes the joint positive, like an operator's hand (crane_io.sim.arm_plant adds
 them to the external torque in every substep, so the stick-slip friction sees them).
 
 - JointWall: a wall in one integrated joint's angle. side "above" stops motion above `angle` (penetration
@@ -35,8 +35,8 @@ from collections.abc import Sequence
 import numpy as np
 import pinocchio as pin
 
-from .errors import ConfigError
-from .plant_config import BILATERAL_JOINTS, JointWallSpec, PlaneSpec
+from crane_io.errors import ConfigError
+from crane_io.sim.plant_config import BILATERAL_JOINTS, JointWallSpec, PlaneSpec
 
 
 class JointWall:
@@ -152,7 +152,7 @@ class Plane:
 class Environment:
     """Every object of a plant's [[environment]] (a list of JointWallSpec / PlaneSpec) acting on the
     integrated `joints` (arm order, default joint1, joint2, joint4; a wall on another joint ->
-    ConfigError). `model`: the pinocchio model of those joints (default: crane_io.dynamics.ArmDynamics
+    ConfigError). `model`: the pinocchio model of those joints (default: crane_io.physics.dynamics.ArmDynamics
     with the other joints locked at `locked`, rad, default 0); only built when there is a plane."""
 
     def __init__(self, specs: Sequence[JointWallSpec | PlaneSpec] = (), model: pin.Model | None = None,
@@ -167,7 +167,7 @@ class Environment:
                       if isinstance(s, JointWallSpec)]
         plane_specs = [s for s in self.specs if isinstance(s, PlaneSpec)]
         if plane_specs and model is None:
-            from .dynamics import ArmDynamics
+            from crane_io.physics.dynamics import ArmDynamics
 
             locked = {n: v for n, v in (locked or {}).items() if n not in self.joints}
             model = ArmDynamics(self.joints, locked=locked).model

@@ -3,8 +3,8 @@
 `CranePacketHandler` is `dynamixel_sdk.Protocol2PacketHandler` (the SDK still sends, receives and checks
 every packet) with some of its steps made cheaper, the bytes on the wire unchanged:
 
-- `updateCRC` uses the word-wise table of crane_io.crc instead of rebuilding a 256-entry list on every
-  call and looping per byte;
+- `updateCRC` uses the word-wise table of crane_io.dynamixel.crc instead of rebuilding a 256-entry list on
+  every call and looping per byte;
 - `addStuffing` returns the packet untouched when its instruction and parameters hold no "FF FF FD"
   (the usual case) instead of copying it through a 1024-entry scratch list;
 - `removeStuffing` returns the packet untouched when it holds no stuffed "FF FF FD FD".
@@ -29,7 +29,7 @@ from dynamixel_sdk.protocol2_packet_handler import (
     Protocol2PacketHandler,
 )
 
-from .crc import crc16
+from crane_io.dynamixel.crc import crc16
 
 _LEN_L, _LEN_H = 5, 6
 _STUFF = b"\xff\xff\xfd"

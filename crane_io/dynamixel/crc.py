@@ -1,5 +1,5 @@
 """The CRC-16 of Dynamixel Protocol 2.0 (polynomial 0x8005, initial value 0, MSB first, no final xor),
-shared by the bus client (crane_io.packets) and the simulated servos (crane_io.sim.protocol).
+shared by the bus client (crane_io.dynamixel.packets) and the simulated servos (crane_io.sim.protocol).
 
 Pure Python with a 65536-entry table so the loop runs once per 16-bit word instead of once per byte:
 for a 16-bit CRC, shifting in the big-endian word w gives crc' = TABLE16[crc ^ w]. About 4x faster

@@ -13,8 +13,8 @@ Every exception here is a `crane_io.errors.HardwareError`, so the command lines 
 
 from __future__ import annotations
 
-from .control_table import HARDWARE_ERROR_BITS
-from .errors import HardwareError
+from crane_io.dynamixel.control_table import HARDWARE_ERROR_BITS
+from crane_io.errors import HardwareError
 
 # Status packet error byte (Protocol 2.0): bit 7 is the alert flag, bits 0..6 hold one error number.
 STATUS_ALERT_BIT = 0x80

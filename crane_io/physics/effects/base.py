@@ -12,7 +12,7 @@ Conventions (all arrays SI, (N, J) in the dynamics' joint order):
 - Parameters: `linear=True` ones are recovered from the fitted coefficients
   (`values_from_coefficients`); `linear=False` ones are shape parameters chosen from `shape_grid`;
   `model=False` ones exist only in the simulated plant (they are not estimated from data).
-- The simulated plant (crane_io.arm_plant.ArmPlant) compiles every configured effect with
+- The simulated plant (crane_io.sim.arm_plant.ArmPlant) compiles every configured effect with
   `add_to_plant(terms, k, values)`: the effect adds its own contribution to a `PlantTerms` (per
   integrated joint k: Coulomb levels, Stribeck terms, viscous, offset, spring, cogging, armature, ...).
   The base class's contribution is the generic one: the plant evaluates `torque` every substep (as
@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import ConfigError
+from crane_io.errors import ConfigError
 
 
 @dataclass(frozen=True)

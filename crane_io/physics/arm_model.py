@@ -25,8 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from .description import default_arm
-from .errors import ConfigError
+from crane_io.description import default_arm
+from crane_io.errors import ConfigError
 
 GRAVITY = 9.80665  # m/s^2
 TOOL_FRAME = "tool"

@@ -1,5 +1,5 @@
 """Rigid-body dynamics of the CRANE-X7 for a chosen set of joints (default joint1, joint2, joint4),
-the others locked, computed with pinocchio on the model of crane_io.arm_model.
+the others locked, computed with pinocchio on the model of crane_io.physics.arm_model.
 
 Sign convention: every torque here is the torque the MOTOR MUST SUPPLY (inverse-dynamics sense):
 `inverse_dynamics(q, dq, ddq) = M(q) ddq + C(q, dq) dq + g(q)`. The gravity load that gravity itself
@@ -25,8 +25,8 @@ import numpy as np
 import pinocchio as pin
 import scipy.linalg
 
-from .arm_model import GRAVITY, TOOL_FRAME, reduced_model
-from .errors import ConfigError
+from crane_io.errors import ConfigError
+from crane_io.physics.arm_model import GRAVITY, TOOL_FRAME, reduced_model
 
 PARAMETER_NAMES = ("m", "mx", "my", "mz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz")
 PARAMETER_UNITS = ("kg", "kg m", "kg m", "kg m", "kg m^2", "kg m^2", "kg m^2", "kg m^2", "kg m^2", "kg m^2")

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import ConfigError
+from crane_io.errors import ConfigError
 
 CONFIG_ENV = "CRANE_X7_CONFIG_DIR"
 MAX_OFFSET_RAD = math.radians(20.0)  # more than this at a mark: the joint was not at its mark
@@ -150,7 +150,8 @@ def load_calibration(path: str | os.PathLike) -> Calibration:
 def save_calibration(cal: Calibration, path: str | os.PathLike | None = None) -> Path:
     """Write `cal` (atomically) to `path` or its adapter's file; returns where."""
     path = Path(path) if path is not None else calibration_path(cal.key)
-    lines = ["# crane-x7 arm calibration: q_calibrated = q_servo - offset_rad (crane_io/calibration.py)",
+    lines = ["# crane-x7 arm calibration: q_calibrated = q_servo - offset_rad "
+             "(crane_io/dynamixel/calibration.py)",
              "[arm]", f"name = {_toml_str(cal.name)}", f"key = {_toml_str(cal.key)}",
              f"created = {_toml_str(cal.created)}", ""]
     for name, j in cal.joints.items():

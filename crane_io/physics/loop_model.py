@@ -27,7 +27,7 @@ before exports existed). The export holds plain arrays only (loaded without pick
                         refused in one sentence
     rigid_effects       JSON list of effect terms {"name", "joint" (index or null), "shape", "n_coefs"}
     rigid_effect_coefs  their coefficients, concatenated in that order
-    rigid_effect_files  user effect files (--effect-file) the terms need, loaded with crane_io.effects
+    rigid_effect_files  user effect files (--effect-file) the terms need, loaded with crane_io.physics.effects
 
 `sha256` is the hex digest of loop_model.npz's bytes (the weights the loop runs with); when model.json
 records the export's digest (`"loop_export": {"sha256": ...}`, written by Model.save) the two must agree.
@@ -35,7 +35,7 @@ records the export's digest (`"loop_export": {"sha256": ...}`, written by Model.
 The forward paths (also used by train.models.fast_predict):
 - MLPPath: y = relu(x W1' + b1') W2' + b2' with the input and output standardisation folded in;
 - RigidPath: pinocchio's joint-torque regressor of the one sample @ theta_full, plus each effect term
-  (the built-in one-joint effects as scalar formulas, the same as crane_io/effects/library.py; any
+  (the built-in one-joint effects as scalar formulas, the same as crane_io/physics/effects/library.py; any
   other effect through its `columns`, which allocates);
 - hybrid: the sum of the two.
 Buffers are allocated once; `predict_one` writes into `out` (default: a buffer of the model that the
@@ -53,7 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import ConfigError, CraneError
+from crane_io.errors import ConfigError, CraneError
 
 MODEL_JSON = "model.json"
 EXPORT_FILE = "loop_model.npz"
@@ -129,7 +129,7 @@ def _gauss(v: float, width: float) -> float:
 
 
 # name -> scalar torque of one joint from (q, dq, ddq) of that joint, coefficients c, shape s: the same
-# formulas as the columns of crane_io/effects/library.py, used only when the effect in the registry is
+# formulas as the columns of crane_io/physics/effects/library.py, used only when the effect in the registry is
 # that built-in class (tests check each against the train model's own prediction)
 SCALAR_EFFECTS = {
     "coulomb": lambda q, v, a, c, s: c[0] * _sgn(v),
@@ -147,7 +147,7 @@ SCALAR_EFFECTS = {
 
 
 def _builtin_class(name: str):
-    from .effects import library
+    from crane_io.physics.effects import library
 
     return next((cls for cls in library.BUILTIN_EFFECTS if cls.name == name), None)
 
@@ -157,15 +157,15 @@ class RigidPath:
 
     `theta_full`: (10 nbodies,) standard parameters of the dynamics of `joint_names` (the others locked
     at `locked`, a point mass `payload_mass` at the tool), or give a built `dynamics`
-    (crane_io.dynamics.ArmDynamics) instead; `terms`: [(effect instance, joint index or None, shape dict
-    or None, coefficients), ...]."""
+    (crane_io.physics.dynamics.ArmDynamics) instead; `terms`: [(effect instance, joint index or None,
+    shape dict or None, coefficients), ...]."""
 
     def __init__(self, joint_names, theta_full, terms=(), locked: dict | None = None,
                  payload_mass: float = 0.0, dynamics=None):
         import pinocchio as pin
 
         if dynamics is None:
-            from .dynamics import ArmDynamics
+            from crane_io.physics.dynamics import ArmDynamics
 
             dynamics = ArmDynamics(joints=tuple(joint_names), locked=locked or None,
                                    payload_mass=payload_mass)
@@ -457,8 +457,7 @@ class _Loader:
             specs = json.loads(str(a["rigid_effects"]))
         except json.JSONDecodeError:
             raise self.fail(f"has a loop export whose effect list is not readable; {again}") from None
-        from . import effects as fx
-
+        from crane_io.physics import effects as fx
         for f in (str(f) for f in np.atleast_1d(a["rigid_effect_files"])):
             if not Path(f).is_file():
                 raise self.fail(f"uses the effects defined in {f}, which cannot be found; put that file back "

@@ -1,6 +1,6 @@
 """`DynamixelBus`: one CRANE-X7 on one U2D2, driven through dynamixel-sdk, in SI units.
 
-    from crane_io.bus import DynamixelBus
+    from crane_io.dynamixel.bus import DynamixelBus
 
     with DynamixelBus("/dev/crane_x7_follower", name="follower") as bus:   # opens at 3 Mbps
         bus.ping_all()                  # every servo present and of the right model?
@@ -50,8 +50,10 @@ from dynamixel_sdk import (
 )
 from dynamixel_sdk.robotis_def import BROADCAST_ID
 
-from . import shutdown, units
-from .control_table import (
+from crane_io import shutdown
+from crane_io.description import ArmDescription, default_arm
+from crane_io.dynamixel import units
+from crane_io.dynamixel.control_table import (
     MODE_CURRENT,
     MODE_POSITION,
     PRESENT_BLOCK_ADDRESS,
@@ -61,9 +63,7 @@ from .control_table import (
     model_by_number,
     span,
 )
-from .description import ArmDescription, default_arm
-from .errors import ConfigError, CraneError
-from .faults import (
+from crane_io.dynamixel.faults import (
     WATCHDOG_EXPIRED,
     CommunicationError,
     ConfigurationMismatchError,
@@ -78,9 +78,10 @@ from .faults import (
     servo_label,
     status_alert,
 )
-from .packets import CranePacketHandler
-from .port import CranePortHandler, open_port
-from .servo_report import servo_report as _servo_report
+from crane_io.dynamixel.packets import CranePacketHandler
+from crane_io.dynamixel.port import CranePortHandler, open_port
+from crane_io.dynamixel.servo_report import servo_report as _servo_report
+from crane_io.errors import ConfigError, CraneError
 
 log = logging.getLogger(__name__)
 
@@ -649,7 +650,7 @@ class DynamixelBus:
             faults=faults)
 
     def servo_report(self, late_listen_s: float = 0.0) -> list[dict]:
-        """`crane_io.servo_report.servo_report(self, late_listen_s)`: one dict per servo for
+        """`crane_io.dynamixel.servo_report.servo_report(self, late_listen_s)`: one dict per servo for
         `crane-collect check` and the stop's torque read-back (see there)."""
         return _servo_report(self, late_listen_s)
 

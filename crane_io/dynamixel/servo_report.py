@@ -1,6 +1,6 @@
 """The per-servo diagnostics report behind `crane-collect check` and the stop's torque read-back.
 
-    from crane_io.servo_report import servo_report
+    from crane_io.dynamixel.servo_report import servo_report
     rows = servo_report(bus)                 # one dict per servo, in arm.joints order
     rows = servo_report(bus, late_listen_s=LATE_REPLY_LISTEN_S)   # a check: give a silent servo a second look
 
@@ -19,12 +19,12 @@ from typing import TYPE_CHECKING
 from dynamixel_sdk import COMM_SUCCESS
 from dynamixel_sdk.protocol2_packet_handler import PKT_ID, PKT_LENGTH_H, PKT_LENGTH_L
 
-from . import units
-from .control_table import X_SERIES, model_by_number, span
-from .faults import CommunicationError, decode_hardware_error
+from crane_io.dynamixel import units
+from crane_io.dynamixel.control_table import X_SERIES, model_by_number, span
+from crane_io.dynamixel.faults import CommunicationError, decode_hardware_error
 
 if TYPE_CHECKING:
-    from .bus import DynamixelBus
+    from crane_io.dynamixel.bus import DynamixelBus
 
 LATE_REPLY_LISTEN_S = 0.5  # what `crane-collect check` gives a servo that missed every try
 # addresses 0..146 (Model Number .. Present Temperature): everything the report shows, one read per servo
