@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import importlib
 import importlib.util
+import re
 import sys
 
 import click
@@ -39,15 +40,39 @@ def plant_presets() -> list[str]:
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
 
 
+_NAMED_OPTION = re.compile(r"`([A-Za-z_][A-Za-z0-9_]*)`")
+
+
+def command_flags(ctx: click.Context | None) -> dict[str, str]:
+    """Parameter name -> the flag that sets it (`force` -> `--force`), for the command being run and the
+    groups above it (the longest `--` spelling of each option)."""
+    flags: dict[str, str] = {}
+    while ctx is not None:
+        for param in ctx.command.params:
+            if isinstance(param, click.Option) and param.name and param.name not in flags:
+                long = [o for o in param.opts if o.startswith("--")] or list(param.opts)
+                flags[param.name] = max(long, key=len)
+        ctx = ctx.parent
+    return flags
+
+
+def with_flags(message: str, flags: dict[str, str]) -> str:
+    """A library sentence as the command line says it: each backquoted parameter name the command has an
+    option for becomes that option's flag; other backquoted words stay as they are."""
+    return _NAMED_OPTION.sub(lambda m: flags.get(m.group(1), m.group(0)), message)
+
+
 def cli_errors(func):
-    """Decorator for click commands: CraneError -> 'Error: <sentence>' on stderr and its exit code."""
+    """Decorator for click commands: CraneError -> 'Error: <sentence>' on stderr and its exit code, the
+    options the sentence names (`name`) shown as this command's flags."""
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
         try:
             return func(*args, **kwargs)
         except CraneError as exc:
-            click.echo(f"Error: {exc}", err=True)
+            message = with_flags(str(exc), command_flags(click.get_current_context(silent=True)))
+            click.echo(f"Error: {message}", err=True)
             sys.exit(exc.exit_code)
 
     return wrapper

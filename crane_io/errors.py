@@ -3,6 +3,11 @@
 Every bad-input error in the project derives from `CraneError`; its message is one sentence a lab
 user understands. The command lines catch it (crane_io.cli_support.cli_errors), print the sentence and
 exit non-zero, never a traceback. This module imports no command-line library.
+
+A message names a setting the user can change by its parameter name in backquotes (`duration`,
+`leader_port`), never by a command-line flag: from Python the sentence reads as the name of the
+argument to change; the command lines show their own flag in its place (`--duration`,
+crane_io.cli_support.cli_errors), and a backquoted name that is no option of the command stays as it is.
 """
 
 from __future__ import annotations
