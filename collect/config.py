@@ -1,24 +1,20 @@
 """The collect configuration: controller, loop, safety and simulated-operator parameters.
 
 The packaged `collect/config/bilateral.toml` holds every key with its documented default. A user
-file (`--config FILE`) overrides any subset of it; an unknown key, a wrong type or an impossible
-value raises `ConfigError` with one sentence naming the key.
+file (`load_config(path)`, `crane-collect run --config FILE`) overrides any subset of it
+(crane_io.toml_config.merge_defaults); an unknown key, a wrong type or an impossible value raises
+`ConfigError` with one sentence naming the key.
 """
 
 from __future__ import annotations
 
 import math
-import sys
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
 from crane_io.errors import ConfigError
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
+from crane_io.toml_config import expect, merge_defaults, read_toml
 
 DEG = math.pi / 180.0
 # The controller's default gains and observer cutoffs need at least this rate: at 50 Hz the simulated
@@ -27,7 +23,7 @@ DEG = math.pi / 180.0
 MIN_RATE_HZ = 100.0
 MAX_RATE_HZ = 2000.0
 GRAVITY_MODELS = ("dynamics", "coefficients", "none")
-# The joints a [bilateral] joints list (or --joints) may name, in the arm's order; "all" is the seven arm
+# The joints a [bilateral] joints list (or the `joints` option) may name, in the arm's order; "all" is the seven arm
 # joints (the gripper only when named: it closes on what it holds, see docs/collect.md).
 JOINT_NAMES = ("joint1", "joint2", "joint3", "joint4", "joint5", "joint6", "joint7", "gripper")
 ARM_JOINTS = JOINT_NAMES[:7]
@@ -115,7 +111,7 @@ SCHEDULING = ("fifo", "off")
 
 @dataclass(frozen=True)
 class RealtimeConfig:
-    """[realtime]: what a paced loop (hardware, --sim --realtime) asks the OS for (collect/realtime.py)."""
+    """[realtime]: what a paced loop (hardware, or the simulation with `realtime`) asks the OS for (collect/realtime.py)."""
 
     scheduling: str = "fifo"  # "fifo": SCHED_FIFO at `priority`; "off": normal scheduling
     priority: int = 40  # 1..99
@@ -143,29 +139,30 @@ class Config:
 
     def with_rate(self, rate_hz: float) -> Config:
         if not (math.isfinite(rate_hz) and MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ):
-            raise ConfigError(f"--rate must be between {MIN_RATE_HZ:g} and {MAX_RATE_HZ:g} Hz, "
+            raise ConfigError(f"`rate` must be between {MIN_RATE_HZ:g} and {MAX_RATE_HZ:g} Hz, "
                               f"got {rate_hz:g}")
         values = _deep_copy(self.values)
         values["loop"]["rate_hz"] = float(rate_hz)
-        return _build(values, "--rate")
+        return _build(values, "`rate`")
 
-    def with_bilateral_joints(self, spec: str | list | tuple, where: str = "--joints") -> Config:
+    def with_bilateral_joints(self, spec: str | list | tuple, where: str = "joints") -> Config:
         """The same configuration with another bilateral joint set: a list of joint names, or the text of
-        `--joints` (comma-separated names, or "all" for joint1..joint7). One sentence for a bad set."""
+        the `joints` option (comma-separated names, or "all" for joint1..joint7). `where` is the name of
+        the setting the set came from, as the sentences show it (backquoted). One sentence for a bad set."""
         values = _deep_copy(self.values)
-        values["bilateral"]["joints"] = list(parse_joints(spec, where))
-        return _build(values, where)
+        values["bilateral"]["joints"] = list(parse_joints(spec, f"`{where}`"))
+        return _build(values, f"`{where}`")
 
     def with_operator_task(self, task: str) -> Config:
         """The same configuration with the simulated operator's task set ("free" or "contact")."""
         if task not in OPERATOR_TASKS:
-            raise ConfigError(f"the operator task must be one of {', '.join(OPERATOR_TASKS)}, got {task!r}")
+            raise ConfigError(f"the operator `task` must be one of {', '.join(OPERATOR_TASKS)}, got {task!r}")
         values = _deep_copy(self.values)
         values["operator"]["task"] = task
-        return _build(values, "--task")
+        return _build(values, "`task`")
 
 
-def parse_joints(spec: str | list | tuple, where: str = "--joints") -> tuple[str, ...]:
+def parse_joints(spec: str | list | tuple, where: str = "`joints`") -> tuple[str, ...]:
     """A bilateral joint set from "all", "all,gripper", "joint1,joint2,joint4" or a list of names: the
     names in the arm's order (joint1 .. joint7, gripper; "all" stands for joint1 .. joint7). ConfigError
     (one sentence) for an unknown name, a name given twice, an empty set or anything that is not text."""
@@ -198,60 +195,16 @@ def default_config_text() -> str:
 
 def load_config(path: str | Path | None = None) -> Config:
     """The defaults, overridden by the TOML file at `path` (if given)."""
-    values = tomllib.loads(default_config_text())
+    values = read_toml(text=default_config_text(), where="the default configuration")
     where = "the default configuration"
     if path is not None:
-        path = Path(path)
         where = str(path)
-        try:
-            text = path.read_text()
-        except FileNotFoundError:
-            raise ConfigError(f"configuration file {path} does not exist") from None
-        except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
-            why = exc.__class__.__name__
-            raise ConfigError(f"configuration file {path} cannot be read ({why})") from None
-        try:
-            user = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(f"configuration file {path} is not valid TOML ({exc})") from None
-        _merge(values, user, where, prefix="")
+        merge_defaults(values, read_toml(path), where)
     return _build(values, where)
 
 
-def _merge(base: dict, user: dict, where: str, prefix: str) -> None:
-    for key, value in user.items():
-        name = f"{prefix}{key}"
-        if key not in base:
-            known = ", ".join(sorted(base))
-            raise ConfigError(f"unknown key {name!r} in {where} (known here: {known})")
-        default = base[key]
-        if isinstance(default, dict):
-            if not isinstance(value, dict):
-                raise ConfigError(f"{name!r} in {where} must be a table, got {value!r}")
-            _merge(default, value, where, prefix=f"{name}.")
-            continue
-        if isinstance(default, bool):
-            ok = isinstance(value, bool)
-        elif isinstance(default, int):
-            ok = isinstance(value, int) and not isinstance(value, bool)
-        elif isinstance(default, float):
-            ok = isinstance(value, (int, float)) and not isinstance(value, bool)
-            value = float(value) if ok else value
-        elif isinstance(default, list):
-            ok = isinstance(value, (list, str))  # [bilateral] joints: a list of names or "all"
-        else:
-            ok = isinstance(value, type(default))
-        if not ok:
-            what = {bool: "true or false", int: "an integer", float: "a number", str: "a string",
-                    list: "a list"}.get(
-                type(default), f"a {type(default).__name__}")
-            raise ConfigError(f"{name!r} in {where} must be {what}, got {value!r}")
-        base[key] = value
-
-
 def _need(cond: bool, where: str, key: str, what: str, value) -> None:
-    if not cond:
-        raise ConfigError(f"{key!r} in {where} must be {what}, got {value!r}")
+    expect(cond, f"{key!r} in {where}", what, value)
 
 
 def _pos(where, key, value):

@@ -11,17 +11,12 @@ its default); anything left out keeps the default below.
 from __future__ import annotations
 
 import math
-import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 from crane_io.dynamixel.control_table import MODELS, ServoModel
 from crane_io.errors import ConfigError
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
+from crane_io.toml_config import from_table, read_toml
 
 DEG = math.pi / 180.0
 
@@ -100,17 +95,16 @@ class ArmDescription:
     # ---- loading -------------------------------------------------------------------------------
     @classmethod
     def from_toml(cls, path: str | Path) -> ArmDescription:
-        path = Path(path)
         try:
-            data = tomllib.loads(path.read_text())
-        except FileNotFoundError:
-            raise DescriptionError(f"arm description {path} does not exist") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise DescriptionError(f"arm description {path} is not valid TOML: {exc}") from None
-        return cls.from_dict(data.get("arm", data))
+            data = read_toml(path, what="arm description")
+        except ConfigError as exc:
+            raise DescriptionError(str(exc)) from None
+        return cls.from_dict(data.get("arm", data), where=f"arm description {path}")
 
     @classmethod
-    def from_dict(cls, data: dict) -> ArmDescription:
+    def from_dict(cls, data: dict, where: str = "arm description") -> ArmDescription:
+        """The default arm with the keys of `data` (the [arm] table: joints.NAME tables of Joint fields,
+        lower_deg/upper_deg in degrees; bilateral_joints; baudrate) applied; each value type-checked."""
         base = default_arm()
         joints = {j.name: j for j in base.joints}
         for name, over in (data.get("joints") or {}).items():
@@ -119,20 +113,28 @@ class ArmDescription:
             fields = dict(over)
             for key in ("lower_deg", "upper_deg"):
                 if key in fields:
-                    fields[key[:-4]] = fields.pop(key) * DEG
+                    fields[key[:-4]] = fields.pop(key)
             unknown = set(fields) - set(Joint.__dataclass_fields__)
             if unknown:
                 raise DescriptionError(f"unknown keys for joint {name}: {', '.join(sorted(unknown))}")
             if "model" in fields and fields["model"] not in MODELS:
                 raise DescriptionError(f"joint {name}: unknown servo model {fields['model']!r}")
-            joints[name] = replace(joints[name], **fields)
+            try:
+                joint = from_table(Joint, fields, where, f"joint {name}", base=joints[name])
+            except ConfigError as exc:
+                raise DescriptionError(str(exc)) from None
+            joints[name] = replace(joint, **{k: fields[k] * DEG for k in ("lower", "upper") if k in fields})
         desc = replace(base, joints=tuple(joints.values()))
         if "bilateral_joints" in data:
             desc = replace(desc, bilateral_joints=tuple(data["bilateral_joints"]))
             for n in desc.bilateral_joints:
                 desc.joint(n)
         if "baudrate" in data:
-            desc = replace(desc, baudrate=int(data["baudrate"]))
+            baudrate = data["baudrate"]
+            ok = isinstance(baudrate, int) and not isinstance(baudrate, bool) and baudrate > 0
+            if not ok:
+                raise DescriptionError(f"{where}: baudrate must be a positive integer, got {baudrate!r}")
+            desc = replace(desc, baudrate=baudrate)
         return desc
 
 

@@ -3,22 +3,16 @@
 from __future__ import annotations
 
 import os
-import sys
-from dataclasses import fields
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import click
 
 from crane_io.errors import ConfigError
+from crane_io.toml_config import from_table, read_toml
 
 if TYPE_CHECKING:
     from .preprocess import PreprocessConfig
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 DEFAULT_CONFIG = Path(__file__).parent / "config" / "train.toml"
 
@@ -35,33 +29,17 @@ def config_sections() -> dict:
 
 def load_config(path=None) -> dict:
     """{'preprocess': PreprocessConfig, 'splits': SplitConfig, 'mlp': MLPSettings} from the defaults
-    file overlaid with `path` (TOML, sections as in train/config/train.toml)."""
+    file overlaid with `path` (TOML, sections as in train/config/train.toml); each value checked against
+    the settings' field types (crane_io.toml_config.from_table)."""
     sections = config_sections()
-    data = {}
+    data: dict[str, dict] = {}
+    out = {section: cls() for section, cls in sections.items()}
     for p in [DEFAULT_CONFIG] + ([Path(path)] if path else []):
-        try:
-            doc = tomllib.loads(p.read_text())
-        except FileNotFoundError:
-            raise ConfigError(f"configuration file {p} does not exist") from None
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"configuration file {p} is not valid TOML ({exc})") from None
-        for section, values in doc.items():
+        for section, values in read_toml(p).items():
             if section not in sections or not isinstance(values, dict):
                 raise ConfigError(f"{p}: unknown section [{section}] (known: {', '.join(sections)})")
-            known = {f.name for f in fields(sections[section])}
-            unknown = sorted(set(values) - known)
-            if unknown:
-                raise ConfigError(f"{p}: unknown key(s) {', '.join(unknown)} in [{section}]")
-            data.setdefault(section, {}).update(values)
-    out = {}
-    for section, cls in sections.items():
-        values = data.get(section, {})
-        if "betas" in values:
-            values["betas"] = tuple(values["betas"])
-        try:
-            out[section] = cls(**values)
-        except TypeError as exc:
-            raise ConfigError(f"bad [{section}] configuration: {exc}") from None
+            data[section] = {**data.get(section, {}), **values}
+            out[section] = from_table(sections[section], data[section], str(p), f"[{section}]")
     return out
 
 

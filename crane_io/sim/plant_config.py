@@ -52,18 +52,13 @@ from __future__ import annotations
 import copy
 import json
 import math
-import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from importlib import resources
 from pathlib import Path
 
 from crane_io.description import default_arm
 from crane_io.errors import ConfigError
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
+from crane_io.toml_config import check_keys, expect, from_table, is_number, read_toml
 
 BILATERAL_JOINTS = ("joint1", "joint2", "joint4")  # the paper's joints: the default integrated set
 # the joints a plant can integrate (the gripper is always a held servo)
@@ -212,39 +207,22 @@ def presets() -> list[str]:
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
 
 
-def _read_toml(text: str, where: str) -> dict:
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"plant configuration {where} is not valid TOML: {exc}") from None
-
-
 def _raw(preset_or_path: str | Path, depth: int = 0) -> tuple[dict, str]:
     if depth > 5:
         raise ConfigError(f"plant configuration {preset_or_path}: 'base' presets nest too deeply")
     key = str(preset_or_path)
     path = Path(key)
     if key in presets():
-        text = (resources.files("crane_io.sim") / "plants" / f"{key}.toml").read_text()
         where = f"preset {key!r}"
+        text = (resources.files("crane_io.sim") / "plants" / f"{key}.toml").read_text()
+        data = read_toml(text=text, what="plant configuration", where=where)
     elif key.endswith(".toml") or path.exists():
-        if not path.exists():
-            raise ConfigError(f"plant configuration file {path} does not exist")
-        if not path.is_file():
-            raise ConfigError(f"plant configuration {path} is not a file")
-        try:
-            text = path.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            why = "not UTF-8 text" if isinstance(exc, UnicodeDecodeError) else (exc.strerror or str(exc))
-            raise ConfigError(f"plant configuration file {path} cannot be read ({why})") from None
         where = str(path)
+        data = read_toml(path, what="plant configuration file")
     else:
         raise ConfigError(f"unknown plant preset {key!r}; presets: {', '.join(presets())} "
                           f"(or give a .toml path)")
-    data = _read_toml(text, where)
-    unknown = sorted(set(data) - _TOP_KEYS)
-    if unknown:
-        raise ConfigError(f"plant configuration {where} has unknown key(s) {', '.join(unknown)}")
+    check_keys(data, _TOP_KEYS, where)
     if "base" in data:
         base, _ = _raw(data["base"], depth + 1)
         merged = copy.deepcopy(base)
@@ -264,39 +242,20 @@ def _raw(preset_or_path: str | Path, depth: int = 0) -> tuple[dict, str]:
 
 def _float_table(data, key: str, where: str, joints=None) -> dict[str, float]:
     table = data.get(key, {}) or {}
-    if not isinstance(table, dict):
-        raise ConfigError(f"{where}: [{key}] must be a table of joint = number")
+    expect(isinstance(table, dict), f"{where}: [{key}]", "a table of joint = number", table)
     names = set(joints or default_arm().joint_names)
-    out = {}
     for name, value in table.items():
         if name not in names:
             raise ConfigError(f"{where}: [{key}] names unknown joint {name!r}")
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise ConfigError(f"{where}: [{key}] {name} must be a finite number, got {value!r}")
-        out[name] = float(value)
-    return out
+        expect(is_number(value), f"{where}: [{key}] {name}", "a finite number", value)
+    return {name: float(value) for name, value in table.items()}
 
 
 def _dataclass_table(cls, data, key: str, where: str):
-    table = data.get(key, {}) or {}
-    if not isinstance(table, dict):
-        raise ConfigError(f"{where}: {key} must be a table ([{key}]), got {table!r}")
-    fields = cls.__dataclass_fields__
-    unknown = sorted(set(table) - set(fields))
-    if unknown:
-        raise ConfigError(f"{where}: [{key}] has unknown key(s) {', '.join(unknown)}")
-    defaults = cls()
-    values = {}
-    for k, v in table.items():
-        if isinstance(getattr(defaults, k), bool):
-            if not isinstance(v, bool):
-                raise ConfigError(f"{where}: [{key}] {k} must be true or false, got {v!r}")
-        elif isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-            raise ConfigError(f"{where}: [{key}] {k} must be a finite number, zero or more, got {v!r}")
-        else:
-            v = float(v)
-        values[k] = v
-    obj = cls(**values)
+    obj = from_table(cls, data.get(key), where, f"[{key}]")
+    for f in fields(cls):
+        value = getattr(obj, f.name)
+        expect(isinstance(value, bool) or value >= 0, f"{where}: [{key}] {f.name}", "zero or more", value)
     if getattr(obj, "position_noise_probability", 0.0) > 1:
         raise ConfigError(f"{where}: [{key}] position_noise_probability must be at most 1, "
                           f"got {obj.position_noise_probability}")
@@ -349,10 +308,8 @@ def load_plant_config(preset_or_path: str | Path = "crane-x7") -> PlantConfig:
     cfg.name = str(data.get("name", Path(str(preset_or_path)).stem))
     cfg.description = str(data.get("description", ""))
     seed, substep = data.get("seed", 0), data.get("substep_s", cfg.substep_s)
-    if isinstance(seed, bool) or not isinstance(seed, int):
-        raise ConfigError(f"{where}: seed must be an integer, got {seed!r}")
-    if isinstance(substep, bool) or not isinstance(substep, (int, float)):
-        raise ConfigError(f"{where}: substep_s must be a number, got {substep!r}")
+    expect(isinstance(seed, int) and not isinstance(seed, bool), f"{where}: seed", "an integer", seed)
+    expect(is_number(substep), f"{where}: substep_s", "a number", substep)
     cfg.seed, cfg.substep_s = seed, float(substep)
     cfg.joints = check_joints(data.get("joints", list(BILATERAL_JOINTS)), where)
     if not 1e-5 <= cfg.substep_s <= 0.002:
@@ -427,24 +384,14 @@ def _number(entry: dict, key: str, at: str, default: float | None = None, minimu
     if key not in entry:
         raise ConfigError(f"{at} needs {key} (a number)")
     value = entry[key]
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ConfigError(f"{at}: {key} must be a finite number, got {value!r}")
-    if positive and value <= 0:
-        raise ConfigError(f"{at}: {key} must be positive, got {value!r}")
-    if minimum is not None and value < minimum:
-        raise ConfigError(f"{at}: {key} must be at least {minimum:g}, got {value!r}")
+    expect(is_number(value), f"{at}: {key}", "a finite number", value)
+    expect(not positive or value > 0, f"{at}: {key}", "positive", value)
+    expect(minimum is None or value >= minimum, f"{at}: {key}", f"at least {minimum:g}", value)
     return float(value)
 
 
-def _check_keys(entry: dict, allowed: set, at: str) -> None:
-    unknown = sorted(set(entry) - allowed)
-    if unknown:
-        raise ConfigError(f"{at} has unknown key(s) {', '.join(unknown)} "
-                          f"(known: {', '.join(sorted(allowed))})")
-
-
 def _joint_wall(entry: dict, at: str, joints=BILATERAL_JOINTS) -> JointWallSpec:
-    _check_keys(entry, _WALL_KEYS, at)
+    check_keys(entry, _WALL_KEYS, at)
     joint, side = entry.get("joint"), entry.get("side")
     if joint not in joints:
         fix = f" (add {joint} to the plant's joints to integrate it)" if joint in ARM_JOINTS else ""
@@ -461,10 +408,8 @@ def _vector(entry: dict, key: str, at: str) -> tuple[float, float, float]:
     value = entry.get(key)
     if value is None:
         raise ConfigError(f"{at} needs {key} = [x, y, z]")
-    if (not isinstance(value, list) or len(value) != 3
-            or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
-                   for v in value)):
-        raise ConfigError(f"{at}: {key} must be a list of three finite numbers, got {value!r}")
+    expect(isinstance(value, list) and len(value) == 3 and all(map(is_number, value)), f"{at}: {key}",
+           "a list of three finite numbers", value)
     return (float(value[0]), float(value[1]), float(value[2]))
 
 
@@ -475,7 +420,7 @@ def _frame_names() -> list[str]:
 
 
 def _plane(entry: dict, at: str) -> PlaneSpec:
-    _check_keys(entry, _PLANE_KEYS, at)
+    check_keys(entry, _PLANE_KEYS, at)
     point, normal = _vector(entry, "point", at), _vector(entry, "normal", at)
     length = math.sqrt(sum(v * v for v in normal))
     if length < 1e-9:

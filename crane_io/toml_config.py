@@ -1,0 +1,194 @@
+"""Reading TOML configuration into checked Python values, shared by every loader of the project.
+
+The loaders (collect/config.py: bilateral.toml; crane_io/sim/plant_config.py: plant presets;
+crane_io/description.py: the arm description; train/cli_options.py: train.toml;
+crane_io/dynamixel/calibration.py: calibration files) each know their own keys, units and cross-checks;
+what they share lives here, and every problem is a `ConfigError` in one sentence naming the file and key:
+
+    data = read_toml(path, what="plant configuration")   # or read_toml(text=..., where="preset 'x'")
+    merge_defaults(defaults, data, where)                # user keys onto a complete default document
+    cfg = from_table(SensorConfig, data.get("sensor"), where, "[sensor]")   # a checked dataclass
+    expect(0 < frac <= 1, "'safety.current_fraction' in c.toml", "in (0, 1]", frac)
+
+`read_toml`: a missing file, a folder, an unreadable or non-UTF-8 file and invalid TOML (with its line and
+column) each give one sentence naming the file. `merge_defaults`: a key the defaults do not have (with the
+closest known key, if one is close, and the known keys of that table), a table given as a value or a value
+of another type than the default's. `from_table`: a dataclass built from a table (an unknown key: "<where>: unknown key(s) ... in [table]"), its values checked
+against the field annotations (bool, int, float — finite, an int is accepted —, str, `tuple[T, ...]`,
+`tuple[T, U]`, `list[T]`, `dict`, `Literal[...]` choices, `T | None`, a nested dataclass), unknown keys
+refused, fields left out keeping their defaults (or the values of `base`). `expect`: the one sentence
+"<subject> must be <what>, got <value>" the loaders' value checks use.
+
+What stays in the loaders, and why: collect converts `_deg` keys to radians and renames them, checks
+values against each other and keeps the merged document (stored in every session), so it builds its
+dataclasses by hand from the merged, type-checked document; the plant's `base` presets, effect entries
+(checked by the effect library) and [[environment]] kinds are the plant's own; a calibration's joints are
+a table of optional numbers read in a few lines. Those keep their own checks and messages, on the helpers
+here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import sys
+import types
+import typing
+from pathlib import Path
+
+from crane_io.errors import ConfigError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+TOMLDecodeError = tomllib.TOMLDecodeError
+
+
+def read_toml(path: str | Path | None = None, *, text: str | None = None, what: str = "configuration file",
+              where: str | None = None) -> dict:
+    """The TOML document in the file at `path` (or in `text`, described as `where`) as a dict.
+
+    `what` names the kind of file in the sentences ("configuration file", "plant configuration", ...).
+    ConfigError: "<what> <path> does not exist", "... is not a file", "... cannot be read (<why>)",
+    "... is not valid TOML: <what is wrong> (at line L, column C)"."""
+    if text is None:
+        if path is None:
+            raise TypeError("read_toml needs a path or text")
+        path = Path(path)
+        where = where or str(path)
+        if not path.exists():
+            raise ConfigError(f"{what} {path} does not exist")
+        if not path.is_file():
+            raise ConfigError(f"{what} {path} is not a file")
+        try:
+            text = path.read_text(encoding="utf-8")
+        except UnicodeDecodeError:
+            raise ConfigError(f"{what} {path} cannot be read (not UTF-8 text)") from None
+        except OSError as exc:
+            raise ConfigError(f"{what} {path} cannot be read ({exc.strerror or exc})") from None
+    where = where or "the text"
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        # the decoder's message ends "(at line L, column C)": the place of the mistake
+        raise ConfigError(f"{what} {where} is not valid TOML: {exc}") from None
+
+
+def expect(ok: bool, subject: str, what: str, value) -> None:
+    """ConfigError "<subject> must be <what>, got <value!r>" unless `ok`."""
+    if not ok:
+        raise ConfigError(f"{subject} must be {what}, got {value!r}")
+
+
+def is_number(value) -> bool:
+    """An int or a float (not a bool), finite."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def unknown_key(key: str, known, where: str, shown: str | None = None) -> ConfigError:
+    """The sentence for a key the table does not have: the closest known key when one is close, and
+    the known keys. `shown` is the key as the sentence names it (default `key`)."""
+    known, shown = sorted(known), shown or key
+    close = difflib.get_close_matches(key, known, n=1)
+    hint = f"; did you mean {shown[:len(shown) - len(key)] + close[0]!r}?" if close else ""
+    return ConfigError(f"unknown key {shown!r} in {where}{hint} (known here: {', '.join(known)})")
+
+
+def check_keys(table: dict, known, where: str, prefix: str = "") -> None:
+    """ConfigError (unknown_key) for the first key of `table` (in sorted order) that is not in `known`."""
+    for key in sorted(set(table) - set(known)):
+        raise unknown_key(key, known, where, f"{prefix}{key}")
+
+
+_WHAT = {bool: "true or false", int: "an integer", float: "a number", str: "a string", list: "a list",
+         dict: "a table"}
+
+
+def merge_defaults(base: dict, user: dict, where: str, prefix: str = "") -> None:
+    """Overlay the document `user` onto the complete default document `base`, in place.
+
+    Every key of `user` must be in `base` (else ConfigError naming 'table.key' in `where`); a value takes
+    the default's type: a table stays a table, true/false a bool, an integer an int, a number a float (an
+    integer is converted), text a str; a default list accepts a list or a string (a list given as text,
+    e.g. "all")."""
+    for key, value in user.items():
+        name = f"{prefix}{key}"
+        if key not in base:
+            raise unknown_key(key, base, where, name)
+        default = base[key]
+        if isinstance(default, dict):
+            expect(isinstance(value, dict), f"{name!r} in {where}", "a table", value)
+            merge_defaults(default, value, where, prefix=f"{name}.")
+            continue
+        if isinstance(default, bool):
+            ok = isinstance(value, bool)
+        elif isinstance(default, (int, float)):
+            ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+            ok = ok and (isinstance(value, int) or isinstance(default, float))
+            value = float(value) if ok and isinstance(default, float) else value
+        elif isinstance(default, list):
+            ok = isinstance(value, (list, str))
+        else:
+            ok = isinstance(value, type(default))
+        expect(ok, f"{name!r} in {where}", _WHAT.get(type(default), f"a {type(default).__name__}"), value)
+        base[key] = value
+
+
+def from_table(cls, table, where: str, name: str, base=None):
+    """An instance of the dataclass `cls` from the TOML table `table` (None: empty).
+
+    Keys are the field names; each value is checked against the field's annotation and converted
+    (a number for a float field becomes a float, a list for a tuple field a tuple). A field left out
+    keeps its default, or its value in `base` (an instance of `cls`) when given. `name` is how the
+    sentences call the table ("[sensor]", "joint joint1"); they read "<where>: <name> <key> must be ...".
+    ConfigError for a table that is not a table, an unknown key, a value of the wrong type; the
+    dataclass's own checks (__post_init__) run as usual."""
+    table = {} if table is None else table
+    expect(isinstance(table, dict), f"{where}: {name.strip('[]')}", f"a table ({name})", table)
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    unknown = sorted(set(table) - set(fields))
+    if unknown:
+        close = difflib.get_close_matches(unknown[0], fields, n=1)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)} in {name}{hint}")
+    values = {k: _checked(v, hints[k], f"{where}: {name} {k}") for k, v in table.items()}
+    return dataclasses.replace(base, **values) if base is not None else cls(**values)
+
+
+def _checked(value, tp, subject: str):
+    """`value` checked against the annotation `tp` (see from_table), converted; else ConfigError."""
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin in (typing.Union, types.UnionType):
+        options = [a for a in args if a is not type(None)]
+        if len(options) == 1:
+            return _checked(value, options[0], subject)
+        return value
+    if origin is typing.Literal:
+        expect(value in args, subject, "one of " + ", ".join(map(repr, args)), value)
+        return value
+    if dataclasses.is_dataclass(tp):
+        return from_table(tp, value, subject, "")
+    if tp is bool:
+        expect(isinstance(value, bool), subject, "true or false", value)
+    elif tp is int:
+        expect(isinstance(value, int) and not isinstance(value, bool), subject, "an integer", value)
+    elif tp is float:
+        expect(is_number(value), subject, "a finite number", value)
+        return float(value)
+    elif tp is str:
+        expect(isinstance(value, str), subject, "a string", value)
+    elif origin in (tuple, list) or tp in (tuple, list):
+        expect(isinstance(value, (list, tuple)), subject, "a list", value)
+        if origin is tuple and args and args[-1] is not Ellipsis:
+            expect(len(value) == len(args), subject, f"a list of {len(args)} values", value)
+            items = [_checked(v, a, subject) for v, a in zip(value, args)]
+        else:
+            items = [_checked(v, args[0], subject) for v in value] if args else list(value)
+        return tuple(items) if (origin or tp) is tuple else items
+    elif origin is dict or tp is dict:
+        expect(isinstance(value, dict), subject, "a table", value)
+    return value
