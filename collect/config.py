@@ -23,7 +23,7 @@ DEG = math.pi / 180.0
 MIN_RATE_HZ = 100.0
 MAX_RATE_HZ = 2000.0
 GRAVITY_MODELS = ("dynamics", "coefficients", "none")
-# The joints a [bilateral] joints list (or the `joints` option) may name, in the arm's order; "all" is the seven arm
+# The joints a [bilateral] joints list (or --joints) may name, in the arm's order; "all" is the seven arm
 # joints (the gripper only when named: it closes on what it holds, see docs/collect.md).
 JOINT_NAMES = ("joint1", "joint2", "joint3", "joint4", "joint5", "joint6", "joint7", "gripper")
 ARM_JOINTS = JOINT_NAMES[:7]
@@ -111,7 +111,7 @@ SCHEDULING = ("fifo", "off")
 
 @dataclass(frozen=True)
 class RealtimeConfig:
-    """[realtime]: what a paced loop (hardware, or the simulation with `realtime`) asks the OS for (collect/realtime.py)."""
+    """[realtime]: what a paced loop (hardware, --sim --realtime) asks the OS for (collect/realtime.py)."""
 
     scheduling: str = "fifo"  # "fifo": SCHED_FIFO at `priority`; "off": normal scheduling
     priority: int = 40  # 1..99

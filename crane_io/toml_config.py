@@ -13,11 +13,12 @@ what they share lives here, and every problem is a `ConfigError` in one sentence
 `read_toml`: a missing file, a folder, an unreadable or non-UTF-8 file and invalid TOML (with its line and
 column) each give one sentence naming the file. `merge_defaults`: a key the defaults do not have (with the
 closest known key, if one is close, and the known keys of that table), a table given as a value or a value
-of another type than the default's. `from_table`: a dataclass built from a table (an unknown key: "<where>: unknown key(s) ... in [table]"), its values checked
+of another type than the default's. `from_table`: a dataclass built from a table, its values checked
 against the field annotations (bool, int, float — finite, an int is accepted —, str, `tuple[T, ...]`,
-`tuple[T, U]`, `list[T]`, `dict`, `Literal[...]` choices, `T | None`, a nested dataclass), unknown keys
-refused, fields left out keeping their defaults (or the values of `base`). `expect`: the one sentence
-"<subject> must be <what>, got <value>" the loaders' value checks use.
+`tuple[T, U]`, `list[T]`, `dict`, `Literal[...]` choices, `T | None`, a nested dataclass), an unknown key
+refused ("<where>: unknown key(s) ... in [table]", with the closest field), fields left out keeping their
+defaults (or the values of `base`). `expect`: the one sentence "<subject> must be <what>, got <value>" the
+loaders' value checks use.
 
 What stays in the loaders, and why: collect converts `_deg` keys to radians and renames them, checks
 values against each other and keeps the merged document (stored in every session), so it builds its

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from crane_io.errors import ConfigError
+from crane_io.toml_config import read_toml
 
 CONFIG_ENV = "CRANE_X7_CONFIG_DIR"
 MAX_OFFSET_RAD = math.radians(20.0)  # more than this at a mark: the joint was not at its mark
@@ -116,17 +117,14 @@ def find_calibration(port: str, comports=None) -> Calibration | None:
 
 def load_calibration(path: str | os.PathLike) -> Calibration:
     """Read a calibration file; CalibrationError (one sentence) when it is unreadable or wrong."""
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # Python 3.10
-        import tomli as tomllib
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text())
-    except OSError as exc:
-        raise CalibrationError(f"cannot read the calibration {path}: {exc.strerror or exc}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise CalibrationError(f"the calibration {path} is not valid TOML: {exc}") from None
+        data = read_toml(text=path.read_text(encoding="utf-8"), what="the calibration", where=str(path))
+    except (OSError, UnicodeDecodeError) as exc:
+        why = "not UTF-8 text" if isinstance(exc, UnicodeDecodeError) else exc.strerror or exc
+        raise CalibrationError(f"cannot read the calibration {path}: {why}") from None
+    except ConfigError as exc:
+        raise CalibrationError(str(exc)) from None
     head = data.get("arm", {})
     joints = {}
     for name, entry in (data.get("joints") or {}).items():

@@ -386,7 +386,8 @@ def _number(entry: dict, key: str, at: str, default: float | None = None, minimu
     value = entry[key]
     expect(is_number(value), f"{at}: {key}", "a finite number", value)
     expect(not positive or value > 0, f"{at}: {key}", "positive", value)
-    expect(minimum is None or value >= minimum, f"{at}: {key}", f"at least {minimum:g}", value)
+    if minimum is not None:
+        expect(value >= minimum, f"{at}: {key}", f"at least {minimum:g}", value)
     return float(value)
 
 
