@@ -156,7 +156,7 @@ class Config:
     def with_operator_task(self, task: str) -> Config:
         """The same configuration with the simulated operator's task set ("free" or "contact")."""
         if task not in OPERATOR_TASKS:
-            raise ConfigError(f"the operator `task` must be one of {', '.join(OPERATOR_TASKS)}, got {task!r}")
+            raise ConfigError(f"the operator task must be one of {', '.join(OPERATOR_TASKS)}, got {task!r}")
         values = _deep_copy(self.values)
         values["operator"]["task"] = task
         return _build(values, "`task`")

@@ -144,7 +144,7 @@ OPTIONAL_ATTRS = tuple(a.name for a in OPTIONAL_ROOT)
 
 IMPORT_ROOT = (  # written by `crane-train import` (docs/train.md)
     Attribute("imported_from", "str", "the input file's name"),
-    Attribute("import_map", "str", "the --map used, as JSON"),
+    Attribute("import_map", "str", "the column map used (KEY=COLUMN pairs), as JSON"),
     Attribute("import_units", "str", "the input's units, as JSON"),
     Attribute("import_time_offset_s", "float", "the input's first time (subtracted)", "s"),
 )

@@ -178,7 +178,7 @@ class SessionView:
         except Exception as exc:  # noqa: BLE001 - rerun raises several kinds; one sentence for the user
             where = f"write {self.save_path}" if self.save_path is not None else "start the rerun viewer"
             first = (str(exc).strip().splitlines() or [exc.__class__.__name__])[0].rstrip(".")
-            raise ViewError(f"the view could not {where}: {first} (--view-save FILE.rrd writes a file "
+            raise ViewError(f"the view could not {where}: {first} (`view_save` FILE.rrd writes a file "
                             f"instead)") from None
         self.opened = True
 

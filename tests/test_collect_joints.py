@@ -81,7 +81,7 @@ def test_the_joints_option_text(text, expect):
 def test_a_bad_joints_option_is_refused(text):
     with pytest.raises(ConfigError) as err:
         load_config().with_bilateral_joints(text)
-    assert str(err.value).startswith("--joints ") and "\n" not in str(err.value)
+    assert str(err.value).startswith("`joints` ") and "\n" not in str(err.value)
 
 
 def test_the_coefficient_gravity_model_is_refused_beyond_the_papers_joints(tmp_path):

@@ -27,7 +27,7 @@ before exports existed). The export holds plain arrays only (loaded without pick
                         refused in one sentence
     rigid_effects       JSON list of effect terms {"name", "joint" (index or null), "shape", "n_coefs"}
     rigid_effect_coefs  their coefficients, concatenated in that order
-    rigid_effect_files  user effect files (--effect-file) the terms need, loaded with crane_io.physics.effects
+    rigid_effect_files  user effect files (`effect_files`) the terms need, loaded by crane_io.physics.effects
 
 `sha256` is the hex digest of loop_model.npz's bytes (the weights the loop runs with); when model.json
 records the export's digest (`"loop_export": {"sha256": ...}`, written by Model.save) the two must agree.
@@ -446,7 +446,7 @@ class _Loader:
             ctx = ", ".join(str(n) for n in np.atleast_1d(a["rigid_context_joints"]))
             raise self.fail(f"is a rigid-body model whose kinematics read the recorded motion of {ctx} "
                             f"(context joints that moved in its training data), which the control loop "
-                            f"does not pass to a model; fit it with those joints among --joints, or on "
+                            f"does not pass to a model; fit it with those joints among `joints`, or on "
                             f"data where they are held still")
         locked_names = [str(n) for n in np.atleast_1d(a["rigid_locked_joints"])]
         locked_angles = np.atleast_1d(np.asarray(a["rigid_locked_angles"], dtype=float))
@@ -475,8 +475,8 @@ class _Loader:
                 effect = fx.get_effect(name)
             except ConfigError:
                 raise self.fail(f"uses the effect {name!r}, which is neither built in nor defined in an "
-                                f"effect file it names; fit it again with that effect's "
-                                f"--effect-file") from None
+                                f"effect file it names; fit it again with the file that "
+                                f"defines it in `effect_files`") from None
             if n != effect.n_columns() or k + effect.n_columns() > coefs.size:
                 raise self.fail(f"has an inconsistent loop export: effect {name} needs "
                                 f"{effect.n_columns()} coefficients; {again}")

@@ -90,10 +90,10 @@ class PtyServer:
             target = os.readlink(self.link)
             if not target.startswith("/dev/pts/"):  # only a stale link to a pty is ours to replace
                 raise ConfigError(f"{self.link} already exists and links to {target}, not to a "
-                                  "pseudo-terminal; choose another --link path")
+                                  "pseudo-terminal; choose another `link` path")
             self.link.unlink()
         elif self.link.exists():
-            raise ConfigError(f"{self.link} already exists and is not a link; choose another --link path")
+            raise ConfigError(f"{self.link} already exists and is not a link; choose another `link` path")
         if not self.link.parent.is_dir():
             raise ConfigError(f"cannot create {self.link}: folder {self.link.parent} does not exist")
         self._master, self._slave = os.openpty()
