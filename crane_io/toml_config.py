@@ -138,25 +138,34 @@ def merge_defaults(base: dict, user: dict, where: str, prefix: str = "") -> None
         base[key] = value
 
 
-def from_table(cls, table, where: str, name: str, base=None):
+def from_table(cls, table, where: str, name: str = "", base=None):
     """An instance of the dataclass `cls` from the TOML table `table` (None: empty).
 
     Keys are the field names; each value is checked against the field's annotation and converted
     (a number for a float field becomes a float, a list for a tuple field a tuple). A field left out
-    keeps its default, or its value in `base` (an instance of `cls`) when given. `name` is how the
-    sentences call the table ("[sensor]", "joint joint1"); they read "<where>: <name> <key> must be ...".
-    ConfigError for a table that is not a table, an unknown key, a value of the wrong type; the
-    dataclass's own checks (__post_init__) run as usual."""
+    keeps its default, or its value in `base` (an instance of `cls`) when given; a field without either
+    must be there. `name` is how the sentences call the table ("[sensor]", "joint joint1"); they read
+    "<where>: <name> <key> must be ...". ConfigError for a table that is not a table, an unknown key
+    ("<where>: unknown key(s) ... in <name>", the closest field and the fields), a missing key, a value of the
+    wrong type; the dataclass's own checks (__post_init__) run as usual."""
     table = {} if table is None else table
-    expect(isinstance(table, dict), f"{where}: {name.strip('[]')}", f"a table ({name})", table)
+    at = f"{where}: {name}" if name else where
+    expect(isinstance(table, dict), f"{where}: {name.strip('[]')}" if name else where,
+           f"a table ({name})" if name else "a table", table)
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     unknown = sorted(set(table) - set(fields))
     if unknown:
         close = difflib.get_close_matches(unknown[0], fields, n=1)
         hint = f"; did you mean {close[0]!r}?" if close else ""
-        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)} in {name}{hint}")
-    values = {k: _checked(v, hints[k], f"{where}: {name} {k}") for k, v in table.items()}
+        table_name = f" in {name}" if name else ""
+        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)}{table_name}{hint} "
+                          f"(known: {', '.join(fields)})")
+    for key, f in fields.items():
+        required = f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+        if required and base is None and key not in table:
+            raise ConfigError(f"{at} needs {key}")
+    values = {k: _checked(v, hints[k], f"{at} {k}" if name else f"{at}: {k}") for k, v in table.items()}
     return dataclasses.replace(base, **values) if base is not None else cls(**values)
 
 

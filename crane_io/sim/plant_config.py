@@ -52,9 +52,10 @@ from __future__ import annotations
 import copy
 import json
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from importlib import resources
 from pathlib import Path
+from typing import Literal
 
 from crane_io.description import default_arm
 from crane_io.errors import ConfigError
@@ -84,7 +85,7 @@ class JointWallSpec:
 
     joint: str  # an integrated joint
     angle: float  # rad
-    side: str  # "above": stops motion above `angle`; "below": below it
+    side: Literal["above", "below"]  # "above": stops motion above `angle`; "below": below it
     stiffness: float = 50.0  # N m/rad
     damping: float = 0.5  # N m s/rad, only while penetrating
     kind: str = "joint-wall"
@@ -253,9 +254,7 @@ def _float_table(data, key: str, where: str, joints=None) -> dict[str, float]:
 
 def _dataclass_table(cls, data, key: str, where: str):
     obj = from_table(cls, data.get(key), where, f"[{key}]")
-    for f in fields(cls):
-        value = getattr(obj, f.name)
-        expect(isinstance(value, bool) or value >= 0, f"{where}: [{key}] {f.name}", "zero or more", value)
+    _signs(obj, f"{where}: [{key}]", nonneg=[f.name for f in fields(cls) if f.type != "bool"])
     if getattr(obj, "position_noise_probability", 0.0) > 1:
         raise ConfigError(f"{where}: [{key}] position_noise_probability must be at most 1, "
                           f"got {obj.position_noise_probability}")
@@ -357,10 +356,6 @@ def load_plant_config(preset_or_path: str | Path = "crane-x7") -> PlantConfig:
 
 # ---- [[environment]] -------------------------------------------------------------------------------
 
-_WALL_KEYS = {"kind", "joint", "angle", "side", "stiffness", "damping"}
-_PLANE_KEYS = {"kind", "point", "normal", "frame", "stiffness", "damping", "friction", "friction_velocity"}
-
-
 def _environment(entries, where: str, joints=BILATERAL_JOINTS) -> list[EnvironmentSpec]:
     if not isinstance(entries, list):
         raise ConfigError(f"{where}: environment must be a list of [[environment]] tables")
@@ -377,41 +372,22 @@ def _environment(entries, where: str, joints=BILATERAL_JOINTS) -> list[Environme
     return out
 
 
-def _number(entry: dict, key: str, at: str, default: float | None = None, minimum: float | None = None,
-            positive: bool = False) -> float:
-    if key not in entry and default is not None:
-        return default
-    if key not in entry:
-        raise ConfigError(f"{at} needs {key} (a number)")
-    value = entry[key]
-    expect(is_number(value), f"{at}: {key}", "a finite number", value)
-    expect(not positive or value > 0, f"{at}: {key}", "positive", value)
-    if minimum is not None:
-        expect(value >= minimum, f"{at}: {key}", f"at least {minimum:g}", value)
-    return float(value)
+def _signs(spec, prefix: str, positive=(), nonneg=()) -> None:
+    """ConfigError "<prefix> <key> must be positive / zero or more" for the first field out of range."""
+    for key in positive:
+        expect(getattr(spec, key) > 0, f"{prefix} {key}", "positive", getattr(spec, key))
+    for key in nonneg:
+        expect(getattr(spec, key) >= 0, f"{prefix} {key}", "zero or more", getattr(spec, key))
 
 
 def _joint_wall(entry: dict, at: str, joints=BILATERAL_JOINTS) -> JointWallSpec:
-    check_keys(entry, _WALL_KEYS, at)
-    joint, side = entry.get("joint"), entry.get("side")
-    if joint not in joints:
-        fix = f" (add {joint} to the plant's joints to integrate it)" if joint in ARM_JOINTS else ""
+    wall = from_table(JointWallSpec, entry, at)
+    if wall.joint not in joints:
+        fix = f" (add {wall.joint} to the plant's joints to integrate it)" if wall.joint in ARM_JOINTS else ""
         raise ConfigError(f"{at}: joint must be one of the integrated joints {', '.join(joints)}, "
-                          f"got {joint!r}{fix}")
-    if side not in ("above", "below"):
-        raise ConfigError(f"{at}: side must be \"above\" or \"below\", got {side!r}")
-    return JointWallSpec(joint=joint, angle=_number(entry, "angle", at), side=side,
-                         stiffness=_number(entry, "stiffness", at, 50.0, positive=True),
-                         damping=_number(entry, "damping", at, 0.5, minimum=0.0))
-
-
-def _vector(entry: dict, key: str, at: str) -> tuple[float, float, float]:
-    value = entry.get(key)
-    if value is None:
-        raise ConfigError(f"{at} needs {key} = [x, y, z]")
-    expect(isinstance(value, list) and len(value) == 3 and all(map(is_number, value)), f"{at}: {key}",
-           "a list of three finite numbers", value)
-    return (float(value[0]), float(value[1]), float(value[2]))
+                          f"got {wall.joint!r}{fix}")
+    _signs(wall, f"{at}:", positive=("stiffness",), nonneg=("damping",))
+    return wall
 
 
 def _frame_names() -> list[str]:
@@ -421,20 +397,15 @@ def _frame_names() -> list[str]:
 
 
 def _plane(entry: dict, at: str) -> PlaneSpec:
-    check_keys(entry, _PLANE_KEYS, at)
-    point, normal = _vector(entry, "point", at), _vector(entry, "normal", at)
-    length = math.sqrt(sum(v * v for v in normal))
+    plane = from_table(PlaneSpec, entry, at)
+    length = math.sqrt(sum(v * v for v in plane.normal))
     if length < 1e-9:
         raise ConfigError(f"{at}: normal must not be the zero vector")
-    frame = entry.get("frame", "tool")
-    if frame not in _frame_names():
+    if plane.frame not in _frame_names():
         raise ConfigError(f"{at}: frame must be a frame of the arm model ({', '.join(_frame_names())}), "
-                          f"got {frame!r}")
-    return PlaneSpec(point=point, normal=tuple(v / length for v in normal), frame=frame,
-                     stiffness=_number(entry, "stiffness", at, 2000.0, positive=True),
-                     damping=_number(entry, "damping", at, 20.0, minimum=0.0),
-                     friction=_number(entry, "friction", at, 0.3, minimum=0.0),
-                     friction_velocity=_number(entry, "friction_velocity", at, 0.01, positive=True))
+                          f"got {plane.frame!r}")
+    _signs(plane, f"{at}:", positive=("stiffness", "friction_velocity"), nonneg=("damping", "friction"))
+    return replace(plane, normal=tuple(v / length for v in plane.normal))
 
 
 def write_truth(config: PlantConfig, path: str | Path) -> Path:
