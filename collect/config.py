@@ -14,7 +14,7 @@ from importlib import resources
 from pathlib import Path
 
 from crane_io.errors import ConfigError
-from crane_io.toml_config import expect, merge_defaults, read_toml
+from crane_io.toml_config import dump_toml, expect, merge_defaults, read_toml
 
 DEG = math.pi / 180.0
 # The controller's default gains and observer cutoffs need at least this rate: at 50 Hz the simulated
@@ -353,34 +353,3 @@ def _operator_task(o: dict, where: str) -> dict:
 
 def _deep_copy(d):
     return {k: _deep_copy(v) if isinstance(v, dict) else v for k, v in d.items()}
-
-
-# ---- a minimal TOML writer (tables of scalars, strings and flat lists) ------------------------------
-
-def _fmt(value) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, (int, float)):
-        return repr(value)
-    if isinstance(value, str):
-        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(_fmt(v) for v in value) + "]"
-    raise TypeError(f"cannot write {value!r} as TOML")
-
-
-def dump_toml(values: dict) -> str:
-    lines: list[str] = []
-
-    def table(d: dict, path: str) -> None:
-        scalars = {k: v for k, v in d.items() if not isinstance(v, dict)}
-        if path and (scalars or not d):
-            lines.append(f"[{path}]")
-        for k, v in scalars.items():
-            lines.append(f"{k} = {_fmt(v)}")
-        for k, v in d.items():
-            if isinstance(v, dict):
-                table(v, f"{path}.{k}" if path else k)
-
-    table(values, "")
-    return "\n".join(lines) + "\n"

@@ -1,31 +1,21 @@
-"""Reading TOML configuration into checked Python values, shared by every loader of the project.
+"""TOML configuration files to checked Python values: the part every loader of the project shares.
 
-The loaders (collect/config.py: bilateral.toml; crane_io/sim/plant_config.py: plant presets;
-crane_io/description.py: the arm description; train/cli_options.py: train.toml;
-crane_io/dynamixel/calibration.py: calibration files) each know their own keys, units and cross-checks;
-what they share lives here, and every problem is a `ConfigError` in one sentence naming the file and key:
+Loaders: collect/config.py (bilateral.toml), crane_io/sim/plant_config.py (plant presets),
+crane_io/description.py (the arm description), train/cli_options.py (train.toml) and
+crane_io/dynamixel/calibration.py (calibration files). Each problem is a `ConfigError`, one sentence
+naming the file and the key:
 
-    data = read_toml(path, what="plant configuration")   # or read_toml(text=..., where="preset 'x'")
-    merge_defaults(defaults, data, where)                # user keys onto a complete default document
-    cfg = from_table(SensorConfig, data.get("sensor"), where, "[sensor]")   # a checked dataclass
-    expect(0 < frac <= 1, "'safety.current_fraction' in c.toml", "in (0, 1]", frac)
+    data = read_toml(path, what="plant configuration")  # missing, not a file, not UTF-8, invalid TOML (line)
+    merge_defaults(defaults, data, where)               # user keys onto the complete default document
+    cfg = from_table(SensorConfig, data.get("sensor"), where, "[sensor]")  # a dataclass, type-checked
+    expect(0 < frac <= 1, "'safety.current_fraction' in c.toml", "in (0, 1]", frac)  # "... must be ..."
+    text = dump_toml(document)                          # back to TOML (tables, scalars, flat lists)
 
-`read_toml`: a missing file, a folder, an unreadable or non-UTF-8 file and invalid TOML (with its line and
-column) each give one sentence naming the file. `merge_defaults`: a key the defaults do not have (with the
-closest known key, if one is close, and the known keys of that table), a table given as a value or a value
-of another type than the default's. `from_table`: a dataclass built from a table, its values checked
-against the field annotations (bool, int, float — finite, an int is accepted —, str, `tuple[T, ...]`,
-`tuple[T, U]`, `list[T]`, `dict`, `Literal[...]` choices, `T | None`, a nested dataclass), an unknown key
-refused ("<where>: unknown key(s) ... in [table]", with the closest field), fields left out keeping their
-defaults (or the values of `base`). `expect`: the one sentence "<subject> must be <what>, got <value>" the
-loaders' value checks use.
-
-What stays in the loaders, and why: collect converts `_deg` keys to radians and renames them, checks
-values against each other and keeps the merged document (stored in every session), so it builds its
-dataclasses by hand from the merged, type-checked document; the plant's `base` presets, effect entries
-(checked by the effect library) and [[environment]] kinds are the plant's own; a calibration's joints are
-a table of optional numbers read in a few lines. Those keep their own checks and messages, on the helpers
-here.
+What stays in a loader, and why: collect converts `_deg` keys to radians under other names, checks values
+against each other and keeps the merged document (stored in every session), so it builds its dataclasses
+by hand from the type-checked merge; the plant's `base` presets, effect entries (checked by the effect
+library) and joint tables are its own; the arm description keeps its sentences for unknown joints and
+keys, calibration files their "cannot read the calibration" (the tests and the users know them).
 """
 
 from __future__ import annotations
@@ -44,8 +34,6 @@ if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover
     import tomli as tomllib
-
-TOMLDecodeError = tomllib.TOMLDecodeError
 
 
 def read_toml(path: str | Path | None = None, *, text: str | None = None, what: str = "configuration file",
@@ -202,3 +190,33 @@ def _checked(value, tp, subject: str):
     elif origin is dict or tp is dict:
         expect(isinstance(value, dict), subject, "a table", value)
     return value
+
+
+def _toml_value(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"cannot write {value!r} as TOML")
+
+
+def dump_toml(values: dict) -> str:
+    """`values` (nested dicts of bools, numbers, strings and flat lists) as TOML text: tomllib reads the
+    same document back."""
+    lines: list[str] = []
+
+    def table(d: dict, path: str) -> None:
+        scalars = {k: v for k, v in d.items() if not isinstance(v, dict)}
+        if path and (scalars or not d):
+            lines.append(f"[{path}]")
+        lines.extend(f"{k} = {_toml_value(v)}" for k, v in scalars.items())
+        for k, v in d.items():
+            if isinstance(v, dict):
+                table(v, f"{path}.{k}" if path else k)
+
+    table(values, "")
+    return "\n".join(lines) + "\n"

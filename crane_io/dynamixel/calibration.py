@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from crane_io.errors import ConfigError
-from crane_io.toml_config import read_toml
+from crane_io.toml_config import dump_toml, read_toml
 
 CONFIG_ENV = "CRANE_X7_CONFIG_DIR"
 MAX_OFFSET_RAD = math.radians(20.0)  # more than this at a mark: the joint was not at its mark
@@ -148,29 +148,23 @@ def load_calibration(path: str | os.PathLike) -> Calibration:
 def save_calibration(cal: Calibration, path: str | os.PathLike | None = None) -> Path:
     """Write `cal` (atomically) to `path` or its adapter's file; returns where."""
     path = Path(path) if path is not None else calibration_path(cal.key)
-    lines = ["# crane-x7 arm calibration: q_calibrated = q_servo - offset_rad "
-             "(crane_io/dynamixel/calibration.py)",
-             "[arm]", f"name = {_toml_str(cal.name)}", f"key = {_toml_str(cal.key)}",
-             f"created = {_toml_str(cal.created)}", ""]
+    joints = {}
     for name, j in cal.joints.items():
-        lines.append(f"[joints.{name}]")
-        lines.append(f"offset_rad = {j.offset_rad!r}")
+        joints[name] = {"offset_rad": j.offset_rad}
         if j.min_rad is not None and j.max_rad is not None:
-            lines.append(f"min_rad = {j.min_rad!r}")
-            lines.append(f"max_rad = {j.max_rad!r}")
-        lines.append("")
+            joints[name].update(min_rad=j.min_rad, max_rad=j.max_rad)
+    text = ("# crane-x7 arm calibration: q_calibrated = q_servo - offset_rad "
+            "(crane_io/dynamixel/calibration.py)\n"
+            + dump_toml({"arm": {"name": cal.name, "key": cal.key, "created": cal.created},
+                         "joints": joints}))
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(".tmp")
-        tmp.write_text("\n".join(lines))
+        tmp.write_text(text)
         os.replace(tmp, path)
     except OSError as exc:
         raise CalibrationError(f"cannot write the calibration {path}: {exc.strerror or exc}") from None
     return path
-
-
-def _toml_str(text: str) -> str:
-    return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
 
 
 @dataclass
