@@ -16,7 +16,7 @@ from pathlib import Path
 
 from crane_io.dynamixel.control_table import MODELS, ServoModel
 from crane_io.errors import ConfigError
-from crane_io.toml_config import from_table, read_toml
+from crane_io.toml_config import from_table, is_number, read_toml
 
 DEG = math.pi / 180.0
 
@@ -111,19 +111,21 @@ class ArmDescription:
             if name not in joints:
                 raise DescriptionError(f"unknown joint {name!r} in arm description")
             fields = dict(over)
-            for key in ("lower_deg", "upper_deg"):
-                if key in fields:
-                    fields[key[:-4]] = fields.pop(key)
+            for key in [k for k in ("lower_deg", "upper_deg") if k in fields]:
+                value = fields.pop(key)
+                if not is_number(value):
+                    raise DescriptionError(f"{where}: joint {name} {key} must be a finite number, "
+                                           f"got {value!r}")
+                fields[key[:-4]] = value * DEG
             unknown = set(fields) - set(Joint.__dataclass_fields__)
             if unknown:
                 raise DescriptionError(f"unknown keys for joint {name}: {', '.join(sorted(unknown))}")
             if "model" in fields and fields["model"] not in MODELS:
                 raise DescriptionError(f"joint {name}: unknown servo model {fields['model']!r}")
             try:
-                joint = from_table(Joint, fields, where, f"joint {name}", base=joints[name])
+                joints[name] = from_table(Joint, fields, where, f"joint {name}", base=joints[name])
             except ConfigError as exc:
                 raise DescriptionError(str(exc)) from None
-            joints[name] = replace(joint, **{k: fields[k] * DEG for k in ("lower", "upper") if k in fields})
         desc = replace(base, joints=tuple(joints.values()))
         if "bilateral_joints" in data:
             desc = replace(desc, bilateral_joints=tuple(data["bilateral_joints"]))

@@ -45,6 +45,8 @@ def test_toml_overrides_only_what_it_names(tmp_path):
     ('[arm.joints.joint1]\nmodel = "XL330"\n', "unknown servo model 'XL330'"),
     ('[arm]\nbilateral_joints = ["elbow"]\n', "no joint named 'elbow'"),
     ("[arm\n", "not valid TOML"),
+    ('[arm.joints.joint1]\nservo_id = "2"\n', "servo_id must be an integer, got '2'"),  # was accepted
+    ('[arm.joints.joint1]\nlower_deg = "-90"\n', "lower_deg must be a finite number"),  # was a TypeError
 ])
 def test_bad_description_is_one_clear_sentence(tmp_path, text, match):
     p = tmp_path / "arm.toml"
