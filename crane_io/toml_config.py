@@ -88,8 +88,9 @@ def unknown_key(key: str, known, where: str, shown: str | None = None) -> Config
 
 def check_keys(table: dict, known, where: str, prefix: str = "") -> None:
     """ConfigError (unknown_key) for the first key of `table` (in sorted order) that is not in `known`."""
-    for key in sorted(set(table) - set(known)):
-        raise unknown_key(key, known, where, f"{prefix}{key}")
+    unknown = sorted(set(table) - set(known))
+    if unknown:
+        raise unknown_key(unknown[0], known, where, f"{prefix}{unknown[0]}")
 
 
 _WHAT = {bool: "true or false", int: "an integer", float: "a number", str: "a string", list: "a list",

@@ -254,7 +254,8 @@ def _float_table(data, key: str, where: str, joints=None) -> dict[str, float]:
 
 def _dataclass_table(cls, data, key: str, where: str):
     obj = from_table(cls, data.get(key), where, f"[{key}]")
-    _signs(obj, f"{where}: [{key}]", nonneg=[f.name for f in fields(cls) if f.type != "bool"])
+    numbers = [f.name for f in fields(cls) if not isinstance(getattr(obj, f.name), bool)]
+    _signs(obj, f"{where}: [{key}]", nonneg=numbers)
     if getattr(obj, "position_noise_probability", 0.0) > 1:
         raise ConfigError(f"{where}: [{key}] position_noise_probability must be at most 1, "
                           f"got {obj.position_noise_probability}")
