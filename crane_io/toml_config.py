@@ -77,20 +77,15 @@ def is_number(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
-def unknown_key(key: str, known, where: str, shown: str | None = None) -> ConfigError:
-    """The sentence for a key the table does not have: the closest known key when one is close, and
-    the known keys. `shown` is the key as the sentence names it (default `key`)."""
-    known, shown = sorted(known), shown or key
-    close = difflib.get_close_matches(key, known, n=1)
-    hint = f"; did you mean {shown[:len(shown) - len(key)] + close[0]!r}?" if close else ""
-    return ConfigError(f"unknown key {shown!r} in {where}{hint} (known here: {', '.join(known)})")
-
-
 def check_keys(table: dict, known, where: str, prefix: str = "") -> None:
-    """ConfigError (unknown_key) for the first key of `table` (in sorted order) that is not in `known`."""
-    unknown = sorted(set(table) - set(known))
+    """ConfigError for the first key of `table` (in sorted order) that is not in `known`: "unknown key
+    '<prefix><key>' in <where>", the closest known key when one is close, and the known keys."""
+    unknown, known = sorted(set(table) - set(known)), sorted(known)
     if unknown:
-        raise unknown_key(unknown[0], known, where, f"{prefix}{unknown[0]}")
+        close = difflib.get_close_matches(unknown[0], known, n=1)
+        hint = f"; did you mean {prefix + close[0]!r}?" if close else ""
+        raise ConfigError(f"unknown key {prefix + unknown[0]!r} in {where}{hint} "
+                          f"(known here: {', '.join(known)})")
 
 
 _WHAT = {bool: "true or false", int: "an integer", float: "a number", str: "a string", list: "a list",
@@ -104,11 +99,9 @@ def merge_defaults(base: dict, user: dict, where: str, prefix: str = "") -> None
     the default's type: a table stays a table, true/false a bool, an integer an int, a number a float (an
     integer is converted), text a str; a default list accepts a list or a string (a list given as text,
     e.g. "all")."""
+    check_keys(user, base, where, prefix)
     for key, value in user.items():
-        name = f"{prefix}{key}"
-        if key not in base:
-            raise unknown_key(key, base, where, name)
-        default = base[key]
+        name, default = f"{prefix}{key}", base[key]
         if isinstance(default, dict):
             expect(isinstance(value, dict), f"{name!r} in {where}", "a table", value)
             merge_defaults(default, value, where, prefix=f"{name}.")
