@@ -12,8 +12,8 @@ from crane_io.description import default_arm
 from crane_io.dynamixel.units import AMPERE_PER_CURRENT_LSB, POSITION_CENTER, RAD_PER_PULSE
 from tests.sessions import write_synthetic_session
 from train.cli import main
-from train.importer import ImportMapError, ImportUnits, import_session, parse_map
-from train.session import read_session
+from train.data.importer import ImportMapError, ImportUnits, import_session, parse_map
+from train.data.session import read_session
 
 ARM = default_arm()
 NAMES = ARM.joint_names
