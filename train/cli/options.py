@@ -20,7 +20,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-DEFAULT_CONFIG = Path(__file__).parent / "config" / "train.toml"
+DEFAULT_CONFIG = Path(__file__).parents[1] / "config" / "train.toml"
 
 
 def config_sections() -> dict:

@@ -84,11 +84,11 @@ class ImportMap:
         return json.dumps({"t": self.time, "joints": self.joints}, sort_keys=True)
 
 
-def parse_map(items, joint_names=None) -> ImportMap:
+def parse_map(mapping, joint_names=None) -> ImportMap:
     """ImportMap from `KEY=COLUMN` strings (several per string, comma-separated, are allowed)."""
     known = tuple(joint_names or default_arm().joint_names)
     time_col, joints, seen = None, {}, {}
-    for item in items:
+    for item in mapping:
         for pair in str(item).split(","):
             pair = pair.strip()
             if not pair:
@@ -96,35 +96,36 @@ def parse_map(items, joint_names=None) -> ImportMap:
             key, sep, col = pair.partition("=")
             key, col = key.strip(), col.strip()
             if not sep or not key or not col:
-                raise ImportMapError(f"--map {pair!r} is not KEY=COLUMN (e.g. t=time, joint1.q=q1, "
+                raise ImportMapError(f"`mapping` {pair!r} is not KEY=COLUMN (e.g. t=time, joint1.q=q1, "
                                      f"joint1.current=i1)")
             if key in seen:
-                raise ImportMapError(f"--map names {key} twice ({seen[key]!r} and {col!r})")
+                raise ImportMapError(f"`mapping` names {key} twice ({seen[key]!r} and {col!r})")
             seen[key] = col
             if key == "t":
                 time_col = col
                 continue
             joint, dot, sig = key.rpartition(".")
             if not dot or not joint:
-                raise ImportMapError(f"--map key {key!r} is neither t nor JOINT.SIGNAL (e.g. joint1.q)")
+                raise ImportMapError(f"`mapping` key {key!r} is neither t nor JOINT.SIGNAL (e.g. joint1.q)")
             if joint not in known:
-                raise ImportMapError(f"--map {key}: unknown joint {joint!r}; joints are {', '.join(known)}")
+                raise ImportMapError(f"`mapping` {key}: unknown joint {joint!r}; joints are "
+                                     f"{', '.join(known)}")
             if sig not in JOINT_SIGNALS:
-                raise ImportMapError(f"--map {key}: unknown signal {sig!r}; use q (angle), tau (torque) or "
-                                     f"current (made torque with the torque constant)")
+                raise ImportMapError(f"`mapping` {key}: unknown signal {sig!r}; use q (angle), tau (torque) "
+                                     f"or current (made torque with the torque constant)")
             joints.setdefault(joint, {})[sig] = col
     if time_col is None:
-        raise ImportMapError("--map names no time column; add t=COLUMN")
+        raise ImportMapError("`mapping` names no time column; add t=COLUMN")
     if not joints:
-        raise ImportMapError("--map names no joint; add JOINT.q=COLUMN and JOINT.tau=COLUMN (or "
+        raise ImportMapError("`mapping` names no joint; add JOINT.q=COLUMN and JOINT.tau=COLUMN (or "
                              "JOINT.current=COLUMN) for each joint")
     for joint, sigs in joints.items():
         if "tau" in sigs and "current" in sigs:
-            raise ImportMapError(f"--map gives {joint} both a torque and a current; map one of them")
+            raise ImportMapError(f"`mapping` gives {joint} both a torque and a current; map one of them")
         if "q" not in sigs:
-            raise ImportMapError(f"--map gives no angle for {joint}; add {joint}.q=COLUMN")
+            raise ImportMapError(f"`mapping` gives no angle for {joint}; add {joint}.q=COLUMN")
         if "tau" not in sigs and "current" not in sigs:
-            raise ImportMapError(f"--map gives no torque for {joint}; add {joint}.tau=COLUMN or "
+            raise ImportMapError(f"`mapping` gives no torque for {joint}; add {joint}.tau=COLUMN or "
                                  f"{joint}.current=COLUMN")
     order = [n for n in known if n in joints]
     return ImportMap(time_col, {n: joints[n] for n in order})
@@ -243,7 +244,7 @@ def convert(columns: dict[str, np.ndarray], spec: ImportMap, units: ImportUnits 
     kt_given = dict(torque_constants or {})
     unknown = [n for n in kt_given if n not in spec.joints]
     if unknown:
-        raise ImportMapError(f"a torque constant is given for {', '.join(unknown)}, which --map does not "
+        raise ImportMapError(f"a torque constant is given for {', '.join(unknown)}, which `mapping` does not "
                              f"import")
     for name, value in kt_given.items():
         if not (np.isfinite(value) and value > 0):
@@ -303,7 +304,7 @@ def write_session(out, s: ImportedSession, *, source: str = "import", attrs: dic
 
     out = Path(out)
     if out.exists() and not force:
-        raise ImportMapError(f"{out} exists; give --force to overwrite it")
+        raise ImportMapError(f"{out} exists; give `force` to overwrite it")
     if out.is_dir():
         raise ImportMapError(f"{out} is a directory")
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -342,7 +343,7 @@ def import_session(input_path, out, spec: ImportMap, units: ImportUnits = Import
     if out.exists() and input_path.exists() and out.resolve() == input_path.resolve():
         raise ImportMapError(f"the output {out} is the input; name another file")
     if out.exists() and not force:  # before the (possibly long) read
-        raise ImportMapError(f"{out} exists; give --force to overwrite it")
+        raise ImportMapError(f"{out} exists; give `force` to overwrite it")
     columns = read_columns(input_path, list(dict.fromkeys(spec.columns())))
     s = convert(columns, spec, units, torque_constants, rate_hz, source_name=str(input_path))
     imported_from, import_map, import_units, offset = (a.name for a in sf.IMPORT_ROOT)

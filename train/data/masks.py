@@ -24,7 +24,7 @@ def velocity_sigma(dq: np.ndarray, joint_names=None) -> np.ndarray:
     for j, s in enumerate(sigma):
         if not np.isfinite(s) or s < 1e-9:
             raise DeadZoneError(f"joint {names[j]} never moves in the data (velocity spread {s:.2g} rad/s), "
-                                f"so it cannot be learned; record motion of it or leave it out with --joints")
+                                f"so it cannot be learned; record motion of it or leave it out with `joints`")
     return sigma
 
 

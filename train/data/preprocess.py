@@ -131,7 +131,7 @@ def preprocess(sessions: list[RawSession] | RawSession, config: PreprocessConfig
         values = config.to_dict()
         values["joints"] = tuple(n for n in ARM_JOINTS if all(n in s.joint_names for s in sessions))
         if not values["joints"]:
-            raise ConfigError("--joints all: the sessions have no arm joint (joint1..joint7) in common")
+            raise ConfigError("`joints` all: the sessions have no arm joint (joint1..joint7) in common")
         config = PreprocessConfig.from_dict(values)
     parts = {k: [] for k in ("t", "q", "dq", "ddq", "tau", "segment", "cq", "cdq", "cddq")}
     # context joints: the other arm joints every session records (their recorded angles enter the
@@ -182,7 +182,7 @@ def preprocess(sessions: list[RawSession] | RawSession, config: PreprocessConfig
         if span < MIN_TRAVEL_RAD:  # its velocity is jitter, which the mask would call motion
             raise DeadZoneError(f"{name} never moves in the data (its angle stays within "
                                 f"{np.degrees(span):.2g} deg), so it cannot be learned; record motion of it "
-                                f"or leave it out with --joints")
+                                f"or leave it out with `joints`")
     moving, sigma = dead_zone_mask(cat["dq"], config.alpha, joint_names=config.joints)
     rate = min(config.downsample_hz, min(s.rate_hz for s in sessions))
     meta = {"preprocessing": config.to_dict(), "sigma": sigma.tolist(), "alpha": config.alpha,

@@ -208,6 +208,6 @@ def make_splits(ds: Dataset, config: SplitConfig | None = None, seed: int = 0,
                 f"({need / ds.rate_hz:.0f} s of recording at {ds.rate_hz:g} Hz: {config.n_pool} training, "
                 f"{config.n_val} validation and {config.n_test} test samples {which}, {frac:.0%} {what}, "
                 f"plus a {config.window_s:g} s window) but the data has {len(ds)} "
-                f"({len(ds) / ds.rate_hz:.0f} s); record longer or use --scale-to-data")
+                f"({len(ds) / ds.rate_hz:.0f} s); record longer or use `scale_to_data`")
         scale *= 0.8
     raise SplitError(f"even scaled down the splits do not fit the {len(ds)} samples available")

@@ -108,7 +108,7 @@ def compare_models(model_dirs, sessions=None, progress: bool = False) -> Compari
                                f"predicts {', '.join(joints)}; only models of the same joints compare")
     sessions = list(sessions or model_sessions(models[0], model_dirs[0]))
     if not sessions:
-        raise CompareError("the models do not record their sessions; name them with --session")
+        raise CompareError("the models do not record their sessions; name them with `sessions`")
     _, splits, reference = evaluation_data(models[0], sessions, model_dir=model_dirs[0])
     ref_settings, _, ref_seed = model_settings(models[0], model_dirs[0])
     out = []
