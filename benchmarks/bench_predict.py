@@ -31,7 +31,7 @@ EFFECTS = [["coulomb", None, None], ["viscous", None, None],
 
 def _data(n: int, seed: int):
     from crane_io.physics.dynamics import ArmDynamics
-    from train.dataset import Dataset
+    from train.data.dataset import Dataset
 
     rng = np.random.default_rng(seed)
     q, dq, ddq = rng.uniform(-1, 1, (n, 3)), rng.uniform(-2, 2, (n, 3)), rng.uniform(-10, 10, (n, 3))
@@ -40,8 +40,8 @@ def _data(n: int, seed: int):
 
 
 def _models(folder: Path) -> dict:
+    from train.data.preprocess import PreprocessConfig
     from train.models.registry import load_model, make_model
-    from train.preprocess import PreprocessConfig
 
     ds = _data(400, 0)
     net = {"epochs": 3, "hidden": 64}

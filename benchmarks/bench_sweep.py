@@ -5,8 +5,8 @@ Data: a 10-minute synthetic session (tests/sessions.py: the CRANE-X7 rigid-body 
 paper's pool 6000 / validation 500 / test 500.
 Full run: 10 sizes (300..3000), 10 trials, 3 methods, 100 epochs = 200 MLPs + 100 rigid-body fits,
 timed twice in the same process on the same splits and draws:
-  * batched: train.sweep.run_sweep (all 200 MLPs in one train.batched run);
-  * plain:   the same MLPs one after another with train.batched.train_plain (nn.Sequential,
+  * batched: train.evaluation.sweep.run_sweep (all 200 MLPs in one train.models.batched run);
+  * plain:   the same MLPs one after another with train.models.batched.train_plain (nn.Sequential,
              torch.optim.Adam, a Python loop over minibatches), the rigid-body fits as in the sweep.
 Quick run: 3 sizes (300, 1500, 3000), 3 trials, 100 epochs; nothing is extrapolated.
 torch uses 1 intra-op thread (fastest for 9-64-3 networks; measured, see docs/train.md).
@@ -28,8 +28,8 @@ ROOT = Path(__file__).resolve().parents[1]
 def _dataset(minutes: float = 10.0):
     sys.path.insert(0, str(ROOT))
     from tests.sessions import write_synthetic_session
-    from train.preprocess import preprocess
-    from train.session import read_sessions
+    from train.data.preprocess import preprocess
+    from train.data.session import read_sessions
 
     with tempfile.TemporaryDirectory() as tmp:
         path, _ = write_synthetic_session(Path(tmp) / "bench.h5", minutes * 60, seed=0)
@@ -38,11 +38,11 @@ def _dataset(minutes: float = 10.0):
 
 def plain_sweep(ds, sizes, trials, seed, settings):
     """The sweep's MLPs trained one at a time; returns {method: (S, T, J) test MSE} and seconds."""
-    from train.batched import predict, train_plain
-    from train.metrics import mse
+    from train.data.splits import make_splits
+    from train.evaluation.metrics import mse
+    from train.evaluation.sweep import draw_subsets, mlp_jobs, run_rigid_body
+    from train.models.batched import predict, train_plain
     from train.models.mlp import features
-    from train.splits import make_splits
-    from train.sweep import draw_subsets, mlp_jobs, run_rigid_body
 
     splits = make_splits(ds, seed=seed)
     subsets = draw_subsets(len(splits.pool), sizes, trials, seed)
@@ -59,8 +59,8 @@ def plain_sweep(ds, sizes, trials, seed, settings):
 
 
 def run(quick: bool) -> list[dict]:
-    from train.batched import MLPSettings
-    from train.sweep import run_sweep
+    from train.evaluation.sweep import run_sweep
+    from train.models.batched import MLPSettings
 
     torch.set_num_threads(1)
     sizes = [300, 1500, 3000] if quick else list(range(300, 3001, 300))

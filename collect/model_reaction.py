@@ -2,8 +2,8 @@
 
 A crane-train model f(q, dq, ddq) says what motor torque the arm's own dynamics need (gravity, inertia,
 friction, everything it learned). It was trained on signals that went through the paper's
-preprocessing at the recording rate (train/preprocess.py): with the low-pass L (cutoff w) and the
-pseudo-derivative D (cutoff g) of train/filters.py (first-order, Tustin),
+preprocessing at the recording rate (train/data/preprocess.py): with the low-pass L (cutoff w) and the
+pseudo-derivative D (cutoff g) of train/data/filters.py (first-order, Tustin),
 
     q_m = L(L(q)),   dq_m = L(D(q)),   ddq_m = D(D(q)),   tau_m = L(L(tau_applied)),
 
@@ -55,7 +55,7 @@ POSE_MARGIN_RAD = 0.1  # how far outside the training data's angles the model is
 class LagFilters:
     """The paper's first-order low-pass w/(s+w) and pseudo-derivative g s/(s+g), Tustin at `rate_hz`,
     one sample at a time on (k,) vectors, started in steady state at the first sample (as
-    train/filters.py: the low-pass output starts at the input, the derivative at 0).
+    train/data/filters.py: the low-pass output starts at the input, the derivative at 0).
 
     `set_period(dt)` re-discretises them for a cycle that took dt seconds (Tustin at 1/dt), so that a
     loop running late still filters and differentiates in real time: at the nominal period the
@@ -89,9 +89,9 @@ class LagFilters:
 
 
 class ModelInputs:
-    """q_m = L(L(q)), dq_m = L(D(q)), ddq_m = D(D(q)) and tau_m = L(L(tau)) of train/preprocess.py, causal,
-    one sample at a time: `push(q, tau)` with (k,) arrays; the filtered signals in `.q`, `.dq`, `.ddq`,
-    `.tau` (None before the first push)."""
+    """q_m = L(L(q)), dq_m = L(D(q)), ddq_m = D(D(q)) and tau_m = L(L(tau)) of train/data/preprocess.py,
+    causal, one sample at a time: `push(q, tau)` with (k,) arrays; the filtered signals in `.q`, `.dq`,
+    `.ddq`, `.tau` (None before the first push)."""
 
     def __init__(self, filters: LagFilters):
         self.f = filters

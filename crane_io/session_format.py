@@ -1,8 +1,8 @@
 """The crane-session file format (HDF5), declared once: names, dtypes, shapes, units, attributes.
 
-The writer (collect/recorder.py), the readers (train/session.py, train/fidelity.py), the tools that
-copy or recover a session (collect/recovery.py, collect/session_copy.py), the importer
-(train/importer.py) and the docs test (tests/test_session_format.py, which checks README.md's section
+The writer (collect/recorder.py), the readers (train/data/session.py, train/evaluation/fidelity.py), the tools
+that copy or recover a session (collect/recovery.py, collect/session_copy.py), the importer
+(train/data/importer.py) and the docs test (tests/test_session_format.py, which checks README.md's section
 "The session file" against this module, both ways) all take the format's names from here. collect and
 train both depend on crane_io and never on each other, so the format lives here.
 

@@ -269,7 +269,7 @@ def test_a_fault_on_a_wrist_joint_ends_in_a_safe_stop(tmp_path, fault, words):
 
 def _operator_moving(joints: tuple[str, ...], seed: int, duration: float = 600.0, rate: float = 50.0):
     """The moving mask of the operator's reference over `duration` s: the paper's dead zone (|dq| above
-    0.1 of the joint's velocity spread, train/masks.py) on the reference velocity."""
+    0.1 of the joint's velocity spread, train/data/masks.py) on the reference velocity."""
     cfg = load_config().with_bilateral_joints(list(joints))
     arm = replace(default_arm(), bilateral_joints=cfg.bilateral)
     op = SimulatedOperator(seed, arm, rate, cfg)

@@ -19,10 +19,10 @@ from collect.cli import main as collect_main
 from collect.recorder import read_events
 from collect.runner import RunOptions, run_session
 from crane_io.physics.loop_model import LoopModel, LoopModelError
-from train.cli_options import parse_effect
-from train.cmd_fit import fit_model
-from train.fidelity import measure_fidelity
-from train.filters import lowpass, pseudo_diff
+from train.cli.fit import fit_model
+from train.cli.options import parse_effect
+from train.data.filters import lowpass, pseudo_diff
+from train.evaluation.fidelity import measure_fidelity
 from train.models.registry import load_model
 
 BILATERAL = ("joint1", "joint2", "joint4")

@@ -10,14 +10,14 @@ from click.testing import CliRunner
 
 from tests.sessions import write_synthetic_session
 from train.cli import main
-from train.cmd_fit import fit_model
-from train.compare import Comparison, ModelScore, compare_models, legend_names, plot, table_text
-from train.heldout import evaluation_data
+from train.cli.fit import fit_model
+from train.data.preprocess import preprocess
+from train.data.session import read_sessions
+from train.data.splits import make_splits
+from train.evaluation.compare import Comparison, ModelScore, compare_models, legend_names, plot, table_text
+from train.evaluation.heldout import evaluation_data
+from train.evaluation.plots import change_text, comparison_figure
 from train.models.registry import load_model
-from train.plots import change_text, comparison_figure
-from train.preprocess import preprocess
-from train.session import read_sessions
-from train.splits import make_splits
 
 
 @pytest.fixture(scope="module")

@@ -25,13 +25,13 @@ from click.testing import CliRunner
 from crane_io.sim.plant_config import load_plant_config
 from tests.planted import simulate_session
 from train.cli import main
-from train.cmd_fit import fit_model
-from train.compare import compare_models
-from train.diagnose import diagnose, diagnose_residual
-from train.heldout import model_settings
+from train.cli.fit import fit_model
+from train.data.preprocess import preprocess
+from train.data.session import read_sessions
+from train.diagnosis.diagnose import diagnose, diagnose_residual
+from train.evaluation.compare import compare_models
+from train.evaluation.heldout import model_settings
 from train.models.registry import load_model
-from train.preprocess import preprocess
-from train.session import read_sessions
 
 DURATION_S = 60.0
 SEED = int(os.environ.get("CRANE_PLANTED_SEED", "0"))
@@ -156,7 +156,7 @@ def test_diagnose_bad_input_is_one_sentence(case, tmp_path):
 def test_residual_diagnosis_names_a_planted_term_and_stays_quiet_on_noise():
     """The residual path (used for network models) on a synthetic residual: Coulomb on one joint."""
     from crane_io.physics.effects import get_effect
-    from train.dataset import Dataset
+    from train.data.dataset import Dataset
 
     rng = np.random.default_rng(0)
     n = 4000
@@ -231,8 +231,8 @@ def _session_path(case, preset):
 def test_a_network_is_diagnosed_only_on_samples_it_never_trained_on(case, planted_dir):
     """A physics model is refitted per fold (all samples are fair); a network keeps its weights, so its
     own pool and validation rows are left out of its diagnosis."""
-    from train.heldout import diagnosis_data
-    from train.splits import make_splits
+    from train.data.splits import make_splits
+    from train.evaluation.heldout import diagnosis_data
 
     session, base, _, _, _ = case("hidden-coulomb")
     rigid = load_model(base)
@@ -260,7 +260,7 @@ def test_a_missing_effect_leaking_into_another_joint_is_not_blamed_there():
     explains nothing, so it is demoted (not significant, `explained_by` names the leader)."""
     from crane_io.physics.effects import get_effect
     from crane_io.physics.effects.base import Effect, Param, joint_columns
-    from train.dataset import Dataset
+    from train.data.dataset import Dataset
 
     class CrossVelocity(Effect):  # test-only candidate: joint A's velocity acting on another joint
         name = "cross-velocity-test"

@@ -1,4 +1,4 @@
-"""Discover the missing term (`crane-train diagnose --discover`, train/discovery.py, issue 12).
+"""Discover the missing term (`crane-train diagnose --discover`, train/diagnosis/discovery.py, issue 12).
 
 Four effects whose form the effects library lacks are planted, each hidden on a stated joint of the
 baseline plant (tests/fakes/planted-*.toml, effects in tests/fakes/planted_effects.py): a friction whose
@@ -29,8 +29,8 @@ import crane_io.physics.effects as fx
 from crane_io.sim.plant_config import load_plant_config
 from tests.planted import simulate_session
 from train.cli import main
-from train.cmd_fit import fit_model
-from train.compare import compare_models
+from train.cli.fit import fit_model
+from train.evaluation.compare import compare_models
 
 DURATION_S = 60.0
 SEED = int(os.environ.get("CRANE_PLANTED_SEED", "0"))
@@ -179,8 +179,8 @@ def test_a_library_effect_is_named_by_the_ranking_and_discovery_agrees(planted):
 
 def test_residual_discovery_on_synthetic_data_and_quiet_on_noise():
     """The residual path (a model that is not linear in parameters): terms fitted to its residual."""
-    from train.dataset import Dataset
-    from train.discovery import discover
+    from train.data.dataset import Dataset
+    from train.diagnosis.discovery import discover
 
     rng = np.random.default_rng(SEED)
     n = 3000
@@ -209,7 +209,7 @@ def test_residual_discovery_on_synthetic_data_and_quiet_on_noise():
     assert any(t.family == "velocity sign x angle" and "q2" in t.term.partition("·")[2] for t in d.terms)
     # the expression found reproduces the planted torque (cos(q2) and cos(2·q2) may stand in for each
     # other over joint2's range)
-    from train.discovery_basis import Term, evaluate
+    from train.diagnosis.discovery_basis import Term, evaluate
 
     fit = sum(t.coefficient * evaluate(Term(t.term, t.code, t.unit, t.family, frozenset()), q, dq, ddq)
               for t in d.terms)
@@ -219,12 +219,12 @@ def test_residual_discovery_on_synthetic_data_and_quiet_on_noise():
     assert all(t.stderr > 0 for t in d.terms)
     assert not loud.for_joint("joint1").significant and not loud.for_joint("joint4").significant
     assert json.dumps(loud.to_json())  # plain data
-    from train.report import discovery_section
+    from train.evaluation.report import discovery_section
 
     page = discovery_section(loud)  # the report page's section: sentences, terms, the fit's figure
     assert page.count("<img") == 1 and "data:image/png;base64," in page and "https://" not in page
     # the effect file's header names the flag that found the terms
-    from train.effect_writer import effect_source
+    from train.diagnosis.effect_writer import effect_source
 
     assert "m.h5 --discover`" in effect_source(loud, "m", ["m.h5"])
     every = discover(Residual(planted), ds, every_joint=True)
@@ -233,7 +233,7 @@ def test_residual_discovery_on_synthetic_data_and_quiet_on_noise():
 
 
 def test_expression_is_readable_and_factored_when_it_can_be():
-    from train.discovery import FoundTerm, expression
+    from train.diagnosis.discovery import FoundTerm, expression
 
     terms = [FoundTerm("sign(dq2)", 0.21, 0.01), FoundTerm("sign(dq2)·cos(2·q2)", 0.168, 0.01)]
     assert expression(terms) == "0.21·sign(dq2)·(1 + 0.8·cos(2·q2))"

@@ -13,7 +13,7 @@ import pytest
 from click.testing import CliRunner
 
 from train.cli import main
-from train.fidelity import measure_fidelity
+from train.evaluation.fidelity import measure_fidelity
 
 NAMES = ("joint1", "joint2", "joint3", "joint4", "joint5", "joint6", "joint7", "gripper")
 BILATERAL = (0, 1, 3)  # joint1, joint2, joint4; the rest are held (tau_res NaN)

@@ -14,7 +14,7 @@ from click.testing import CliRunner
 
 from tests.sessions import write_synthetic_session
 from train.cli import main
-from train.session import HandOnArmError, read_sessions
+from train.data.session import HandOnArmError, read_sessions
 
 
 @pytest.fixture(scope="module")

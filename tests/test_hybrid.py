@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from tests.sessions import write_synthetic_session
-from train.metrics import mse
+from train.data.preprocess import preprocess
+from train.data.session import read_sessions
+from train.data.splits import SplitConfig, make_splits
+from train.evaluation.metrics import mse
 from train.models.registry import load_model, make_model
-from train.preprocess import preprocess
-from train.session import read_sessions
-from train.splits import SplitConfig, make_splits
 
 FAST = {"epochs": 8, "batch_size": 64, "seed": 0}
 

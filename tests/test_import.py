@@ -12,8 +12,8 @@ from crane_io.description import default_arm
 from crane_io.dynamixel.units import AMPERE_PER_CURRENT_LSB, POSITION_CENTER, RAD_PER_PULSE
 from tests.sessions import write_synthetic_session
 from train.cli import main
-from train.importer import ImportMapError, ImportUnits, import_session, parse_map
-from train.session import read_session
+from train.data.importer import ImportMapError, ImportUnits, import_session, parse_map
+from train.data.session import read_session
 
 ARM = default_arm()
 NAMES = ARM.joint_names
@@ -127,6 +127,8 @@ def test_refusals_in_one_sentence_leave_input_and_output_alone(session, tmp_path
     _refused(_invoke(csv, "-o", out, "--map", "t=time,joint1.speed=q1"), "unknown signal 'speed'")
     _refused(_invoke(csv, "-o", out, "--map", "t=time,joint1.q=q1"), "no torque for joint1")
     _refused(_invoke(csv, "-o", out, "--map", "joint1.q=q1,joint1.tau=tau1"), "no time column")
+    _refused(_invoke(csv, "-o", out, "--map", "joint1.q=q1,joint1.tau=tau1"),
+             "Error: --map names no time column")
     _refused(_invoke(csv, "-o", out, "--map", "t=time,joint1.q=q1,joint1.tau=tau1,joint1.current=q2"),
              "both a torque and a current")
     _refused(_invoke(csv, "-o", out, "--map", "t=time", "--map", "t=q1"), "names t twice")
@@ -156,6 +158,7 @@ def test_refusals_in_one_sentence_leave_input_and_output_alone(session, tmp_path
     assert _invoke(csv, "-o", out, *maps).exit_code == 0
     stamp = out.read_bytes()
     _refused(_invoke(csv, "-o", out, *maps), "exists", "--force")
+    assert "`force`" not in _invoke(csv, "-o", out, *maps).output
     assert out.read_bytes() == stamp
     _refused(_invoke(csv, "-o", csv, *maps, "--force"), "is the input")
     assert csv.read_bytes() == before
@@ -166,5 +169,8 @@ def test_refusals_in_one_sentence_leave_input_and_output_alone(session, tmp_path
 def test_library_errors_are_typed():
     with pytest.raises(ImportMapError, match="no angle for joint2"):
         parse_map(["t=x", "joint2.tau=y"])
+    # from Python the sentence names the parameter; the command line names its flag (see below)
+    with pytest.raises(ImportMapError, match="^`mapping` names no time column; add t=COLUMN$"):
+        parse_map(["joint1.q=q1,joint1.tau=tau1"])
     with pytest.raises(ImportMapError, match="unknown angle unit"):
         ImportUnits(angle="grad")

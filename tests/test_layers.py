@@ -36,7 +36,7 @@ def _offending(package, forbidden, allowed=()):
 
 def test_the_imports_are_resolved():  # the test reads real imports, or the others could not fail
     found = set(_imports("train"))
-    assert ("train/api.py", "train.compare") in found
+    assert ("train/api.py", "train.evaluation.compare") in found
     assert any(m.startswith("crane_io.physics") for _, m in found)
 
 
@@ -58,8 +58,8 @@ def test_the_bus_layer_knows_no_physics_and_the_simulator_only_for_dxlsim_urls()
 
 def test_train_depends_on_the_physics_not_on_the_simulator_or_the_bus():
     # `crane-train import` converts other tools' raw servo logs, with the bus layer's unit constants
-    allowed = {("train/importer.py", "crane_io.dynamixel.units")} | {
-        ("train/importer.py", f"crane_io.dynamixel.units.{n}")
+    allowed = {("train/data/importer.py", "crane_io.dynamixel.units")} | {
+        ("train/data/importer.py", f"crane_io.dynamixel.units.{n}")
         for n in ("AMPERE_PER_CURRENT_LSB", "POSITION_CENTER", "RAD_PER_PULSE")}
     assert _offending("train", ("crane_io.sim", "crane_io.dynamixel", "collect"), allowed) == []
 

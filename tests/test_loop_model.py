@@ -24,10 +24,10 @@ import pytest
 from click.testing import CliRunner
 
 from crane_io.physics.loop_model import EXPORT_FILE, SI_UNITS, LoopModel, LoopModelError, check_for_arm
-from train.dataset import Dataset
+from train.data.dataset import Dataset
+from train.data.preprocess import PreprocessConfig
 from train.models.loop_export import npz_bytes
 from train.models.registry import load_model, make_model
-from train.preprocess import PreprocessConfig
 
 JOINTS = ("joint1", "joint2", "joint4")
 EFFECTS = [["coulomb", None, None], ["viscous", None, None],

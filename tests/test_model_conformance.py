@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from train.dataset import Dataset
+from train.data.dataset import Dataset
 from train.models.base import NotFittedError
 from train.models.registry import METHODS, load_model, make_model
 

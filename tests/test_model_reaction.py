@@ -1,5 +1,5 @@
 """The learned-model reaction torque of collect/model_reaction.py: the loop's causal filters are the
-training's (train/preprocess.py) sample for sample, the pairing is one cycle back, unusable predictions
+training's (train/data/preprocess.py) sample for sample, the pairing is one cycle back, unusable predictions
 fall back per joint, and the controller uses it only on the model's joints."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from collect.config import load_config
 from collect.controller import ArmSignals, BilateralController
 from collect.model_reaction import ModelInputs, ModelReaction
 from crane_io.description import default_arm
-from train.filters import lowpass, pseudo_diff
+from train.data.filters import lowpass, pseudo_diff
 
 RATE = 500.0
 

@@ -5,7 +5,7 @@ arm. For the presets `hidden-wrist-coulomb` (joint6's 0.12 N m Coulomb friction 
 `hidden-wrist-spring` (a 0.3 N m/rad spring on joint5, relaxed at 0.5 rad, hidden): a simulated session
 with all seven joints driven (tests/planted.py, joints="all", 90 simulated seconds, seeded), a baseline
 rigid-body model over all seven joints fitted the way `crane-train fit --joints all` does with the
-preset's [known] effects (per-joint evaluation sets, train/splits.py), then:
+preset's [known] effects (per-joint evaluation sets, train/data/splits.py), then:
 
 - the diagnosis ranks the hidden effect first on its joint, significant, removing most of the remaining
   error, with its estimate near the truth: Coulomb within 0.015 N m of 0.12; the spring's stiffness
@@ -41,13 +41,13 @@ import pytest
 
 from crane_io.sim.plant_config import load_plant_config
 from tests.planted import simulate_session
-from train.cmd_fit import fit_model
-from train.compare import compare_models
-from train.diagnose import diagnose
-from train.heldout import model_settings
+from train.cli.fit import fit_model
+from train.data.preprocess import preprocess
+from train.data.session import read_sessions
+from train.diagnosis.diagnose import diagnose
+from train.evaluation.compare import compare_models
+from train.evaluation.heldout import model_settings
 from train.models.registry import load_model
-from train.preprocess import preprocess
-from train.session import read_sessions
 
 DURATION_S = 90.0
 SEED = int(os.environ.get("CRANE_PLANTED_SEED", "0"))

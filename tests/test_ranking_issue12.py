@@ -28,13 +28,13 @@ from crane_io.physics.effects import get_effect
 from crane_io.sim.plant_config import load_plant_config
 from tests.planted import simulate_session
 from train.cli import main
-from train.cmd_fit import fit_model
-from train.dataset import Dataset
-from train.diagnose import diagnose, diagnose_residual
-from train.heldout import model_settings
+from train.cli.fit import fit_model
+from train.data.dataset import Dataset
+from train.data.preprocess import preprocess
+from train.data.session import read_sessions
+from train.diagnosis.diagnose import diagnose, diagnose_residual
+from train.evaluation.heldout import model_settings
 from train.models.registry import load_model
-from train.preprocess import preprocess
-from train.session import read_sessions
 
 SEED = int(os.environ.get("CRANE_PLANTED_SEED", "0"))
 

@@ -20,7 +20,7 @@ from collect.cli import main
 from collect.recorder import SessionRecorder, read_events
 from collect.session_lock import SUPPORTED as LOCKS_SUPPORTED
 from crane_io.errors import SessionFileError
-from train.session import read_session
+from train.data.session import read_session
 
 ROOT = Path(__file__).parents[1]
 NAMES = [f"joint{i}" for i in range(1, 8)] + ["gripper"]

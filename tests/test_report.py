@@ -7,10 +7,10 @@ import re
 import numpy as np
 import pytest
 
-from train.dataset import Dataset
-from train.heldout import held_out, held_out_rows
-from train.report import binned_means, error_stats, region_table, report_html
-from train.splits import SplitConfig, make_splits
+from train.data.dataset import Dataset
+from train.data.splits import SplitConfig, make_splits
+from train.evaluation.heldout import held_out, held_out_rows
+from train.evaluation.report import binned_means, error_stats, region_table, report_html
 
 JOINTS = ("joint1", "joint2", "joint4")
 

@@ -10,7 +10,7 @@ from click.testing import CliRunner
 from collect.recorder import SessionRecorder
 from crane_io.errors import SessionDamagedError
 from train.cli import main
-from train.session import read_session
+from train.data.session import read_session
 
 NAMES = [f"joint{i}" for i in range(1, 8)] + ["gripper"]
 

@@ -196,8 +196,8 @@ def test_readers_and_writers_take_the_names_from_the_module():
     import collect.recorder as recorder
     import collect.recovery as recovery
     import collect.truth_trace as truth_trace
-    import train.fidelity as fidelity
-    import train.session as session
+    import train.data.session as session
+    import train.evaluation.fidelity as fidelity
 
     assert recorder.FORMAT is sf.FORMAT and session.FORMAT is sf.FORMAT and recovery.FORMAT is sf.FORMAT
     assert session.REQUIRED_ATTRS is sf.REQUIRED_ATTRS and session.ARMS is sf.ARMS

@@ -11,12 +11,12 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-import train.plots
+import train.evaluation.plots
 import train.progress
 from tests.sessions import write_synthetic_session
 from train.cli import main
+from train.evaluation.sweep import scaled_sizes_sentence
 from train.progress import ProgressLines, progress_lines
-from train.sweep import scaled_sizes_sentence
 
 torch.set_num_threads(1)
 
@@ -96,7 +96,7 @@ def test_scaled_sizes_are_said_at_the_start_recorded_and_named_in_the_figures(se
     def close(fig):  # what the figures say, read before they are closed
         titles.append((fig._suptitle.get_text(), fig.axes[0].get_xlabel()))
 
-    monkeypatch.setattr(train.plots.plt, "close", close)
+    monkeypatch.setattr(train.evaluation.plots.plt, "close", close)
     out = tmp_path / "o"
     result = CliRunner().invoke(main, ["sweep", str(session), "-o", str(out), "--sizes", "1000:6000:5000",
                                        "--trials", "2", "--epochs", "2", "--scale-to-data", "--no-progress"])

@@ -52,8 +52,8 @@ def test_train_help_lists_every_subcommand():
 
 
 def test_light_method_names_match_the_registry_and_the_sweep():
-    from train import sweep
-    from train.method_names import METHOD_NAMES, SWEEP_METHODS
+    from train.evaluation import sweep
+    from train.models.method_names import METHOD_NAMES, SWEEP_METHODS
     from train.models.registry import METHODS
 
     assert tuple(METHODS) == METHOD_NAMES
@@ -61,8 +61,8 @@ def test_light_method_names_match_the_registry_and_the_sweep():
 
 
 def test_diagnose_keeps_its_defaults():
-    from train import diagnose
-    from train.diagnosis_defaults import DEFAULT_FOLDS, DEFAULT_MIN_REDUCTION
+    from train.diagnosis import diagnose
+    from train.diagnosis.defaults import DEFAULT_FOLDS, DEFAULT_MIN_REDUCTION
 
     assert (diagnose.DEFAULT_FOLDS, diagnose.DEFAULT_MIN_REDUCTION) == (DEFAULT_FOLDS, DEFAULT_MIN_REDUCTION)
 

@@ -13,13 +13,13 @@ from click.testing import CliRunner
 from crane_io.errors import CraneError, SessionFileError
 from tests.sessions import write_synthetic_session
 from train.cli import main
-from train.dataset import Dataset
-from train.filters import lowpass, pseudo_diff
-from train.losses import masked_loss, mse_loss
-from train.masks import dead_zone_mask, moving_fractions
-from train.preprocess import PreprocessConfig, filter_signals, preprocess
-from train.session import read_session, read_sessions
-from train.splits import SplitConfig, SplitError, make_splits
+from train.data.dataset import Dataset
+from train.data.filters import lowpass, pseudo_diff
+from train.data.masks import dead_zone_mask, moving_fractions
+from train.data.preprocess import PreprocessConfig, filter_signals, preprocess
+from train.data.session import read_session, read_sessions
+from train.data.splits import SplitConfig, SplitError, make_splits
+from train.models.losses import masked_loss, mse_loss
 
 
 def _digest(path):

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from train.dataset import Dataset
+from train.data.dataset import Dataset
 from train.models.fast_predict import NumpyPredictor, PredictorError
 from train.models.registry import load_model, make_model
 

@@ -73,7 +73,7 @@ def seven_joint_session(path, duration_s, *, moving=ARM, held=None, seed=0, coul
 
 
 def _dataset(path, joints=PAPER):
-    from train.preprocess import PreprocessConfig, read_preprocessed
+    from train.data.preprocess import PreprocessConfig, read_preprocessed
 
     return read_preprocessed([str(path)], PreprocessConfig(joints=tuple(joints)))
 
@@ -191,7 +191,7 @@ def seven(tmp_path_factory):
 
 
 def test_per_joint_evaluation_sets_at_seven_joints(seven):
-    from train.splits import SplitConfig, make_splits
+    from train.data.splits import SplitConfig, make_splits
 
     ds = _dataset(seven, ARM)
     assert ds.all_moving.mean() < 0.2

@@ -7,10 +7,10 @@ import pytest
 import torch
 
 from crane_io.errors import CraneError
-from train.batched import MLPSettings, train_mlps, train_plain
-from train.dataset import Dataset
-from train.metrics import mse, nmse
+from train.data.dataset import Dataset
+from train.evaluation.metrics import mse, nmse
 from train.models.base import ModelFileError
+from train.models.batched import MLPSettings, train_mlps, train_plain
 from train.models.registry import METHODS, load_model, make_model
 from train.models.rigid_body import RigidBodyModel, rls
 

@@ -15,7 +15,7 @@
 Every function takes and returns SI values, numpy arrays and small objects (a Dataset, a Model, a
 Diagnosis, a Comparison); problems are raised as crane_io.errors.CraneError subclasses with one sentence.
 The `crane-train` commands are thin wrappers over these functions. (The names differ from the modules
-train.diagnose, train.compare and train.report, which hold the machinery.)
+train.diagnosis.diagnose, train.evaluation.compare and train.evaluation.report, which hold the machinery.)
 """
 
 from __future__ import annotations
@@ -28,14 +28,14 @@ from typing import TYPE_CHECKING
 
 from crane_io.errors import ConfigError
 
-from .diagnosis_defaults import DEFAULT_FOLDS, DEFAULT_MIN_REDUCTION
+from .diagnosis.defaults import DEFAULT_FOLDS, DEFAULT_MIN_REDUCTION
 
 if TYPE_CHECKING:
-    from .compare import Comparison
-    from .dataset import Dataset
-    from .diagnosis_result import Diagnosis
+    from .data.dataset import Dataset
+    from .data.splits import Splits
+    from .diagnosis.result import Diagnosis
+    from .evaluation.compare import Comparison
     from .models.base import Model
-    from .splits import Splits
 
 PathLike = str | Path
 Sessions = PathLike | Sequence[PathLike]
@@ -52,7 +52,7 @@ def _paths(sessions: Sessions) -> list[str]:
 
 
 def _effect(e: Effect) -> tuple[str, str | None, dict | None]:
-    from .cli_options import parse_effect
+    from .cli.options import parse_effect
 
     if isinstance(e, str):
         return parse_effect(e)
@@ -63,7 +63,7 @@ def _effect(e: Effect) -> tuple[str, str | None, dict | None]:
 def load_settings(config: PathLike | None = None) -> dict:
     """The training settings {'preprocess', 'splits', 'mlp'}: train/config/train.toml's documented
     defaults, overlaid with the TOML file `config` (same sections)."""
-    from .cli_options import load_config
+    from .cli.options import load_config
 
     return load_config(config)
 
@@ -72,7 +72,7 @@ def load_sessions(sessions: Sessions, *, arm: str | None = None, joints: Sequenc
                   alpha: float | None = None, zero_phase: bool = False,
                   config: PathLike | None = None) -> Dataset:
     """Read one arm's data from session files and preprocess it the paper's way (50 Hz, causal filters,
-    dead-zone masks): a train.dataset.Dataset with q, dq, ddq (rad, rad/s, rad/s^2), tau (N m) and the
+    dead-zone masks): a train.data.dataset.Dataset with q, dq, ddq (rad, rad/s, rad/s^2), tau (N m) and the
     masks, (N, J) each.
 
     arm: "follower" (default) or "leader" (only from a session recorded with the hand on the follower);
@@ -81,7 +81,7 @@ def load_sessions(sessions: Sessions, *, arm: str | None = None, joints: Sequenc
     (`context_names`, `context_q`, ...), which the rigid-body model's kinematics use; alpha: the
     dead-zone threshold
     (|dq| > alpha std(dq) moves, default 0.1); zero_phase: filter forward and backward instead."""
-    from .cli_options import load_dataset
+    from .cli.options import load_dataset
 
     if joints is not None and not isinstance(joints, str):
         joints = ",".join(joints)
@@ -122,16 +122,16 @@ def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = ()
     import numpy as np
     import torch
 
-    from .metrics import metrics_table
+    from .data.splits import eval_mask, make_splits
+    from .evaluation.metrics import metrics_table
     from .models.registry import make_model
-    from .splits import eval_mask, make_splits
 
     effects = [_effect(e) for e in effects]  # bad input is refused before any work
     if (effects or effect_files) and method not in ("rigid-body", "hybrid"):
         raise ConfigError(f"effects apply to rigid-body and hybrid models, not {method}")
     settings = load_settings(config)
-    if eval_set is not None:  # "auto", "all-moving" or "per-joint" (train.splits), over the config's
-        from .splits import SplitConfig
+    if eval_set is not None:  # "auto", "all-moving" or "per-joint" (train.data.splits), over the config's
+        from .data.splits import SplitConfig
 
         settings["splits"] = SplitConfig(**{**vars(settings["splits"]), "eval_set": eval_set})
     if not hasattr(data, "tau"):  # session file(s), not a Dataset
@@ -161,7 +161,7 @@ def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = ()
     dead_zone = [float(ds.meta["alpha"]) * float(s) for s in ds.meta["sigma"]]
     # the poses the model saw: the loop trusts it only there (collect/model_reaction.py)
     q_range = {"q_min": ds.q.min(axis=0).tolist(), "q_max": ds.q.max(axis=0).tolist()}
-    # the kind of evaluation sets (train.splits), so report, compare and diagnose split alike (heldout)
+    # the kind of evaluation sets (train.data.splits), so report, compare and diagnose split alike (heldout)
     eval_set = {"eval_set": splits.test.meta.get("eval_set", "all-moving")}
     model = make_model(method, ds.joint_names, preprocessing={**ds.meta["preprocessing"],
                                                               "dead_zone_rad_s": dead_zone,
@@ -198,8 +198,8 @@ def diagnosis_inputs(model_dir: PathLike, sessions: Sessions,
     `effect_files` are loaded first (their effects become candidates)."""
     from crane_io.physics.effects import load_effect_file
 
-    from .heldout import diagnosis_data, model_settings
-    from .preprocess import read_preprocessed
+    from .data.preprocess import read_preprocessed
+    from .evaluation.heldout import diagnosis_data, model_settings
 
     for path in effect_files:
         load_effect_file(path)
@@ -217,7 +217,7 @@ def diagnose_model(model_dir: PathLike, sessions: Sessions, *, folds: int = DEFA
     cross-validation over `folds` contiguous time blocks and a forward, nested selection; a candidate
     must remove at least `min_reduction` of what remains to count. The Diagnosis has `.candidates`,
     `.summary` and `.to_json()`."""
-    from .diagnose import diagnose as run_diagnosis
+    from .diagnosis.diagnose import diagnose as run_diagnosis
 
     model, ds, judged = diagnosis_inputs(model_dir, sessions, effect_files)
     result = run_diagnosis(model, ds, folds=folds, min_reduction=min_reduction, progress=progress)
@@ -229,12 +229,12 @@ def discover_terms(model_dir: PathLike, sessions: Sessions, *, every_joint: bool
                    folds: int = DEFAULT_FOLDS, min_reduction: float = DEFAULT_MIN_REDUCTION,
                    effect_files: Sequence[PathLike] = (), progress: bool = False):
     """What term would explain the model's residual? A sparse regression per joint on a basis of physical
-    terms (train/discovery.py), on top of the library's best effect where that one is significant (from
-    the model alone on every joint with `every_joint`). Returns a train.discovery.Discovery
+    terms (train/diagnosis/discovery.py), on top of the library's best effect where that one is significant
+    (from the model alone on every joint with `every_joint`). Returns a train.diagnosis.discovery.Discovery
     (`.discovered`: per joint the expression, its terms with coefficients and uncertainties, the held-out
     error it removes, whether it is significant; `.to_json()`)."""
-    from .diagnose import diagnose as run_diagnosis
-    from .discovery import discover
+    from .diagnosis.diagnose import diagnose as run_diagnosis
+    from .diagnosis.discovery import discover
 
     model, ds, _ = diagnosis_inputs(model_dir, sessions, effect_files)
     ranking = run_diagnosis(model, ds, folds=folds, min_reduction=min_reduction, progress=progress)
@@ -245,8 +245,9 @@ def discover_terms(model_dir: PathLike, sessions: Sessions, *, every_joint: bool
 def compare_models(model_dirs: Sequence[PathLike], sessions: Sessions | None = None,
             progress: bool = False) -> Comparison:
     """The held-out error per joint of successive models on the same samples (default: the first model's
-    training sessions); `.to_json()`, and train.compare.table_text / plot for a table and a chart."""
-    from . import compare
+    training sessions); `.to_json()`, and train.evaluation.compare.table_text / plot for a table and a
+    chart."""
+    from .evaluation import compare
 
     return compare.compare_models([str(d) for d in model_dirs], _paths(sessions) if sessions else [],
                           progress=progress)
@@ -257,9 +258,9 @@ def make_report(model_dir: PathLike, sessions: Sessions, output: PathLike, *, se
     """Write the self-contained HTML page of the model's error on the held-out part of `sessions` (with
     the diagnosis sentences unless `diagnosis=False`, and with `discover` the terms discovery finds in
     the residual, each against it); `seed`: the split seed (default: the model's)."""
-    from .cli_options import writable_output
-    from .heldout import evaluation_data
-    from .report import report_html, write_report
+    from .cli.options import writable_output
+    from .evaluation.heldout import evaluation_data
+    from .evaluation.report import report_html, write_report
 
     writable_output(output, "file")
     model = load_model(model_dir)
@@ -267,13 +268,13 @@ def make_report(model_dir: PathLike, sessions: Sessions, output: PathLike, *, se
     ds, _, held = evaluation_data(model, paths, seed=seed, model_dir=model_dir)
     diag = found = None
     if diagnosis or discover:
-        from .diagnose import diagnose as run_diagnosis
-        from .heldout import diagnosis_data
+        from .diagnosis.diagnose import diagnose as run_diagnosis
+        from .evaluation.heldout import diagnosis_data
 
         judged = diagnosis_data(model, ds, model_dir, seed)[0]
         diag = run_diagnosis(model, judged)
         if discover:
-            from .discovery import discover as run_discovery
+            from .diagnosis.discovery import discover as run_discovery
 
             found = run_discovery(model, judged, diag)
         if not diagnosis:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .session import _open, read_session
+from .data.session import _open, read_session
 
 SIGNALS = ("q", "tau", "tau_dis", "tau_res")
 
@@ -32,7 +32,7 @@ class ReplayData:
 
 def read_replay(path, every: int = 10) -> ReplayData:
     """What the view shows of session `path`, every `every`-th sample. SessionFileError (one sentence) for
-    a file that is not a readable session (train.session.read_session checks the required part)."""
+    a file that is not a readable session (train.data.session.read_session checks the required part)."""
     path = Path(path)
     every = max(int(every), 1)
     follower = read_session(path, "follower")

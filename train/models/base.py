@@ -28,7 +28,7 @@ import numpy as np
 from crane_io.errors import CraneError
 from crane_io.physics.loop_model import SI_UNITS
 
-from ..dataset import Dataset
+from ..data.dataset import Dataset
 
 MODEL_JSON = "model.json"
 

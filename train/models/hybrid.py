@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..dataset import Dataset
+from ..data.dataset import Dataset
 from .base import Model, ModelFileError
 
 RIGID_DIR = "rigid"

@@ -6,7 +6,7 @@ method "mlp-masked" : the paper's masked loss (eq. 3) on all training samples
 Adam (lr 0.01), 100 epochs, minibatches of 32 (the paper gives no size), inputs and outputs standardised
 with the training rows' mean and std (stored with the model), and the weights kept are those of the
 epoch with the best validation MSE (validation = all-moving samples of the validation set). Training
-goes through train.batched with M = 1, the same code the sweep uses for many models at once.
+goes through train.models.batched with M = 1, the same code the sweep uses for many models at once.
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ import torch
 
 from crane_io.errors import CraneError
 
-from ..batched import MLPSettings, predict, train_mlps
-from ..dataset import Dataset
+from ..data.dataset import Dataset
 from .base import Model, ModelFileError
+from .batched import MLPSettings, predict, train_mlps
 
 WEIGHTS = "mlp.pt"
 LOSSES = ("mse", "masked")
@@ -65,7 +65,7 @@ class MLPModel(Model):
             raise CraneError(f"{self.method} needs at least 2 training {what}, the data has {len(rows)}")
         if val is None:
             val = train  # no separate validation data: pick the epoch by the training data itself
-        from ..splits import per_joint
+        from ..data.splits import per_joint
 
         if per_joint(val):  # a per-joint validation set: each joint scored where it moves
             vrows, w_val = np.arange(len(val)), val.moving

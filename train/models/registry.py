@@ -13,8 +13,8 @@ from pathlib import Path
 
 from crane_io.errors import CraneError
 
-from ..method_names import METHOD_NAMES
 from .base import Model, ModelFileError, read_model_json
+from .method_names import METHOD_NAMES
 
 # method -> ("module:Class", options the method fixes)
 METHODS: dict[str, tuple[str, dict]] = {
@@ -23,7 +23,7 @@ METHODS: dict[str, tuple[str, dict]] = {
     "mlp-masked": ("train.models.mlp:MLPModel", {"loss": "masked"}),
     "hybrid": ("train.models.hybrid:HybridModel", {}),
 }
-assert tuple(METHODS) == METHOD_NAMES, "train/method_names.py lists every method, in this order"
+assert tuple(METHODS) == METHOD_NAMES, "train/models/method_names.py lists every method, in this order"
 
 
 class UnknownMethodError(CraneError):

@@ -27,7 +27,7 @@ MSE (effects are tuned one after another, in the order given).
 
 Context joints (the other arm joints' recorded angles enter the kinematics, option `context`, default
 True): a Dataset carries the filtered q, dq, ddq of the session's other arm joints (joint1..joint7, not
-the gripper; train.dataset). At fit, each such joint is either
+the gripper; train.data.dataset). At fit, each such joint is either
 * still in the training data (its filtered angle spans less than MIN_TRAVEL_RAD, 0.01 rad): locked in
   the pinocchio model at its median recorded angle (rounded to 1e-3 rad), not at 0 - a held joint sits
   wherever the session held it; or
@@ -51,9 +51,9 @@ import numpy as np
 
 from crane_io.errors import ConfigError, CraneError
 
-from ..dataset import Dataset
-from ..splits import AUTO_ALL_MOVING_MAX_JOINTS
-from ..splits import per_joint as per_joint_set
+from ..data.dataset import Dataset
+from ..data.splits import AUTO_ALL_MOVING_MAX_JOINTS
+from ..data.splits import per_joint as per_joint_set
 from .base import Model, ModelFileError
 
 ARRAYS = "rigid_body.npz"
@@ -154,7 +154,7 @@ class RigidBodyModel(Model):
         if ctx is None:
             self.context_joints, self.locked_resolved = (), None
             return
-        from ..preprocess import MIN_TRAVEL_RAD
+        from ..data.preprocess import MIN_TRAVEL_RAD
 
         locked, moving = dict(given), []
         for k, name in enumerate(ctx["names"]):
@@ -294,7 +294,7 @@ class RigidBodyModel(Model):
             val_ds = val.subset(np.flatnonzero(val.moving.any(axis=1))) if val is not None else fit_ds
         else:
             val_ds = val.subset(np.flatnonzero(val.all_moving)) if val is not None else fit_ds
-        if len(val_ds) == 0:  # a per-joint validation set (train.splits) may hold no all-moving row
+        if len(val_ds) == 0:  # a per-joint validation set (train.data.splits) may hold no all-moving row
             val_ds = fit_ds
         for term in terms:
             if term["shape"] is not None:
@@ -330,7 +330,7 @@ class RigidBodyModel(Model):
         """Which torque equations the fit uses: "all-moving" (the paper's: every joint's, of the samples
         in which every joint moves) or "per-joint" (each joint's where that joint moves, as the
         diagnosis and the masked loss do). "auto": per-joint where the validation set is per-joint
-        (train.splits: from 4 learning joints on, where samples with every joint moving grow scarce;
+        (train.data.splits: from 4 learning joints on, where samples with every joint moving grow scarce;
         without a validation set, by the same joint count)."""
         mode = self.options.get("rows", "auto")
         if mode != "auto":

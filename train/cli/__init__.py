@@ -1,0 +1,31 @@
+"""The `crane-train` command line, the edge of train: one module per subcommand (info, fit, sweep, report,
+diagnose, compare, effects, export, fidelity, view, importing) and the options fit and sweep share
+(options); each is a thin wrapper over the library (train.api and the subpackages). This file only wires
+them into one click group. Bad input ends with one sentence on stderr and a non-zero exit."""
+
+from __future__ import annotations
+
+import click
+
+from crane_io.cli_support import LazyGroup
+
+# (module, attribute) of every subcommand; imported lazily so `--help` stays fast.
+COMMANDS = {
+    "info": ("train.cli.info", "info"),
+    "fit": ("train.cli.fit", "fit"),
+    "sweep": ("train.cli.sweep", "sweep"),
+    "report": ("train.cli.report", "report"),
+    "diagnose": ("train.cli.diagnose", "diagnose"),
+    "compare": ("train.cli.compare", "compare"),
+    "effects": ("train.cli.effects", "effects"),
+    "export": ("train.cli.export", "export"),
+    "fidelity": ("train.cli.fidelity", "fidelity"),
+    "view": ("train.cli.view", "view"),
+    "import": ("train.cli.importing", "import_session"),
+}
+
+
+@click.group(cls=LazyGroup, commands=COMMANDS)
+@click.version_option(package_name="crane-x7")
+def main():
+    """Turn CRANE-X7 session files into inverse-dynamics models, compare and diagnose them."""

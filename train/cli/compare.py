@@ -1,0 +1,46 @@
+"""`crane-train compare MODEL_DIR...`: the held-out error per joint of successive models side by side,
+as a table and a plot, so the fall is visible (train.evaluation.compare)."""
+
+from __future__ import annotations
+
+import json
+
+import click
+
+from crane_io.cli_support import cli_errors
+
+
+@click.command()
+@click.argument("model_dirs", nargs=-1, required=True, type=click.Path(file_okay=False))
+@click.option("--session", "sessions", multiple=True, type=click.Path(dir_okay=False),
+              help="Session file(s) to evaluate on (repeatable; default: the first model's training "
+                   "sessions).")
+@click.option("--json", "as_json", is_flag=True, help="Print the comparison as JSON.")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
+              help="Write the bar chart of the error per joint (one bar per model, log axis) to this PNG.")
+@click.option("--metric", type=click.Choice(["mse", "rmse", "nmse"]), default="mse", show_default=True,
+              help="The metric of the printed table and of the plot.")
+@cli_errors
+def compare(model_dirs, sessions, as_json, output, metric):
+    """Compare MODEL_DIR(s), in the given order, on the same held-out samples."""
+    from ..evaluation.compare import compare_models, notes_text, plot, table_text
+    from ..progress import show_progress
+    from .options import writable_output
+
+    if output:
+        writable_output(output, "file")
+    result = compare_models(list(model_dirs), list(sessions), progress=show_progress(not as_json))
+    if output:
+        plot(result, output, metric)
+    if as_json:
+        doc = result.to_json()
+        if output:
+            doc["plot"] = str(output)
+        click.echo(json.dumps(doc, indent=2))
+        return
+    click.echo(table_text(result, metric))
+    if notes_text(result):
+        click.echo(notes_text(result))
+    click.echo(f"Evaluated on: {result.evaluated_on}")
+    if output:
+        click.echo(f"Wrote the plot to {output}")

@@ -1,0 +1,57 @@
+"""`crane-train export MODEL_DIR...`: write the control loop's numeric export `loop_model.npz` into model
+directories saved before crane-train wrote it with every model (`crane-train fit` does it now). Only
+that file is written; the model itself (model.json, weights) is read, never changed. The written export
+is loaded back as the loop would (crane_io.physics.loop_model.LoopModel) and any reason the loop would still
+refuse the model (e.g. zero-phase preprocessing) is reported."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from crane_io.cli_support import cli_errors
+from crane_io.errors import CraneError
+
+
+def export_model(directory) -> dict:
+    """Write `directory`/loop_model.npz for the saved model there; {path, sha256, method, joints, usable}."""
+    from crane_io.physics.loop_model import LoopModel, LoopModelError
+
+    from ..models.base import ModelFileError
+    from ..models.loop_export import write_loop_export
+    from ..models.registry import load_model
+
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise ModelFileError(f"model directory {directory} does not exist")
+    model = load_model(directory)
+    path, sha = write_loop_export(model, directory)
+    try:
+        LoopModel.load(directory)
+        refusal = None
+    except LoopModelError as exc:
+        refusal = str(exc)
+    return {"path": str(path), "sha256": sha, "method": model.method, "joints": list(model.joint_names),
+            "refusal": refusal}
+
+
+@click.command()
+@click.argument("model_dirs", nargs=-1, required=True, type=click.Path(file_okay=False))
+@cli_errors
+def export(model_dirs):
+    """Write loop_model.npz (the control loop's copy of the weights) into each saved model directory."""
+    failed = False
+    for d in model_dirs:
+        try:
+            doc = export_model(d)
+        except CraneError as exc:
+            click.echo(f"Error: {exc}", err=True)
+            failed = True
+            continue
+        click.echo(f"{doc['path']}: {doc['method']} on {', '.join(doc['joints'])}, "
+                   f"sha256 {doc['sha256'][:16]}")
+        if doc["refusal"]:
+            click.echo(f"  note: the control loop will still refuse it: {doc['refusal']}", err=True)
+    if failed:
+        raise SystemExit(CraneError.exit_code)

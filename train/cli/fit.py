@@ -1,0 +1,92 @@
+"""`crane-train fit SESSION... --model METHOD -o MODEL_DIR [--arm leader|follower]`: train one model the
+paper's way, print its test metrics and save it (with its preprocessing and normalisation; the arm it was
+fitted on is the preprocessing setting `arm`, model.json "preprocessing" -> "arm")."""
+
+from __future__ import annotations
+
+import click
+
+from crane_io.cli_support import cli_errors
+
+from ..models.method_names import METHOD_NAMES
+from ..progress import show_progress
+from .options import (
+    arm_option,
+    data_options,
+    hand_on_hint,
+    parse_effect,
+    writable_output,
+)
+
+
+def fit_model(sessions, method: str, out_dir, train_size: int | None = None, seed: int = 0,
+              effects=(), effect_files=(), joints=None, alpha=None, zero_phase=False,
+              scale_to_data=False, epochs: int | None = None, progress: bool = True,
+              config_path=None, arm: str | None = None, eval_set: str | None = None) -> dict:
+    """train.api.fit on `arm`'s data of the sessions, saved to out_dir (with fit_metrics.json); returns the
+    metrics document. The output is checked before any work; a session whose arm the operator's hand moved
+    is refused (train.data.session.HandOnArmError) before anything is written."""
+    from tqdm import tqdm
+
+    from ..api import fit
+
+    writable_output(out_dir, "dir")
+    bar = None
+    if progress and (method.startswith("mlp-") or method == "hybrid"):
+        bar = tqdm(desc=method, unit="epoch", leave=False)
+
+    def step(done, total):
+        bar.total = total
+        bar.update(1)
+
+    result = fit(list(sessions), method, effects=effects, effect_files=effect_files, train_size=train_size,
+                 seed=seed, epochs=epochs, scale_to_data=scale_to_data, config=config_path, arm=arm,
+                 joints=joints, alpha=alpha, zero_phase=zero_phase, progress=step if bar else None,
+                 eval_set=eval_set)
+    if bar is not None:
+        bar.close()
+    result.save(out_dir)
+    return result.metrics
+
+
+@click.command()
+@click.argument("sessions", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("--model", "method", required=True, type=click.Choice(list(METHOD_NAMES)),
+              help="Method to train.")
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
+              help="Model directory to write.")
+@click.option("--train-size", type=int, default=None, help="Training samples drawn from the pool [all 6000].")
+@click.option("--seed", default=0, show_default=True, type=int, help="Seed of splits, draws and weights.")
+@click.option("--effect", "effects", multiple=True, metavar="NAME[:joint=JOINT,shape=VALUE]",
+              help="Add a physical effect's columns (rigid-body, hybrid); repeatable. Without joint= a "
+                   "joint effect goes on every learning joint.")
+@click.option("--effect-file", "effect_files", multiple=True, type=click.Path(dir_okay=False, exists=True),
+              help="Python file defining extra effects (see crane_io.physics.effects).")
+@click.option("--epochs", type=click.IntRange(min=1), default=None,
+              help="Epochs of the network (mlp-mse, mlp-masked, hybrid) [100].")
+@arm_option
+@data_options
+@click.option("--no-progress", is_flag=True,
+              help="No progress bar (there is none anyway when stderr is not a terminal).")
+@cli_errors
+def fit(sessions, method, out_dir, train_size, seed, effects, effect_files, epochs, arm, config_path, joints,
+        alpha, zero_phase, scale_to_data, eval_set, no_progress):
+    """Train one model on session files (the follower's data, or the leader's with --arm leader) and
+    save it."""
+    from ..data.session import HandOnArmError
+
+    try:
+        doc = fit_model(sessions, method, out_dir, train_size, seed, [parse_effect(e) for e in effects],
+                        effect_files, joints, alpha, zero_phase, scale_to_data, epochs,
+                        show_progress(not no_progress), config_path, arm, eval_set)
+    except HandOnArmError as exc:
+        raise HandOnArmError(hand_on_hint(exc), exc.path, exc.arm) from None
+    click.echo(f"{method} on the {doc['arm']}: trained on {doc['train_samples']} samples "
+               f"({doc['train_samples_all_moving']} with every joint moving); "
+               f"test on {doc['test_samples']} samples"
+               + (" (each joint scored where it moves)" if doc.get("eval_set") == "per-joint" else ""))
+    click.echo(f"{'joint':<10}{'MSE (N m)^2':>14}{'RMSE N m':>12}{'NMSE':>10}")
+    for j in doc["joints"]:
+        t = doc["test"]
+        click.echo(f"{j:<10}{t['mse'][j]:>14.4g}{t['rmse'][j]:>12.4g}{t['nmse'][j]:>10.3g}")
+    click.echo(f"model written to {out_dir}")

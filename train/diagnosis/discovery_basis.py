@@ -1,0 +1,207 @@
+"""The basis of `crane-train diagnose --discover` (train/diagnosis/discovery.py): physically meaningful terms
+a joint's missing torque may be made of, each a named column computed from (q, dq, ddq).
+
+For the joint j under study (variables q_j, dq_j, ddq_j; "2" for joint2) and every other joint k:
+
+- own joint: a constant, sign(dq_j) and smooth signs tanh(dq_j/v), dq_j, |dq_j|·dq_j, dq_j³, ddq_j,
+  powers of q_j (q_j, q_j², q_j³, q_j·|q_j|), sin/cos(n·q_j) for n = 1..3;
+- friction whose level changes with position: sign(dq_j)·q_j, sign(dq_j)·sin/cos(n·q_j), n = 1, 2;
+- damping that changes with position: dq_j·q_j, dq_j·sin/cos(n·q_j), n = 1, 2;
+- coupling from the other joints: sign(dq_k), tanh(dq_k/v), dq_k, |dq_k|·dq_k, ddq_k, sin/cos(n·q_k)
+  (n = 1, 2), sign(dq_j)·sin/cos(q_k) (friction loaded by another joint's pose), dq_j·dq_k;
+- sums of angles as gravity produces them: sin/cos(q_a + q_b) for every pair, and of all joints;
+- the effects library's own columns on joint j, for every point of their shape grid (Stribeck bumps,
+  cogging harmonics, backlash reversal, ...).
+
+Columns that duplicate an earlier one (correlation beyond 0.9999 on the joint's moving samples, e.g.
+the library's Coulomb column and sign(dq_j)) or that are zero there are dropped. Every term carries the
+numpy code that computes it, so the effect file written from a discovery (train/diagnosis/effect_writer.py)
+computes exactly the column that was fitted.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from crane_io.errors import CraneError
+
+SMOOTH_SIGN_VELOCITIES = (0.05, 0.25)  # rad/s: v of tanh(dq/v)
+_SKIP_LIBRARY = {"payload", "torque-constant-error"}  # need the arm's dynamics; not a column of one joint
+
+
+@dataclass(frozen=True)
+class Term:
+    name: str  # readable: "sign(dq2)·cos(2·q2)"
+    code: str  # numpy expression in q, dq, ddq ((N, J) arrays) and np, get_effect: "np.sign(dq[:, 1]) * ..."
+    unit: str  # unit of the coefficient that multiplies it: "N m", "N m s/rad", ...
+    family: str  # "velocity sign", "velocity sign x angle", "coupling", ...
+    variables: frozenset  # the signals it reads: {"dq2", "q2"}
+    factors: tuple = ()  # readable factors whose product it is (for factoring an expression)
+
+    @property
+    def parameter(self) -> str:
+        """A Python identifier for the term's coefficient: 'sign_dq2_cos_2q2'."""
+        s = self.name.replace("·", "_").replace("|", "abs_").replace("²", "2").replace("³", "3")
+        s = re.sub(r"[^0-9a-zA-Z]+", "_", s).strip("_").lower()
+        return s if s and not s[0].isdigit() else f"c_{s}"
+
+
+def evaluate(term: Term, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
+    """(N,) column of `term` (its code run on our own generated expression, never on user input)."""
+    from crane_io.physics.effects import get_effect
+
+    out = eval(term.code, {"np": np, "get_effect": get_effect, "__builtins__": {}},  # noqa: S307
+               {"q": q, "dq": dq, "ddq": ddq})
+    return np.broadcast_to(np.asarray(out, dtype=float), (len(q),)).copy()
+
+
+def _label(name: str, index: int) -> str:
+    m = re.search(r"(\d+)$", name)
+    return m.group(1) if m else str(index + 1)
+
+
+def _mul(a: tuple, b: tuple, family: str, unit: str) -> tuple:
+    """Product of two (name, code, variables, factors) pieces as a term tuple."""
+    return (f"{a[0]}·{b[0]}", f"({a[1]}) * ({b[1]})", unit, family, a[2] | b[2], a[3] + b[3])
+
+
+def _piece(name, code, variables):
+    return (name, code, frozenset(variables), (name,))
+
+
+def generate(joint_names, j: int, library=True) -> list[Term]:
+    """Every candidate term for joint index `j` of `joint_names` (before dropping duplicates)."""
+    labels = [_label(n, i) for i, n in enumerate(joint_names)]
+    out: list[tuple] = []
+
+    def q(k):
+        return _piece(f"q{labels[k]}", f"q[:, {k}]", {f"q{labels[k]}"})
+
+    def dq(k):
+        return _piece(f"dq{labels[k]}", f"dq[:, {k}]", {f"dq{labels[k]}"})
+
+    def sgn(k):
+        return _piece(f"sign(dq{labels[k]})", f"np.sign(dq[:, {k}])", {f"dq{labels[k]}"})
+
+    def trig(fn, n, k):
+        arg = f"q{labels[k]}" if n == 1 else f"{n}·q{labels[k]}"
+        code = f"np.{fn}(q[:, {k}])" if n == 1 else f"np.{fn}({n} * q[:, {k}])"
+        return _piece(f"{fn}({arg})", code, {f"q{labels[k]}"})
+
+    def add(piece, unit, family):
+        out.append(piece[:2] + (unit, family) + piece[2:])
+
+    L = labels[j]
+    out.append(("1", "np.ones(q.shape[0])", "N m", "constant", frozenset(), ("1",)))
+    add(sgn(j), "N m", "velocity sign")
+    for v in SMOOTH_SIGN_VELOCITIES:
+        add(_piece(f"tanh(dq{L}/{v:g})", f"np.tanh(dq[:, {j}] / {v!r})", {f"dq{L}"}), "N m", "velocity sign")
+    add(dq(j), "N m s/rad", "velocity")
+    add(_piece(f"|dq{L}|·dq{L}", f"np.abs(dq[:, {j}]) * dq[:, {j}]", {f"dq{L}"}), "N m s^2/rad^2", "velocity")
+    add(_piece(f"dq{L}³", f"dq[:, {j}] ** 3", {f"dq{L}"}), "N m s^3/rad^3", "velocity")
+    add(_piece(f"ddq{L}", f"ddq[:, {j}]", {f"ddq{L}"}), "N m s^2/rad", "acceleration")
+    add(q(j), "N m/rad", "angle")
+    add(_piece(f"q{L}²", f"q[:, {j}] ** 2", {f"q{L}"}), "N m/rad^2", "angle")
+    add(_piece(f"q{L}³", f"q[:, {j}] ** 3", {f"q{L}"}), "N m/rad^3", "angle")
+    add(_piece(f"q{L}·|q{L}|", f"q[:, {j}] * np.abs(q[:, {j}])", {f"q{L}"}), "N m/rad^2", "angle")
+    for n in (1, 2, 3):
+        for fn in ("sin", "cos"):
+            add(trig(fn, n, j), "N m", "angle")
+    out.append(_mul(sgn(j), q(j), "velocity sign x angle", "N m/rad"))
+    out.append(_mul(dq(j), q(j), "velocity x angle", "N m s/rad^2"))
+    for n in (1, 2):
+        for fn in ("sin", "cos"):
+            out.append(_mul(sgn(j), trig(fn, n, j), "velocity sign x angle", "N m"))
+            out.append(_mul(dq(j), trig(fn, n, j), "velocity x angle", "N m s/rad"))
+    for k in range(len(joint_names)):
+        if k == j:
+            continue
+        K = labels[k]
+        add(sgn(k), "N m", "coupling")
+        add(_piece(f"tanh(dq{K}/0.25)", f"np.tanh(dq[:, {k}] / 0.25)", {f"dq{K}"}), "N m", "coupling")
+        add(dq(k), "N m s/rad", "coupling")
+        add(_piece(f"|dq{K}|·dq{K}", f"np.abs(dq[:, {k}]) * dq[:, {k}]", {f"dq{K}"}), "N m s^2/rad^2",
+            "coupling")
+        add(_piece(f"ddq{K}", f"ddq[:, {k}]", {f"ddq{K}"}), "N m s^2/rad", "coupling")
+        for n in (1, 2):
+            for fn in ("sin", "cos"):
+                add(trig(fn, n, k), "N m", "coupling")
+        for fn in ("sin", "cos"):
+            out.append(_mul(sgn(j), trig(fn, 1, k), "coupling", "N m"))
+        out.append(_mul(dq(j), dq(k), "coupling", "N m s^2/rad^2"))
+    n_j = len(joint_names)
+    groups = [(a, b) for a in range(n_j) for b in range(a + 1, n_j)]
+    if n_j > 2:
+        groups.append(tuple(range(n_j)))
+    for g in groups:
+        arg = " + ".join(f"q{labels[k]}" for k in g)
+        code = " + ".join(f"q[:, {k}]" for k in g)
+        for fn in ("sin", "cos"):
+            out.append((f"{fn}({arg})", f"np.{fn}({code})", "N m", "sum of angles",
+                        frozenset(f"q{labels[k]}" for k in g), (f"{fn}({arg})",)))
+    terms = [Term(*t) for t in out]
+    if library:
+        terms += library_terms(joint_names, j)
+    return terms
+
+
+def library_terms(joint_names, j: int) -> list[Term]:
+    """The library's joint-scope effects as terms on joint j: one per column and point of the shape grid."""
+    from crane_io.physics.effects import list_effects
+
+    from .effects import shape_options
+
+    L = _label(joint_names[j], j)
+    out = []
+    for effect in list_effects():
+        if effect.scope != "joint" or effect.name in _SKIP_LIBRARY:
+            continue
+        for shape in shape_options(effect):
+            shape = {k: float(v) for k, v in (shape or {}).items()}
+            try:
+                k_cols = effect.n_columns()
+            except CraneError:
+                continue
+            where = ", ".join(f"{k}={v:g}" for k, v in shape.items())
+            for c, p in enumerate(effect.linear_params[:k_cols]):
+                base = effect.name if k_cols == 1 else f"{effect.name}.{p.name}"
+                name = f"{base}(joint{L}; {where})" if where else f"{base}(joint{L})"
+                code = f"get_effect({effect.name!r}).columns(q, dq, ddq, {j}, {shape!r})[:, {j}, {c}]"
+                out.append(Term(name, code, p.unit, "library", frozenset({f"q{L}", f"dq{L}", f"ddq{L}"}),
+                                (name,)))
+    return out
+
+
+def columns(terms: list[Term], q, dq, ddq) -> np.ndarray:
+    """(N, m) matrix of the terms' columns."""
+    if not terms:
+        return np.zeros((len(q), 0))
+    return np.stack([evaluate(t, q, dq, ddq) for t in terms], axis=1)
+
+
+def distinct(terms: list[Term], T: np.ndarray, rows: np.ndarray, tol: float = 1e-2) -> list[int]:
+    """Indices of the terms whose column on `rows` is finite, not zero and not (nearly) a linear
+    combination of the earlier kept ones (what is left after projecting it on them is below `tol` of its
+    norm: the library's Coulomb column is sign(dq), its spring columns are q and a constant)."""
+    keep: list[int] = []
+    basis: list[np.ndarray] = []  # orthonormal
+    for i in range(T.shape[1]):
+        c = T[rows, i]
+        if not np.isfinite(c).all():
+            continue
+        nrm = float(np.linalg.norm(c))
+        if nrm < 1e-9 * np.sqrt(max(len(c), 1)):
+            continue
+        r = c.copy()
+        for _ in range(2):  # twice: Gram-Schmidt loses orthogonality once
+            for v in basis:
+                r -= (v @ r) * v
+        rn = float(np.linalg.norm(r))
+        if rn < tol * nrm:
+            continue
+        keep.append(i)
+        basis.append(r / rn)
+    return keep

@@ -1,0 +1,252 @@
+"""Train many small MLPs at once: M independent 3-layer nets (in -> hidden ReLU -> out) whose weights
+are stacked as (M, in, out) tensors and evaluated with torch.baddbmm, one optimiser step per
+minibatch for all of them.
+
+Each model m has its own training rows (a different subset, even of a different size), its own
+input/output standardisation (from its rows), its own initialisation and minibatch order (from its own
+seed), its own Adam state and step count, and its own best-validation-epoch weights. Per epoch model m
+takes ceil(n_m / batch_size) steps over a fresh permutation of its rows (the last batch may be short);
+the whole batch runs max_m of that many steps and a model whose epoch is over sits the rest out
+(no gradient, no Adam step). So every model follows exactly the trajectory the plain one-model loop
+`train_plain` follows with the same seed; only floating-point summation order differs.
+
+Loss per model on a minibatch (the per-model terms of train.models.losses.weighted_loss):
+sum_ij w_ij (y_ij - yhat_ij)^2 / (J n) in standardised units,
+w = the dead-zone mask r for the masked loss (eq. 3), w = 1 for MSE.
+Validation (every epoch): MSE in SI units on the validation rows, averaged over joints.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+DEFAULT_BATCH_SIZE = 32
+
+
+@dataclass
+class MLPSettings:
+    hidden: int = 64  # hidden units (paper: 64)
+    lr: float = 0.01  # Adam learning rate (paper: 0.01)
+    epochs: int = 100  # paper: 100
+    batch_size: int = DEFAULT_BATCH_SIZE  # minibatch size (the paper does not say)
+    betas: tuple[float, float] = (0.9, 0.999)  # Adam defaults
+    eps: float = 1e-8
+
+
+@dataclass
+class BatchedResult:
+    params: dict  # best-epoch weights: W1 (M, D, H), b1 (M, H), W2 (M, H, J), b2 (M, J) numpy float32
+    norm: dict  # x_mean, x_std (M, D), y_mean, y_std (M, J)
+    best_epoch: np.ndarray  # (M,) 0-based epoch whose weights were kept
+    best_val: np.ndarray  # (M,) validation MSE (SI, mean over joints) at that epoch
+    train_loss: np.ndarray  # (epochs, M) mean minibatch loss per epoch
+    val_mse: np.ndarray  # (epochs, M, J) validation MSE per joint per epoch
+
+    def model(self, m: int) -> tuple[dict, dict]:
+        """(params, norm) of model m alone (leading dimension 1)."""
+        return ({k: v[m:m + 1] for k, v in self.params.items()},
+                {k: v[m:m + 1] for k, v in self.norm.items()})
+
+
+def init_params(rng: np.random.Generator, d_in: int, hidden: int, d_out: int) -> dict:
+    """PyTorch's default nn.Linear initialisation, U(-1/sqrt(fan_in), 1/sqrt(fan_in)), from `rng`."""
+    k1, k2 = 1 / math.sqrt(d_in), 1 / math.sqrt(hidden)
+    return {"W1": rng.uniform(-k1, k1, (d_in, hidden)).astype(np.float32),
+            "b1": rng.uniform(-k1, k1, hidden).astype(np.float32),
+            "W2": rng.uniform(-k2, k2, (hidden, d_out)).astype(np.float32),
+            "b2": rng.uniform(-k2, k2, d_out).astype(np.float32)}
+
+
+def standardisation(X: np.ndarray, Y: np.ndarray, rows: np.ndarray) -> dict:
+    xs, ys = X[rows], Y[rows]
+    x_std = xs.std(axis=0)
+    y_std = ys.std(axis=0)
+    return {"x_mean": xs.mean(axis=0).astype(np.float32),
+            "x_std": np.where(x_std > 1e-12, x_std, 1.0).astype(np.float32),
+            "y_mean": ys.mean(axis=0).astype(np.float32),
+            "y_std": np.where(y_std > 1e-12, y_std, 1.0).astype(np.float32)}
+
+
+def forward(params: dict, x: torch.Tensor) -> torch.Tensor:
+    """x (M, B, D) standardised -> (M, B, J) standardised outputs."""
+    h = torch.relu(torch.baddbmm(params["b1"].unsqueeze(1), x, params["W1"]))
+    return torch.baddbmm(params["b2"].unsqueeze(1), h, params["W2"])
+
+
+def predict(params: dict, norm: dict, X: np.ndarray) -> np.ndarray:
+    """SI inputs (N, D) -> SI outputs (M, N, J) for every stacked model."""
+    p = {k: torch.as_tensor(v) for k, v in params.items()}
+    n = {k: torch.as_tensor(v) for k, v in norm.items()}
+    x = torch.as_tensor(np.asarray(X, dtype=np.float32))
+    with torch.no_grad():
+        xs = (x.unsqueeze(0) - n["x_mean"].unsqueeze(1)) / n["x_std"].unsqueeze(1)
+        y = forward(p, xs) * n["y_std"].unsqueeze(1) + n["y_mean"].unsqueeze(1)
+    return y.numpy()
+
+
+def _epoch_batches(orders, batch_size):
+    """(S, M, B) row indices (-1 = padding) for one epoch from each model's permutation."""
+    steps = max(math.ceil(len(o) / batch_size) for o in orders)
+    idx = np.full((len(orders), steps * batch_size), -1, dtype=np.int64)
+    for m, o in enumerate(orders):
+        idx[m, :len(o)] = o
+    return idx.reshape(len(orders), steps, batch_size).transpose(1, 0, 2)
+
+
+def train_mlps(X, Y, W, rows, X_val, Y_val, settings: MLPSettings | None = None, seeds=None,
+               progress=None, W_val=None) -> BatchedResult:
+    """Train len(rows) MLPs together.
+
+    X (N, D), Y (N, J), W (N, J) loss weights (mask or ones), rows: list of M index arrays (each model's
+    training rows), X_val (V, D), Y_val (V, J) SI validation data, seeds: M ints (default 0..M-1),
+    progress: optional callable(epoch_done, epochs) for progress bars. W_val (V, J) bool: score each
+    joint's validation MSE over its True rows only (a per-joint validation set, train.data.splits); None: all.
+    """
+    s = settings or MLPSettings()
+    M = len(rows)
+    seeds = list(range(M)) if seeds is None else list(seeds)
+    D, J, H = X.shape[1], Y.shape[1], s.hidden
+    rngs = [np.random.default_rng(sd) for sd in seeds]
+    inits = [init_params(r, D, H, J) for r in rngs]
+    params = {k: torch.tensor(np.stack([p[k] for p in inits]), requires_grad=True) for k in inits[0]}
+    norms = [standardisation(X, Y, np.asarray(r)) for r in rows]
+    norm = {k: np.stack([n[k] for n in norms]) for k in norms[0]}
+    nt = {k: torch.as_tensor(v) for k, v in norm.items()}
+    Xt = torch.as_tensor(np.asarray(X, dtype=np.float32))
+    # per-model standardised copies of the data would cost M x N; standardise per batch instead
+    Yt = torch.as_tensor(np.asarray(Y, dtype=np.float32))
+    Wt = torch.as_tensor(np.asarray(W, dtype=np.float32))
+    # padding row N: zeros, weight 0
+    Xt = torch.cat([Xt, torch.zeros(1, D)])
+    Yt = torch.cat([Yt, torch.zeros(1, J)])
+    Wt = torch.cat([Wt, torch.zeros(1, J)])
+    xv = torch.as_tensor(np.asarray(X_val, dtype=np.float32))
+    yv = torch.as_tensor(np.asarray(Y_val, dtype=np.float32))
+    xv_std = (xv.unsqueeze(0) - nt["x_mean"].unsqueeze(1)) / nt["x_std"].unsqueeze(1)  # (M, V, D)
+    if W_val is not None:
+        wv = torch.as_tensor(np.asarray(W_val, dtype=np.float32))  # (V, J)
+        wv_n = wv.sum(dim=0).clamp(min=1)
+
+    exp_avg = {k: torch.zeros_like(v) for k, v in params.items()}
+    exp_sq = {k: torch.zeros_like(v) for k, v in params.items()}
+    step = torch.zeros(M)
+    b1, b2 = s.betas
+    best = {k: v.detach().clone() for k, v in params.items()}
+    best_val = torch.full((M,), float("inf"))
+    best_epoch = np.zeros(M, dtype=int)
+    train_loss = np.zeros((s.epochs, M))
+    val_mse = np.zeros((s.epochs, M, J))
+    rows = [np.asarray(r, dtype=np.int64) for r in rows]
+    pad = len(X)
+    x_mean, x_std = nt["x_mean"].unsqueeze(1), nt["x_std"].unsqueeze(1)
+    y_mean, y_std = nt["y_mean"].unsqueeze(1), nt["y_std"].unsqueeze(1)
+
+    for epoch in range(s.epochs):
+        orders = [r[rng.permutation(len(r))] for r, rng in zip(rows, rngs)]
+        batches = torch.as_tensor(_epoch_batches(orders, s.batch_size))
+        batches = torch.where(batches < 0, pad, batches)
+        loss_sum = torch.zeros(M)
+        loss_n = torch.zeros(M)
+        for idx in batches:  # idx (M, B)
+            valid = idx != pad
+            count = valid.sum(dim=1).to(torch.float32)
+            active = count > 0
+            xb = (Xt[idx] - x_mean) / x_std
+            yb = (Yt[idx] - y_mean) / y_std
+            wb = Wt[idx]
+            out = forward(params, xb)
+            J_ = out.shape[-1]
+            per_model = (wb * (out - yb) ** 2).sum(dim=(1, 2)) / (J_ * count.clamp(min=1))
+            for p in params.values():
+                p.grad = None
+            per_model.sum().backward()
+            with torch.no_grad():
+                loss_sum += per_model.detach() * active
+                loss_n += active
+                step += active.to(step.dtype)
+                a = active.to(torch.float32)
+                bc1 = 1 - b1 ** step.clamp(min=1)
+                bc2 = 1 - b2 ** step.clamp(min=1)
+                for k, p in params.items():
+                    shape = (M,) + (1,) * (p.dim() - 1)
+                    am = a.view(shape)
+                    g = p.grad
+                    exp_avg[k].mul_(1 - am * (1 - b1)).add_(am * (1 - b1) * g)
+                    exp_sq[k].mul_(1 - am * (1 - b2)).add_(am * (1 - b2) * g * g)
+                    denom = (exp_sq[k].sqrt() / bc2.sqrt().view(shape)).add_(s.eps)
+                    p.sub_(am * (s.lr / bc1).view(shape) * exp_avg[k] / denom)
+        with torch.no_grad():
+            pred = forward(params, xv_std) * y_std + y_mean
+            if W_val is None:
+                vm = ((pred - yv.unsqueeze(0)) ** 2).mean(dim=1)  # (M, J)
+            else:
+                vm = (wv * (pred - yv.unsqueeze(0)) ** 2).sum(dim=1) / wv_n
+            score = vm.mean(dim=1)
+            better = score < best_val
+            if better.any():
+                for k, p in params.items():
+                    shape = (M,) + (1,) * (p.dim() - 1)
+                    best[k] = torch.where(better.view(shape), p.detach(), best[k])
+                best_val = torch.where(better, score, best_val)
+                best_epoch[better.numpy()] = epoch
+        train_loss[epoch] = (loss_sum / loss_n.clamp(min=1)).numpy()
+        val_mse[epoch] = vm.numpy()
+        if progress is not None:
+            progress(epoch + 1, s.epochs)
+    return BatchedResult({k: v.numpy().copy() for k, v in best.items()}, norm, best_epoch,
+                         best_val.numpy().copy(), train_loss, val_mse)
+
+
+def train_plain(X, Y, W, rows, X_val, Y_val, settings: MLPSettings | None = None, seed: int = 0
+                ) -> BatchedResult:
+    """Reference: one model trained the ordinary way (nn.Sequential, torch.optim.Adam, a Python loop over
+    minibatches), same initialisation, minibatch order and loss as `train_mlps` with seeds=[seed].
+    Used by the equivalence test and the benchmark; returns a BatchedResult with M = 1."""
+    s = settings or MLPSettings()
+    rows = np.asarray(rows, dtype=np.int64)
+    D, J, H = X.shape[1], Y.shape[1], s.hidden
+    rng = np.random.default_rng(seed)
+    init = init_params(rng, D, H, J)
+    net = torch.nn.Sequential(torch.nn.Linear(D, H), torch.nn.ReLU(), torch.nn.Linear(H, J))
+    with torch.no_grad():
+        net[0].weight.copy_(torch.as_tensor(init["W1"].T))
+        net[0].bias.copy_(torch.as_tensor(init["b1"]))
+        net[2].weight.copy_(torch.as_tensor(init["W2"].T))
+        net[2].bias.copy_(torch.as_tensor(init["b2"]))
+    norm = standardisation(X, Y, rows)
+    xs = torch.as_tensor(((X - norm["x_mean"]) / norm["x_std"]).astype(np.float32))
+    ys = torch.as_tensor(((Y - norm["y_mean"]) / norm["y_std"]).astype(np.float32))
+    ws = torch.as_tensor(np.asarray(W, dtype=np.float32))
+    xv = torch.as_tensor(((X_val - norm["x_mean"]) / norm["x_std"]).astype(np.float32))
+    yv = torch.as_tensor(np.asarray(Y_val, dtype=np.float32))
+    y_mean, y_std = torch.as_tensor(norm["y_mean"]), torch.as_tensor(norm["y_std"])
+    opt = torch.optim.Adam(net.parameters(), lr=s.lr, betas=s.betas, eps=s.eps)
+    best_state, best_val, best_epoch = None, float("inf"), 0
+    train_loss = np.zeros((s.epochs, 1))
+    val_mse = np.zeros((s.epochs, 1, J))
+    for epoch in range(s.epochs):
+        order = rows[rng.permutation(len(rows))]
+        losses = []
+        for start in range(0, len(order), s.batch_size):
+            b = torch.as_tensor(order[start:start + s.batch_size])
+            out = net(xs[b])
+            loss = (ws[b] * (out - ys[b]) ** 2).sum() / (J * len(b))
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            losses.append(loss.item())
+        with torch.no_grad():
+            vm = ((net(xv) * y_std + y_mean - yv) ** 2).mean(dim=0)
+        train_loss[epoch, 0] = np.mean(losses)
+        val_mse[epoch, 0] = vm.numpy()
+        if vm.mean().item() < best_val:
+            best_val, best_epoch = vm.mean().item(), epoch
+            best_state = {k: v.detach().clone() for k, v in net.state_dict().items()}
+    params = {"W1": best_state["0.weight"].T.numpy()[None], "b1": best_state["0.bias"].numpy()[None],
+              "W2": best_state["2.weight"].T.numpy()[None], "b2": best_state["2.bias"].numpy()[None]}
+    return BatchedResult(params, {k: v[None] for k, v in norm.items()}, np.array([best_epoch]),
+                         np.array([best_val]), train_loss, val_mse)
