@@ -19,11 +19,11 @@ from collect.cli import main as collect_main
 from collect.recorder import read_events
 from collect.runner import RunOptions, run_session
 from crane_io.physics.loop_model import LoopModel, LoopModelError
-from train.cli.fit import fit_model
-from train.cli.options import parse_effect
+from tests.fitting import fit_model
 from train.data.filters import lowpass, pseudo_diff
 from train.evaluation.fidelity import measure_fidelity
 from train.models.registry import load_model
+from train.settings import parse_effect
 
 BILATERAL = ("joint1", "joint2", "joint4")
 TRAIN_SEED, SEED = 11, 12  # the runs compared below are not the training data

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from tests.fitting import fit_model
 from tests.sessions import write_synthetic_session
 from train.cli import main
-from train.cli.fit import fit_model
 from train.data.preprocess import preprocess
 from train.data.session import read_sessions
 from train.data.splits import make_splits

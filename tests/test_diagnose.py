@@ -23,9 +23,9 @@ import pytest
 from click.testing import CliRunner
 
 from crane_io.sim.plant_config import load_plant_config
+from tests.fitting import fit_model
 from tests.planted import simulate_session
 from train.cli import main
-from train.cli.fit import fit_model
 from train.data.preprocess import preprocess
 from train.data.session import read_sessions
 from train.diagnosis.diagnose import diagnose, diagnose_residual

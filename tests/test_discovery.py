@@ -27,9 +27,9 @@ from click.testing import CliRunner
 
 import crane_io.physics.effects as fx
 from crane_io.sim.plant_config import load_plant_config
+from tests.fitting import fit_model
 from tests.planted import simulate_session
 from train.cli import main
-from train.cli.fit import fit_model
 from train.evaluation.compare import compare_models
 
 DURATION_S = 60.0

@@ -26,9 +26,9 @@ from click.testing import CliRunner
 
 from crane_io.physics.effects import get_effect
 from crane_io.sim.plant_config import load_plant_config
+from tests.fitting import fit_model
 from tests.planted import simulate_session
 from train.cli import main
-from train.cli.fit import fit_model
 from train.data.dataset import Dataset
 from train.data.preprocess import preprocess
 from train.data.session import read_sessions

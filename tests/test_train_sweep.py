@@ -11,13 +11,14 @@ from click.testing import CliRunner
 
 from tests.sessions import write_synthetic_session
 from train.cli import main
-from train.cli.options import parse_effect, parse_sizes
+from train.cli.options import parse_sizes
 from train.data.preprocess import preprocess
 from train.data.session import read_sessions
 from train.data.splits import SplitConfig
 from train.evaluation.sweep import SweepError, run_sweep
 from train.models.batched import MLPSettings
 from train.models.registry import load_model
+from train.settings import parse_effect
 
 torch.set_num_threads(1)
 SMALL = SplitConfig(n_pool=1500, n_val=150, n_test=150)
@@ -131,7 +132,7 @@ def test_option_parsing():
 
 
 def test_config_file_overrides_defaults_and_bad_config_is_one_sentence(session, tmp_path):
-    from train.cli.options import load_config
+    from train.settings import load_config
 
     cfg = tmp_path / "c.toml"
     cfg.write_text("[splits]\nn_pool = 1200\nn_val = 120\nn_test = 120\n[mlp]\nepochs = 2\n")

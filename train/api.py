@@ -52,7 +52,7 @@ def _paths(sessions: Sessions) -> list[str]:
 
 
 def _effect(e: Effect) -> tuple[str, str | None, dict | None]:
-    from .cli.options import parse_effect
+    from .settings import parse_effect
 
     if isinstance(e, str):
         return parse_effect(e)
@@ -63,7 +63,7 @@ def _effect(e: Effect) -> tuple[str, str | None, dict | None]:
 def load_settings(config: PathLike | None = None) -> dict:
     """The training settings {'preprocess', 'splits', 'mlp'}: train/config/train.toml's documented
     defaults, overlaid with the TOML file `config` (same sections)."""
-    from .cli.options import load_config
+    from .settings import load_config
 
     return load_config(config)
 
@@ -81,10 +81,8 @@ def load_sessions(sessions: Sessions, *, arm: str | None = None, joints: Sequenc
     (`context_names`, `context_q`, ...), which the rigid-body model's kinematics use; alpha: the
     dead-zone threshold
     (|dq| > alpha std(dq) moves, default 0.1); zero_phase: filter forward and backward instead."""
-    from .cli.options import load_dataset
+    from .settings import load_dataset
 
-    if joints is not None and not isinstance(joints, str):
-        joints = ",".join(joints)
     return load_dataset(_paths(sessions), joints, alpha, zero_phase, load_settings(config)["preprocess"], arm)
 
 
@@ -258,9 +256,9 @@ def make_report(model_dir: PathLike, sessions: Sessions, output: PathLike, *, se
     """Write the self-contained HTML page of the model's error on the held-out part of `sessions` (with
     the diagnosis sentences unless `diagnosis=False`, and with `discover` the terms discovery finds in
     the residual, each against it); `seed`: the split seed (default: the model's)."""
-    from .cli.options import writable_output
     from .evaluation.heldout import evaluation_data
     from .evaluation.report import report_html, write_report
+    from .settings import writable_output
 
     writable_output(output, "file")
     model = load_model(model_dir)

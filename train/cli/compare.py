@@ -25,7 +25,7 @@ def compare(model_dirs, sessions, as_json, output, metric):
     """Compare MODEL_DIR(s), in the given order, on the same held-out samples."""
     from ..evaluation.compare import compare_models, notes_text, plot, table_text
     from ..progress import show_progress
-    from .options import writable_output
+    from ..settings import writable_output
 
     if output:
         writable_output(output, "file")

@@ -10,16 +10,11 @@ from crane_io.cli_support import cli_errors
 
 from ..models.method_names import METHOD_NAMES
 from ..progress import show_progress
-from .options import (
-    arm_option,
-    data_options,
-    hand_on_hint,
-    parse_effect,
-    writable_output,
-)
+from ..settings import parse_effect, writable_output
+from .options import arm_option, data_options, hand_on_hint
 
 
-def fit_model(sessions, method: str, out_dir, train_size: int | None = None, seed: int = 0,
+def _fit_and_save(sessions, method: str, out_dir, train_size: int | None = None, seed: int = 0,
               effects=(), effect_files=(), joints=None, alpha=None, zero_phase=False,
               scale_to_data=False, epochs: int | None = None, progress: bool = True,
               config_path=None, arm: str | None = None, eval_set: str | None = None) -> dict:
@@ -76,7 +71,7 @@ def fit(sessions, method, out_dir, train_size, seed, effects, effect_files, epoc
     from ..data.session import HandOnArmError
 
     try:
-        doc = fit_model(sessions, method, out_dir, train_size, seed, [parse_effect(e) for e in effects],
+        doc = _fit_and_save(sessions, method, out_dir, train_size, seed, [parse_effect(e) for e in effects],
                         effect_files, joints, alpha, zero_phase, scale_to_data, epochs,
                         show_progress(not no_progress), config_path, arm, eval_set)
     except HandOnArmError as exc:

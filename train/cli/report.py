@@ -25,7 +25,7 @@ from crane_io.cli_support import cli_errors
 def report(model_dir, sessions, output, diagnosis, discover, seed):
     """Write an HTML report of MODEL_DIR's error on the held-out part of SESSION(s)."""
     from ..api import make_report
-    from .options import writable_output
+    from ..settings import writable_output
 
     writable_output(output, "file")
     click.echo(f"Evaluating {model_dir} on the held-out part of {', '.join(sessions)} ...", err=True)

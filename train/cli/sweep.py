@@ -11,7 +11,8 @@ from crane_io.errors import ConfigError
 
 from ..models.method_names import SWEEP_METHODS
 from ..progress import progress_lines, show_progress
-from .options import data_options, load_config, load_dataset, parse_sizes, writable_output
+from ..settings import load_config, load_dataset, writable_output
+from .options import data_options, parse_sizes
 
 
 @click.command()

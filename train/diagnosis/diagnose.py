@@ -96,23 +96,36 @@ def physics_basis(model, ds: Dataset) -> np.ndarray | None:
     return None
 
 
-def diagnose(model, ds: Dataset, effects=None, **kwargs) -> Diagnosis:
+def diagnose(model, ds: Dataset, effects=None, *, folds: int = DEFAULT_FOLDS,
+             min_reduction: float = DEFAULT_MIN_REDUCTION,
+             min_fold_fraction: float = DEFAULT_MIN_FOLD_FRACTION, progress: bool = False) -> Diagnosis:
     """Diagnose `model` on `ds` (see the module docstring): a physics model is refitted with each
-    candidate; any other model keeps its predictions and the candidate explains its residual."""
+    candidate; any other model keeps its predictions and the candidate explains its residual.
+
+    effects: the candidate effects (default: the whole library); folds: cross-validation folds over
+    time; min_reduction: the share of a joint's residual MSE (0..1) a candidate must remove to count;
+    min_fold_fraction: the share of folds in which it must help; progress: a bar over the candidates."""
     from ..models.base import predict_on
 
+    options = dict(folds=folds, min_reduction=min_reduction, min_fold_fraction=min_fold_fraction,
+                   progress=progress)
     residual = ds.tau - np.asarray(predict_on(model, ds), dtype=float)
     X = physics_basis(model, ds)
     if X is None:
-        return _run(ds, None, residual, residual, effects, exclude=model_effects(model), **kwargs)
+        return _run(ds, None, residual, residual, effects, exclude=model_effects(model), **options)
     return _run(ds, X, ds.tau, residual, effects, exclude=model_effects(model), refit=True, model=model,
-                **kwargs)
+                **options)
 
 
-def diagnose_residual(ds: Dataset, residual: np.ndarray, effects=None, **kwargs) -> Diagnosis:
-    """Rank candidate effects by how much of `residual` (N, J) each explains, cross-validated."""
+def diagnose_residual(ds: Dataset, residual: np.ndarray, effects=None, *, folds: int = DEFAULT_FOLDS,
+                      min_reduction: float = DEFAULT_MIN_REDUCTION,
+                      min_fold_fraction: float = DEFAULT_MIN_FOLD_FRACTION,
+                      progress: bool = False) -> Diagnosis:
+    """Rank candidate effects by how much of `residual` (N, J) each explains, cross-validated (the
+    options as for `diagnose`)."""
     residual = np.asarray(residual, dtype=float)
-    return _run(ds, None, residual, residual, effects, **kwargs)
+    return _run(ds, None, residual, residual, effects, folds=folds, min_reduction=min_reduction,
+                min_fold_fraction=min_fold_fraction, progress=progress)
 
 
 def _run(ds: Dataset, X, y, residual, effects=None, *, exclude=(), folds: int = DEFAULT_FOLDS,
