@@ -73,3 +73,10 @@ def test_crane_ios_library_modules_import_no_click(package):
     assert _offending(package, ("click",)) == []
     others = [(f, m) for f, m in _imports("crane_io") if m == "click" and f != "crane_io/cli_support.py"]
     assert others == []
+
+
+@pytest.mark.parametrize("package", ["train", "collect"])
+def test_the_library_never_imports_its_command_line(package):
+    inward = [(f, m) for f, m in _offending(package, (f"{package}.cli", "click"))
+              if not f.startswith(f"{package}/cli")]
+    assert inward == []
