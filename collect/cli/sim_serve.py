@@ -123,9 +123,9 @@ def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_
                                 ("--task", task), ("--config", config_path)) if v is not None]
         if extra:
             raise ConfigError(f"{extra[0]} goes with --pair")
-    from .config import load_config
-    from .runner import run_arm
-    from .sim_lab import parse_offsets
+    from ..config import load_config
+    from ..runner import run_arm
+    from ..sim_lab import parse_offsets
 
     config = load_config(config_path)
     if joints is not None:
@@ -148,7 +148,7 @@ def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_
 
 def _write_truth(plant, truth_path) -> None:
     if truth_path is not None:
-        from .sim_arms import write_plant_truth
+        from ..sim_arms import write_plant_truth
 
         write_plant_truth(plant, truth_path)
 
@@ -182,8 +182,8 @@ def _serve_one(stop, link, arm, plant_name, clock, period_s, seed, fast_sync_rea
     from crane_io.sim.chain import SimulatedChain
     from crane_io.sim.transport import PtyServer
 
-    from .sim_arms import default_plant, make_plant
-    from .sim_lab import OffsetPlant
+    from ..sim_arms import default_plant, make_plant
+    from ..sim_lab import OffsetPlant
 
     plant = make_plant(plant_name, seed, arm)
     plant_name = plant_name or default_plant(arm)
@@ -217,8 +217,8 @@ def _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, c
                 clock, period_s, seed, fast_sync_read, return_delay, truth_path, offsets):
     from crane_io.dynamixel.link_registry import withdraw
 
-    from .config import PAPER_JOINTS
-    from .sim_lab import SimulatedLab
+    from ..config import PAPER_JOINTS
+    from ..sim_lab import SimulatedLab
 
     lab = SimulatedLab.build(plant=plant_name, seed=seed, hand_on=hand_on, clock=clock, period_s=period_s,
                              config=config, task=task, hand_delay_s=hand_delay_s, arm=arm,

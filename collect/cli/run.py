@@ -86,7 +86,7 @@ def run(output, sim, plant, truth_path, truth_trace, task, joints, hand_on, mode
     agreement slowly, then engages bilateral control. Ctrl+C, SIGTERM, the end of --duration or any
     safety breach stop both arms (goal current 0, torque off) and close the file cleanly.
     """
-    from .runner import RunOptions, run_session
+    from ..runner import RunOptions, run_session
 
     if plant is not None and not sim:
         raise click.UsageError("--plant only applies to --sim")
