@@ -61,8 +61,8 @@ def make_plant(spec: str | None, seed: int, arm: ArmDescription, objects: bool =
     except ImportError:
         if spec is None:
             return SimplePlant.from_arm(arm)
-        raise ConfigError(f"--plant {spec} needs crane_io.sim.arm_plant, which is not installed; "
-                          "use --plant simple") from None
+        raise ConfigError(f"`plant` {spec} needs crane_io.sim.arm_plant, which is not installed; "
+                          "use `plant` simple") from None
     name = spec or default_plant(arm)
     config = load_plant_config(name)
     config = config if objects else config.without_environment()
@@ -78,7 +78,7 @@ def make_plant(spec: str | None, seed: int, arm: ArmDescription, objects: bool =
     except ConfigError as exc:  # e.g. an effect on a joint the run holds: say which plant, which joints
         bil = ", ".join(arm.bilateral_joints)
         raise ConfigError(f"plant {name} with the bilateral joints {bil}: {str(exc).rstrip('.')}; pass "
-                          "--plant with one whose effects and objects sit on those joints") from None
+                          "`plant` with one whose effects and objects sit on those joints") from None
 
 
 def make_sim_arms(opts: RunOptions, config: Config, arm: ArmDescription) -> dict:
@@ -107,7 +107,7 @@ def write_truth(sims: dict, path: str | Path) -> Path:
 def write_plant_truth(plant, path: str | Path) -> Path:
     """Write `plant`'s truth to `path` (see write_truth)."""
     if not hasattr(plant, "write_truth"):
-        raise ConfigError("--truth needs an arm plant (a preset or TOML file), not --plant simple")
+        raise ConfigError("`truth` needs an arm plant (a preset or TOML file), not `plant` simple")
     try:
         return plant.write_truth(path)
     except OSError as exc:

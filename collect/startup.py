@@ -43,43 +43,43 @@ def check_options(opts: RunOptions, period_s: float) -> None:
     """One sentence (ConfigError) for options that do not go together, before anything starts."""
     if opts.duration is not None:
         if not (math.isfinite(opts.duration) and opts.duration > 0):
-            raise ConfigError(f"--duration must be a positive number of seconds, got {opts.duration} "
+            raise ConfigError(f"`duration` must be a positive number of seconds, got {opts.duration} "
                               "(leave it out to record until Ctrl+C)")
         if round(opts.duration / period_s) < 1:
-            raise ConfigError(f"--duration {opts.duration:g} s is shorter than one control period "
+            raise ConfigError(f"`duration` {opts.duration:g} s is shorter than one control period "
                               f"({period_s:g} s): nothing would be recorded")
     if opts.realtime and not opts.sim:
-        raise ConfigError("--realtime only applies to --sim (hardware always runs in real time)")
+        raise ConfigError("`realtime` only applies to `sim` (hardware always runs in real time)")
     if opts.truth is not None and not opts.sim:
-        raise ConfigError("--truth only applies to --sim (real arms have no truth to write)")
+        raise ConfigError("`truth` only applies to `sim` (real arms have no truth to write)")
     if opts.truth_trace is not None:
         if not opts.sim:
-            raise ConfigError("--truth-trace only applies to --sim (real arms have no truth to write)")
+            raise ConfigError("`truth_trace` only applies to `sim` (real arms have no truth to write)")
         from .truth_trace import check_truth_trace_path
 
         check_truth_trace_path(opts.truth_trace, opts.force)
     if opts.task is not None and not opts.sim:
-        raise ConfigError("--task only applies to --sim (it sets what the simulated operator does)")
+        raise ConfigError("`task` only applies to `sim` (it sets what the simulated operator does)")
     if opts.hand_on not in ARMS:
         raise ConfigError(f"the operator's hand is on the leader or the follower, not {opts.hand_on!r}")
 
 
 def check_ports(opts: RunOptions) -> None:
-    """--sim and the ports exclude each other; hardware needs two different ports."""
+    """`sim` and the ports exclude each other; hardware needs two different ports."""
     if opts.sim:
         if opts.leader_port or opts.follower_port:
-            raise ConfigError("--leader-port/--follower-port cannot be combined with --sim")
+            raise ConfigError("`leader_port`/`follower_port` cannot be combined with `sim`")
     else:
         if not opts.leader_port or not opts.follower_port:
-            raise ConfigError("without --sim both --leader-port and --follower-port are needed "
+            raise ConfigError("without `sim` both `leader_port` and `follower_port` are needed "
                               "(see `crane-collect ports`)")
         if opts.leader_port == opts.follower_port:
-            raise ConfigError("--leader-port and --follower-port must be different ports")
+            raise ConfigError("`leader_port` and `follower_port` must be different ports")
 
 
 def check_output(output: Path, force: bool) -> None:
     """A session file that cannot be written is found out before any torque is on, not after the
-    alignment. An existing file needs --force. Missing folders are not made here (a run refused later
+    alignment. An existing file needs `force`. Missing folders are not made here (a run refused later
     must not leave them behind): the nearest existing folder must be a writable folder; the session
     file's creation makes the rest."""
     if str(output) in ("", ".") or output.name in ("", ".", ".."):
@@ -87,7 +87,7 @@ def check_output(output: Path, force: bool) -> None:
     if output.is_dir():
         raise SessionFileError(f"{output} is a folder, not a session file; give a file name inside it")
     if output.exists() and not force:
-        raise CraneError(f"{output} already exists; pass --force to overwrite it")
+        raise CraneError(f"{output} already exists; pass `force` to overwrite it")
     folder = output.parent
     existing = folder
     while not existing.exists() and existing != existing.parent:

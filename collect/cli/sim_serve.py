@@ -80,7 +80,7 @@ def slip_summary(chain) -> str:
                    "only when named: all,gripper); with --pair also the joints the hand moves. Record with "
                    "the same --joints on `crane-collect run`. Default: bilateral.joints of --config, the "
                    "paper's joint1,joint2,joint4.")
-@click.option("--plant", "plant_name", default=None, metavar="PRESET_OR_TOML",
+@click.option("--plant", "plant", default=None, metavar="PRESET_OR_TOML",
               help="Physics behind the servos: 'simple' (independent joints) or an arm-plant preset "
                    "or TOML file. Default: the arm plant's 'crane-x7' preset when available (crane-x7-7dof "
                    "when --joints goes beyond joint1,joint2,joint4), else 'simple'. "
@@ -98,13 +98,13 @@ def slip_summary(chain) -> str:
 @click.option("--no-fast-sync-read", is_flag=True, help="Servos ignore Fast Sync Read (old firmware).")
 @click.option("--return-delay", type=click.IntRange(0, 254), default=None,
               help="Return Delay Time register of every servo (2 us/LSB). Default: factory 250.")
-@click.option("--truth", "truth_path", type=click.Path(dir_okay=False), default=None, metavar="JSON",
+@click.option("--truth", "truth", type=click.Path(dir_okay=False), default=None, metavar="JSON",
               help="Also write the arm plant's hidden truth (effects, parameters, seed; --pair: the "
                    "follower's) to this file. Nothing else ever records it.")
 @cli_errors
 def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_s, config_path,
-              encoder_offsets, joints, plant_name, clock, period_s, seed, no_fast_sync_read, return_delay,
-              truth_path):
+              encoder_offsets, joints, plant, clock, period_s, seed, no_fast_sync_read, return_delay,
+              truth):
     """Serve a simulated CRANE-X7 (or, with --pair, a leader and a follower with a simulated hand) on
     pseudo-terminals until Ctrl+C or SIGTERM."""
     if not period_s > 0:
@@ -137,11 +137,11 @@ def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_
     try:
         if pair:
             _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, config, arm,
-                        plant_name, clock, period_s, seed, not no_fast_sync_read, return_delay, truth_path,
+                        plant, clock, period_s, seed, not no_fast_sync_read, return_delay, truth,
                         offsets)
         else:
-            _serve_one(stop, link, arm, plant_name, clock, period_s, seed, not no_fast_sync_read,
-                       return_delay, truth_path, offsets.get("arm"))
+            _serve_one(stop, link, arm, plant, clock, period_s, seed, not no_fast_sync_read,
+                       return_delay, truth, offsets.get("arm"))
     finally:
         signal.signal(signal.SIGTERM, previous)
 
