@@ -30,9 +30,11 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
+from crane_io import session_format as fmt
 from crane_io.description import ArmDescription, default_arm
 from crane_io.errors import CraneError
 from crane_io.shutdown import handle_termination
@@ -55,6 +57,11 @@ from .truth_trace import TruthTraceWriter
 
 __all__ = ["ARMS", "RunContext", "RunOptions", "RunResult", "SafetyStop", "StartRefused", "make_plant",
            "make_sim_arms", "run_arm", "run_session", "software_version"]
+
+# the recorded row's keys ("leader/q", "timing/period", ...), by member name: _LEADER.q
+_LEADER, _FOLLOWER = (SimpleNamespace(**{m.name: fmt.arm_path(arm, m.name) for m in fmt.ARM_MEMBERS})
+                      for arm in ARMS)
+_TIMING = SimpleNamespace(**{m.name: fmt.timing_path(m.name) for m in fmt.TIMING_MEMBERS})
 
 _STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP", "SIGINT") if hasattr(signal, n))
 
@@ -374,19 +381,17 @@ class _Loop:
         tl_rec = np.where(bil, sent_l * kt, sl.current * kt)
         tf_rec = np.where(bil, sent_f * kt, sf.current * kt)
         est_l, est_f = self.ctl.leader, self.ctl.follower
+        L, F, T = _LEADER, _FOLLOWER, _TIMING
         self.recorder.append({
-            "leader/t": t, "leader/q": sl.position, "leader/tau": tl_rec, "leader/dq_servo": sl.velocity,
-            "leader/current": sl.current, "leader/goal_current": sent_l, "leader/dq": est_l.dq,
-            "leader/tau_dis": est_l.tau_dis, "leader/tau_res": est_l.tau_res,
-            "leader/q_goal": self.q_goal_row,
-            "follower/t": t if self.lockstep else sf.t - self.t_start_mono, "follower/q": sf.position,
-            "follower/tau": tf_rec, "follower/dq_servo": sf.velocity, "follower/current": sf.current,
-            "follower/goal_current": sent_f, "follower/dq": est_f.dq, "follower/tau_dis": est_f.tau_dis,
-            "follower/tau_res": est_f.tau_res, "follower/q_goal": self.q_goal_row,
-            "timing/cycle_start": timer.now(), "timing/period": timer.last_period,
-            "timing/bus_time_leader": timer.last["bus_leader"],
-            "timing/bus_time_follower": timer.last["bus_follower"],
-            "timing/compute_time": timer.last["compute"], "timing/overrun": timer.last_overrun,
+            L.t: t, L.q: sl.position, L.tau: tl_rec, L.dq_servo: sl.velocity, L.current: sl.current,
+            L.goal_current: sent_l, L.dq: est_l.dq, L.tau_dis: est_l.tau_dis, L.tau_res: est_l.tau_res,
+            L.q_goal: self.q_goal_row,
+            F.t: t if self.lockstep else sf.t - self.t_start_mono, F.q: sf.position, F.tau: tf_rec,
+            F.dq_servo: sf.velocity, F.current: sf.current, F.goal_current: sent_f, F.dq: est_f.dq,
+            F.tau_dis: est_f.tau_dis, F.tau_res: est_f.tau_res, F.q_goal: self.q_goal_row,
+            T.cycle_start: timer.now(), T.period: timer.last_period,
+            T.bus_time_leader: timer.last["bus_leader"], T.bus_time_follower: timer.last["bus_follower"],
+            T.compute_time: timer.last["compute"], T.overrun: timer.last_overrun,
         })
         if self.truth_trace is not None:
             self._record_truth(t)
@@ -626,12 +631,13 @@ def _finish(loop, opts, output, end_reason, wall0, out) -> RunResult:
         rms = {n: float(err[i]) for i, n in enumerate(loop.arm.joint_names) if loop.bil[i]}
     achieved = loop.cycles / loop.t_session if loop.t_session > 0 else 0.0
     timing_attrs = {k: float(v) for k, v in summary.items()}
-    timing_attrs["lockstep"] = not loop.paced
+    timing_attrs[fmt.TIMING_LOCKSTEP] = not loop.paced
     if loop.realtime is not None:
         timing_attrs.update(loop.realtime.attrs())
     try:
-        loop.recorder.close(complete=True, attrs={"rate_hz_achieved": achieved, "end_reason": end_reason},
-                            group_attrs={"timing": timing_attrs})
+        loop.recorder.close(complete=True,
+                            attrs={fmt.RATE_ACHIEVED_ATTR: achieved, fmt.END_REASON_ATTR: end_reason},
+                            group_attrs={fmt.TIMING: timing_attrs})
     finally:  # the summary is printed even when the end of the file could not be written
         result = RunResult(output, loop.cycles, loop.t_session, wall, end_reason, loop.breach, summary, rms)
         if opts.status and out is not None:

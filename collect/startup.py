@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from crane_io import session_format as sf
 from crane_io.description import ArmDescription
 from crane_io.errors import ConfigError, CraneError, SessionFileError
 
@@ -151,33 +152,33 @@ def make_recorder(opts: RunOptions, output: Path, config: Config, arm: ArmDescri
 
     infos = hw["infos"]
     attrs = {
-        "hand_on": opts.hand_on,
+        sf.HAND_ON: opts.hand_on,
         **session_attrs(models or {}),
         **calibration_attrs(calibrations or {}),
-        "tau_source": ["goal_current" if n in arm.bilateral_joints else "present_current"
-                       for n in arm.joint_names],
-        "torque_constants": np.array([j.torque_constant for j in arm.joints]),
-        "servo_ids": np.array(arm.servo_ids),
-        "bilateral_joints": list(arm.bilateral_joints),
-        "software_version": software_version(),
-        "start_time": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-        "config_toml": config.to_toml(),
-        "gravity_model": config.controller.gravity_model,
-        "lockstep": bool(opts.sim and not opts.realtime),
+        sf.TAU_SOURCE_ATTR: [sf.TAU_FROM_GOAL if n in arm.bilateral_joints else sf.TAU_FROM_PRESENT
+                             for n in arm.joint_names],
+        sf.TORQUE_CONSTANTS_ATTR: np.array([j.torque_constant for j in arm.joints]),
+        sf.SERVO_IDS_ATTR: np.array(arm.servo_ids),
+        sf.BILATERAL_JOINTS_ATTR: list(arm.bilateral_joints),
+        sf.SOFTWARE_VERSION_ATTR: software_version(),
+        sf.START_TIME_ATTR: _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        sf.CONFIG_TOML_ATTR: config.to_toml(),
+        sf.GRAVITY_MODEL_ATTR: config.controller.gravity_model,
+        sf.LOCKSTEP_ATTR: bool(opts.sim and not opts.realtime),
     }
     for name in ARMS:
         by_id = infos.get(name, {})
-        attrs[f"{name}_firmware_versions"] = np.array([by_id[i].firmware if i in by_id else -1
-                                                       for i in arm.servo_ids])
-    attrs["firmware_versions"] = attrs["follower_firmware_versions"]
+        attrs[sf.firmware_attr(name)] = np.array([by_id[i].firmware if i in by_id else -1
+                                                  for i in arm.servo_ids])
+    attrs[sf.FIRMWARE_ATTR] = attrs[sf.firmware_attr("follower")]
     # the models the servos reported when pinged (start-up refused any other than the description's)
     reported = infos.get("follower", {})
-    attrs["servo_models"] = [reported[i].model if i in reported else j.model
-                             for i, j in zip(arm.servo_ids, arm.joints)]
+    attrs[sf.SERVO_MODELS_ATTR] = [reported[i].model if i in reported else j.model
+                                   for i, j in zip(arm.servo_ids, arm.joints)]
     if opts.sim:
-        attrs["seed"] = int(opts.seed)  # the plant preset is not stored: "hidden-*" names give it away
+        attrs[sf.SEED_ATTR] = int(opts.seed)  # the plant preset is not stored: "hidden-*" names give it away
     # lockstep rows carry simulated time: they are written by recorded rows (whole chunks), never by
     # the wall clock, which keeps the file compact however slowly the loop runs
     return SessionRecorder(output, joint_names=arm.joint_names, rate_hz=config.loop.rate_hz,
                            source="sim" if opts.sim else "hardware", attrs=attrs, force=opts.force,
-                           lockstep=attrs["lockstep"])
+                           lockstep=attrs[sf.LOCKSTEP_ATTR])
