@@ -28,7 +28,7 @@ from .config import Config
 from .recorder import SessionRecorder
 
 if TYPE_CHECKING:
-    from .runner import RunOptions
+    from .run_options import RunOptions
 
 
 def software_version() -> str:
@@ -65,16 +65,16 @@ def check_options(opts: RunOptions, period_s: float) -> None:
         raise ConfigError(f"the operator's hand is on the leader or the follower, not {opts.hand_on!r}")
 
 
-def check_ports(opts: RunOptions) -> None:
+def check_ports(sim: bool, leader_port: str | None, follower_port: str | None) -> None:
     """`sim` and the ports exclude each other; hardware needs two different ports."""
-    if opts.sim:
-        if opts.leader_port or opts.follower_port:
+    if sim:
+        if leader_port or follower_port:
             raise ConfigError("`leader_port`/`follower_port` cannot be combined with `sim`")
     else:
-        if not opts.leader_port or not opts.follower_port:
+        if not leader_port or not follower_port:
             raise ConfigError("without `sim` both `leader_port` and `follower_port` are needed "
                               "(see `crane-collect ports`)")
-        if opts.leader_port == opts.follower_port:
+        if leader_port == follower_port:
             raise ConfigError("`leader_port` and `follower_port` must be different ports")
 
 
@@ -105,10 +105,11 @@ def check_output(output: Path, force: bool) -> None:
                                f"({existing} is not writable)")
 
 
-def open_buses(opts: RunOptions, arm: ArmDescription, config: Config, ports: dict, out,
+def open_buses(arm: ArmDescription, config: Config, ports: dict, out, *, simulated: bool = False,
                checkpoint=None) -> tuple[dict, dict]:
     """Both buses open, every servo checked and configured, torque on: (buses, {"infos", "warnings"}).
-    `checkpoint()` is called between the steps (it raises to abandon the start-up: a stop request)."""
+    `simulated`: the ports are dxlsim:// arms (no latency timers to check). `checkpoint()` is called
+    between the steps (it raises to abandon the start-up: a stop request)."""
     checkpoint = checkpoint or (lambda: None)
     from crane_io.dynamixel.bus import DynamixelBus
     from crane_io.dynamixel.ports import port_warnings
@@ -119,7 +120,7 @@ def open_buses(opts: RunOptions, arm: ArmDescription, config: Config, ports: dic
     try:
         for name in ARMS:
             port = ports[name]
-            if not opts.sim:
+            if not simulated:
                 for w in port_warnings(port):
                     warnings_.append(w)
                     print(f"Warning: {w}", file=out or sys.stderr, flush=True)
@@ -142,17 +143,20 @@ def open_buses(opts: RunOptions, arm: ArmDescription, config: Config, ports: dic
     return buses, {"infos": infos, "warnings": warnings_}
 
 
-def make_recorder(opts: RunOptions, output: Path, config: Config, arm: ArmDescription,
-                  hw: dict, models: dict | None = None, calibrations: dict | None = None) -> SessionRecorder:
+def make_recorder(output: Path, config: Config, arm: ArmDescription, hw: dict, *, simulated: bool,
+                  lockstep: bool, seed: int, hand_on: str = "leader", force: bool = False,
+                  models: dict | None = None, calibrations: dict | None = None) -> SessionRecorder:
     """The session file, with the run's attributes (never the simulated plants' truth): also the arm
     the hand moved (`hand_on`), the model in each arm's observer (`leader_model`, `follower_model`) and
-    each arm's calibration (`leader_calibration`, `follower_calibration`)."""
+    each arm's calibration (`leader_calibration`, `follower_calibration`). `simulated`: the arms are
+    simulated (source "sim", the `seed` recorded); `lockstep`: the rows carry simulated time; `force`:
+    an existing file is overwritten."""
     from .arm_calibration import calibration_attrs
     from .loop_models import session_attrs
 
     infos = hw["infos"]
     attrs = {
-        sf.HAND_ON: opts.hand_on,
+        sf.HAND_ON: hand_on,
         **session_attrs(models or {}),
         **calibration_attrs(calibrations or {}),
         sf.TAU_SOURCE_ATTR: [sf.TAU_FROM_GOAL if n in arm.bilateral_joints else sf.TAU_FROM_PRESENT
@@ -164,7 +168,7 @@ def make_recorder(opts: RunOptions, output: Path, config: Config, arm: ArmDescri
         sf.START_TIME_ATTR: _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         sf.CONFIG_TOML_ATTR: config.to_toml(),
         sf.GRAVITY_MODEL_ATTR: config.controller.gravity_model,
-        sf.LOCKSTEP_ATTR: bool(opts.sim and not opts.realtime),
+        sf.LOCKSTEP_ATTR: bool(lockstep),
     }
     for name in ARMS:
         by_id = infos.get(name, {})
@@ -175,10 +179,10 @@ def make_recorder(opts: RunOptions, output: Path, config: Config, arm: ArmDescri
     reported = infos.get("follower", {})
     attrs[sf.SERVO_MODELS_ATTR] = [reported[i].model if i in reported else j.model
                                    for i, j in zip(arm.servo_ids, arm.joints)]
-    if opts.sim:
-        attrs[sf.SEED_ATTR] = int(opts.seed)  # the plant preset is not stored: "hidden-*" names give it away
+    if simulated:
+        attrs[sf.SEED_ATTR] = int(seed)  # the plant preset is not stored: "hidden-*" names give it away
     # lockstep rows carry simulated time: they are written by recorded rows (whole chunks), never by
     # the wall clock, which keeps the file compact however slowly the loop runs
     return SessionRecorder(output, joint_names=arm.joint_names, rate_hz=config.loop.rate_hz,
-                           source="sim" if opts.sim else "hardware", attrs=attrs, force=opts.force,
+                           source="sim" if simulated else "hardware", attrs=attrs, force=force,
                            lockstep=attrs[sf.LOCKSTEP_ATTR])

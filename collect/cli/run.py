@@ -1,4 +1,4 @@
-"""`crane-collect run`: record one session under 4-channel bilateral control (see collect/runner.py)."""
+"""`crane-collect run`: record one session under 4-channel bilateral control (collect/runner.py)."""
 
 from __future__ import annotations
 
