@@ -28,7 +28,7 @@ SETTLE_S = 0.3  # s of holding the target after the move
 # A simulated arm that cannot be held still during the alignment is almost always a plant TOML without
 # the damping every real joint has: with no viscous friction or rotor inertia on the bilateral joints the
 # default gains make the arm oscillate into the velocity guard.
-SIM_HINT = ("; with --sim this usually means the plant lacks damping: give the bilateral joints viscous "
+SIM_HINT = ("; with `sim` this usually means the plant lacks damping: give the bilateral joints viscous "
             "friction and rotor inertia (start a plant TOML from base = \"baseline\", or "
             "\"baseline-7dof\" for joints beyond joint1, joint2, joint4)")
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 
+from crane_io import session_format as sf
 from crane_io.dynamixel.calibration import Calibration, find_calibration, load_calibration
 
 from .arm_pair import ARMS
@@ -47,5 +48,5 @@ def calibration_sentence(cals: dict) -> str:
 
 def calibration_attrs(cals: dict) -> dict:
     """Session attributes `leader_calibration` / `follower_calibration`: JSON, "" for none."""
-    return {f"{name}_calibration": json.dumps(cals[name].as_attrs()) if cals.get(name) is not None else ""
+    return {sf.calibration_attr(name): json.dumps(cals[name].as_attrs()) if cals.get(name) is not None else ""
             for name in ARMS}

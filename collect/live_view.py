@@ -49,12 +49,12 @@ def check_save_path(path) -> Path:
     """Refuse (ViewError, one sentence) an .rrd path that cannot be written, before anything starts."""
     path = Path(path)
     if path.is_dir():
-        raise ViewError(f"--view-save {path} is a directory; give a file name such as {path / 'view.rrd'}")
+        raise ViewError(f"`view_save` {path} is a directory; give a file name such as {path / 'view.rrd'}")
     parent = path.parent
     while not parent.exists() and parent != parent.parent:
         parent = parent.parent
     if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
-        raise ViewError(f"--view-save {path} cannot be written: {parent} is not a writable folder")
+        raise ViewError(f"`view_save` {path} cannot be written: {parent} is not a writable folder")
     return path
 
 

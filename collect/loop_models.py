@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from crane_io import session_format as sf
 from crane_io.description import ArmDescription
 
 from .config import Config
@@ -97,6 +98,6 @@ def observer_sentence(models: dict[str, ArmModel], arm: ArmDescription) -> str:
 
 def session_attrs(models: dict[str, ArmModel]) -> dict:
     """Root attributes `leader_model` and `follower_model`: JSON of the model, or "nominal"."""
-    return {f"{name}_model": json.dumps(models[name].describe()) if name in models else "nominal"
+    return {sf.model_attr(name): json.dumps(models[name].describe()) if name in models else sf.NOMINAL_MODEL
             for name in ARM_NAMES}
 

@@ -84,7 +84,7 @@ class _Objects:
             if isinstance(spec, JointWallSpec):
                 if spec.joint not in joints:
                     raise ConfigError(f"the follower's joint wall on {spec.joint} sits on a joint this run "
-                                      f"holds; make {spec.joint} bilateral (--joints) or use another plant")
+                                      f"holds; make {spec.joint} bilateral (`joints`) or use another plant")
                 obj = JointWall(spec, joints.index(spec.joint))
                 self.walls.append(obj)
             else:

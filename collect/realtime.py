@@ -31,6 +31,8 @@ import os
 import resource
 from dataclasses import dataclass, field
 
+from crane_io import session_format as sf
+
 from .config import RealtimeConfig
 
 MCL_CURRENT = 1
@@ -186,13 +188,13 @@ class RealtimeState:
     def attrs(self) -> dict:
         """Session attributes (for the `timing` group): what was asked and what was granted."""
         return {
-            "realtime_scheduling": self.config.scheduling,  # requested: "fifo" or "off"
-            "realtime_priority": int(self.config.priority),  # requested SCHED_FIFO priority
-            "realtime_fifo": self.fifo,  # granted
-            "realtime_memory_locked": self._memory_locked,
-            "realtime_cpu": -1 if self.cpu is None else int(self.cpu),  # -1: not pinned
-            "realtime_gc_frozen": self.gc_frozen,
-            "realtime_refused": "; ".join(f"{g.what}: {g.why_not}" for g in self.refusals()),
+            sf.REALTIME_SCHEDULING_ATTR: self.config.scheduling,  # requested: "fifo" or "off"
+            sf.REALTIME_PRIORITY_ATTR: int(self.config.priority),  # requested SCHED_FIFO priority
+            sf.REALTIME_FIFO_ATTR: self.fifo,  # granted
+            sf.REALTIME_MEMORY_LOCKED_ATTR: self._memory_locked,
+            sf.REALTIME_CPU_ATTR: -1 if self.cpu is None else int(self.cpu),  # -1: not pinned
+            sf.REALTIME_GC_FROZEN_ATTR: self.gc_frozen,
+            sf.REALTIME_REFUSED_ATTR: "; ".join(f"{g.what}: {g.why_not}" for g in self.refusals()),
         }
 
     # -- between cycles -----------------------------------------------------------------------------

@@ -73,7 +73,7 @@ class SessionRecorder:
         self.path = Path(path)
         if self.path.exists():
             if not force:
-                raise SessionFileError(f"{self.path} already exists; pass --force to overwrite it")
+                raise SessionFileError(f"{self.path} already exists; pass `force` to overwrite it")
             if self.path.is_dir():
                 raise SessionFileError(f"{self.path} is a directory, not a session file")
             self.path.unlink()

@@ -1,7 +1,7 @@
 """The two simulated arms of `crane-collect run --sim`: their plants, their in-process servo chains
 (dxlsim://), and the follower plant's truth on request.
 
-    sims = make_sim_arms(opts, config, arm)        # {"leader": SimulatedArm, "follower": SimulatedArm}
+    sims = make_sim_arms(plant, seed, config, arm)  # {"leader": SimulatedArm, "follower": SimulatedArm}
     ports = {name: sims[name].url for name in ARMS}
 
 The in-process arms always run on the lockstep clock (one control period per Goal Current or Goal
@@ -19,9 +19,9 @@ wall clock beside the loop, as real arms do, are `crane-collect sim-serve` proce
 
 from __future__ import annotations
 
+import itertools
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from crane_io.description import ArmDescription
 from crane_io.errors import ConfigError
@@ -29,9 +29,7 @@ from crane_io.errors import ConfigError
 from .arm_pair import ARMS
 from .config import PAPER_JOINTS, Config
 
-if TYPE_CHECKING:
-    from .runner import RunOptions
-
+_RUNS = itertools.count()  # tells apart the simulated arms of this process's runs
 
 # The arm-plant preset of a run without --plant: "crane-x7" (the paper's three joints: every published
 # figure and pinned session) while the bilateral joints are among joint1, joint2, joint4; the seven-joint
@@ -61,8 +59,8 @@ def make_plant(spec: str | None, seed: int, arm: ArmDescription, objects: bool =
     except ImportError:
         if spec is None:
             return SimplePlant.from_arm(arm)
-        raise ConfigError(f"--plant {spec} needs crane_io.sim.arm_plant, which is not installed; "
-                          "use --plant simple") from None
+        raise ConfigError(f"`plant` {spec} needs crane_io.sim.arm_plant, which is not installed; "
+                          "use `plant` simple") from None
     name = spec or default_plant(arm)
     config = load_plant_config(name)
     config = config if objects else config.without_environment()
@@ -78,22 +76,22 @@ def make_plant(spec: str | None, seed: int, arm: ArmDescription, objects: bool =
     except ConfigError as exc:  # e.g. an effect on a joint the run holds: say which plant, which joints
         bil = ", ".join(arm.bilateral_joints)
         raise ConfigError(f"plant {name} with the bilateral joints {bil}: {str(exc).rstrip('.')}; pass "
-                          "--plant with one whose effects and objects sit on those joints") from None
+                          "`plant` with one whose effects and objects sit on those joints") from None
 
 
-def make_sim_arms(opts: RunOptions, config: Config, arm: ArmDescription) -> dict:
-    """Leader and follower simulated arms (plant seeds 2 seed and 2 seed + 1), in lockstep; the plant's
-    objects ([[environment]]) are in the follower's world only."""
+def make_sim_arms(plant: str | None, seed: int, config: Config, arm: ArmDescription) -> dict:
+    """Leader and follower simulated arms on the plant `plant` (make_plant; seeds 2 seed and 2 seed + 1),
+    in lockstep; the plant's objects ([[environment]]) are in the follower's world only."""
     from crane_io.sim import simulated_arm
 
     # Lockstep, also for --realtime (see the module docstring); start-up (ping, configure, torque on)
     # then never lets the simulated arms fall under gravity while their torque is off.
     clock = "lockstep"
     sims = {}
-    tag = f"{os.getpid()}-{id(opts) & 0xFFFF:x}"
+    tag = f"{os.getpid()}-{next(_RUNS):x}"
     for k, name in enumerate(ARMS):
-        plant = make_plant(opts.plant, opts.seed * 2 + k, arm, objects=name == "follower")
-        sims[name] = simulated_arm(name=f"{name}-{tag}", plant=plant, clock=clock,
+        arm_plant = make_plant(plant, seed * 2 + k, arm, objects=name == "follower")
+        sims[name] = simulated_arm(name=f"{name}-{tag}", plant=arm_plant, clock=clock,
                                    period_s=config.loop.period_s, arm=arm, return_delay_time=0)
     return sims
 
@@ -107,18 +105,18 @@ def write_truth(sims: dict, path: str | Path) -> Path:
 def write_plant_truth(plant, path: str | Path) -> Path:
     """Write `plant`'s truth to `path` (see write_truth)."""
     if not hasattr(plant, "write_truth"):
-        raise ConfigError("--truth needs an arm plant (a preset or TOML file), not --plant simple")
+        raise ConfigError("`truth` needs an arm plant (a preset or TOML file), not `plant` simple")
     try:
         return plant.write_truth(path)
     except OSError as exc:
         raise ConfigError(f"cannot write the truth file {path}: {exc.strerror or exc}") from None
 
 
-def make_operator(opts: RunOptions, config: Config, arm: ArmDescription, sims: dict):
-    """The simulated operator, its hand on `opts.hand_on`; in the "contact" task it is told the objects
-    of the follower's world (the follower's plant environment)."""
+def make_operator(seed: int, config: Config, arm: ArmDescription, sims: dict):
+    """The simulated operator (seeded by `seed`); in the "contact" task it is told the objects of the
+    follower's world (the follower's plant environment)."""
     from .operator import SimulatedOperator
 
     environment = getattr(sims["follower"].plant, "environment", None) or []
-    return SimulatedOperator(opts.seed, arm, config.loop.rate_hz, config, environment=environment)
+    return SimulatedOperator(seed, arm, config.loop.rate_hz, config, environment=environment)
 

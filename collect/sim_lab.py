@@ -129,12 +129,12 @@ def parse_offsets(specs, arm: ArmDescription, arms=ARMS) -> dict:
         who = who or (arms[0] if len(arms) == 1 else "")
         if who not in arms or joint not in arm.joint_names or not value:
             want = "ARM:JOINT=RAD with ARM leader or follower" if len(arms) > 1 else "JOINT=RAD"
-            raise ConfigError(f"--encoder-offset {spec!r}: expected {want} and JOINT one of "
+            raise ConfigError(f"`encoder_offsets` {spec!r}: expected {want} and JOINT one of "
                               f"{', '.join(arm.joint_names)}")
         try:
             rad = float(value)
         except ValueError:
-            raise ConfigError(f"--encoder-offset {spec!r}: {value!r} is not a number of radians") from None
+            raise ConfigError(f"`encoder_offsets` {spec!r}: {value!r} is not a number of radians") from None
         out.setdefault(who, np.zeros(len(arm.joint_names)))[arm.joint_names.index(joint)] = rad
     return out
 

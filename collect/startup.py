@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from crane_io import session_format as sf
 from crane_io.description import ArmDescription
 from crane_io.errors import ConfigError, CraneError, SessionFileError
 
@@ -27,7 +28,7 @@ from .config import Config
 from .recorder import SessionRecorder
 
 if TYPE_CHECKING:
-    from .runner import RunOptions
+    from .run_options import RunOptions
 
 
 def software_version() -> str:
@@ -43,43 +44,43 @@ def check_options(opts: RunOptions, period_s: float) -> None:
     """One sentence (ConfigError) for options that do not go together, before anything starts."""
     if opts.duration is not None:
         if not (math.isfinite(opts.duration) and opts.duration > 0):
-            raise ConfigError(f"--duration must be a positive number of seconds, got {opts.duration} "
+            raise ConfigError(f"`duration` must be a positive number of seconds, got {opts.duration} "
                               "(leave it out to record until Ctrl+C)")
         if round(opts.duration / period_s) < 1:
-            raise ConfigError(f"--duration {opts.duration:g} s is shorter than one control period "
+            raise ConfigError(f"`duration` {opts.duration:g} s is shorter than one control period "
                               f"({period_s:g} s): nothing would be recorded")
     if opts.realtime and not opts.sim:
-        raise ConfigError("--realtime only applies to --sim (hardware always runs in real time)")
+        raise ConfigError("`realtime` only applies to `sim` (hardware always runs in real time)")
     if opts.truth is not None and not opts.sim:
-        raise ConfigError("--truth only applies to --sim (real arms have no truth to write)")
+        raise ConfigError("`truth` only applies to `sim` (real arms have no truth to write)")
     if opts.truth_trace is not None:
         if not opts.sim:
-            raise ConfigError("--truth-trace only applies to --sim (real arms have no truth to write)")
+            raise ConfigError("`truth_trace` only applies to `sim` (real arms have no truth to write)")
         from .truth_trace import check_truth_trace_path
 
         check_truth_trace_path(opts.truth_trace, opts.force)
     if opts.task is not None and not opts.sim:
-        raise ConfigError("--task only applies to --sim (it sets what the simulated operator does)")
+        raise ConfigError("`task` only applies to `sim` (it sets what the simulated operator does)")
     if opts.hand_on not in ARMS:
         raise ConfigError(f"the operator's hand is on the leader or the follower, not {opts.hand_on!r}")
 
 
-def check_ports(opts: RunOptions) -> None:
-    """--sim and the ports exclude each other; hardware needs two different ports."""
-    if opts.sim:
-        if opts.leader_port or opts.follower_port:
-            raise ConfigError("--leader-port/--follower-port cannot be combined with --sim")
+def check_ports(sim: bool, leader_port: str | None, follower_port: str | None) -> None:
+    """`sim` and the ports exclude each other; hardware needs two different ports."""
+    if sim:
+        if leader_port or follower_port:
+            raise ConfigError("`leader_port`/`follower_port` cannot be combined with `sim`")
     else:
-        if not opts.leader_port or not opts.follower_port:
-            raise ConfigError("without --sim both --leader-port and --follower-port are needed "
+        if not leader_port or not follower_port:
+            raise ConfigError("without `sim` both `leader_port` and `follower_port` are needed "
                               "(see `crane-collect ports`)")
-        if opts.leader_port == opts.follower_port:
-            raise ConfigError("--leader-port and --follower-port must be different ports")
+        if leader_port == follower_port:
+            raise ConfigError("`leader_port` and `follower_port` must be different ports")
 
 
 def check_output(output: Path, force: bool) -> None:
     """A session file that cannot be written is found out before any torque is on, not after the
-    alignment. An existing file needs --force. Missing folders are not made here (a run refused later
+    alignment. An existing file needs `force`. Missing folders are not made here (a run refused later
     must not leave them behind): the nearest existing folder must be a writable folder; the session
     file's creation makes the rest."""
     if str(output) in ("", ".") or output.name in ("", ".", ".."):
@@ -87,7 +88,7 @@ def check_output(output: Path, force: bool) -> None:
     if output.is_dir():
         raise SessionFileError(f"{output} is a folder, not a session file; give a file name inside it")
     if output.exists() and not force:
-        raise CraneError(f"{output} already exists; pass --force to overwrite it")
+        raise CraneError(f"{output} already exists; pass `force` to overwrite it")
     folder = output.parent
     existing = folder
     while not existing.exists() and existing != existing.parent:
@@ -104,10 +105,11 @@ def check_output(output: Path, force: bool) -> None:
                                f"({existing} is not writable)")
 
 
-def open_buses(opts: RunOptions, arm: ArmDescription, config: Config, ports: dict, out,
+def open_buses(arm: ArmDescription, config: Config, ports: dict, out, *, simulated: bool = False,
                checkpoint=None) -> tuple[dict, dict]:
     """Both buses open, every servo checked and configured, torque on: (buses, {"infos", "warnings"}).
-    `checkpoint()` is called between the steps (it raises to abandon the start-up: a stop request)."""
+    `simulated`: the ports are dxlsim:// arms (no latency timers to check). `checkpoint()` is called
+    between the steps (it raises to abandon the start-up: a stop request)."""
     checkpoint = checkpoint or (lambda: None)
     from crane_io.dynamixel.bus import DynamixelBus
     from crane_io.dynamixel.ports import port_warnings
@@ -118,7 +120,7 @@ def open_buses(opts: RunOptions, arm: ArmDescription, config: Config, ports: dic
     try:
         for name in ARMS:
             port = ports[name]
-            if not opts.sim:
+            if not simulated:
                 for w in port_warnings(port):
                     warnings_.append(w)
                     print(f"Warning: {w}", file=out or sys.stderr, flush=True)
@@ -141,43 +143,46 @@ def open_buses(opts: RunOptions, arm: ArmDescription, config: Config, ports: dic
     return buses, {"infos": infos, "warnings": warnings_}
 
 
-def make_recorder(opts: RunOptions, output: Path, config: Config, arm: ArmDescription,
-                  hw: dict, models: dict | None = None, calibrations: dict | None = None) -> SessionRecorder:
+def make_recorder(output: Path, config: Config, arm: ArmDescription, hw: dict, *, simulated: bool,
+                  lockstep: bool, seed: int, hand_on: str = "leader", force: bool = False,
+                  models: dict | None = None, calibrations: dict | None = None) -> SessionRecorder:
     """The session file, with the run's attributes (never the simulated plants' truth): also the arm
     the hand moved (`hand_on`), the model in each arm's observer (`leader_model`, `follower_model`) and
-    each arm's calibration (`leader_calibration`, `follower_calibration`)."""
+    each arm's calibration (`leader_calibration`, `follower_calibration`). `simulated`: the arms are
+    simulated (source "sim", the `seed` recorded); `lockstep`: the rows carry simulated time; `force`:
+    an existing file is overwritten."""
     from .arm_calibration import calibration_attrs
     from .loop_models import session_attrs
 
     infos = hw["infos"]
     attrs = {
-        "hand_on": opts.hand_on,
+        sf.HAND_ON: hand_on,
         **session_attrs(models or {}),
         **calibration_attrs(calibrations or {}),
-        "tau_source": ["goal_current" if n in arm.bilateral_joints else "present_current"
-                       for n in arm.joint_names],
-        "torque_constants": np.array([j.torque_constant for j in arm.joints]),
-        "servo_ids": np.array(arm.servo_ids),
-        "bilateral_joints": list(arm.bilateral_joints),
-        "software_version": software_version(),
-        "start_time": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-        "config_toml": config.to_toml(),
-        "gravity_model": config.controller.gravity_model,
-        "lockstep": bool(opts.sim and not opts.realtime),
+        sf.TAU_SOURCE_ATTR: [sf.TAU_FROM_GOAL if n in arm.bilateral_joints else sf.TAU_FROM_PRESENT
+                             for n in arm.joint_names],
+        sf.TORQUE_CONSTANTS_ATTR: np.array([j.torque_constant for j in arm.joints]),
+        sf.SERVO_IDS_ATTR: np.array(arm.servo_ids),
+        sf.BILATERAL_JOINTS_ATTR: list(arm.bilateral_joints),
+        sf.SOFTWARE_VERSION_ATTR: software_version(),
+        sf.START_TIME_ATTR: _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        sf.CONFIG_TOML_ATTR: config.to_toml(),
+        sf.GRAVITY_MODEL_ATTR: config.controller.gravity_model,
+        sf.LOCKSTEP_ATTR: bool(lockstep),
     }
     for name in ARMS:
         by_id = infos.get(name, {})
-        attrs[f"{name}_firmware_versions"] = np.array([by_id[i].firmware if i in by_id else -1
-                                                       for i in arm.servo_ids])
-    attrs["firmware_versions"] = attrs["follower_firmware_versions"]
+        attrs[sf.firmware_attr(name)] = np.array([by_id[i].firmware if i in by_id else -1
+                                                  for i in arm.servo_ids])
+    attrs[sf.FIRMWARE_ATTR] = attrs[sf.firmware_attr("follower")]
     # the models the servos reported when pinged (start-up refused any other than the description's)
     reported = infos.get("follower", {})
-    attrs["servo_models"] = [reported[i].model if i in reported else j.model
-                             for i, j in zip(arm.servo_ids, arm.joints)]
-    if opts.sim:
-        attrs["seed"] = int(opts.seed)  # the plant preset is not stored: "hidden-*" names give it away
+    attrs[sf.SERVO_MODELS_ATTR] = [reported[i].model if i in reported else j.model
+                                   for i, j in zip(arm.servo_ids, arm.joints)]
+    if simulated:
+        attrs[sf.SEED_ATTR] = int(seed)  # the plant preset is not stored: "hidden-*" names give it away
     # lockstep rows carry simulated time: they are written by recorded rows (whole chunks), never by
     # the wall clock, which keeps the file compact however slowly the loop runs
     return SessionRecorder(output, joint_names=arm.joint_names, rate_hz=config.loop.rate_hz,
-                           source="sim" if opts.sim else "hardware", attrs=attrs, force=opts.force,
-                           lockstep=attrs["lockstep"])
+                           source="sim" if simulated else "hardware", attrs=attrs, force=force,
+                           lockstep=attrs[sf.LOCKSTEP_ATTR])

@@ -41,7 +41,7 @@ def check_truth_trace_path(path: str | Path, force: bool) -> Path:
     if path.is_dir():
         raise ConfigError(f"the truth trace {path} is a directory; give a file name")
     if path.exists() and not force:
-        raise ConfigError(f"the truth trace {path} already exists; pass --force to overwrite it")
+        raise ConfigError(f"the truth trace {path} already exists; pass `force` to overwrite it")
     if not path.parent.exists() and path.parent != Path(""):
         raise ConfigError(f"the folder of the truth trace {path} does not exist")
     return path

@@ -89,12 +89,19 @@ REQUIRED_ATTRS = tuple(a.name for a in REQUIRED_ROOT)
 MODEL_JSON_KEYS = ("path", "method", "effects", "joints", "fitted_on", "sha256", "filters", "cutoff_rad_s",
                    "pseudo_diff_rad_s")
 CALIBRATION_JSON_KEYS = ("name", "key", "created", "path", "offsets_rad")
-TAU_SOURCES = ("goal_current", "present_current")  # crane-collect's values of `tau_source`
+TAU_FROM_GOAL, TAU_FROM_PRESENT = "goal_current", "present_current"  # bilateral joints; held joints
+TAU_SOURCES = (TAU_FROM_GOAL, TAU_FROM_PRESENT)  # crane-collect's values of `tau_source`
+NOMINAL_MODEL = "nominal"  # `leader_model` / `follower_model` of an observer on the nominal model
 HAND_ON = "hand_on"
 DEFAULT_HAND_ON = "leader"  # a session without `hand_on`: the operator moved the leader (normal use)
 END_REASONS = ("duration", "interrupted", "terminated", "safety_stop", "error", "crashed")
 
 TAU_SOURCE_ATTR, TORQUE_CONSTANTS_ATTR = "tau_source", "torque_constants"
+SERVO_IDS_ATTR, SERVO_MODELS_ATTR, FIRMWARE_ATTR = "servo_ids", "servo_models", "firmware_versions"
+BILATERAL_JOINTS_ATTR, SOFTWARE_VERSION_ATTR, START_TIME_ATTR = (
+    "bilateral_joints", "software_version", "start_time")
+CONFIG_TOML_ATTR, SEED_ATTR, GRAVITY_MODEL_ATTR, LOCKSTEP_ATTR = (
+    "config_toml", "seed", "gravity_model", "lockstep")
 
 
 def model_attr(arm: str) -> str:
@@ -115,18 +122,18 @@ def firmware_attr(arm: str) -> str:
 OPTIONAL_ROOT = (
     Attribute(TAU_SOURCE_ATTR, "str array (J,)", "per column: what tau was made of (TAU_SOURCES)"),
     Attribute(TORQUE_CONSTANTS_ATTR, "float (J,)", "the torque constants used for tau", "N m/A"),
-    Attribute("servo_ids", "int (J,)", "servo ID of each column"),
-    Attribute("servo_models", "str (J,)", "servo model of each column as the follower reported it"),
-    Attribute("firmware_versions", "int (J,)", "the follower's firmware versions"),
+    Attribute(SERVO_IDS_ATTR, "int (J,)", "servo ID of each column"),
+    Attribute(SERVO_MODELS_ATTR, "str (J,)", "servo model of each column as the follower reported it"),
+    Attribute(FIRMWARE_ATTR, "int (J,)", "the follower's firmware versions"),
     Attribute(firmware_attr("leader"), "int (J,)", "the leader's firmware versions"),
     Attribute(firmware_attr("follower"), "int (J,)", "the follower's firmware versions"),
-    Attribute("bilateral_joints", "str array", "the joints under bilateral control"),
-    Attribute("software_version", "str", "the crane-x7 version that wrote the file"),
-    Attribute("start_time", "str", "ISO 8601, UTC"),
-    Attribute("config_toml", "str", "the complete configuration used, as TOML"),
+    Attribute(BILATERAL_JOINTS_ATTR, "str array", "the joints under bilateral control"),
+    Attribute(SOFTWARE_VERSION_ATTR, "str", "the crane-x7 version that wrote the file"),
+    Attribute(START_TIME_ATTR, "str", "ISO 8601, UTC"),
+    Attribute(CONFIG_TOML_ATTR, "str", "the complete configuration used, as TOML"),
     Attribute(RATE_ACHIEVED_ATTR, "float", "NaN until the recording ends", "Hz"),
     Attribute(COMPLETE_ATTR, "bool", "False while recording, True after a clean end"),
-    Attribute("seed", "int", "the simulation's seed (sim only)"),
+    Attribute(SEED_ATTR, "int", "the simulation's seed (sim only)"),
     Attribute(HAND_ON, "str", '"leader" or "follower": the arm the operator\'s hand moved'),
     Attribute(model_attr("leader"), "str", '"nominal" or the JSON of the model in the leader\'s observer',
               json_keys=MODEL_JSON_KEYS),
@@ -137,8 +144,8 @@ OPTIONAL_ROOT = (
     Attribute(calibration_attr("follower"), "str", '"" or the JSON of the follower\'s calibration',
               json_keys=CALIBRATION_JSON_KEYS),
     Attribute(END_REASON_ATTR, "str", "why the recording ended; \"\" while recording"),
-    Attribute("gravity_model", "str", "the reaction-force observer's gravity model"),
-    Attribute("lockstep", "bool", "simulated faster than real time"),
+    Attribute(GRAVITY_MODEL_ATTR, "str", "the reaction-force observer's gravity model"),
+    Attribute(LOCKSTEP_ATTR, "bool", "simulated faster than real time"),
 )
 OPTIONAL_ATTRS = tuple(a.name for a in OPTIONAL_ROOT)
 
@@ -151,30 +158,39 @@ IMPORT_ROOT = (  # written by `crane-train import` (docs/train.md)
 
 # -- per-arm members (creation order is the order here) --------------------------------------------------
 T, Q, TAU, CURRENT, DQ, TAU_RES = "t", "q", "tau", "current", "dq", "tau_res"
+DQ_SERVO, GOAL_CURRENT, TAU_DIS, Q_GOAL = "dq_servo", "goal_current", "tau_dis", "q_goal"
 ARM_MEMBERS = (
     Member(T, np.float64, False, "s", "time of each sample since the start of the recording"),
     Member(Q, np.float64, True, "rad", "joint angle (servo position)"),
     Member(TAU, np.float64, True, "N m", "joint torque commanded"),
-    Member("dq_servo", np.float32, True, "rad/s", "servo-reported Present Velocity"),
+    Member(DQ_SERVO, np.float32, True, "rad/s", "servo-reported Present Velocity"),
     Member(CURRENT, np.float32, True, "A", "servo-reported Present Current"),
-    Member("goal_current", np.float32, True, "A", "Goal Current written"),
+    Member(GOAL_CURRENT, np.float32, True, "A", "Goal Current written"),
     Member(DQ, np.float32, True, "rad/s", "the controller's pseudo-derivative velocity"),
-    Member("tau_dis", np.float32, True, "N m", "disturbance-observer estimate"),
+    Member(TAU_DIS, np.float32, True, "N m", "disturbance-observer estimate"),
     Member(TAU_RES, np.float32, True, "N m", "reaction-force-observer estimate"),
-    Member("q_goal", np.float32, True, "rad", "goal position of held joints"),
+    Member(Q_GOAL, np.float32, True, "rad", "goal position of held joints"),
 )
 ARM_MEMBER = {m.name: m for m in ARM_MEMBERS}
 REQUIRED_MEMBERS = (T, Q, TAU)
 
 # -- /timing ---------------------------------------------------------------------------------------------
 CYCLE_START = "cycle_start"  # the time of the timing rows, as t is the arms'
+PERIOD, COMPUTE_TIME, OVERRUN = "period", "compute_time", "overrun"
+
+
+def bus_time(arm: str) -> str:
+    """The /timing member of `arm`'s bus time ("bus_time_leader", ...)."""
+    return f"bus_time_{arm}"
+
+
 TIMING_MEMBERS = (
     Member(CYCLE_START, np.float64, False, "s", "monotonic since start"),
-    Member("period", np.float32, False, "s", "since the previous cycle"),
-    Member("bus_time_leader", np.float32, False, "s", "spent in read+write on the leader's bus"),
-    Member("bus_time_follower", np.float32, False, "s", "spent in read+write on the follower's bus"),
-    Member("compute_time", np.float32, False, "s", "spent computing the cycle"),
-    Member("overrun", np.bool_, False, "", "the cycle missed its deadline"),
+    Member(PERIOD, np.float32, False, "s", "since the previous cycle"),
+    Member(bus_time("leader"), np.float32, False, "s", "spent in read+write on the leader's bus"),
+    Member(bus_time("follower"), np.float32, False, "s", "spent in read+write on the follower's bus"),
+    Member(COMPUTE_TIME, np.float32, False, "s", "spent computing the cycle"),
+    Member(OVERRUN, np.bool_, False, "", "the cycle missed its deadline"),
 )
 TIMING_MEMBER = {m.name: m for m in TIMING_MEMBERS}
 # the loop's sections (collect/pacing.py's CycleTimer times these) and its summary, /timing attributes
@@ -182,9 +198,12 @@ TIMING_SECTIONS = ("bus_leader", "bus_follower", "compute", "record")
 TIMING_SUMMARY_ATTRS = ("cycles", "overruns", "skipped_deadlines", "nominal_period_s", "period_mean_s",
                         "period_std_s", "period_p99_s", "period_max_s", "rate_hz",
                         *(f"{s}_{w}_s" for s in TIMING_SECTIONS for w in ("mean", "max")))
-TIMING_REALTIME_ATTRS = ("realtime_scheduling", "realtime_priority", "realtime_fifo",
-                         "realtime_memory_locked", "realtime_cpu", "realtime_gc_frozen", "realtime_refused")
-TIMING_LOCKSTEP = "lockstep"
+# what a paced loop asked the operating system for and was granted (collect/realtime.py)
+(REALTIME_SCHEDULING_ATTR, REALTIME_PRIORITY_ATTR, REALTIME_FIFO_ATTR, REALTIME_MEMORY_LOCKED_ATTR,
+ REALTIME_CPU_ATTR, REALTIME_GC_FROZEN_ATTR, REALTIME_REFUSED_ATTR) = TIMING_REALTIME_ATTRS = (
+    "realtime_scheduling", "realtime_priority", "realtime_fifo", "realtime_memory_locked", "realtime_cpu",
+    "realtime_gc_frozen", "realtime_refused")
+TIMING_LOCKSTEP = LOCKSTEP_ATTR
 
 # -- /events ---------------------------------------------------------------------------------------------
 EVENT_WIDTHS = {"kind": 24, "joint": 16, "message": 240}  # bytes of UTF-8
@@ -209,6 +228,11 @@ def fill_value(dtype):
 def arm_path(arm: str, member: str) -> str:
     """"follower/q" and the like."""
     return f"{arm}/{member}"
+
+
+def timing_path(member: str) -> str:
+    """"timing/period" and the like."""
+    return f"{TIMING}/{member}"
 
 
 # -- the truth trace: a file of its own (collect/truth_trace.py) -----------------------------------------

@@ -9,7 +9,7 @@ from __future__ import annotations
 import pytest
 from fakes import DropReplies, LateReplies
 
-from collect.cmd_check import _row
+from collect.cli.check import _row
 from crane_io.dynamixel.bus import DynamixelBus
 from crane_io.sim import simulated_arm
 

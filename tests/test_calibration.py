@@ -77,7 +77,7 @@ def test_encoder_offsets_for_sim_serve_are_parsed_or_refused():
     assert out["leader"][NAMES.index("joint2")] == 0.05 and out["follower"][0] == -0.1
     assert parse_offsets(["joint4=0.2"], ARM, arms=("arm",))["arm"][NAMES.index("joint4")] == 0.2
     for bad in ("joint2=0.05", "leader:joint9=0.1", "leader:joint2=abc"):
-        with pytest.raises(ConfigError, match="--encoder-offset"):
+        with pytest.raises(ConfigError, match="`encoder_offsets`"):
             parse_offsets([bad], ARM)
 
 

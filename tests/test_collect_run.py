@@ -133,7 +133,7 @@ def test_status_line_rewrites_a_terminal_and_spares_a_log(tmp_path, tty):
 def test_refuses_to_overwrite_a_session(tmp_path, cfg):
     out = tmp_path / "s.h5"
     out.write_bytes(b"keep me")
-    with pytest.raises(Exception, match="already exists; pass --force"):
+    with pytest.raises(Exception, match="already exists; pass `force`"):
         run_session(_opts(tmp_path, cfg))
     assert out.read_bytes() == b"keep me"
 

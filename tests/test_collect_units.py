@@ -214,7 +214,7 @@ def test_recorder_layout_flush_and_complete_flag(tmp_path):
 def test_recorder_never_overwrites_without_force(tmp_path):
     p = tmp_path / "s.h5"
     p.write_bytes(b"precious")
-    with pytest.raises(CraneError, match="already exists; pass --force"):
+    with pytest.raises(CraneError, match="already exists; pass `force`"):
         SessionRecorder(p, joint_names=["a"], rate_hz=1, source="sim")
     assert p.read_bytes() == b"precious"
     SessionRecorder(p, joint_names=["a"], rate_hz=1, source="sim", force=True).close()

@@ -152,7 +152,7 @@ def test_a_plant_file_that_is_not_text_or_not_a_file(tmp_path):
 # ---- sim-serve ------------------------------------------------------------------------------------
 
 def test_sim_serve_does_not_replace_a_users_link_and_a_bad_link_is_input_error(tmp_path):
-    from collect.cmd_sim_serve import sim_serve
+    from collect.cli.sim_serve import sim_serve
 
     data = tmp_path / "data.h5"
     data.write_bytes(b"x")

@@ -547,7 +547,7 @@ def test_sim_serve_plant_names_pick_presets():
 def test_sim_serve_reports_a_bad_link_in_one_sentence(tmp_path):
     from click.testing import CliRunner
 
-    from collect.cmd_sim_serve import sim_serve
+    from collect.cli.sim_serve import sim_serve
 
     result = CliRunner().invoke(sim_serve, ["--link", str(tmp_path / "missing" / "x"), "--plant", "simple"])
     assert result.exit_code != 0

@@ -139,7 +139,7 @@ def test_lockstep_never_slips():
 
 
 def test_sim_serve_reports_slip_in_its_status_and_summary():
-    from collect.cmd_sim_serve import slip_summary, status_line
+    from collect.cli.sim_serve import slip_summary, status_line
 
     chain, _ = chain_with(cost_s=0.0)
     assert "slipped    0.00 s (0 times)" in status_line(chain)

@@ -45,25 +45,25 @@ class _Phases:
         self.timer: threading.Timer | None = None
         self.fired: float | None = None
         original_sims = runner.make_sim_arms
-        original_align = runner._Loop.align
-        original_clean = runner._Session.clean_up
+        original_align = runner.BilateralRun.align
+        original_clean = runner.BilateralRun.safe_stop
         phases = self
 
         def make_sim_arms(*args):
             phases.sims = original_sims(*args)
             return phases.sims
 
-        def align(loop):
+        def align(run):
             phases.mark("alignment")
-            return original_align(loop)
+            return original_align(run)
 
         def clean_up(session):
             phases.mark("clean-up")
             return original_clean(session)
 
         monkeypatch.setattr(runner, "make_sim_arms", make_sim_arms)
-        monkeypatch.setattr(runner._Loop, "align", align)
-        monkeypatch.setattr(runner._Session, "clean_up", clean_up)
+        monkeypatch.setattr(runner.BilateralRun, "align", align)
+        monkeypatch.setattr(runner.BilateralRun, "safe_stop", clean_up)
 
     def start(self, armed=None):
         self.t0 = time.perf_counter()

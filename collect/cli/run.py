@@ -1,4 +1,4 @@
-"""`crane-collect run`: record one session under 4-channel bilateral control (see collect/runner.py)."""
+"""`crane-collect run`: record one session under 4-channel bilateral control (collect/runner.py)."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from crane_io.cli_support import cli_errors, plant_presets
               help="Physics of the simulated arms: an arm-plant preset (default crane-x7, or crane-x7-7dof "
                    "when --joints goes beyond joint1,joint2,joint4), a plant TOML, "
                    f"or 'simple'. Only with --sim. Presets: {', '.join(plant_presets())}.")
-@click.option("--truth", "truth_path", type=click.Path(dir_okay=False), default=None, metavar="JSON",
+@click.option("--truth", "truth", type=click.Path(dir_okay=False), default=None, metavar="JSON",
               help="With --sim and an arm plant: also write the follower plant's truth (effects, "
                    "parameters, seed) to this JSON file, overwriting it. Never stored in the session.")
 @click.option("--truth-trace", "truth_trace", type=click.Path(dir_okay=False), default=None, metavar="H5",
@@ -76,7 +76,7 @@ from crane_io.cli_support import cli_errors, plant_presets
 @click.option("--view-every", "view_every", type=click.IntRange(min=1), default=10, show_default=True,
               metavar="N", help="The view samples every N-th control cycle (50 samples a second at 500 Hz).")
 @cli_errors
-def run(output, sim, plant, truth_path, truth_trace, task, joints, hand_on, model_dir, leader_model_dir,
+def run(output, sim, plant, truth, truth_trace, task, joints, hand_on, model_dir, leader_model_dir,
         seed,
         duration, rate, config_path, realtime, leader_port, follower_port, leader_calibration,
         follower_calibration, no_calibration, force, quiet, view, view_save, view_every):
@@ -86,7 +86,7 @@ def run(output, sim, plant, truth_path, truth_trace, task, joints, hand_on, mode
     agreement slowly, then engages bilateral control. Ctrl+C, SIGTERM, the end of --duration or any
     safety breach stop both arms (goal current 0, torque off) and close the file cleanly.
     """
-    from .runner import RunOptions, run_session
+    from ..runner import RunOptions, run_session
 
     if plant is not None and not sim:
         raise click.UsageError("--plant only applies to --sim")
@@ -96,7 +96,7 @@ def run(output, sim, plant, truth_path, truth_trace, task, joints, hand_on, mode
         import_rerun()
     run_session(RunOptions(output=output, sim=sim, plant=plant, seed=seed, duration=duration, rate=rate,
                            config=config_path, realtime=realtime, leader_port=leader_port,
-                           follower_port=follower_port, force=force, status=not quiet, truth=truth_path,
+                           follower_port=follower_port, force=force, status=not quiet, truth=truth,
                            truth_trace=truth_trace, task=task, joints=joints, hand_on=hand_on,
                            model=model_dir,
                            leader_model=leader_model_dir, view=view, view_save=view_save,

@@ -22,7 +22,7 @@ def recover(session, output):
     only SWMR-aware readers open it. The recovered file opens with any HDF5 tool, keeps every complete
     row (all datasets cut to the same length), and says complete = False and end_reason = "crashed".
     A file that is complete, not a crane-session, or still being written is refused."""
-    from .recovery import recover_session
+    from ..recovery import recover_session
 
     r = recover_session(session, output)
     dropped = f", {r.rows_dropped} incomplete rows left out" if r.rows_dropped else ""

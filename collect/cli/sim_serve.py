@@ -80,7 +80,7 @@ def slip_summary(chain) -> str:
                    "only when named: all,gripper); with --pair also the joints the hand moves. Record with "
                    "the same --joints on `crane-collect run`. Default: bilateral.joints of --config, the "
                    "paper's joint1,joint2,joint4.")
-@click.option("--plant", "plant_name", default=None, metavar="PRESET_OR_TOML",
+@click.option("--plant", "plant", default=None, metavar="PRESET_OR_TOML",
               help="Physics behind the servos: 'simple' (independent joints) or an arm-plant preset "
                    "or TOML file. Default: the arm plant's 'crane-x7' preset when available (crane-x7-7dof "
                    "when --joints goes beyond joint1,joint2,joint4), else 'simple'. "
@@ -98,13 +98,13 @@ def slip_summary(chain) -> str:
 @click.option("--no-fast-sync-read", is_flag=True, help="Servos ignore Fast Sync Read (old firmware).")
 @click.option("--return-delay", type=click.IntRange(0, 254), default=None,
               help="Return Delay Time register of every servo (2 us/LSB). Default: factory 250.")
-@click.option("--truth", "truth_path", type=click.Path(dir_okay=False), default=None, metavar="JSON",
+@click.option("--truth", "truth", type=click.Path(dir_okay=False), default=None, metavar="JSON",
               help="Also write the arm plant's hidden truth (effects, parameters, seed; --pair: the "
                    "follower's) to this file. Nothing else ever records it.")
 @cli_errors
 def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_s, config_path,
-              encoder_offsets, joints, plant_name, clock, period_s, seed, no_fast_sync_read, return_delay,
-              truth_path):
+              encoder_offsets, joints, plant, clock, period_s, seed, no_fast_sync_read, return_delay,
+              truth):
     """Serve a simulated CRANE-X7 (or, with --pair, a leader and a follower with a simulated hand) on
     pseudo-terminals until Ctrl+C or SIGTERM."""
     if not period_s > 0:
@@ -123,9 +123,9 @@ def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_
                                 ("--task", task), ("--config", config_path)) if v is not None]
         if extra:
             raise ConfigError(f"{extra[0]} goes with --pair")
-    from .config import load_config
-    from .runner import run_arm
-    from .sim_lab import parse_offsets
+    from ..config import load_config
+    from ..runner import run_arm
+    from ..sim_lab import parse_offsets
 
     config = load_config(config_path)
     if joints is not None:
@@ -137,18 +137,18 @@ def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_
     try:
         if pair:
             _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, config, arm,
-                        plant_name, clock, period_s, seed, not no_fast_sync_read, return_delay, truth_path,
+                        plant, clock, period_s, seed, not no_fast_sync_read, return_delay, truth,
                         offsets)
         else:
-            _serve_one(stop, link, arm, plant_name, clock, period_s, seed, not no_fast_sync_read,
-                       return_delay, truth_path, offsets.get("arm"))
+            _serve_one(stop, link, arm, plant, clock, period_s, seed, not no_fast_sync_read,
+                       return_delay, truth, offsets.get("arm"))
     finally:
         signal.signal(signal.SIGTERM, previous)
 
 
 def _write_truth(plant, truth_path) -> None:
     if truth_path is not None:
-        from .sim_arms import write_plant_truth
+        from ..sim_arms import write_plant_truth
 
         write_plant_truth(plant, truth_path)
 
@@ -182,8 +182,8 @@ def _serve_one(stop, link, arm, plant_name, clock, period_s, seed, fast_sync_rea
     from crane_io.sim.chain import SimulatedChain
     from crane_io.sim.transport import PtyServer
 
-    from .sim_arms import default_plant, make_plant
-    from .sim_lab import OffsetPlant
+    from ..sim_arms import default_plant, make_plant
+    from ..sim_lab import OffsetPlant
 
     plant = make_plant(plant_name, seed, arm)
     plant_name = plant_name or default_plant(arm)
@@ -217,8 +217,8 @@ def _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, c
                 clock, period_s, seed, fast_sync_read, return_delay, truth_path, offsets):
     from crane_io.dynamixel.link_registry import withdraw
 
-    from .config import PAPER_JOINTS
-    from .sim_lab import SimulatedLab
+    from ..config import PAPER_JOINTS
+    from ..sim_lab import SimulatedLab
 
     lab = SimulatedLab.build(plant=plant_name, seed=seed, hand_on=hand_on, clock=clock, period_s=period_s,
                              config=config, task=task, hand_delay_s=hand_delay_s, arm=arm,

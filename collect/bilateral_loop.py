@@ -1,0 +1,384 @@
+"""The bilateral loop of a collection run: both arms read, the controller, the safety checks, both arms
+written, one row recorded, every cycle (collect/runner.py runs it inside `BilateralRun`).
+
+A cycle: read both arms (concurrently on hardware: one thread per bus; every read is a checkpoint for a
+stop request), the simulated operator's push, the 4-channel controller (collect/controller.py), the
+safety clamps and checks (collect/safety.py), write both arms, poll the servos' hardware errors now
+and then, record the row (collect/recorder.py), the live status line and view. A breach stops both
+arms at once (goal current 0, torque off) and ends the loop with its event.
+"""
+
+from __future__ import annotations
+
+import signal
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from types import SimpleNamespace
+
+import numpy as np
+
+from crane_io import session_format as fmt
+from crane_io.description import ArmDescription
+from crane_io.errors import CraneError
+
+from .alignment import align
+from .arm_pair import ARMS, ArmPair
+from .config import Config
+from .controller import ArmSignals, BilateralController
+from .loop_models import observer_sentence, reaction_factories
+from .operator import SimulatedOperator
+from .pacing import CycleTimer
+from .realtime import RealtimeState
+from .recorder import SessionRecorder
+from .safety import Breach, SafetyMonitor
+from .status import StatusLine
+
+__all__ = ["BilateralLoop", "RunContext"]
+
+# the recorded row's keys ("leader/q", "timing/period", ...), by member name: _LEADER.q
+_LEADER, _FOLLOWER = (SimpleNamespace(**{m.name: fmt.arm_path(arm, m.name) for m in fmt.ARM_MEMBERS})
+                      for arm in ARMS)
+_TIMING = SimpleNamespace(**{m.name: fmt.timing_path(m.name) for m in fmt.TIMING_MEMBERS})
+
+
+@dataclass
+class RunContext:
+    """What a test hook can reach while the loop runs."""
+
+    config: Config
+    arm: ArmDescription
+    buses: dict
+    sims: dict  # arm name -> SimulatedArm (sim only)
+    recorder: SessionRecorder | None = None
+
+
+class BilateralLoop:
+    """The bilateral loop and what it keeps between cycles; built before any torque is on.
+
+    `models`: {arm: ArmModel} learned models for the observers (collect/loop_models.py, loaded and
+    checked before); `hand_on`: the arm the simulated operator's hand moves; `realtime`: paced by the
+    wall clock although the arms are simulated; `status`: the live status line on `out`; `on_cycle`:
+    the test hook called every cycle with (k, RunContext)."""
+
+    def __init__(self, config: Config, arm: ArmDescription, sims: dict, out, stop=None, *,
+                 models: dict | None = None, hand_on: str = "leader", realtime: bool = False,
+                 status: bool = True, on_cycle: Callable[[int, RunContext], None] | None = None):
+        self.on_cycle = on_cycle
+        self.stop = stop  # crane_io.shutdown.StopRequest: checked at the top of every cycle
+        self.config = config
+        self.arm = arm
+        self.sims = sims
+        # Simulated arms in this process advance one period per cycle, also with `realtime`, which paces
+        # the loop by the wall clock (collect/sim_arms.py says why): their time is the session's time.
+        self.lockstep = bool(sims)
+        self.paced = not sims or realtime  # wait for the wall clock between cycles
+        self.realtime: RealtimeState | None = None  # what the OS granted the paced loop
+        self.period = config.loop.period_s
+        self.models = models or {}  # learned models in the observers
+        self.ctl = BilateralController(config, arm, models=reaction_factories(self.models, arm, config))
+        self.fallback_on = {name: None for name in self.models}  # joints on the nominal model now
+        self.fallback_events = 0
+        self.hand_arm = hand_on  # the arm the simulated operator's hand moves
+        self.truth_trace = None  # collect.truth_trace.TruthTraceWriter (RunOptions.truth_trace)
+        self._hand_torque = None  # the hand's torque acting when this cycle's angles were read
+        self.safety = SafetyMonitor(config, arm)
+        self.kt = np.array([j.torque_constant for j in arm.joints])
+        self.bil = np.array([n in arm.bilateral_joints for n in arm.joint_names])
+        held_goal = np.array([config.held.get(n, 0.0) for n in arm.joint_names])
+        self.q_goal_row = np.where(self.bil, np.nan, held_goal)
+        # hardware: one thread per bus; every read of both arms is a checkpoint for a stop request
+        self.pair = ArmPair(concurrent_io=not sims, checkpoint=stop.check if stop is not None else None)
+        self.status = StatusLine(out, config.loop, status)
+        self.recorder: SessionRecorder | None = None
+        self.operator: SimulatedOperator | None = None
+        self.timer = CycleTimer(config.loop.rate_hz, lockstep=not self.paced, spin_s=config.loop.spin_s)
+        self.cycles = 0
+        self.t_session = 0.0
+        self.t_start_mono: float | None = None  # hardware: the leader's clock at the first cycle
+        self.last_t: float | None = None
+        self.err_sq = np.zeros(len(arm.joints))
+        self.errors = 0
+        self.breach: Breach | None = None
+        self.last_event_t = 0.0
+        self.ctx = RunContext(config, arm, {}, sims)
+        self.view = None  # collect.live_view.LiveView (open_view): rerun imported, its sink open
+
+    def open_view(self, save=None, every: int = 10) -> None:
+        """The live view (rerun imported, a viewer spawned or the .rrd file `save` opened); it logs every
+        `every`-th cycle."""
+        from .live_view import make_live_view
+
+        self.view = make_live_view(self.arm, save=save, every=every, warn=self._view_warning)
+
+    def _view_warning(self, message: str) -> None:
+        """The live view failed (it turned itself off; the recording goes on): said once, and an event."""
+        self.status.say(f"warning: {message}")
+        self.event(self.now(), "warning", message)
+
+    def attach(self, buses: dict) -> None:
+        """The opened, configured buses (torque on) this loop drives."""
+        self.pair.attach(buses)
+        self.ctx.buses = buses
+
+    def event(self, t: float, kind: str, message: str, joint: str = "") -> None:
+        """Record an event; event times never go backwards (an event caused by another comes after it)."""
+        if self.recorder is not None:
+            t = max(float(t), self.last_event_t)
+            self.last_event_t = t
+            self.recorder.event(t, kind, message, joint)
+
+    def now(self) -> float:
+        """Session time now: the simulated time reached in lockstep, else the leader's clock since the
+        first cycle (never before the last recorded cycle)."""
+        if self.lockstep or self.t_start_mono is None:
+            return self.t_session
+        return max(self.t_session, time.monotonic() - self.t_start_mono)
+
+    def end_event(self, reason: str, exc: BaseException | None, duration: float | None) -> None:
+        """The event that says why the run ended (a safety stop wrote its own when it happened)."""
+        if reason == "duration":
+            self.event(self.now(), "end", f"duration of {duration:g} s reached")
+        elif reason in ("interrupted", "terminated"):
+            signum = getattr(exc, "signum", None) or getattr(self.stop, "signum", None) or signal.SIGINT
+            what = "Ctrl+C (SIGINT)" if signum == signal.SIGINT else signal.Signals(signum).name
+            self.event(self.now(), "interrupted", f"stopped by {what}")
+        elif reason == "error" and exc is not None:
+            self.event(self.now(), "error", f"{exc.__class__.__name__}: {exc}")
+
+    def align(self) -> str:
+        return align(self.pair, self.ctl, self.safety, self.config, self.arm, simulated=bool(self.sims),
+                     lockstep=self.lockstep, paced=self.paced, say=self.status.say,
+                     between_cycles=self.between_cycles)
+
+    def between_cycles(self) -> None:
+        """After a cycle's writes, before the wait: the small garbage collection kept out of the cycle."""
+        if self.realtime is not None:
+            self.realtime.collect_garbage()
+
+    # -- bilateral control --------------------------------------------------------------------------
+    def run(self, duration: float | None) -> str:
+        """Cycles until the duration is over ("duration") or a breach stops both arms ("safety_stop")."""
+        hooks = self.on_cycle
+        n_total = None if duration is None else int(round(duration / self.period))
+        self.status.start()
+        self.timer.start()
+        k = 0
+        stop = self.stop
+        while n_total is None or k < n_total:
+            if stop is not None and stop.requested:
+                return "interrupted" if stop.signum == signal.SIGINT else "terminated"
+            if hooks is not None:
+                hooks(k, self.ctx)
+            breach, t = self._cycle(k)
+            if breach is not None:
+                return self._stop(breach, t)
+            self.between_cycles()
+            if self.view is not None:  # the live view logs in the time the loop would wait anyway
+                self.view.idle(self.timer)
+            self.timer.wait()
+            k += 1
+        return "duration"
+
+    def _cycle(self, k: int) -> tuple[Breach | None, float]:
+        """Read both arms, control, write both arms, poll, record: (the breach that ends the run, t)."""
+        timer, kt = self.timer, self.kt
+        (sl, el, bt_l), (sf, ef, bt_f) = self.pair.read_both()
+        timer.add("bus_leader", bt_l)
+        timer.add("bus_follower", bt_f)
+        t = self._session_time(k, sl)
+        failed, breach = self._transfer_faults((el, ef), t, reading=True)
+        if breach is not None:
+            return breach, t
+        if failed:
+            if self.lockstep:  # nothing was written: let the simulated time pass anyway
+                for sim in self.sims.values():
+                    sim.chain.advance(self.period)
+            return None, t
+        tc = time.perf_counter()
+        tau_l, tau_f, breach = self._control(t, sl, sf)
+        timer.add("compute", time.perf_counter() - tc)
+        if breach is not None:
+            return breach, t
+        (sent_l, wl, bw_l), (sent_f, wf, bw_f) = self.pair.write_currents(tau_l / kt, tau_f / kt)
+        timer.add("bus_leader", bw_l)
+        timer.add("bus_follower", bw_f)
+        _, breach = self._transfer_faults((wl, wf), t, reading=False)
+        if breach is None:
+            breach = self._poll_hardware(k, t)
+        if breach is not None:
+            return breach, t
+        self._record(t, sl, sf, tau_l / kt if sent_l is None else sent_l,
+                     tau_f / kt if sent_f is None else sent_f)
+        self.cycles = k + 1
+        self.t_session = t + self.period
+        wall = self.status.due()
+        if wall is not None:
+            rms_deg = np.degrees(np.sqrt(self.err_sq / max(self.cycles, 1)))[self.bil]
+            self.status.show(self.t_session, wall, timer, rms_deg, self.errors, not self.paced,
+                             self.realtime.short() if self.realtime is not None else "", self._model_tag(),
+                             joints=self.arm.bilateral_joints)
+        return None, t
+
+    def _session_time(self, k: int, leader_state) -> float:
+        """Session time of cycle k: k periods in lockstep, else the leader's read time since the start."""
+        if self.lockstep:
+            return k * self.period
+        now = leader_state.t if leader_state is not None else time.monotonic()
+        if self.t_start_mono is None:
+            self.t_start_mono = now
+        return now - self.t_start_mono
+
+    def _transfer_faults(self, errors, t: float, *, reading: bool) -> tuple[bool, Breach | None]:
+        """Count the failed transfers of (leader, follower): (any failed, the breach they amount to)."""
+        failed = False
+        for name, exc in zip(ARMS, errors):
+            if exc is None:
+                if reading:
+                    self.safety.bus_ok(name)
+                continue
+            failed = True
+            self.errors += 1
+            breach = self._fault_breach(name, exc, t)
+            if breach is not None:
+                return failed, breach
+        return failed, None
+
+    def _control(self, t: float, sl, sf):
+        """The simulated operator's push, the controller and the safety clamps: (tau_l, tau_f, breach)."""
+        ql, qf = sl.position, sf.position
+        sim_hand = self.sims.get(self.hand_arm)
+        if sim_hand is not None:
+            plant = sim_hand.plant
+            if self.truth_trace is not None:
+                self._hand_torque = plant.external_torque()
+            s = sl if self.hand_arm == "leader" else sf
+            plant.set_external_torque(self.operator.torque(t, s.position, s.velocity))
+        dt = self.period if (self.lockstep or self.last_t is None) else max(t - self.last_t, 1e-4)
+        self.last_t = t
+        cmd = self.ctl.step(ArmSignals(ql, sl.velocity, sl.current), ArmSignals(qf, sf.velocity, sf.current),
+                            dt)
+        tau_l = self.safety.limit_torque(ql, cmd.leader_tau, sl.velocity)
+        tau_f = self.safety.limit_torque(qf, cmd.follower_tau, sf.velocity)
+        self.ctl.applied(tau_l, tau_f)
+        if self.models:
+            self._model_fallbacks(t)
+        breach = self.safety.check("leader", ql, sl.velocity)
+        if breach is None:
+            breach = self.safety.check("follower", qf, sf.velocity)
+        return tau_l, tau_f, breach
+
+    def _model_tag(self) -> str:
+        """The status line's short word on the observers' models ("" with the nominal ones only)."""
+        if not self.models:
+            return ""
+        words = []
+        for name in ("leader", "follower"):
+            m = self.models.get(name)
+            words.append(f"{name[0].upper()} " + (f"{m.model.method} {len(m.joints)}j" if m else "nominal"))
+        return f"model {' '.join(words)} (fallback events {self.fallback_events})"
+
+    def _model_fallbacks(self, t: float) -> None:
+        """An event when a joint's learned model starts falling back to the nominal one (a prediction
+        that is not finite or beyond the joint's maximum motor torque), and when it recovers."""
+        for name, now in self.ctl.model_fallbacks().items():
+            before = self.fallback_on.get(name)
+            self.fallback_on[name] = now
+            if now is None or (before is not None and np.array_equal(before, now)):
+                continue
+            m = self.models[name]
+            for j, joint in enumerate(m.joints):
+                was = before is not None and before[j]
+                if now[j] and not was:
+                    self.fallback_events += 1
+                    why = ("the arm is outside the poses the model was trained on"
+                           if self.ctl.reaction(name).out_of_range
+                           else f"the model's prediction is not finite or beyond {m.limit[j]:.2f} N m")
+                    self.event(t, "model_fallback", f"{name} {joint}: {why}; the nominal model is used",
+                               joint)
+                elif was and not now[j]:
+                    self.event(t, "model_resumed", f"{name} {joint}: the model's prediction is usable again",
+                               joint)
+
+    def _poll_hardware(self, k: int, t: float) -> Breach | None:
+        """The servos' hardware-error registers, every safety.hardware_poll_cycles cycles."""
+        if not (k and self.safety.poll_due(k)):
+            return None
+        for name in ARMS:
+            try:
+                breach = self.safety.hardware(name, self.pair.buses[name].read_hardware_errors())
+            except CraneError as exc:
+                breach = self._fault_breach(name, exc, t)
+            if breach is not None:
+                return breach
+        return None
+
+    def _record(self, t: float, sl, sf, sent_l, sent_f) -> None:
+        tr = time.perf_counter()
+        timer, kt, bil = self.timer, self.kt, self.bil
+        e = sl.position - sf.position
+        self.err_sq += e * e
+        tl_rec = np.where(bil, sent_l * kt, sl.current * kt)
+        tf_rec = np.where(bil, sent_f * kt, sf.current * kt)
+        est_l, est_f = self.ctl.leader, self.ctl.follower
+        L, F, T = _LEADER, _FOLLOWER, _TIMING
+        self.recorder.append({
+            L.t: t, L.q: sl.position, L.tau: tl_rec, L.dq_servo: sl.velocity, L.current: sl.current,
+            L.goal_current: sent_l, L.dq: est_l.dq, L.tau_dis: est_l.tau_dis, L.tau_res: est_l.tau_res,
+            L.q_goal: self.q_goal_row,
+            F.t: t if self.lockstep else sf.t - self.t_start_mono, F.q: sf.position, F.tau: tf_rec,
+            F.dq_servo: sf.velocity, F.current: sf.current, F.goal_current: sent_f, F.dq: est_f.dq,
+            F.tau_dis: est_f.tau_dis, F.tau_res: est_f.tau_res, F.q_goal: self.q_goal_row,
+            T.cycle_start: timer.now(), T.period: timer.last_period,
+            T.bus_time_leader: timer.last["bus_leader"], T.bus_time_follower: timer.last["bus_follower"],
+            T.compute_time: timer.last["compute"], T.overrun: timer.last_overrun,
+        })
+        if self.truth_trace is not None:
+            self._record_truth(t)
+        timer.add("record", time.perf_counter() - tr)
+        if self.view is not None:  # copies a sample every view_every cycles; idle() logs it
+            self.view.log_cycle(t, sl.position, sf.position, tl_rec, tf_rec, est_l, est_f, timer.last_period)
+
+    def _record_truth(self, t: float) -> None:
+        """The plants' true external torques in this row (the truth trace): contact, and the hand that was
+        acting when the angles were read."""
+        fol, lead = self.sims["follower"].plant, self.sims["leader"].plant
+        hand = self._hand_torque
+        ext_l, ext_f = lead.external_torque(), fol.external_torque()
+        if hand is not None:  # the hand's torque was replaced after the read: use the one read against
+            if self.hand_arm == "leader":
+                ext_l = hand
+            else:
+                ext_f = hand
+        self.truth_trace.append(t, fol.contact_torque() + ext_f, lead.contact_torque() + ext_l,
+                                fol.in_contact)
+
+    def _fault_breach(self, name: str, exc: Exception, t: float) -> Breach | None:
+        from crane_io.dynamixel.faults import CommunicationError, ServoMissingError
+
+        if isinstance(exc, ServoMissingError) or not isinstance(exc, CommunicationError):
+            kind = "servo_missing" if isinstance(exc, ServoMissingError) else "hardware_error"
+            return Breach(kind, name, "", f"{name}: {exc}")
+        self.event(t, "comm_error", f"{name}: {exc}")
+        return self.safety.bus_error(name, t, exc)
+
+    def summary_lines(self) -> list[str]:
+        """The summary's lines on the learned models in the observers (none without a model)."""
+        if not self.models:
+            return []
+        lines = [observer_sentence(self.models, self.arm)]
+        for name, m in self.models.items():
+            reaction = self.ctl.reaction(name)
+            if reaction is None:
+                continue
+            cycles = {j: int(c) for j, c in zip(m.joints, reaction.fallback_cycles) if c}
+            if cycles:
+                lines.append(f"{name} model fell back to the nominal one in " + ", ".join(
+                    f"{j} {c} cycles" for j, c in cycles.items()) + f" ({self.fallback_events} events)")
+        return lines
+
+    def _stop(self, breach: Breach, t: float) -> str:
+        self.breach = breach
+        self.pair.safe_stop()
+        self.event(t, "safety_stop", breach.message, breach.joint)
+        return "safety_stop"

@@ -1,0 +1,25 @@
+"""The `crane-collect` command line. Each subcommand lives in its own module of this package
+(collect/cli/run.py, check.py, ...); this file only wires them into one click group. Bad input ends
+with one sentence on stderr and a non-zero exit."""
+
+from __future__ import annotations
+
+import click
+
+from crane_io.cli_support import LazyGroup
+
+# (module, attribute) of every subcommand; imported lazily so `--help` stays fast.
+COMMANDS = {
+    "run": ("collect.cli.run", "run"),
+    "check": ("collect.cli.check", "check"),
+    "ports": ("collect.cli.ports", "ports"),
+    "calibrate": ("collect.cli.calibrate", "calibrate"),
+    "sim-serve": ("collect.cli.sim_serve", "sim_serve"),
+    "recover": ("collect.cli.recover", "recover"),
+}
+
+
+@click.group(cls=LazyGroup, commands=COMMANDS)
+@click.version_option(package_name="crane-x7")
+def main():
+    """Drive a leader and a follower CRANE-X7 (or two simulated ones) and record sessions."""
