@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import struct
 from operator import add, sub
 from pathlib import Path
@@ -58,6 +59,7 @@ from crane_io.dynamixel.units import AMPERE_PER_CURRENT_LSB, RAD_PER_PULSE, RADS
 from crane_io.errors import ConfigError
 from crane_io.physics.dynamics import ArmDynamics
 from crane_io.physics.effects import PlantTerms, get_effect
+from crane_io.sim import plant_kernel
 from crane_io.sim.environment import Environment
 from crane_io.sim.plant_api import ActuatorCommand, SensorReading
 from crane_io.sim.plant_config import ARM_JOINTS, PlantConfig, check_joints, load_plant_config
@@ -82,6 +84,9 @@ _HELD_OMEGA = 30.0  # rad/s: held joints follow their goal as a critically dampe
 _STOP_MARGIN = math.radians(2.0)  # end stops sit this far beyond the software limits
 _CONTACT_OMEGA_H = 0.25  # backlash contact: natural frequency on the motor inertia x substep
 _CONTACT_DAMPING_RATIO = 1.5
+# joint kinds the kernel takes: their axis (None: the model's)
+_REVOLUTE = {"JointModelRX": (1.0, 0.0, 0.0), "JointModelRY": (0.0, 1.0, 0.0),
+             "JointModelRZ": (0.0, 0.0, 1.0), "JointModelRevoluteUnaligned": None}
 _SKL_INERTIA = dict(zip(("joint1", "joint2", "joint3", "joint4", "joint5", "joint6", "joint7", "gripper"),
                         DEFAULT_INERTIA))
 
@@ -90,10 +95,15 @@ class ArmPlant:
     """The simulated CRANE-X7 (see module docstring). `config`: a PlantConfig, a preset name or a
     TOML path (default "crane-x7"); `seed`: the sensor-noise seed (default: the config's); `joints`:
     the joints integrated with the rigid-body dynamics (any of joint1..joint7, put in arm order;
-    default the config's `joints`, itself by default joint1, joint2, joint4)."""
+    default the config's `joints`, itself by default joint1, joint2, joint4); `kernel`: integrate with
+    the compiled substep kernel (crane_io.sim.plant_kernel) or with the reference path (pinocchio calls
+    and Python floats per substep). Default: the kernel when numba is installed and the plant has no
+    backlash, user-defined effect or [[environment]] object (those run on the reference path), unless
+    the environment variable CRANE_PLANT_KERNEL is "0" (then always the reference path). The two agree
+    to rounding, not bit for bit (see crane_io.sim.plant_kernel)."""
 
     def __init__(self, config: PlantConfig | str | Path | None = None, seed: int | None = None,
-                 joints=None):
+                 joints=None, kernel: bool | None = None):
         if not isinstance(config, PlantConfig):
             config = load_plant_config("crane-x7" if config is None else config)
         self.config = config
@@ -171,6 +181,63 @@ class ArmPlant:
                            for i in range(n_int)]
         self._other_l = list(zip(self._visc_l, self._offset_l, self._spring_k_l, self._spring_q0k_l,
                                  self._lo_l, self._hi_l))
+        self._kstep = None  # the compiled kernel's step, when this plant uses it
+        required = kernel is True
+        if kernel is None:
+            kernel = os.environ.get("CRANE_PLANT_KERNEL", "1") != "0" and self._kernel_fits()
+        elif kernel and not self._kernel_fits():
+            raise ConfigError("the compiled plant kernel does not simulate backlash, user-defined effects or "
+                              "[[environment]] objects; use kernel=False for this plant")
+        if kernel:
+            fns = plant_kernel.compiled()
+            if fns is None and required:
+                raise ConfigError("the compiled plant kernel needs numba (pip install numba)")
+            if fns is not None:
+                self._kstep = fns[0]
+                self._kernel_arrays()
+
+    # ---- the compiled kernel -------------------------------------------------------------------------
+    def _kernel_fits(self) -> bool:
+        """The kernel's model covers this plant: a serial chain of revolute joints, effects in closed form."""
+        if self._backlash or self._generic or self.environment:
+            return False
+        m = self.model
+        return all(m.parents[i] == i - 1 and m.joints[i].shortname() in _REVOLUTE
+                   for i in range(1, m.njoints))
+
+    def _kernel_arrays(self) -> None:
+        """The kernel's parameter arrays (crane_io.sim.plant_kernel's layouts) from the model and effects."""
+        k = plant_kernel
+        m, n = self.model, len(self.joints)
+        geo = np.zeros((n, k.GEO_COLS))
+        for i in range(n):
+            placement, inertia = m.jointPlacements[i + 1], m.inertias[i + 1]
+            geo[i, k.G_R:k.G_R + 9] = placement.rotation.ravel()
+            geo[i, k.G_P:k.G_P + 3] = placement.translation
+            kind = m.joints[i + 1].shortname()
+            geo[i, k.G_AX:k.G_AX + 3] = (_REVOLUTE[kind] if _REVOLUTE[kind] is not None
+                                         else m.joints[i + 1].extract().axis)
+            geo[i, k.G_M] = inertia.mass
+            geo[i, k.G_C:k.G_C + 3] = inertia.lever
+            geo[i, k.G_I:k.G_I + 9] = inertia.inertia.ravel()
+            geo[i, k.G_ARM] = m.armature[i]
+        n_strib = max([len(s) for s in self._strib_l] + [0])
+        par = np.zeros((n, k.P_STRIB + 2 * n_strib))
+        for i in range(n):
+            par[i, :k.P_STRIB] = (self._fc_pos_l[i], self._fc_neg_l[i], self._band_pos_l[i],
+                                  self._band_neg_l[i], self._visc_l[i], self._offset_l[i],
+                                  self._spring_k_l[i], self._spring_q0k_l[i], self._lo_l[i], self._hi_l[i],
+                                  len(self._strib_l[i]))
+            for j, (amp, vs) in enumerate(self._strib_l[i]):
+                par[i, k.P_STRIB + 2 * j:k.P_STRIB + 2 * j + 2] = amp, vs
+        self._kgeo, self._kpar = geo, par
+        self._kcog = np.array(self._cogging, dtype=float).reshape(-1, 4)
+        self._kscal = np.array([self._k_stop, self._d_stop, *m.gravity.linear])
+
+    @property
+    def kernel(self) -> bool:
+        """True when this plant integrates with the compiled kernel (crane_io.sim.plant_kernel)."""
+        return self._kstep is not None
 
     # ---- effects -> arrays ---------------------------------------------------------------------------
     def _check_objects(self) -> None:
@@ -308,8 +375,19 @@ class ArmPlant:
         tau_base = tau_l  # current mode: Kt x goal current; otherwise none
         n_sub = max(1, math.ceil(dt / self.h - 1e-9))
         h = dt / n_sub
-        q, dq = self.q.tolist(), self.dq.tolist()
         ext = self.external.tolist()
+        if self._kstep is not None:  # the compiled kernel: every substep in one call
+            cmd = []
+            for i, (base, e) in enumerate(zip(tau_base, ext)):
+                c = pd[i] if pd is not None else None
+                cmd += (base, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, e) if c is None else (base, 1.0, *c, e)
+            n = len(ext)
+            out = self._kstep(self.q, self.dq, np.array(cmd).reshape(n, plant_kernel.CMD_COLS), h, n_sub,
+                              self._kgeo, self._kpar, self._kcog, self._kscal)
+            self.q, self.dq, self.motor_torque = out[:n], out[n:2 * n], out[2 * n:]
+            self.time += dt
+            return
+        q, dq = self.q.tolist(), self.dq.tolist()
         for _ in range(n_sub):
             if pd is not None:  # the servo's PD (SimplePlant.motor_torque, the same operations in floats)
                 tau_l = [b if c is None else _clip(c[0] * (c[4] - qi) - c[1] * dqi, c[2], c[3])
