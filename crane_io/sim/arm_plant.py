@@ -220,7 +220,6 @@ class ArmPlant:
             geo[i, k.G_M] = inertia.mass
             geo[i, k.G_C:k.G_C + 3] = inertia.lever
             geo[i, k.G_I:k.G_I + 9] = inertia.inertia.ravel()
-            geo[i, k.G_ARM] = m.armature[i]
         n_strib = max([len(s) for s in self._strib_l] + [0])
         par = np.zeros((n, k.P_STRIB + 2 * n_strib))
         for i in range(n):
@@ -231,6 +230,7 @@ class ArmPlant:
             for j, (amp, vs) in enumerate(self._strib_l[i]):
                 par[i, k.P_STRIB + 2 * j:k.P_STRIB + 2 * j + 2] = amp, vs
         self._kgeo, self._kpar = geo, par
+        self._karm = m.armature  # a view of the model's vector (kept live: a test may change it)
         self._kcog = np.array(self._cogging, dtype=float).reshape(-1, 4)
         self._kscal = np.array([self._k_stop, self._d_stop, *m.gravity.linear])
 
@@ -383,7 +383,7 @@ class ArmPlant:
                 cmd += (base, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, e) if c is None else (base, 1.0, *c, e)
             n = len(ext)
             out = self._kstep(self.q, self.dq, np.array(cmd).reshape(n, plant_kernel.CMD_COLS), h, n_sub,
-                              self._kgeo, self._kpar, self._kcog, self._kscal)
+                              self._kgeo, self._karm, self._kpar, self._kcog, self._kscal)
             self.q, self.dq, self.motor_torque = out[:n], out[n:2 * n], out[2 * n:]
             self.time += dt
             return

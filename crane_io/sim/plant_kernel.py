@@ -32,7 +32,9 @@ tests run as its reference). `error_model="numpy"`: a division by zero gives inf
 
 Array layouts (float64; built by ArmPlant):
 - geo (n, GEO_COLS): per joint, its placement in the parent joint's frame (rotation row-major, translation),
-  its unit axis, the body's mass, centre of mass and rotational inertia about it (row-major), armature;
+  its unit axis, the body's mass, centre of mass and rotational inertia about it (row-major);
+- arm (n,): the armature (rotor inertia) of each joint: the pinocchio model's own vector (a view: a change
+  to `plant.model.armature` is seen);
 - par (n, P_STRIB + 2 S): Coulomb +, Coulomb -, static band +, static band -, viscous, offset, spring
   stiffness, stiffness x rest angle, lower and upper end stop, number of Stribeck terms, then S (amplitude,
   velocity) pairs;
@@ -49,8 +51,8 @@ import types
 
 import numpy as np
 
-G_R, G_P, G_AX, G_M, G_C, G_I, G_ARM = 0, 9, 12, 15, 16, 19, 28
-GEO_COLS = 29
+G_R, G_P, G_AX, G_M, G_C, G_I = 0, 9, 12, 15, 16, 19
+GEO_COLS = 28
 (P_FCP, P_FCN, P_BANDP, P_BANDN, P_VISC, P_OFF, P_SK, P_SQ0K, P_LO, P_HI, P_NSTRIB) = range(11)
 P_STRIB = 11
 C_TAU, C_PD, C_KP, C_KD, C_LO, C_HI, C_GOAL, C_EXT = range(8)
@@ -144,7 +146,7 @@ def _rnea(n, geo, rot, pos, dq, ddq, g0, g1, g2, tau, wk):
             wk[i - 1, 5] += (r[2, 0] * t0 + r[2, 1] * t1 + r[2, 2] * t2) + (px * g1_ - py * g0_)
 
 
-def dynamics(n, geo, scal, q, dq, mass, bias, rot, pos, wk, zero, unit, col):
+def dynamics(n, geo, arm, scal, q, dq, mass, bias, rot, pos, wk, zero, unit, col):
     """mass = M(q) (armature on the diagonal, symmetric: the upper triangle mirrored), bias = C dq + g."""
     _kinematics(n, geo, q, rot, pos)
     for j in range(n):
@@ -154,7 +156,7 @@ def dynamics(n, geo, scal, q, dq, mass, bias, rot, pos, wk, zero, unit, col):
         _rnea(n, geo, rot, pos, zero, unit, 0.0, 0.0, 0.0, col, wk)
         for k in range(j + 1):
             mass[k, j] = col[k]
-        mass[j, j] += geo[j, G_ARM]
+        mass[j, j] += arm[j]
     for j in range(n):
         for k in range(j):
             mass[j, k] = mass[k, j]
@@ -195,7 +197,7 @@ def _solve(a, idx, m, b, x, work):
         x[k] = (b[k] - s) / work[k, k]
 
 
-def step(q, dq, cmd, h, n_sub, geo, par, cog, scal):
+def step(q, dq, cmd, h, n_sub, geo, arm, par, cog, scal):
     """n_sub substeps of h; returns (3 n,): angles, velocities, the last substep's motor torque."""
     n = q.shape[0]
     q = q.copy()
@@ -245,7 +247,7 @@ def step(q, dq, cmd, h, n_sub, geo, par, cog, scal):
             drive[i] = tau[i] + cmd[i, C_EXT] - drive[i]
             if dq[i] == 0.0:
                 moving = False
-        dynamics(n, geo, scal, q, dq, mass, bias, rot, pos, wk, zero, unit, col)
+        dynamics(n, geo, arm, scal, q, dq, mass, bias, rot, pos, wk, zero, unit, col)
         for i in range(n):
             rhs[i] = drive[i] - bias[i]
         if moving:
