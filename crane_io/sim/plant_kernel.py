@@ -6,13 +6,12 @@ substeps of h seconds and returns one (3 n,) array: the new angles, velocities a
 last substep. It is the same model as ArmPlant's reference path (`ArmPlant(kernel=False)`: pinocchio calls
 and Python floats per substep), written for a serial chain of revolute joints:
 
-- rigid-body dynamics: the recursive Newton-Euler algorithm in the joints' local frames (pinocchio's
-  conventions: motion (linear, angular), the base accelerating against gravity); the joint-space mass
-  matrix column by column from it (unit accelerations, no velocity, no gravity) plus the armature on its
-  diagonal, mirrored from the upper triangle; the bias torque C(q, dq) dq + g(q) from it with zero
-  acceleration. When every joint moves, the accelerations solve M ddq = drive - friction - bias by
-  Gaussian elimination without pivoting (M is symmetric positive definite; the reference path uses
-  pinocchio's ABA there);
+- rigid-body dynamics in the joints' local frames (pinocchio's conventions: motion (linear, angular),
+  the base accelerating against gravity): the joint-space mass matrix by the composite-rigid-body
+  algorithm plus the armature on its diagonal, mirrored from the upper triangle; the bias torque
+  C(q, dq) dq + g(q) by the recursive Newton-Euler algorithm with zero acceleration. When every joint
+  moves, the accelerations solve M ddq = drive - friction - bias by Gaussian elimination without
+  pivoting (M is symmetric positive definite; the reference path uses pinocchio's ABA there);
 - the effects ArmPlant compiles to closed forms (Coulomb +/- and Stribeck terms as kinetic friction, their
   static bands, viscous, offset, spring, cogging, the end stops), the servos' PD controller in position
   modes, the stick-slip solve (the joint pushed furthest beyond its static band breaks away first) and
@@ -146,20 +145,79 @@ def _rnea(n, geo, rot, pos, dq, ddq, g0, g1, g2, tau, wk):
             wk[i - 1, 5] += (r[2, 0] * t0 + r[2, 1] * t1 + r[2, 2] * t2) + (px * g1_ - py * g0_)
 
 
-def dynamics(n, geo, arm, scal, q, dq, mass, bias, rot, pos, wk, zero, unit, col):
-    """mass = M(q) (armature on the diagonal, symmetric: the upper triangle mirrored), bias = C dq + g."""
-    _kinematics(n, geo, q, rot, pos)
-    for j in range(n):
-        for k in range(n):
-            unit[k] = 0.0
-        unit[j] = 1.0
-        _rnea(n, geo, rot, pos, zero, unit, 0.0, 0.0, 0.0, col, wk)
-        for k in range(j + 1):
-            mass[k, j] = col[k]
-        mass[j, j] += arm[j]
+def _crba(n, geo, arm, rot, pos, cm, ch, ci, mass):
+    """mass = M(q) (armature on the diagonal), the composite-rigid-body algorithm for the chain: each body's
+    inertia as (mass, first moment, rotational inertia about the joint origin), the subtree's inertia
+    carried into the parent's frame, then each joint's column from its subtree's momentum for a unit
+    rotation, carried down to the root; the lower triangle mirrors the upper."""
+    for i in range(n):  # the bodies' own inertias
+        m = geo[i, G_M]
+        cx, cy, cz = geo[i, G_C], geo[i, G_C + 1], geo[i, G_C + 2]
+        cm[i] = m
+        ch[i, 0], ch[i, 1], ch[i, 2] = m * cx, m * cy, m * cz
+        cc = cx * cx + cy * cy + cz * cz
+        for r in range(3):
+            for c in range(3):
+                ci[i, r, c] = geo[i, G_I + 3 * r + c] - m * (geo[i, G_C + r] * geo[i, G_C + c])
+            ci[i, r, r] += m * cc
+    for i in range(n - 1, 0, -1):  # subtree of i into its parent's frame: (m, R h + m p, ...)
+        r_ = rot[i]
+        m = cm[i]
+        px, py, pz = pos[i, 0], pos[i, 1], pos[i, 2]
+        hx = r_[0, 0] * ch[i, 0] + r_[0, 1] * ch[i, 1] + r_[0, 2] * ch[i, 2]
+        hy = r_[1, 0] * ch[i, 0] + r_[1, 1] * ch[i, 1] + r_[1, 2] * ch[i, 2]
+        hz = r_[2, 0] * ch[i, 0] + r_[2, 1] * ch[i, 1] + r_[2, 2] * ch[i, 2]
+        k = i - 1
+        cm[k] += m
+        ch[k, 0] += hx + m * px
+        ch[k, 1] += hy + m * py
+        ch[k, 2] += hz + m * pz
+        # R I R^T + (2 h.p + m |p|^2) E - (h p^T + p h^T + m p p^T)
+        for a in range(3):
+            t0 = r_[a, 0] * ci[i, 0, 0] + r_[a, 1] * ci[i, 1, 0] + r_[a, 2] * ci[i, 2, 0]
+            t1 = r_[a, 0] * ci[i, 0, 1] + r_[a, 1] * ci[i, 1, 1] + r_[a, 2] * ci[i, 2, 1]
+            t2 = r_[a, 0] * ci[i, 0, 2] + r_[a, 1] * ci[i, 1, 2] + r_[a, 2] * ci[i, 2, 2]
+            for b in range(3):
+                ci[k, a, b] += t0 * r_[b, 0] + t1 * r_[b, 1] + t2 * r_[b, 2]
+        s = 2.0 * (hx * px + hy * py + hz * pz) + m * (px * px + py * py + pz * pz)
+        hv0, hv1, hv2 = hx, hy, hz
+        for a in range(3):
+            pa = pos[i, a]
+            ha = hv0 if a == 0 else (hv1 if a == 1 else hv2)
+            for b in range(3):
+                pb = pos[i, b]
+                hb = hv0 if b == 0 else (hv1 if b == 1 else hv2)
+                ci[k, a, b] -= ha * pb + pa * hb + m * (pa * pb)
+            ci[k, a, a] += s
+    for i in range(n):  # column i: the subtree's momentum for a unit rotation about axis i
+        ax, ay, az = geo[i, G_AX], geo[i, G_AX + 1], geo[i, G_AX + 2]
+        f0 = ay * ch[i, 2] - az * ch[i, 1]
+        f1 = az * ch[i, 0] - ax * ch[i, 2]
+        f2 = ax * ch[i, 1] - ay * ch[i, 0]
+        t0 = ci[i, 0, 0] * ax + ci[i, 0, 1] * ay + ci[i, 0, 2] * az
+        t1 = ci[i, 1, 0] * ax + ci[i, 1, 1] * ay + ci[i, 1, 2] * az
+        t2 = ci[i, 2, 0] * ax + ci[i, 2, 1] * ay + ci[i, 2, 2] * az
+        mass[i, i] = (ax * t0 + ay * t1 + az * t2) + arm[i]
+        for j in range(i, 0, -1):  # into the parent's frame: (R f, R t + p x R f)
+            r_ = rot[j]
+            px, py, pz = pos[j, 0], pos[j, 1], pos[j, 2]
+            g0 = r_[0, 0] * f0 + r_[0, 1] * f1 + r_[0, 2] * f2
+            g1 = r_[1, 0] * f0 + r_[1, 1] * f1 + r_[1, 2] * f2
+            g2 = r_[2, 0] * f0 + r_[2, 1] * f1 + r_[2, 2] * f2
+            u0 = (r_[0, 0] * t0 + r_[0, 1] * t1 + r_[0, 2] * t2) + (py * g2 - pz * g1)
+            u1 = (r_[1, 0] * t0 + r_[1, 1] * t1 + r_[1, 2] * t2) + (pz * g0 - px * g2)
+            u2 = (r_[2, 0] * t0 + r_[2, 1] * t1 + r_[2, 2] * t2) + (px * g1 - py * g0)
+            f0, f1, f2, t0, t1, t2 = g0, g1, g2, u0, u1, u2
+            mass[j - 1, i] = geo[j - 1, G_AX] * t0 + geo[j - 1, G_AX + 1] * t1 + geo[j - 1, G_AX + 2] * t2
     for j in range(n):
         for k in range(j):
             mass[j, k] = mass[k, j]
+
+
+def dynamics(n, geo, arm, scal, q, dq, mass, bias, rot, pos, wk, zero, cm, ch, ci):
+    """mass = M(q) (armature on the diagonal, symmetric), bias = C(q, dq) dq + g(q)."""
+    _kinematics(n, geo, q, rot, pos)
+    _crba(n, geo, arm, rot, pos, cm, ch, ci, mass)
     _rnea(n, geo, rot, pos, dq, zero, scal[2], scal[3], scal[4], bias, wk)
 
 
@@ -218,8 +276,9 @@ def step(q, dq, cmd, h, n_sub, geo, arm, par, cog, scal):
     pos = np.empty((n, 3))
     wk = np.empty((n, 12))
     zero = np.zeros(n)
-    unit = np.empty(n)
-    col = np.empty(n)
+    cm = np.empty(n)
+    ch = np.empty((n, 3))
+    ci = np.empty((n, 3, 3))
     k_stop, d_stop = scal[0], scal[1]
     for _ in range(n_sub):
         for i in range(n):  # the servo's PD in position modes (SimplePlant.motor_torque), clipped as np.clip
@@ -247,7 +306,7 @@ def step(q, dq, cmd, h, n_sub, geo, arm, par, cog, scal):
             drive[i] = tau[i] + cmd[i, C_EXT] - drive[i]
             if dq[i] == 0.0:
                 moving = False
-        dynamics(n, geo, arm, scal, q, dq, mass, bias, rot, pos, wk, zero, unit, col)
+        dynamics(n, geo, arm, scal, q, dq, mass, bias, rot, pos, wk, zero, cm, ch, ci)
         for i in range(n):
             rhs[i] = drive[i] - bias[i]
         if moving:
@@ -313,7 +372,7 @@ def compiled():
             return None
         jit = numba.njit(cache=True, error_model="numpy")
         ns = dict(globals())  # the compiled functions call each other; the module keeps the Python ones
-        for name in ("_kinematics", "_rnea", "dynamics", "_kinetic", "_solve", "step"):
+        for name in ("_kinematics", "_rnea", "_crba", "dynamics", "_kinetic", "_solve", "step"):
             f = ns[name]
             ns[name] = jit(types.FunctionType(f.__code__, ns, f.__name__, f.__defaults__))
         _COMPILED = (ns["step"], ns["dynamics"])
