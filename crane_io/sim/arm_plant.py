@@ -193,7 +193,7 @@ class ArmPlant:
             if fns is None and required:
                 raise ConfigError("the compiled plant kernel needs numba (pip install numba)")
             if fns is not None:
-                self._kstep = fns[0]
+                self._kstep_arm, self._kstep = fns[0], fns[1]
                 self._kernel_arrays()
 
     # ---- the compiled kernel -------------------------------------------------------------------------
@@ -226,13 +226,18 @@ class ArmPlant:
             par[i, :k.P_STRIB] = (self._fc_pos_l[i], self._fc_neg_l[i], self._band_pos_l[i],
                                   self._band_neg_l[i], self._visc_l[i], self._offset_l[i],
                                   self._spring_k_l[i], self._spring_q0k_l[i], self._lo_l[i], self._hi_l[i],
-                                  len(self._strib_l[i]))
+                                  self._kt_l[self._bi_l[i]], self._bi_l[i], len(self._strib_l[i]))
             for j, (amp, vs) in enumerate(self._strib_l[i]):
                 par[i, k.P_STRIB + 2 * j:k.P_STRIB + 2 * j + 2] = amp, vs
         self._kgeo, self._kpar = geo, par
         self._karm = m.armature  # a view of the model's vector (kept live: a test may change it)
         self._kcog = np.array(self._cogging, dtype=float).reshape(-1, 4)
-        self._kscal = np.array([self._k_stop, self._d_stop, *m.gravity.linear])
+        self._kscal = np.array([self._k_stop, self._d_stop, *m.gravity.linear, _HELD_OMEGA])
+        self._khpar = np.array([(kt, inertia, visc, lo, hi, s) for kt, inertia, visc, lo, hi, s in zip(
+            self._held_kt_l, self._held_inertia_l, self._held_visc_l, self._held_lo_l, self._held_hi_l,
+            self._held_l)], dtype=float).reshape(-1, k.HELD_COLS)
+        self._kpd0 = np.zeros((n, 6))  # no servo PD
+        self._khmat: dict[float, np.ndarray] = {}
 
     @property
     def kernel(self) -> bool:
@@ -350,6 +355,9 @@ class ArmPlant:
         if self.config.overload.enabled:
             self._overload(np.array(en_l, dtype=bool), np.array(mode_l), np.array(gc_l, dtype=float),
                            np.array(lim_l, dtype=float), dt)
+        if self._kstep is not None:
+            self._step_kernel(en_l, mode_l, gc_l, gp_l, gains_l, lim_l, dt)
+            return
         # per joint in plain Python (8 values: cheaper than numpy's fancy indexing and reductions; the
         # same IEEE operations, so the same results)
         held = self._held_l
@@ -376,17 +384,6 @@ class ArmPlant:
         n_sub = max(1, math.ceil(dt / self.h - 1e-9))
         h = dt / n_sub
         ext = self.external.tolist()
-        if self._kstep is not None:  # the compiled kernel: every substep in one call
-            cmd = []
-            for i, (base, e) in enumerate(zip(tau_base, ext)):
-                c = pd[i] if pd is not None else None
-                cmd += (base, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, e) if c is None else (base, 1.0, *c, e)
-            n = len(ext)
-            out = self._kstep(self.q, self.dq, np.array(cmd).reshape(n, plant_kernel.CMD_COLS), h, n_sub,
-                              self._kgeo, self._karm, self._kpar, self._kcog, self._kscal)
-            self.q, self.dq, self.motor_torque = out[:n], out[n:2 * n], out[2 * n:]
-            self.time += dt
-            return
         q, dq = self.q.tolist(), self.dq.tolist()
         for _ in range(n_sub):
             if pd is not None:  # the servo's PD (SimplePlant.motor_torque, the same operations in floats)
@@ -398,6 +395,35 @@ class ArmPlant:
             self._contact = np.array(self._env.torque_list(q, dq))
             self._in_contact = self._env.in_contact(self.q)
         self.motor_torque = np.array(tau_l)
+        self.time += dt
+
+    def _step_kernel(self, en_l, mode_l, gc_l, gp_l, gains_l, lim_l, dt: float) -> None:
+        """step_lists on the compiled kernel: held and integrated joints in one call (step_arm)."""
+        bi = self._bi_l
+        pd = self._kpd0
+        if any(en_l[i] and mode_l[i] != 0 for i in bi):  # the servos' PD (as step_lists computes it)
+            def pick(values, dtype=float):
+                return np.array([values[i] for i in bi], dtype=dtype)
+
+            bi_cmd = ActuatorCommand(pick(en_l, bool), pick(mode_l, None), pick(gc_l), pick(gp_l),
+                                     pick(gains_l), pick(lim_l))
+            pos, kp, kd, cap = self._pd.position_controller(bi_cmd)
+            if kp is not None:
+                pd = np.array([(1.0, a, b, -c, c, float(g)) if p else (0.0,) * 6
+                               for p, a, b, c, g in zip(pos.tolist(), kp.tolist(), kd.tolist(), cap.tolist(),
+                                                        bi_cmd.goal_position)])
+        hmat = self._khmat.get(dt)
+        if hmat is None:
+            hmat = self._khmat[dt] = np.array(self._held_matrix(dt))
+        n_sub = max(1, math.ceil(dt / self.h - 1e-9))
+        out = self._kstep_arm(self.q, self.dq, self._held_q, self._held_dq,
+                              np.array((en_l, mode_l, gc_l, gp_l, lim_l), dtype=float), pd, self.external,
+                              self._held_ext, dt / n_sub, n_sub, dt, hmat, self._kgeo, self._karm, self._kpar,
+                              self._kcog, self._kscal, self._khpar)
+        n, k = len(bi), len(self._held_l)
+        b = 3 * n
+        self.q, self.dq, self.motor_torque = out[:n], out[n:2 * n], out[2 * n:b]
+        self._held_q, self._held_dq, self._held_current = out[b:b + k], out[b + k:b + 2 * k], out[b + 2 * k:]
         self.time += dt
 
     def _substep(self, q, dq, tau_m, ext, h: float) -> tuple:

@@ -35,8 +35,10 @@ Array layouts (float64; built by ArmPlant):
 - arm (n,): the armature (rotor inertia) of each joint: the pinocchio model's own vector (a view: a change
   to `plant.model.armature` is seen);
 - par (n, P_STRIB + 2 S): Coulomb +, Coulomb -, static band +, static band -, viscous, offset, spring
-  stiffness, stiffness x rest angle, lower and upper end stop, number of Stribeck terms, then S (amplitude,
-  velocity) pairs;
+  stiffness, stiffness x rest angle, lower and upper end stop, torque constant, servo index, number of
+  Stribeck terms, then S (amplitude, velocity) pairs;
+- hpar (k, HELD_COLS): per held joint its torque constant, inertia, viscous friction, lower and upper end
+  stop, servo index (`step_arm`);
 - cog (C, 4): cogging terms (joint, sin amplitude, cos amplitude, periods per turn); C may be 0;
 - scal: (end-stop stiffness, end-stop damping, gravity x, y, z);
 - cmd (n, CMD_COLS): per joint the motor torque outside a position mode, 1.0 if its servo is in a position
@@ -52,8 +54,10 @@ import numpy as np
 
 G_R, G_P, G_AX, G_M, G_C, G_I = 0, 9, 12, 15, 16, 19
 GEO_COLS = 28
-(P_FCP, P_FCN, P_BANDP, P_BANDN, P_VISC, P_OFF, P_SK, P_SQ0K, P_LO, P_HI, P_NSTRIB) = range(11)
-P_STRIB = 11
+(P_FCP, P_FCN, P_BANDP, P_BANDN, P_VISC, P_OFF, P_SK, P_SQ0K, P_LO, P_HI, P_KT, P_SERVO, P_NSTRIB) = range(13)
+P_STRIB = 13
+H_KT, H_INERTIA, H_VISC, H_LO, H_HI, H_SERVO = range(6)
+HELD_COLS = 6
 C_TAU, C_PD, C_KP, C_KD, C_LO, C_HI, C_GOAL, C_EXT = range(8)
 CMD_COLS = 8
 
@@ -360,9 +364,63 @@ def step(q, dq, cmd, h, n_sub, geo, arm, par, cog, scal):
     return out
 
 
+def step_arm(q, dq, hq, hdq, cmds, pd, ext, hext, h, n_sub, dt, hmat, geo, arm, par, cog, scal, hpar):
+    """A whole ArmPlant step: the held joints (ArmPlant._step_held, the same operations), then the
+    integrated joints' n_sub substeps (`step`). cmds (5, servos): torque enabled, operating mode, goal
+    current, goal position, current limit per servo; pd (n, 6): per integrated joint 1.0 when its servo's
+    PD drives it, then kp, kd, -cap, cap, goal; ext, hext: the external torque on the integrated and the
+    held joints; hmat: the held joints' transition matrix over dt (a00, a01, a10, a11); scal[5]: their
+    natural frequency. Returns (3 n + 3 k,): angles, velocities, motor torques of the integrated joints,
+    then angles, velocities, currents of the held ones."""
+    n, k = q.shape[0], hq.shape[0]
+    out = np.empty(3 * n + 3 * k)
+    a00, a01, a10, a11 = hmat[0], hmat[1], hmat[2], hmat[3]
+    w = scal[5]
+    b = 3 * n
+    for j in range(k):
+        s = int(hpar[j, H_SERVO])
+        on, mode, gc, gp, lim = cmds[0, s] != 0.0, cmds[1, s], cmds[2, s], cmds[3, s], cmds[4, s]
+        qj, dqj = hq[j], hdq[j]
+        kt, inertia = hpar[j, H_KT], hpar[j, H_INERTIA]
+        current = 0.0
+        if on and mode != 0:  # position modes: the exact discretisation, clipped current
+            e = qj - gp
+            new_e = a00 * e + a01 * dqj
+            new_dq = a10 * e + a11 * dqj
+            torque = inertia * (-(w * w) * e - 2 * w * dqj)
+            x = torque / kt
+            lo = -lim
+            x = x if (x != x or x > lo) else lo
+            current = x if (x != x or x < lim) else lim
+            qj, dqj = gp + new_e, new_dq
+        elif on:  # current mode
+            tau = kt * gc + hext[j] - hpar[j, H_VISC] * dqj
+            dqj = dqj + dt * (tau / inertia)
+            qj = qj + dt * dqj
+            current = gc
+        else:  # torque off
+            dqj = 0.0
+        lo, hi = hpar[j, H_LO], hpar[j, H_HI]
+        qj = qj if (qj != qj or qj > lo) else lo
+        out[b + j] = qj if (qj != qj or qj < hi) else hi
+        out[b + k + j] = dqj
+        out[b + 2 * k + j] = current
+    cmd = np.empty((n, CMD_COLS))
+    for i in range(n):
+        s = int(par[i, P_SERVO])
+        cmd[i, C_TAU] = par[i, P_KT] * cmds[2, s] if (cmds[0, s] != 0.0 and cmds[1, s] == 0.0) else 0.0
+        for c in range(6):
+            cmd[i, C_PD + c] = pd[i, c]
+        cmd[i, C_EXT] = ext[i]
+    res = step(q, dq, cmd, h, n_sub, geo, arm, par, cog, scal)
+    for i in range(b):
+        out[i] = res[i]
+    return out
+
+
 def compiled():
-    """The numba-compiled `step` (and `dynamics`), or None when numba is not installed. The first call
-    of a process compiles or loads from the cache."""
+    """The numba-compiled (`step_arm`, `step`, `dynamics`), or None when numba is not installed. The first
+    call of a process compiles or loads from the cache."""
     global _COMPILED
     if _COMPILED is None:
         try:
@@ -372,10 +430,11 @@ def compiled():
             return None
         jit = numba.njit(cache=True, error_model="numpy")
         ns = dict(globals())  # the compiled functions call each other; the module keeps the Python ones
-        for name in ("_kinematics", "_rnea", "_crba", "dynamics", "_kinetic", "_solve", "step"):
+        for name in ("_kinematics", "_rnea", "_crba", "dynamics", "_kinetic", "_solve", "step",
+                     "step_arm"):
             f = ns[name]
             ns[name] = jit(types.FunctionType(f.__code__, ns, f.__name__, f.__defaults__))
-        _COMPILED = (ns["step"], ns["dynamics"])
+        _COMPILED = (ns["step_arm"], ns["step"], ns["dynamics"])
     return _COMPILED or None
 
 
