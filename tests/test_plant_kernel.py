@@ -177,3 +177,13 @@ def test_the_reference_path_still_records_the_pinned_session(tmp_path, monkeypat
     out = tmp_path / "s.h5"
     run_session(RunOptions(output=out, sim=True, seed=pinned.SEED, duration=pinned.DURATION_S, status=False))
     assert pinned.session_digest(out)[0] == pinned.PINNED_DIGEST
+
+
+def test_importing_the_plant_does_not_import_numba():
+    """numba is imported when a plant first needs the kernel: commands that build none (--help) stay fast."""
+    import subprocess
+    import sys
+
+    code = "import sys, crane_io.sim.arm_plant; print('numba' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
