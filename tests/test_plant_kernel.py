@@ -187,3 +187,15 @@ def test_importing_the_plant_does_not_import_numba():
     code = "import sys, crane_io.sim.arm_plant; print('numba' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_a_kernel_that_cannot_run_here_leaves_the_reference_path(monkeypatch):
+    def broken(*_args):
+        raise RuntimeError("no code for this machine")
+
+    monkeypatch.setattr(plant_kernel, "compiled", lambda: (broken, broken, broken))
+    with pytest.warns(UserWarning, match="reference path"):
+        plant = ArmPlant("crane-x7")
+    assert not plant.kernel
+    with pytest.raises(RuntimeError, match="no code"):
+        ArmPlant("crane-x7", kernel=True)

@@ -48,6 +48,7 @@ import json
 import math
 import os
 import struct
+import warnings
 from operator import add, sub
 from pathlib import Path
 
@@ -195,6 +196,17 @@ class ArmPlant:
             if fns is not None:
                 self._kstep_arm, self._kstep = fns[0], fns[1]
                 self._kernel_arrays()
+                try:  # load (or compile) it now, with this plant's own argument types: no surprise later
+                    self._kstep_arm(self.q, self.dq, self._held_q, self._held_dq, np.zeros((5, len(names))),
+                                    self._kpd0, self.external, self._held_ext, self.h, 0, self.h,
+                                    np.array(self._held_matrix(self.h)), self._kgeo, self._karm, self._kpar,
+                                    self._kcog, self._kscal, self._khpar)
+                except Exception as exc:  # e.g. a numba that cannot compile it here: the reference path
+                    if required:
+                        raise
+                    warnings.warn(f"the compiled plant kernel is not usable here ({type(exc).__name__}: "
+                                  f"{exc}); the plant integrates on its reference path", stacklevel=2)
+                    self._kstep = None
 
     # ---- the compiled kernel -------------------------------------------------------------------------
     def _kernel_fits(self) -> bool:
