@@ -105,18 +105,15 @@ def kernel_vs_reference(steps: int, preset: str = "crane-x7") -> tuple[float, fl
 
 
 def first_call(preset: str = "crane-x7") -> float:
-    """CPU s of a fresh process's first kernel step beyond a later one (loading numba and the machine code
-    from the cache; compiling when there is none)."""
+    """CPU s of a fresh process's first kernel plant beyond a second one: importing numba and loading the
+    machine code from the cache (compiling when there is none)."""
     import subprocess
     import sys
 
-    code = ("import time; t0 = time.process_time(); from crane_io.sim import plant_kernel; "
-            "from crane_io.sim.arm_plant import ArmPlant; import numpy as np; "
-            f"p = ArmPlant({preset!r}, seed=0); from crane_io.sim.plant_api import ActuatorCommand; "
-            "c = ActuatorCommand(np.ones(8, bool), np.zeros(8, int), np.zeros(8), np.zeros(8), "
-            "np.tile([800, 0, 0], (8, 1)), np.full(8, 3.2)); "
-            "t = time.process_time(); p.step(c, 0.002); a = time.process_time() - t; "
-            "t = time.process_time(); p.step(c, 0.002); b = time.process_time() - t; print(a - b)")
+    code = ("import time; from crane_io.sim.arm_plant import ArmPlant; "
+            f"t = time.process_time(); ArmPlant({preset!r}, seed=0); a = time.process_time() - t; "
+            f"t = time.process_time(); ArmPlant({preset!r}, seed=0); b = time.process_time() - t; "
+            "print(a - b)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     return float(out.stdout.strip().splitlines()[-1])
 
@@ -183,7 +180,8 @@ def run(quick: bool = False) -> list[dict]:
             note = f"CPU {ref * 1e6:.1f} / {fast * 1e6:.1f} us a step (with read), blocks alternated"
             rows.append({"benchmark": "plant", "metric": f"{label}: ArmPlant alone, reference path / kernel",
                          "value": ref / fast, "unit": "x", "note": note})
-        rows.append({"benchmark": "plant", "metric": "kernel: first step of a process", "value": first_call(),
+        rows.append({"benchmark": "plant", "metric": "kernel: first plant in a process",
+                     "value": first_call(),
                      "unit": "CPU s", "note": "numba import + cached machine code (no cache: compile)"})
     except ImportError as exc:  # the chain or bus layer is not there
         rows.append({"benchmark": "plant", "metric": "ArmPlant + servo chain, lockstep",
