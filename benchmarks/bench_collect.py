@@ -177,8 +177,10 @@ def _in_process(tree: str | None, seconds: float, seed: int) -> dict:
     import subprocess
 
     env = dict(os.environ)
+    env.pop("CRANE_BENCH_TREE", None)
     if tree is not None:
         env["PYTHONPATH"] = os.pathsep.join([str(tree)] + [p for p in [env.get("PYTHONPATH")] if p])
+        env["CRANE_BENCH_TREE"] = str(Path(tree).resolve())
     out = subprocess.run([sys.executable, __file__, "--one", str(seconds), str(seed)], env=env,
                          capture_output=True, text=True, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -210,6 +212,12 @@ if __name__ == "__main__":
     args = sys.argv[1:]
     if args[:1] == ["--one"]:
         import json
+
+        tree = os.environ.get("CRANE_BENCH_TREE")
+        if tree:  # check that the other tree's code runs (not this one's, e.g. from the working directory)
+            import crane_io
+
+            assert Path(crane_io.__file__).resolve().is_relative_to(tree), crane_io.__file__
 
         print(json.dumps(lockstep_once(float(args[1]), int(args[2]))))
     elif "--lockstep" in args:

@@ -8,6 +8,12 @@
 3. Two such arms (leader and follower, as in a bilateral session) stepped alternately in one thread.
 4. The same with all seven joints integrated (preset crane-x7-7dof, issue 11): the plant alone and two
    arms in lockstep.
+5. The compiled substep kernel (crane_io.sim.plant_kernel, the default) against the reference path
+   (`ArmPlant(kernel=False)`: pinocchio and Python floats per substep), 3 and 7 joints, the plant alone:
+   blocks of the two alternated in one process, CPU time, and their ratio.
+
+Every timed loop runs one cycle first (the kernel's first call in a process loads it from numba's cache,
+or compiles it once on a new machine: see `first_call`).
 
 The machine these run on is shared, so every figure is measured in `REPEATS` blocks: the wall-clock
 figure is the best block (least disturbed by other jobs) and the CPU figure counts only this process's
@@ -65,8 +71,8 @@ def _timed(cycle, steps: int) -> tuple[float, float]:
     return best, (time.process_time() - cpu0) / done
 
 
-def plant_alone(steps: int, preset: str = "crane-x7") -> tuple[float, float]:
-    plant = ArmPlant(preset, seed=0)
+def _alone_cycle(preset: str, kernel: bool | None = None):
+    plant = ArmPlant(preset, seed=0, kernel=kernel)
     n = 8
     enabled, mode = np.ones(n, bool), np.zeros(n, int)
     gains, limit, goal = np.tile([800, 0, 0], (n, 1)), np.full(n, 3.2), np.zeros(n)
@@ -75,7 +81,41 @@ def plant_alone(steps: int, preset: str = "crane-x7") -> tuple[float, float]:
         plant.step(ActuatorCommand(enabled, mode, _drive(plant, i), goal, gains, limit), PERIOD)
         plant.read()
 
-    return _timed(cycle, steps)
+    cycle(0)  # warm-up (the kernel's first call)
+    return cycle
+
+
+def plant_alone(steps: int, preset: str = "crane-x7", kernel: bool | None = None) -> tuple[float, float]:
+    return _timed(_alone_cycle(preset, kernel), steps)
+
+
+def kernel_vs_reference(steps: int, preset: str = "crane-x7") -> tuple[float, float]:
+    """(reference CPU s per step, kernel CPU s per step) of the plant alone, blocks alternated."""
+    cycles = {True: _alone_cycle(preset, True), False: _alone_cycle(preset, False)}
+    cpu = {True: 0.0, False: 0.0}
+    block = max(1, steps // (2 * REPEATS))
+    for b in range(2 * REPEATS):
+        for kernel, cycle in cycles.items():
+            t = time.process_time()
+            for i in range(b * block, (b + 1) * block):
+                cycle(i)
+            cpu[kernel] += time.process_time() - t
+    done = block * 2 * REPEATS
+    return cpu[False] / done, cpu[True] / done
+
+
+def first_call(preset: str = "crane-x7") -> float:
+    """CPU s of a fresh process's first kernel plant beyond a second one: importing numba and loading the
+    machine code from the cache (compiling when there is none)."""
+    import subprocess
+    import sys
+
+    code = ("import time; from crane_io.sim.arm_plant import ArmPlant; "
+            f"t = time.process_time(); ArmPlant({preset!r}, seed=0); a = time.process_time() - t; "
+            f"t = time.process_time(); ArmPlant({preset!r}, seed=0); b = time.process_time() - t; "
+            "print(a - b)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return float(out.stdout.strip().splitlines()[-1])
 
 
 def through_chain(steps: int, arms: int = 1, preset: str = "crane-x7") -> tuple[float, float]:
@@ -102,6 +142,7 @@ def through_chain(steps: int, arms: int = 1, preset: str = "crane-x7") -> tuple[
                 bus.read_state()
                 bus.write_goal_current(_drive(plant, i))
 
+        cycle(0)  # warm-up (the kernel's first call)
         return _timed(cycle, steps)
 
 
@@ -134,6 +175,14 @@ def run(quick: bool = False) -> list[dict]:
         rows += _rows("7 joints: 2 arms, bus + chain, lockstep",
                       *through_chain(steps // 4, arms=2, preset="crane-x7-7dof"),
                       f"{steps // 4} cycles of leader + follower, preset crane-x7-7dof")
+        for preset, label in (("crane-x7", "3 joints"), ("crane-x7-7dof", "7 joints")):
+            ref, fast = kernel_vs_reference(steps // 2, preset)
+            note = f"CPU {ref * 1e6:.1f} / {fast * 1e6:.1f} us a step (with read), blocks alternated"
+            rows.append({"benchmark": "plant", "metric": f"{label}: ArmPlant alone, reference path / kernel",
+                         "value": ref / fast, "unit": "x", "note": note})
+        rows.append({"benchmark": "plant", "metric": "kernel: first plant in a process",
+                     "value": first_call(),
+                     "unit": "CPU s", "note": "numba import + cached machine code (no cache: compile)"})
     except ImportError as exc:  # the chain or bus layer is not there
         rows.append({"benchmark": "plant", "metric": "ArmPlant + servo chain, lockstep",
                      "value": float("nan"), "unit": "x real time", "note": f"skipped: {exc}"})

@@ -46,7 +46,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import struct
+import warnings
 from operator import add, sub
 from pathlib import Path
 
@@ -58,6 +60,7 @@ from crane_io.dynamixel.units import AMPERE_PER_CURRENT_LSB, RAD_PER_PULSE, RADS
 from crane_io.errors import ConfigError
 from crane_io.physics.dynamics import ArmDynamics
 from crane_io.physics.effects import PlantTerms, get_effect
+from crane_io.sim import plant_kernel
 from crane_io.sim.environment import Environment
 from crane_io.sim.plant_api import ActuatorCommand, SensorReading
 from crane_io.sim.plant_config import ARM_JOINTS, PlantConfig, check_joints, load_plant_config
@@ -82,6 +85,9 @@ _HELD_OMEGA = 30.0  # rad/s: held joints follow their goal as a critically dampe
 _STOP_MARGIN = math.radians(2.0)  # end stops sit this far beyond the software limits
 _CONTACT_OMEGA_H = 0.25  # backlash contact: natural frequency on the motor inertia x substep
 _CONTACT_DAMPING_RATIO = 1.5
+# joint kinds the kernel takes: their axis (None: the model's)
+_REVOLUTE = {"JointModelRX": (1.0, 0.0, 0.0), "JointModelRY": (0.0, 1.0, 0.0),
+             "JointModelRZ": (0.0, 0.0, 1.0), "JointModelRevoluteUnaligned": None}
 _SKL_INERTIA = dict(zip(("joint1", "joint2", "joint3", "joint4", "joint5", "joint6", "joint7", "gripper"),
                         DEFAULT_INERTIA))
 
@@ -90,10 +96,15 @@ class ArmPlant:
     """The simulated CRANE-X7 (see module docstring). `config`: a PlantConfig, a preset name or a
     TOML path (default "crane-x7"); `seed`: the sensor-noise seed (default: the config's); `joints`:
     the joints integrated with the rigid-body dynamics (any of joint1..joint7, put in arm order;
-    default the config's `joints`, itself by default joint1, joint2, joint4)."""
+    default the config's `joints`, itself by default joint1, joint2, joint4); `kernel`: integrate with
+    the compiled substep kernel (crane_io.sim.plant_kernel) or with the reference path (pinocchio calls
+    and Python floats per substep). Default: the kernel when numba is installed and the plant has no
+    backlash, user-defined effect or [[environment]] object (those run on the reference path), unless
+    the environment variable CRANE_PLANT_KERNEL is "0" (then always the reference path). The two agree
+    to rounding, not bit for bit (see crane_io.sim.plant_kernel)."""
 
     def __init__(self, config: PlantConfig | str | Path | None = None, seed: int | None = None,
-                 joints=None):
+                 joints=None, kernel: bool | None = None):
         if not isinstance(config, PlantConfig):
             config = load_plant_config("crane-x7" if config is None else config)
         self.config = config
@@ -171,6 +182,79 @@ class ArmPlant:
                            for i in range(n_int)]
         self._other_l = list(zip(self._visc_l, self._offset_l, self._spring_k_l, self._spring_q0k_l,
                                  self._lo_l, self._hi_l))
+        self._kstep = None  # the compiled kernel's step, when this plant uses it
+        required = kernel is True
+        if kernel is None:
+            kernel = os.environ.get("CRANE_PLANT_KERNEL", "1") != "0" and self._kernel_fits()
+        elif kernel and not self._kernel_fits():
+            raise ConfigError("the compiled plant kernel does not simulate backlash, user-defined effects or "
+                              "[[environment]] objects; use kernel=False for this plant")
+        if kernel:
+            fns = plant_kernel.compiled()
+            if fns is None and required:
+                raise ConfigError("the compiled plant kernel needs numba (pip install numba)")
+            if fns is not None:
+                self._kstep_arm, self._kstep = fns[0], fns[1]
+                self._kernel_arrays()
+                try:  # load (or compile) it now, with this plant's own argument types: no surprise later
+                    self._kstep_arm(self.q, self.dq, self._held_q, self._held_dq, np.zeros((5, len(names))),
+                                    self._kpd0, self.external, self._held_ext, self.h, 0, self.h,
+                                    np.array(self._held_matrix(self.h)), self._kgeo, self._karm, self._kpar,
+                                    self._kcog, self._kscal, self._khpar)
+                except Exception as exc:  # e.g. a numba that cannot compile it here: the reference path
+                    if required:
+                        raise
+                    warnings.warn(f"the compiled plant kernel is not usable here ({type(exc).__name__}: "
+                                  f"{exc}); the plant integrates on its reference path", stacklevel=2)
+                    self._kstep = None
+
+    # ---- the compiled kernel -------------------------------------------------------------------------
+    def _kernel_fits(self) -> bool:
+        """The kernel's model covers this plant: a serial chain of revolute joints, effects in closed form."""
+        if self._backlash or self._generic or self.environment:
+            return False
+        m = self.model
+        return all(m.parents[i] == i - 1 and m.joints[i].shortname() in _REVOLUTE
+                   for i in range(1, m.njoints))
+
+    def _kernel_arrays(self) -> None:
+        """The kernel's parameter arrays (crane_io.sim.plant_kernel's layouts) from the model and effects."""
+        k = plant_kernel
+        m, n = self.model, len(self.joints)
+        geo = np.zeros((n, k.GEO_COLS))
+        for i in range(n):
+            placement, inertia = m.jointPlacements[i + 1], m.inertias[i + 1]
+            geo[i, k.G_R:k.G_R + 9] = placement.rotation.ravel()
+            geo[i, k.G_P:k.G_P + 3] = placement.translation
+            kind = m.joints[i + 1].shortname()
+            geo[i, k.G_AX:k.G_AX + 3] = (_REVOLUTE[kind] if _REVOLUTE[kind] is not None
+                                         else m.joints[i + 1].extract().axis)
+            geo[i, k.G_M] = inertia.mass
+            geo[i, k.G_C:k.G_C + 3] = inertia.lever
+            geo[i, k.G_I:k.G_I + 9] = inertia.inertia.ravel()
+        n_strib = max([len(s) for s in self._strib_l] + [0])
+        par = np.zeros((n, k.P_STRIB + 2 * n_strib))
+        for i in range(n):
+            par[i, :k.P_STRIB] = (self._fc_pos_l[i], self._fc_neg_l[i], self._band_pos_l[i],
+                                  self._band_neg_l[i], self._visc_l[i], self._offset_l[i],
+                                  self._spring_k_l[i], self._spring_q0k_l[i], self._lo_l[i], self._hi_l[i],
+                                  self._kt_l[self._bi_l[i]], self._bi_l[i], len(self._strib_l[i]))
+            for j, (amp, vs) in enumerate(self._strib_l[i]):
+                par[i, k.P_STRIB + 2 * j:k.P_STRIB + 2 * j + 2] = amp, vs
+        self._kgeo, self._kpar = geo, par
+        self._karm = m.armature  # a view of the model's vector (kept live: a test may change it)
+        self._kcog = np.array(self._cogging, dtype=float).reshape(-1, 4)
+        self._kscal = np.array([self._k_stop, self._d_stop, *m.gravity.linear, _HELD_OMEGA])
+        self._khpar = np.array([(kt, inertia, visc, lo, hi, s) for kt, inertia, visc, lo, hi, s in zip(
+            self._held_kt_l, self._held_inertia_l, self._held_visc_l, self._held_lo_l, self._held_hi_l,
+            self._held_l)], dtype=float).reshape(-1, k.HELD_COLS)
+        self._kpd0 = np.zeros((n, 6))  # no servo PD
+        self._khmat: dict[float, np.ndarray] = {}
+
+    @property
+    def kernel(self) -> bool:
+        """True when this plant integrates with the compiled kernel (crane_io.sim.plant_kernel)."""
+        return self._kstep is not None
 
     # ---- effects -> arrays ---------------------------------------------------------------------------
     def _check_objects(self) -> None:
@@ -283,6 +367,9 @@ class ArmPlant:
         if self.config.overload.enabled:
             self._overload(np.array(en_l, dtype=bool), np.array(mode_l), np.array(gc_l, dtype=float),
                            np.array(lim_l, dtype=float), dt)
+        if self._kstep is not None:
+            self._step_kernel(en_l, mode_l, gc_l, gp_l, gains_l, lim_l, dt)
+            return
         # per joint in plain Python (8 values: cheaper than numpy's fancy indexing and reductions; the
         # same IEEE operations, so the same results)
         held = self._held_l
@@ -308,8 +395,8 @@ class ArmPlant:
         tau_base = tau_l  # current mode: Kt x goal current; otherwise none
         n_sub = max(1, math.ceil(dt / self.h - 1e-9))
         h = dt / n_sub
-        q, dq = self.q.tolist(), self.dq.tolist()
         ext = self.external.tolist()
+        q, dq = self.q.tolist(), self.dq.tolist()
         for _ in range(n_sub):
             if pd is not None:  # the servo's PD (SimplePlant.motor_torque, the same operations in floats)
                 tau_l = [b if c is None else _clip(c[0] * (c[4] - qi) - c[1] * dqi, c[2], c[3])
@@ -320,6 +407,35 @@ class ArmPlant:
             self._contact = np.array(self._env.torque_list(q, dq))
             self._in_contact = self._env.in_contact(self.q)
         self.motor_torque = np.array(tau_l)
+        self.time += dt
+
+    def _step_kernel(self, en_l, mode_l, gc_l, gp_l, gains_l, lim_l, dt: float) -> None:
+        """step_lists on the compiled kernel: held and integrated joints in one call (step_arm)."""
+        bi = self._bi_l
+        pd = self._kpd0
+        if any(en_l[i] and mode_l[i] != 0 for i in bi):  # the servos' PD (as step_lists computes it)
+            def pick(values, dtype=float):
+                return np.array([values[i] for i in bi], dtype=dtype)
+
+            bi_cmd = ActuatorCommand(pick(en_l, bool), pick(mode_l, None), pick(gc_l), pick(gp_l),
+                                     pick(gains_l), pick(lim_l))
+            pos, kp, kd, cap = self._pd.position_controller(bi_cmd)
+            if kp is not None:
+                pd = np.array([(1.0, a, b, -c, c, float(g)) if p else (0.0,) * 6
+                               for p, a, b, c, g in zip(pos.tolist(), kp.tolist(), kd.tolist(), cap.tolist(),
+                                                        bi_cmd.goal_position)])
+        hmat = self._khmat.get(dt)
+        if hmat is None:
+            hmat = self._khmat[dt] = np.array(self._held_matrix(dt))
+        n_sub = max(1, math.ceil(dt / self.h - 1e-9))
+        out = self._kstep_arm(self.q, self.dq, self._held_q, self._held_dq,
+                              np.array((en_l, mode_l, gc_l, gp_l, lim_l), dtype=float), pd, self.external,
+                              self._held_ext, dt / n_sub, n_sub, dt, hmat, self._kgeo, self._karm, self._kpar,
+                              self._kcog, self._kscal, self._khpar)
+        n, k = len(bi), len(self._held_l)
+        b = 3 * n
+        self.q, self.dq, self.motor_torque = out[:n], out[n:2 * n], out[2 * n:b]
+        self._held_q, self._held_dq, self._held_current = out[b:b + k], out[b + k:b + 2 * k], out[b + 2 * k:]
         self.time += dt
 
     def _substep(self, q, dq, tau_m, ext, h: float) -> tuple:
