@@ -15,7 +15,15 @@ Kp, Kd, Kf and cutoff g (shared/crane_x7_facts.md section 6a; the Sakaino/Tsuji-
 - position term  tau_p = (J/2) [Kp (q_l - q_f) + Kd (w_l - w_f)]  (follower +, leader -);
 - force term     tau_f = -(Kf/2) (tau_res_l + tau_res_f)  (both arms);
 - references:  tau_ref_f = tau_p + tau_f + tau_dis_f,   tau_ref_l = -tau_p + tau_f + tau_dis_l,
-  which drive q_l - q_f -> 0 (position tracking) and tau_res_l + tau_res_f -> 0 (action = reaction).
+  which drive q_l - q_f -> 0 (position tracking) and tau_res_l + tau_res_f -> 0 (action = reaction);
+- friction dither (optional, `dither_amplitude` A > 0 in [controller]; docs/collect.md "Friction
+  dither"): the follower's reference gets d(t) = A w(2 pi f t) on every bilateral joint,
+  tau_ref_f = tau_p + tau_f + tau_dis_f + d(t), w = sin (or its sign, `dither_wave` = "square"),
+  f = `dither_frequency`, t the time since the first bilateral step (hold() is never dithered). d is
+  part of the applied torque the follower's DOB sees, so it cancels against the J ddq it causes and
+  does not enter tau_dis or tau_res (what leaks through, a J error times the dither's acceleration, is
+  a tone at f that the observer low-pass, f >> g / 2 pi, attenuates like the force channel's). The
+  leader is never dithered. With A = 0 the commands are exactly those without the term.
 
 Goal torques become goal currents through each joint's torque constant. Joints that are not
 bilateral get no current (they are held in position mode by the servos); their observer estimates are
@@ -214,6 +222,10 @@ class BilateralController:
                                     config.controller.inertia_update_cycles)
         self._nan_held = np.where(self.bil_mask, 0.0, np.nan)
         self._decay = (None, None, None)  # (g, dt, exp(-g dt)) of the last step (decay)
+        c = config.controller
+        self.dither_amplitude = float(c.dither_amplitude)
+        self.dither_frequency = float(c.dither_frequency)
+        self.dither_square = c.dither_wave == "square"
         self.reset()
 
     def decay(self, dt: float) -> np.ndarray:
@@ -231,6 +243,19 @@ class BilateralController:
         self._obs_f = _Observer(self, make["follower"]() if make.get("follower") else None)
         self.leader: ArmEstimates | None = None
         self.follower: ArmEstimates | None = None
+        self._dither_t = 0.0  # s of bilateral control so far (the dither's time)
+        self.dither = np.zeros(self.n)  # (n,) N m: the dither added to the follower's last step
+
+    def _dither(self, dt: float) -> np.ndarray | None:
+        """d(t) (n,) for this step (bilateral joints only), and advance t; None when the dither is off."""
+        if self.dither_amplitude <= 0.0:
+            return None
+        s = np.sin(2.0 * np.pi * self.dither_frequency * self._dither_t)
+        self._dither_t += dt
+        if self.dither_square:
+            s = 1.0 if s >= 0.0 else -1.0
+        self.dither = self.dither_amplitude * s * self.bil
+        return self.dither
 
     def step(self, leader: ArmSignals, follower: ArmSignals, dt: float) -> Commands:
         ql = np.asarray(leader.q, dtype=float)
@@ -245,6 +270,9 @@ class BilateralController:
         tau_f = -0.5 * self.kf * (res_l + res_f)
         tau_l = (-tau_p + tau_f + dis_l) * self.bil
         tau_f_ref = (tau_p + tau_f + dis_f) * self.bil
+        d = self._dither(dt)
+        if d is not None:
+            tau_f_ref = tau_f_ref + d
         self._obs_l.applied = tau_l
         self._obs_f.applied = tau_f_ref
         held = self._nan_held
