@@ -44,6 +44,7 @@ class JointGains:
     kf: float  # dimensionless
     cutoff: float  # rad/s, pseudo-derivative and observer cutoff g
     viscous: float  # N m s/rad, RFOB viscous friction D
+    dither: float = 1.0  # the follower's friction dither on this joint, times controller.dither_amplitude
 
 
 @dataclass(frozen=True)
@@ -71,6 +72,7 @@ class ControllerConfig:
     dither_amplitude: float = 0.0  # N m, follower friction dither on every bilateral joint (0: off)
     dither_frequency: float = 50.0  # Hz
     dither_wave: str = "sine"  # "sine" or "square"
+    dither_filter: bool = True  # the follower's tau_res averaged over one dither period
 
 
 @dataclass(frozen=True)
@@ -250,7 +252,7 @@ def _build(values: dict, where: str) -> Config:
         gains = {}
         for key in ("inertia", "kp", "cutoff"):
             gains[key] = _pos(where, f"controller.{name}.{key}", table[key])
-        for key in ("kd", "kf", "viscous"):
+        for key in ("kd", "kf", "viscous", "dither"):
             gains[key] = _nonneg(where, f"controller.{name}.{key}", table[key])
         joints[name] = JointGains(**gains)
     for key in ("gravity_m0", "gravity_m1", "gravity_m2"):
@@ -266,6 +268,7 @@ def _build(values: dict, where: str) -> Config:
         dither_amplitude=_nonneg(where, "controller.dither_amplitude", c["dither_amplitude"]),
         dither_frequency=_pos(where, "controller.dither_frequency", c["dither_frequency"]),
         dither_wave=c["dither_wave"],
+        dither_filter=c["dither_filter"],
     )
     _need(c["dither_wave"] in DITHER_WAVES, where, "controller.dither_wave",
           "one of " + ", ".join(DITHER_WAVES), c["dither_wave"])

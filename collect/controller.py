@@ -16,14 +16,20 @@ Kp, Kd, Kf and cutoff g (shared/crane_x7_facts.md section 6a; the Sakaino/Tsuji-
 - force term     tau_f = -(Kf/2) (tau_res_l + tau_res_f)  (both arms);
 - references:  tau_ref_f = tau_p + tau_f + tau_dis_f,   tau_ref_l = -tau_p + tau_f + tau_dis_l,
   which drive q_l - q_f -> 0 (position tracking) and tau_res_l + tau_res_f -> 0 (action = reaction);
-- friction dither (optional, `dither_amplitude` A > 0 in [controller]; docs/collect.md "Friction
-  dither"): the follower's reference gets d(t) = A w(2 pi f t) on every bilateral joint,
+- friction dither (optional, `dither_amplitude` > 0 in [controller]; docs/collect.md "Friction
+  dither"): the follower's reference gets d(t) = A w(2 pi f t) on every bilateral joint, with
+  A = `dither_amplitude` x the joint's `dither` factor ([controller.jointN], default 1),
   tau_ref_f = tau_p + tau_f + tau_dis_f + d(t), w = sin (or its sign, `dither_wave` = "square"),
   f = `dither_frequency`, t the time since the first bilateral step (hold() is never dithered). d is
   part of the applied torque the follower's DOB sees, so it cancels against the J ddq it causes and
   does not enter tau_dis or tau_res (what leaks through, a J error times the dither's acceleration, is
   a tone at f that the observer low-pass, f >> g / 2 pi, attenuates like the force channel's). The
   leader is never dithered. With A = 0 the commands are exactly those without the term.
+  With `dither_filter` (the default), the follower's tau_res (in the force term and as recorded) is
+  the mean of its last N = round(rate / f) values, a comb that removes a wave of period N cycles
+  exactly: the estimate does not carry the part of d that the DOB cannot cancel (at a standstill
+  the joint's micro-motion is far below one encoder count, so the DOB sees d as a disturbance and
+  only its low-pass attenuates it, by about g / (2 pi f)); the price is N / 2 cycles of delay.
 
 Goal torques become goal currents through each joint's torque constant. Joints that are not
 bilateral get no current (they are held in position mode by the servos); their observer estimates are
@@ -226,6 +232,9 @@ class BilateralController:
         self.dither_amplitude = float(c.dither_amplitude)
         self.dither_frequency = float(c.dither_frequency)
         self.dither_square = c.dither_wave == "square"
+        self.dither_filter = c.dither_filter and self.dither_amplitude > 0.0
+        # per joint: dither_amplitude x the joint's `dither` factor, bilateral joints only
+        self.dither_amplitudes = self.dither_amplitude * np.array([gains[n].dither for n in names]) * self.bil
         self.reset()
 
     def decay(self, dt: float) -> np.ndarray:
@@ -245,6 +254,17 @@ class BilateralController:
         self.follower: ArmEstimates | None = None
         self._dither_t = 0.0  # s of bilateral control so far (the dither's time)
         self.dither = np.zeros(self.n)  # (n,) N m: the dither added to the follower's last step
+        self._comb = None  # (N, n) the follower's last N tau_res (dither_filter), filled on the first step
+        self._comb_k = 0
+
+    def _comb_filter(self, res: np.ndarray, dt: float) -> np.ndarray:
+        """The mean of the follower's last N = round(1 / (f dt)) reaction estimates (this one included)."""
+        if self._comb is None:
+            size = max(1, int(round(1.0 / (self.dither_frequency * dt))))
+            self._comb = np.repeat(res[None, :], size, axis=0)
+        self._comb[self._comb_k] = res
+        self._comb_k = (self._comb_k + 1) % len(self._comb)
+        return self._comb.mean(axis=0)
 
     def _dither(self, dt: float) -> np.ndarray | None:
         """d(t) (n,) for this step (bilateral joints only), and advance t; None when the dither is off."""
@@ -254,7 +274,7 @@ class BilateralController:
         self._dither_t += dt
         if self.dither_square:
             s = 1.0 if s >= 0.0 else -1.0
-        self.dither = self.dither_amplitude * s * self.bil
+        self.dither = self.dither_amplitudes * s
         return self.dither
 
     def step(self, leader: ArmSignals, follower: ArmSignals, dt: float) -> Commands:
@@ -262,6 +282,8 @@ class BilateralController:
         qf = np.asarray(follower.q, dtype=float)
         wl, dis_l, res_l = self._obs_l.update(ql, dt)
         wf, dis_f, res_f = self._obs_f.update(qf, dt)
+        if self.dither_filter:
+            res_f = self._comb_filter(res_f, dt)
         e = ql - qf
         if self.deadband > 0:
             e = np.sign(e) * np.maximum(np.abs(e) - self.deadband, 0.0)
