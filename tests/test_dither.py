@@ -139,8 +139,8 @@ def _contact_run(path, config=None):
 def test_dither_removes_the_static_friction_offset_at_the_wall(tmp_path):
     offset0, rms0, true0 = _contact_run(tmp_path / "plain.h5")
     cfg = tmp_path / "dither.toml"
-    cfg.write_text("[controller]\ndither_amplitude = 0.4\ndither_frequency = 25.0\n"  # docs/collect.md's
-                   "[controller.joint2]\ndither = 3.0\n")
+    cfg.write_text("[controller]\ndither_amplitude = 0.4\ndither_frequency = 50.0\n"  # docs/collect.md's
+                   "[controller.joint2]\ndither = 2.5\n")
     offset1, rms1, true1 = _contact_run(tmp_path / "dither.h5", cfg)
     # without dither joint1 holds part of the press in its stick band (breakaway 0.21 N m): an offset
     # of about 0.1 N m; with the joint kept slipping the offset is gone and the error is much smaller
