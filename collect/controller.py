@@ -16,20 +16,19 @@ Kp, Kd, Kf and cutoff g (shared/crane_x7_facts.md section 6a; the Sakaino/Tsuji-
 - force term     tau_f = -(Kf/2) (tau_res_l + tau_res_f)  (both arms);
 - references:  tau_ref_f = tau_p + tau_f + tau_dis_f,   tau_ref_l = -tau_p + tau_f + tau_dis_l,
   which drive q_l - q_f -> 0 (position tracking) and tau_res_l + tau_res_f -> 0 (action = reaction);
-- friction dither (optional, `dither_amplitude` > 0 in [controller]; docs/collect.md "Friction
-  dither"): the follower's reference gets d(t) = A w(2 pi f t) on every bilateral joint, with
-  A = `dither_amplitude` x the joint's `dither` factor ([controller.jointN], default 1),
-  tau_ref_f = tau_p + tau_f + tau_dis_f + d(t), w = sin (or its sign, `dither_wave` = "square"),
-  f = `dither_frequency`, t the time since the first bilateral step (hold() is never dithered). d is
-  part of the applied torque the follower's DOB sees, so it cancels against the J ddq it causes and
-  does not enter tau_dis or tau_res (what leaks through, a J error times the dither's acceleration, is
-  a tone at f that the observer low-pass, f >> g / 2 pi, attenuates like the force channel's). The
-  leader is never dithered. With A = 0 the commands are exactly those without the term.
-  With `dither_filter` (the default), the follower's tau_res (in the force term and as recorded) is
-  the mean of its last N = round(rate / f) values, a comb that removes a wave of period N cycles
-  exactly: the estimate does not carry the part of d that the DOB cannot cancel (at a standstill
-  the joint's micro-motion is far below one encoder count, so the DOB sees d as a disturbance and
-  only its low-pass attenuates it, by about g / (2 pi f)); the price is N / 2 cycles of delay.
+- friction dither (optional; docs/collect.md "Friction dither"): with `dither_amplitude` > 0 the
+  follower's reference becomes  tau_ref_f = tau_p + tau_f + tau_dis_f + d(t),  d_j(t) = A_j w(2 pi f t)
+  on every bilateral joint j, A_j = `dither_amplitude` x the joint's `dither` factor ([controller.jointN],
+  default 1), w = sin (or its sign: `dither_wave` = "square"), f = `dither_frequency`, t the time since
+  the first bilateral step (hold() is never dithered, nor is the leader). d is part of the applied
+  torque the follower's DOB sees, so where the joint's motion shows it, it cancels against the J ddq it
+  causes; at a standstill that motion is far below one encoder count and the DOB passes d attenuated
+  only by its low-pass (about g / (2 pi f)). So with `dither_filter` (the default) the follower's
+  tau_res, in the force term and as recorded, is the mean of its last N = round(rate / f) values: a
+  comb that removes a wave of period N cycles exactly, for N / 2 cycles of delay. The point: a joint
+  kept slipping has kinetic friction whose sign alternates within a period and averages out, so a
+  joint pressed against something still no longer holds a static-friction offset in tau_res. With
+  `dither_amplitude` = 0 (the default) the commands are exactly those without the term.
 
 Goal torques become goal currents through each joint's torque constant. Joints that are not
 bilateral get no current (they are held in position mode by the servos); their observer estimates are
