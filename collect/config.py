@@ -30,6 +30,10 @@ ARM_JOINTS = JOINT_NAMES[:7]
 # The paper's three joints: the default bilateral set (every published figure and pinned session).
 PAPER_JOINTS = ("joint1", "joint2", "joint4")
 INERTIA_MODELS = ("dynamics", "constant")
+DITHER_WAVES = ("sine", "square")
+# the friction dither needs at least this many control cycles per period (4: a square wave's two levels
+# are each held for two cycles; a sine is sampled at its peaks and zero crossings)
+DITHER_MIN_CYCLES = 4
 
 
 @dataclass(frozen=True)
@@ -40,6 +44,7 @@ class JointGains:
     kf: float  # dimensionless
     cutoff: float  # rad/s, pseudo-derivative and observer cutoff g
     viscous: float  # N m s/rad, RFOB viscous friction D
+    dither: float = 1.0  # the follower's friction dither on this joint, times controller.dither_amplitude
 
 
 @dataclass(frozen=True)
@@ -64,6 +69,10 @@ class ControllerConfig:
     inertia_model: str
     inertia_update_cycles: int
     joints: dict[str, JointGains]
+    dither_amplitude: float = 0.0  # N m, follower friction dither on every bilateral joint (0: off)
+    dither_frequency: float = 50.0  # Hz
+    dither_wave: str = "sine"  # "sine" or "square"
+    dither_filter: bool = True  # the follower's tau_res averaged over one dither period
 
 
 @dataclass(frozen=True)
@@ -243,7 +252,7 @@ def _build(values: dict, where: str) -> Config:
         gains = {}
         for key in ("inertia", "kp", "cutoff"):
             gains[key] = _pos(where, f"controller.{name}.{key}", table[key])
-        for key in ("kd", "kf", "viscous"):
+        for key in ("kd", "kf", "viscous", "dither"):
             gains[key] = _nonneg(where, f"controller.{name}.{key}", table[key])
         joints[name] = JointGains(**gains)
     for key in ("gravity_m0", "gravity_m1", "gravity_m2"):
@@ -256,7 +265,16 @@ def _build(values: dict, where: str) -> Config:
         inertia_model=c["inertia_model"],
         inertia_update_cycles=c["inertia_update_cycles"],
         joints=joints,
+        dither_amplitude=_nonneg(where, "controller.dither_amplitude", c["dither_amplitude"]),
+        dither_frequency=_pos(where, "controller.dither_frequency", c["dither_frequency"]),
+        dither_wave=c["dither_wave"],
+        dither_filter=c["dither_filter"],
     )
+    _need(c["dither_wave"] in DITHER_WAVES, where, "controller.dither_wave",
+          "one of " + ", ".join(DITHER_WAVES), c["dither_wave"])
+    _need(controller.dither_frequency * DITHER_MIN_CYCLES <= loop.rate_hz, where,
+          "controller.dither_frequency", f"at most loop.rate_hz / {DITHER_MIN_CYCLES} "
+          f"({loop.rate_hz / DITHER_MIN_CYCLES:g} Hz)", controller.dither_frequency)
     _need(c["inertia_model"] in INERTIA_MODELS, where, "controller.inertia_model",
           "one of " + ", ".join(INERTIA_MODELS), c["inertia_model"])
     _need(c["inertia_update_cycles"] >= 1, where, "controller.inertia_update_cycles", "at least 1",

@@ -15,7 +15,20 @@ Kp, Kd, Kf and cutoff g (shared/crane_x7_facts.md section 6a; the Sakaino/Tsuji-
 - position term  tau_p = (J/2) [Kp (q_l - q_f) + Kd (w_l - w_f)]  (follower +, leader -);
 - force term     tau_f = -(Kf/2) (tau_res_l + tau_res_f)  (both arms);
 - references:  tau_ref_f = tau_p + tau_f + tau_dis_f,   tau_ref_l = -tau_p + tau_f + tau_dis_l,
-  which drive q_l - q_f -> 0 (position tracking) and tau_res_l + tau_res_f -> 0 (action = reaction).
+  which drive q_l - q_f -> 0 (position tracking) and tau_res_l + tau_res_f -> 0 (action = reaction);
+- friction dither (optional; docs/collect.md "Friction dither"): with `dither_amplitude` > 0 the
+  follower's reference becomes  tau_ref_f = tau_p + tau_f + tau_dis_f + d(t),  d_j(t) = A_j w(2 pi f t)
+  on every bilateral joint j, A_j = `dither_amplitude` x the joint's `dither` factor ([controller.jointN],
+  default 1), w = sin (or its sign: `dither_wave` = "square"), f = `dither_frequency`, t the time since
+  the first bilateral step (hold() is never dithered, nor is the leader). d is part of the applied
+  torque the follower's DOB sees, so where the joint's motion shows it, it cancels against the J ddq it
+  causes; at a standstill that motion is far below one encoder count and the DOB passes d attenuated
+  only by its low-pass (about g / (2 pi f)). So with `dither_filter` (the default) the follower's
+  tau_res, in the force term and as recorded, is the mean of its last N = round(rate / f) values: a
+  comb that removes a wave of period N cycles exactly, for N / 2 cycles of delay. The point: a joint
+  kept slipping has kinetic friction whose sign alternates within a period and averages out, so a
+  joint pressed against something still no longer holds a static-friction offset in tau_res. With
+  `dither_amplitude` = 0 (the default) the commands are exactly those without the term.
 
 Goal torques become goal currents through each joint's torque constant. Joints that are not
 bilateral get no current (they are held in position mode by the servos); their observer estimates are
@@ -214,6 +227,13 @@ class BilateralController:
                                     config.controller.inertia_update_cycles)
         self._nan_held = np.where(self.bil_mask, 0.0, np.nan)
         self._decay = (None, None, None)  # (g, dt, exp(-g dt)) of the last step (decay)
+        c = config.controller
+        self.dither_amplitude = float(c.dither_amplitude)
+        self.dither_frequency = float(c.dither_frequency)
+        self.dither_square = c.dither_wave == "square"
+        self.dither_filter = c.dither_filter and self.dither_amplitude > 0.0
+        # per joint: dither_amplitude x the joint's `dither` factor, bilateral joints only
+        self.dither_amplitudes = self.dither_amplitude * np.array([gains[n].dither for n in names]) * self.bil
         self.reset()
 
     def decay(self, dt: float) -> np.ndarray:
@@ -231,12 +251,38 @@ class BilateralController:
         self._obs_f = _Observer(self, make["follower"]() if make.get("follower") else None)
         self.leader: ArmEstimates | None = None
         self.follower: ArmEstimates | None = None
+        self._dither_t = 0.0  # s of bilateral control so far (the dither's time)
+        self.dither = np.zeros(self.n)  # (n,) N m: the dither added to the follower's last step
+        self._comb = None  # (N, n) the follower's last N tau_res (dither_filter), filled on the first step
+        self._comb_k = 0
+
+    def _comb_filter(self, res: np.ndarray, dt: float) -> np.ndarray:
+        """The mean of the follower's last N = round(1 / (f dt)) reaction estimates (this one included)."""
+        if self._comb is None:
+            size = max(1, int(round(1.0 / (self.dither_frequency * dt))))
+            self._comb = np.repeat(res[None, :], size, axis=0)
+        self._comb[self._comb_k] = res
+        self._comb_k = (self._comb_k + 1) % len(self._comb)
+        return self._comb.mean(axis=0)
+
+    def _dither(self, dt: float) -> np.ndarray | None:
+        """d(t) (n,) for this step (bilateral joints only), and advance t; None when the dither is off."""
+        if self.dither_amplitude <= 0.0:
+            return None
+        s = np.sin(2.0 * np.pi * self.dither_frequency * self._dither_t)
+        self._dither_t += dt
+        if self.dither_square:
+            s = 1.0 if s >= 0.0 else -1.0
+        self.dither = self.dither_amplitudes * s
+        return self.dither
 
     def step(self, leader: ArmSignals, follower: ArmSignals, dt: float) -> Commands:
         ql = np.asarray(leader.q, dtype=float)
         qf = np.asarray(follower.q, dtype=float)
         wl, dis_l, res_l = self._obs_l.update(ql, dt)
         wf, dis_f, res_f = self._obs_f.update(qf, dt)
+        if self.dither_filter:
+            res_f = self._comb_filter(res_f, dt)
         e = ql - qf
         if self.deadband > 0:
             e = np.sign(e) * np.maximum(np.abs(e) - self.deadband, 0.0)
@@ -245,6 +291,9 @@ class BilateralController:
         tau_f = -0.5 * self.kf * (res_l + res_f)
         tau_l = (-tau_p + tau_f + dis_l) * self.bil
         tau_f_ref = (tau_p + tau_f + dis_f) * self.bil
+        d = self._dither(dt)
+        if d is not None:
+            tau_f_ref = tau_f_ref + d
         self._obs_l.applied = tau_l
         self._obs_f.applied = tau_f_ref
         held = self._nan_held
