@@ -13,8 +13,12 @@ paper's inputs (the learning joints' q, dq, ddq) and ignore them.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
 
 
 @dataclass
@@ -61,7 +65,7 @@ class Dataset:
         """(N,) bool: every joint moves (the samples plain MSE and the rigid-body fit may use)."""
         return self.moving.all(axis=1)
 
-    def subset(self, index) -> Dataset:
+    def subset(self, index: np.ndarray | slice | Sequence[int]) -> Dataset:
         index = np.asarray(index)
         return Dataset(self.joint_names, self.t[index], self.q[index], self.dq[index],
                        self.ddq[index], self.tau[index], self.moving[index], self.rate_hz,

@@ -36,6 +36,7 @@ import re
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -45,6 +46,9 @@ from crane_io.dynamixel.units import AMPERE_PER_CURRENT_LSB, POSITION_CENTER, RA
 from crane_io.errors import CraneError
 
 from .session import MIN_SAMPLES as MIN_ROWS  # what crane-train reads
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable, Sequence
 
 ANGLE_UNITS = {"rad": 1.0, "deg": np.pi / 180.0, "pulse": RAD_PER_PULSE}
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
@@ -84,7 +88,7 @@ class ImportMap:
         return json.dumps({"t": self.time, "joints": self.joints}, sort_keys=True)
 
 
-def parse_map(mapping, joint_names=None) -> ImportMap:
+def parse_map(mapping: Iterable[str], joint_names: Sequence[str] | None = None) -> ImportMap:
     """ImportMap from `KEY=COLUMN` strings (several per string, comma-separated, are allowed)."""
     known = tuple(joint_names or default_arm().joint_names)
     time_col, joints, seen = None, {}, {}
@@ -209,7 +213,7 @@ def _read_npz(path: Path, wanted: list[str]) -> dict[str, np.ndarray]:
     return out
 
 
-def read_columns(path, wanted: list[str]) -> dict[str, np.ndarray]:
+def read_columns(path: Path | str, wanted: list[str]) -> dict[str, np.ndarray]:
     """The named columns of a CSV or NPZ file as float arrays (ImportMapError for anything missing)."""
     path = Path(path)
     if not path.exists():
@@ -296,7 +300,7 @@ def convert(columns: dict[str, np.ndarray], spec: ImportMap, units: ImportUnits 
                            kt, tuple(source), float(t_raw[0]))
 
 
-def write_session(out, s: ImportedSession, *, source: str = "import", attrs: dict | None = None,
+def write_session(out: Path | str, s: ImportedSession, *, source: str = "import", attrs: dict | None = None,
                   force: bool = False) -> Path:
     """Write the contract's required part (plus `current` where mapped) to `out`, through a temporary file
     in the same folder renamed into place."""
@@ -335,7 +339,8 @@ def write_session(out, s: ImportedSession, *, source: str = "import", attrs: dic
     return out
 
 
-def import_session(input_path, out, spec: ImportMap, units: ImportUnits = ImportUnits(), *,
+def import_session(input_path: Path | str, out: Path | str, spec: ImportMap,
+                   units: ImportUnits = ImportUnits(), *,
                    torque_constants: dict[str, float] | None = None, rate_hz: float | None = None,
                    source: str = "import", force: bool = False) -> ImportedSession:
     """Read `input_path` (CSV or NPZ), convert by `spec` and `units`, write the session `out`."""

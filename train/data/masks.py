@@ -7,17 +7,23 @@ the samples plain MSE and the rigid-body fit may use.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from crane_io.errors import CraneError
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
 
 
 class DeadZoneError(CraneError):
     """Data whose dead-zone mask cannot be used (a joint that never moves)."""
 
 
-def velocity_sigma(dq: np.ndarray, joint_names=None) -> np.ndarray:
-    """(J,) standard deviation of each joint's velocity; a joint that never moves is an error."""
+def velocity_sigma(dq: np.ndarray, joint_names: Sequence[str] | None = None) -> np.ndarray:
+    """(J,) standard deviation of each joint's velocity `dq` ((N, J) rad/s), in rad/s; a joint that never
+    moves is an error."""
     dq = np.atleast_2d(np.asarray(dq, dtype=float))
     sigma = dq.std(axis=0)
     names = list(joint_names) if joint_names is not None else [f"column {j}" for j in range(dq.shape[1])]
@@ -29,8 +35,9 @@ def velocity_sigma(dq: np.ndarray, joint_names=None) -> np.ndarray:
 
 
 def dead_zone_mask(dq: np.ndarray, alpha: float = 0.1, sigma: np.ndarray | None = None,
-                   joint_names=None) -> tuple[np.ndarray, np.ndarray]:
-    """(moving (N, J) bool, sigma (J,)): r_ij = |dq_ij| > alpha * sigma_j."""
+                   joint_names: Sequence[str] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(moving (N, J) bool, sigma (J,) rad/s): r_ij = |dq_ij| > alpha * sigma_j, for velocities `dq`
+    (N, J) rad/s; `alpha` is dimensionless."""
     if not (np.isfinite(alpha) and alpha >= 0):
         raise DeadZoneError(f"alpha must be a non-negative number, got {alpha!r}")
     dq = np.atleast_2d(np.asarray(dq, dtype=float))
@@ -45,7 +52,7 @@ def dead_zone_mask(dq: np.ndarray, alpha: float = 0.1, sigma: np.ndarray | None 
     return moving, np.asarray(sigma, dtype=float)
 
 
-def moving_fractions(moving: np.ndarray, joint_names=None) -> dict:
+def moving_fractions(moving: np.ndarray, joint_names: Sequence[str] | None = None) -> dict:
     """{'per_joint': {name: fraction}, 'all_joints': fraction} of samples in which joints move."""
     moving = np.atleast_2d(np.asarray(moving, dtype=bool))
     names = list(joint_names) if joint_names is not None else [str(j) for j in range(moving.shape[1])]

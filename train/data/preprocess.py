@@ -23,6 +23,7 @@ commands know which arm to read (`read_preprocessed`).
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, fields
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -32,6 +33,10 @@ from .dataset import Dataset
 from .filters import lowpass, pseudo_diff
 from .masks import DeadZoneError, dead_zone_mask, moving_fractions
 from .session import ARMS, RawSession, read_sessions
+
+if TYPE_CHECKING:
+    from collections.abc import Container, Iterable, Sequence
+    from pathlib import Path
 
 # A joint whose (filtered) angle spans less than this never moved: a joint held in position mode only
 # jitters by an encoder count or two (0.0015 rad each), and its velocity's spread is that jitter.
@@ -43,7 +48,7 @@ MIN_TRAVEL_RAD = 0.01
 ARM_JOINTS = ("joint1", "joint2", "joint3", "joint4", "joint5", "joint6", "joint7")
 
 
-def resolve_joints(joints, available=None) -> tuple[str, ...]:
+def resolve_joints(joints: str | Iterable[str], available: Container[str] | None = None) -> tuple[str, ...]:
     """Learning joints from a list or comma string; "all" means every arm joint (of `available`, the
     joints a session records, when given)."""
     if isinstance(joints, str):
@@ -111,8 +116,10 @@ def _downsample(t, arrays, rate_hz, target_hz):
     return grid, [np.stack([np.interp(grid, t, a[:, j]) for j in range(a.shape[1])], axis=1) for a in arrays]
 
 
-def filter_signals(q: np.ndarray, tau: np.ndarray, rate_hz: float, config: PreprocessConfig):
-    """(q, dq, ddq, tau) filtered at the recording rate, all with the same delay."""
+def filter_signals(q: np.ndarray, tau: np.ndarray, rate_hz: float, config: PreprocessConfig
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(q rad, dq rad/s, ddq rad/s^2, tau N m), each (N, J), filtered at the recording rate `rate_hz` (Hz),
+    all with the same delay; from positions `q` (N, J) rad and torques `tau` (N, J) N m."""
     c, g, zp = config.cutoff_rad_s, config.pseudo_diff_rad_s, config.zero_phase
     dq_raw = pseudo_diff(q, g, rate_hz, zp)
     dq = lowpass(dq_raw, c, rate_hz, zp)
@@ -195,7 +202,8 @@ def preprocess(sessions: list[RawSession] | RawSession, config: PreprocessConfig
                    context_ddq=cat["cddq"])
 
 
-def read_preprocessed(paths, config: PreprocessConfig, hand_free: bool = True) -> Dataset:
+def read_preprocessed(paths: Path | str | Sequence[Path | str], config: PreprocessConfig,
+                      hand_free: bool = True) -> Dataset:
     """Read the sessions' `config.arm` group and preprocess it. With `hand_free` (the default: fitting
     and evaluating an inverse-dynamics model), a session whose arm the operator's hand moved is refused
     (train.data.session.HandOnArmError)."""

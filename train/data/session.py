@@ -19,6 +19,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import h5py
 import numpy as np
@@ -41,6 +42,9 @@ from crane_io.session_format import (  # noqa: F401 - FORMAT_VERSION: the newest
     Q,
     T,
 )
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
 
 MIN_SAMPLES = 100  # fewer raw samples than this cannot be filtered and split meaningfully
 _TRUNCATED = re.compile(r"truncated file: eof = (?P<eof>\d+).*stored_eof = (?P<stored>\d+)")
@@ -77,7 +81,7 @@ class HandOnArmError(SessionFileError):
         self.path, self.arm = path, arm
 
 
-def hand_on(attrs: dict, path="the session") -> str:
+def hand_on(attrs: dict, path: Path | str = "the session") -> str:
     """Which arm the operator's hand moved ("leader" or "follower"), from a session's root attributes;
     "leader" when `hand_on` is absent. Any other value is a SessionFileError."""
     value = attrs.get(HAND_ON, DEFAULT_HAND_ON)
@@ -153,7 +157,7 @@ def check_version(path: Path, attrs: dict, fmt: str, newest: int) -> int:
     return version
 
 
-def read_session(path, arm: str = "follower") -> RawSession:
+def read_session(path: Path | str, arm: str = "follower") -> RawSession:
     """Read and validate one session file; see the module docstring for what is checked."""
     path = Path(path)
     with _open(path) as f:
@@ -205,7 +209,8 @@ def read_session(path, arm: str = "follower") -> RawSession:
                       path=str(path), attrs=attrs, truncated=truncated, arm=arm)
 
 
-def read_sessions(paths, arm: str = "follower", hand_free: bool = False) -> list[RawSession]:
+def read_sessions(paths: Path | str | Sequence[Path | str], arm: str = "follower",
+                  hand_free: bool = False) -> list[RawSession]:
     """Read several session files; they must name the same joints. With `hand_free`, a session whose
     `arm` the operator's hand moved is refused (check_hand_free)."""
     paths = [paths] if isinstance(paths, (str, Path)) else list(paths)

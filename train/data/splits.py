@@ -48,7 +48,7 @@ def per_joint(ds: Dataset) -> bool:
     return ds.meta.get("eval_set") == "per-joint"
 
 
-def eval_mask(ds: Dataset):
+def eval_mask(ds: Dataset) -> np.ndarray | None:
     """The mask scores on `ds` use: its dead-zone mask for a per-joint set, else None (every row)."""
     return ds.moving if per_joint(ds) else None
 
