@@ -94,7 +94,7 @@ class Model(abc.ABC):
         """Read what _save_extra wrote; nothing by default."""
         return None
 
-    def save(self, directory) -> Path:
+    def save(self, directory: Path | str) -> Path:
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
         doc = {"format": "crane-model", "format_version": 1, "method": self.method,
@@ -111,15 +111,15 @@ class Model(abc.ABC):
         return directory
 
 
-def predict_on(model, ds: Dataset) -> np.ndarray:
+def predict_on(model: Model, ds: Dataset) -> np.ndarray:
     """model's prediction on the rows of `ds`, with the Dataset's context joints for a model that reads
     them (a stand-in with only `predict(q, dq, ddq)` works too)."""
     fn = getattr(model, "predict_dataset", None)
     return fn(ds) if fn is not None else model.predict(ds.q, ds.dq, ds.ddq)
 
 
-def basis_on(model, ds: Dataset):
-    """model.linear_basis on the rows of `ds` (with the Dataset's context joints), or None."""
+def basis_on(model: Model, ds: Dataset) -> np.ndarray | None:
+    """model.linear_basis on the rows of `ds` (with the Dataset's context joints): (N, J, p), or None."""
     basis = getattr(model, "linear_basis", None)
     if basis is None:
         return None
@@ -138,7 +138,7 @@ def _jsonable(obj):
     raise TypeError(f"cannot store {type(obj).__name__} in model.json")
 
 
-def read_model_json(directory) -> dict:
+def read_model_json(directory: Path | str) -> dict:
     path = Path(directory) / MODEL_JSON
     if not path.is_file():
         raise ModelFileError(f"{directory} is not a crane-x7 model directory (no {MODEL_JSON})")

@@ -20,9 +20,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
 
 DEFAULT_BATCH_SIZE = 32
 
@@ -97,8 +101,10 @@ def _epoch_batches(orders, batch_size):
     return idx.reshape(len(orders), steps, batch_size).transpose(1, 0, 2)
 
 
-def train_mlps(X, Y, W, rows, X_val, Y_val, settings: MLPSettings | None = None, seeds=None,
-               progress=None, W_val=None) -> BatchedResult:
+def train_mlps(X: np.ndarray, Y: np.ndarray, W: np.ndarray, rows: Sequence[np.ndarray], X_val: np.ndarray,
+               Y_val: np.ndarray, settings: MLPSettings | None = None, seeds: Sequence[int] | None = None,
+               progress: Callable[[int, int], object] | None = None, W_val: np.ndarray | None = None
+               ) -> BatchedResult:
     """Train len(rows) MLPs together.
 
     X (N, D), Y (N, J), W (N, J) loss weights (mask or ones), rows: list of M index arrays (each model's
@@ -201,8 +207,9 @@ def train_mlps(X, Y, W, rows, X_val, Y_val, settings: MLPSettings | None = None,
                          best_val.numpy().copy(), train_loss, val_mse)
 
 
-def train_plain(X, Y, W, rows, X_val, Y_val, settings: MLPSettings | None = None, seed: int = 0
-                ) -> BatchedResult:
+def train_plain(X: np.ndarray, Y: np.ndarray, W: np.ndarray, rows: np.ndarray | Sequence[int],
+                X_val: np.ndarray, Y_val: np.ndarray, settings: MLPSettings | None = None,
+                seed: int = 0) -> BatchedResult:
     """Reference: one model trained the ordinary way (nn.Sequential, torch.optim.Adam, a Python loop over
     minibatches), same initialisation, minibatch order and loss as `train_mlps` with seeds=[seed].
     Used by the equivalence test and the benchmark; returns a BatchedResult with M = 1."""

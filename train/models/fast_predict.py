@@ -20,10 +20,15 @@ This module imports numpy only (pinocchio comes with the rigid-body dynamics whe
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from crane_io.errors import CraneError
 from crane_io.physics.loop_model import MLPPath, PathSum, RigidPath
+
+if TYPE_CHECKING:
+    from .base import Model
 
 
 class PredictorError(CraneError):
@@ -74,7 +79,7 @@ class NumpyPredictor(PathSum):
     """A fitted model's prediction for one sample, float64, no torch (see the module's docstring)."""
 
     @classmethod
-    def from_model(cls, model) -> NumpyPredictor:
+    def from_model(cls, model: Model) -> NumpyPredictor:
         method = getattr(model, "method", "")
         if method in ("mlp-mse", "mlp-masked"):
             paths = [_mlp_path(model)]

@@ -23,11 +23,15 @@ mops up what no chosen effect covers. Saved as a directory with model.json plus 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..data.dataset import Dataset
 from .base import Model, ModelFileError
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
 
 RIGID_DIR = "rigid"
 MLP_DIR = "mlp"
@@ -66,7 +70,8 @@ class HybridModel(Model):
         out.tau = ds.tau - physics.predict_dataset(ds)
         return out
 
-    def fit(self, train: Dataset, val: Dataset | None = None, progress=None) -> HybridModel:
+    def fit(self, train: Dataset, val: Dataset | None = None,
+            progress: Callable[[int, int], object] | None = None) -> HybridModel:
         rigid, mlp = self._make_parts()
         rigid.fit(train, val)
         mlp.fit(self._residual(train, rigid), self._residual(val, rigid), progress=progress)
@@ -81,7 +86,8 @@ class HybridModel(Model):
     def is_fitted(self) -> bool:
         return self.rigid is not None and self.mlp is not None and self.rigid.is_fitted and self.mlp.is_fitted
 
-    def predict(self, q, dq, ddq, context=None) -> np.ndarray:
+    def predict(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray,
+                context: dict | None = None) -> np.ndarray:
         self._check_fitted()
         return self.rigid.predict(q, dq, ddq, context=context) + self.mlp.predict(q, dq, ddq)
 
@@ -93,7 +99,7 @@ class HybridModel(Model):
         """The physics part's context joints (train.models.rigid_body)."""
         return tuple(getattr(self.rigid, "context_joints", ()) or ())
 
-    def parameters_table(self):
+    def parameters_table(self) -> list[dict]:
         """The physics part's parameters (names, values, standard errors)."""
         return self.rigid.parameters_table() if self.rigid is not None else []
 

@@ -15,11 +15,15 @@ import json
 import os
 import zipfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from crane_io.errors import CraneError
 from crane_io.physics.loop_model import EXPORT_FILE, EXPORT_FORMAT_VERSION, SI_UNITS, sources_sha256
+
+if TYPE_CHECKING:
+    from .base import Model
 
 # the weight files of each method, relative to the model directory (what the export was made from)
 SOURCE_FILES = {"mlp-mse": ("mlp.pt",), "mlp-masked": ("mlp.pt",), "rigid-body": ("rigid_body.npz",),
@@ -30,7 +34,7 @@ class LoopExportError(CraneError):
     """A model that cannot be exported for the control loop (not fitted, unknown method)."""
 
 
-def is_fitted(model) -> bool:
+def is_fitted(model: Model) -> bool:
     """Whether `model` has learned parameters to export (train.models.base.Model.is_fitted)."""
     return bool(getattr(model, "is_fitted", False))
 
@@ -81,7 +85,7 @@ def _rigid_arrays(rigid) -> dict:
                if getattr(rigid, "context_joints", ()) else {})}
 
 
-def export_arrays(model, directory) -> dict:
+def export_arrays(model: Model, directory: Path | str) -> dict:
     """The export's arrays for a fitted `model` whose weight files are saved in `directory`."""
     method = getattr(model, "method", "")
     if method not in SOURCE_FILES:
@@ -118,7 +122,7 @@ def npz_bytes(arrays: dict) -> bytes:
     return buf.getvalue()
 
 
-def write_loop_export(model, directory) -> tuple[Path, str]:
+def write_loop_export(model: Model, directory: Path | str) -> tuple[Path, str]:
     """Write `directory`/loop_model.npz for a fitted model saved there; (path, SHA-256 of its bytes)."""
     directory = Path(directory)
     arrays = export_arrays(model, directory)

@@ -12,6 +12,7 @@ goes through train.models.batched with M = 1, the same code the sweep uses for m
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -22,17 +23,21 @@ from ..data.dataset import Dataset
 from .base import Model, ModelFileError
 from .batched import MLPSettings, predict, train_mlps
 
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
 WEIGHTS = "mlp.pt"
 LOSSES = ("mse", "masked")
 
 
-def features(q, dq, ddq) -> np.ndarray:
-    """(N, 3J) network input [q, dq, ddq]."""
+def features(q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
+    """(N, 3J) network input [q, dq, ddq] (rad, rad/s, rad/s^2), from three (N, J) arrays."""
     return np.hstack([np.atleast_2d(q), np.atleast_2d(dq), np.atleast_2d(ddq)]).astype(float)
 
 
-def training_arrays(ds: Dataset, loss: str):
-    """(X, Y, W, rows): inputs, targets, loss weights and the rows a method may train on."""
+def training_arrays(ds: Dataset, loss: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(X, Y, W, rows): inputs (N, 3J) [rad, rad/s, rad/s^2], targets (N, J) N m, loss weights (N, J)
+    and the rows a method may train on (indices)."""
     X, Y = features(ds.q, ds.dq, ds.ddq), ds.tau
     if loss == "masked":
         return X, Y, ds.moving.astype(np.float32), np.arange(len(ds))
@@ -55,7 +60,8 @@ class MLPModel(Model):
         self.norm: dict | None = None
         self.history: dict = {}
 
-    def fit(self, train: Dataset, val: Dataset | None = None, progress=None) -> MLPModel:
+    def fit(self, train: Dataset, val: Dataset | None = None,
+            progress: Callable[[int, int], object] | None = None) -> MLPModel:
         if tuple(train.joint_names) != self.joint_names:
             raise CraneError(f"the data has joints {', '.join(train.joint_names)} but the model was made "
                              f"for {', '.join(self.joint_names)}")
@@ -88,7 +94,7 @@ class MLPModel(Model):
     def is_fitted(self) -> bool:
         return self.params is not None
 
-    def predict(self, q, dq, ddq) -> np.ndarray:
+    def predict(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
         self._check_fitted()
         return predict(self.params, self.norm, features(q, dq, ddq))[0].astype(float)
 

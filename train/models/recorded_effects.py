@@ -6,8 +6,13 @@ arm-wide effect); older records may hold a plain name or a {"name", "joint"} tab
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
 
-def effect_entries(model) -> list[tuple[object, object]]:
+if TYPE_CHECKING:
+    from .base import Model
+
+
+def effect_entries(model: Model) -> list[tuple[object, object]]:
     """(effect name, joint or None) for every effect in the model's options, as recorded."""
     out = []
     for entry in (getattr(model, "options", {}) or {}).get("effects") or []:
@@ -20,6 +25,6 @@ def effect_entries(model) -> list[tuple[object, object]]:
     return out
 
 
-def effect_labels(model) -> list[str]:
+def effect_labels(model: Model) -> list[str]:
     """'coulomb:joint=joint2' (or just 'payload' without a joint) for every effect in the model."""
     return [f"{name}:joint={joint}" if joint else str(name) for name, joint in effect_entries(model)]

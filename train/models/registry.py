@@ -10,11 +10,16 @@ from __future__ import annotations
 
 import importlib
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from crane_io.errors import CraneError
 
 from .base import Model, ModelFileError, read_model_json
 from .method_names import METHOD_NAMES
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+    from typing import Any
 
 # method -> ("module:Class", options the method fixes)
 METHODS: dict[str, tuple[str, dict]] = {
@@ -41,7 +46,8 @@ def model_class(method: str) -> tuple[type[Model], dict]:
         raise UnknownMethodError(f"model method {method!r} is not available in this installation") from None
 
 
-def make_model(method: str, joint_names, preprocessing: dict | None = None, **options) -> Model:
+def make_model(method: str, joint_names: Sequence[str], preprocessing: dict | None = None,
+               **options: Any) -> Model:
     """A fresh, unfitted model of `method` for `joint_names`; options as the method documents."""
     cls, fixed = model_class(method)
     for k, v in fixed.items():
@@ -54,7 +60,7 @@ def make_model(method: str, joint_names, preprocessing: dict | None = None, **op
         raise CraneError(f"bad option for method {method}: {exc}") from None
 
 
-def load_model(directory) -> Model:
+def load_model(directory: Path | str) -> Model:
     """Load a model directory written by Model.save (never needs the training data)."""
     doc = read_model_json(directory)
     method = doc.get("method")

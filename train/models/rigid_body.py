@@ -46,6 +46,7 @@ refused in one sentence. `context=False` is the old model: every other joint at 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -55,6 +56,9 @@ from ..data.dataset import Dataset
 from ..data.splits import AUTO_ALL_MOVING_MAX_JOINTS
 from ..data.splits import per_joint as per_joint_set
 from .base import Model, ModelFileError
+
+if TYPE_CHECKING:
+    from crane_io.physics.dynamics import ArmDynamics
 
 ARRAYS = "rigid_body.npz"
 _DYNAMICS_CACHE: dict = {}  # building the pinocchio model and its base decomposition is the slow part
@@ -69,7 +73,7 @@ def _arm_dynamics(joints, locked, payload_mass):
     return _DYNAMICS_CACHE[key]
 
 
-def rls(Phi: np.ndarray, y: np.ndarray, block: int = 64, p0: float = 1e8):
+def rls(Phi: np.ndarray, y: np.ndarray, block: int = 64, p0: float = 1e8) -> tuple[np.ndarray, np.ndarray]:
     """Recursive least squares, forgetting factor 1. Phi (N, k, p) stacked rows per sample, y (N, k).
     Returns (theta (p,), P (p, p))."""
     Phi = np.asarray(Phi, dtype=float)
@@ -130,7 +134,7 @@ class RigidBodyModel(Model):
 
     # ---- regressor -------------------------------------------------------------------------------
     @property
-    def dynamics(self):
+    def dynamics(self) -> ArmDynamics:
         """ArmDynamics of the learning joints followed by the context joints (the others locked)."""
         if self._dyn is None:
             locked = self.options["locked"] if self.locked_resolved is None else self.locked_resolved
@@ -215,7 +219,8 @@ class RigidBodyModel(Model):
         effect = _effect_registry().get_effect(term["name"])
         return effect.columns(q, dq, ddq, term["joint"], shape if shape is not None else term["shape"])
 
-    def regressor(self, q, dq, ddq, terms=None, context=None) -> np.ndarray:
+    def regressor(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, terms: list[dict] | None = None,
+                  context: dict | None = None) -> np.ndarray:
         """(N, J, p) base regressor followed by every effect term's columns. `context`: the context
         joints' {'names', 'q', 'dq', 'ddq'} (Dataset.context), needed when the model has any."""
         q, dq, ddq = (np.atleast_2d(np.asarray(a, dtype=float)) for a in (q, dq, ddq))
@@ -343,11 +348,13 @@ class RigidBodyModel(Model):
     def is_fitted(self) -> bool:
         return self.theta is not None
 
-    def linear_basis(self, q, dq, ddq, context=None) -> np.ndarray | None:
+    def linear_basis(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray,
+                     context: dict | None = None) -> np.ndarray | None:
         """The regressor (base parameters and effect columns): predict = regressor @ theta."""
         return self.regressor(q, dq, ddq, context=context) if self.is_fitted else None
 
-    def predict(self, q, dq, ddq, context=None) -> np.ndarray:
+    def predict(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray,
+                context: dict | None = None) -> np.ndarray:
         self._check_fitted()
         return self.regressor(q, dq, ddq, context=context) @ self.theta
 
