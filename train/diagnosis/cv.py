@@ -6,10 +6,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .effects import named_values
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Container, Sequence
+    from typing import Any
 
 
 def fold_ids(n: int, folds: int) -> np.ndarray:
@@ -17,7 +22,7 @@ def fold_ids(n: int, folds: int) -> np.ndarray:
     return np.minimum((np.arange(n) * folds) // max(n, 1), folds - 1)
 
 
-def sparse_joint(moving: np.ndarray, fold: np.ndarray, folds: int, joint_names,
+def sparse_joint(moving: np.ndarray, fold: np.ndarray, folds: int, joint_names: Sequence[str],
                  min_samples: int = 50) -> str | None:
     """The first joint whose moving samples are too few (fewer than max(min_samples, 5 folds)) or missing
     from a fold, as the sentence's middle ("joint2 moves in only 40 samples (or not in every part of the
@@ -95,7 +100,7 @@ class Engine:
         except np.linalg.LinAlgError:
             return np.linalg.lstsq(G, b, rcond=None)[0]
 
-    def fit(self, C: np.ndarray | None, train: list[int]):
+    def fit(self, C: np.ndarray | None, train: list[int]) -> tuple[np.ndarray, np.ndarray, float]:
         """Least squares on the training folds; returns (theta_x, theta_c (unscaled), training SSE)."""
         XX, Xy, yy = self.XX[train].sum(0), self.Xy[train].sum(0), self.yy[train].sum()
         if C is None:
@@ -135,7 +140,8 @@ class Engine:
         self._cache[id(C)] = (C, *stats)
         return stats
 
-    def heldout_sse(self, C, th_x, th_c, k: int) -> np.ndarray:
+    def heldout_sse(self, C: np.ndarray | None, th_x: np.ndarray, th_c: np.ndarray | None,
+                    k: int) -> np.ndarray:
         """(J,) SSE of the held-out fold k per joint (weighted rows only)."""
         pred = self.X @ th_x if self.p else np.zeros_like(self.y)
         if C is not None:
@@ -199,8 +205,10 @@ def _shape_objective(engine: Engine, columns_at, base: dict, name: str, train: l
     return objective
 
 
-def refine_shape(engine: Engine, columns_at, grid: dict[str, list], shape: dict | None, train: list[int],
-                 sse: float, integers=()) -> tuple[dict | None, np.ndarray | None, float]:
+def refine_shape(engine: Engine, columns_at: Callable[[dict], np.ndarray | None] | None,
+                 grid: dict[str, list],
+                 shape: dict | None, train: list[int], sse: float, integers: Container[str] = ()
+                 ) -> tuple[dict | None, np.ndarray | None, float]:
     """Refine the shape parameters picked from the grid (bounded scalar search per parameter, scipy's
     minimize_scalar, within half a grid step of the pick; over the whole numbers there for the names in
     `integers`) on the training folds `train`; returns
@@ -236,7 +244,10 @@ def refine_shape(engine: Engine, columns_at, grid: dict[str, list], shape: dict 
     return best_shape, best_cols, best_sse
 
 
-def cross_validate(engine: Engine, effect, columns_by_shape, baseline, columns_at=None) -> CVFit:
+def cross_validate(engine: Engine, effect: Any,
+                   columns_by_shape: Sequence[tuple[dict | None, np.ndarray]],
+                   baseline: Sequence[np.ndarray],
+                   columns_at: Callable[[dict], np.ndarray | None] | None = None) -> CVFit:
     """Fit the candidate (its columns per shape, see train.diagnosis.effects.candidate_columns) on every K-1
     folds, keeping the grid shape that fits the training folds best and refining it there
     (`refine_shape`, when `columns_at` is given), and predict the held-out fold.
@@ -292,7 +303,7 @@ def _outside_share(G: np.ndarray, col: int, others: list[int]) -> float:
     return float((G[col, col] - 2 * coef @ goc + coef @ Goo @ coef) / G[col, col])
 
 
-def identifiability(engine: Engine, C: np.ndarray, effect=None) -> tuple[bool, tuple[str, ...]]:
+def identifiability(engine: Engine, C: np.ndarray, effect: Any = None) -> tuple[bool, tuple[str, ...]]:
     """(identifiable, names of the linear coefficients that cannot be told apart) for candidate columns
     C on the judged rows. Not identifiable at all when every column lies in the span of the basis: the
     model's own parameters absorb the candidate (a payload against a fitted rigid-body model), any value
@@ -313,8 +324,8 @@ def identifiability(engine: Engine, C: np.ndarray, effect=None) -> tuple[bool, t
     return not absorbed, tuple(loose)
 
 
-def cv_columns(engine: Engine, C: np.ndarray, baseline) -> tuple[np.ndarray, np.ndarray, list[np.ndarray],
-                                                                   np.ndarray]:
+def cv_columns(engine: Engine, C: np.ndarray, baseline: Sequence[np.ndarray]
+               ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray]:
     """Cross-validate plain columns C (N, J, c) against the basis: (sse_before (J, K), sse_after (J, K),
     per-fold coefficients of C, coefficients of C on all folds)."""
     K, J = engine.K, engine.y.shape[1]

@@ -42,6 +42,8 @@ same joint, or on every joint) are not candidates.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from crane_io.errors import CraneError
@@ -70,6 +72,12 @@ from .text import (
     unidentifiable_sentence,
 )
 
+if TYPE_CHECKING:
+    from collections.abc import Iterable
+    from typing import Any
+
+    from ..models.base import Model
+
 __all__ = ["DEFAULT_FOLDS", "DEFAULT_MIN_FOLD_FRACTION", "DEFAULT_MIN_REDUCTION", "Candidate", "Diagnosis",
            "DiagnosisError", "diagnose", "diagnose_residual", "model_effects", "physics_basis",
            "refine_own_shapes", "residual_correlations", "residual_dependence"]
@@ -77,12 +85,12 @@ __all__ = ["DEFAULT_FOLDS", "DEFAULT_MIN_FOLD_FRACTION", "DEFAULT_MIN_REDUCTION"
 MIN_SAMPLES_PER_JOINT = 50
 
 
-def model_effects(model) -> set[tuple[str, str | None]]:
+def model_effects(model: Model) -> set[tuple[str, str | None]]:
     """(effect name, joint name or None) pairs a model already contains (rigid-body / hybrid)."""
     return {(str(name), None if joint is None else str(joint)) for name, joint in effect_entries(model)}
 
 
-def physics_basis(model, ds: Dataset) -> np.ndarray | None:
+def physics_basis(model: Model, ds: Dataset) -> np.ndarray | None:
     """(N, J, p) regressor of a physics model (rigid-body: base regressor + its effects' columns), or
     None for a model that is not linear in its parameters."""
     from ..models.base import basis_on
@@ -96,7 +104,7 @@ def physics_basis(model, ds: Dataset) -> np.ndarray | None:
     return None
 
 
-def diagnose(model, ds: Dataset, effects=None, *, folds: int = DEFAULT_FOLDS,
+def diagnose(model: Model, ds: Dataset, effects: Iterable[Any] | None = None, *, folds: int = DEFAULT_FOLDS,
              min_reduction: float = DEFAULT_MIN_REDUCTION,
              min_fold_fraction: float = DEFAULT_MIN_FOLD_FRACTION, progress: bool = False) -> Diagnosis:
     """Diagnose `model` on `ds` (see the module docstring): a physics model is refitted with each
@@ -117,7 +125,8 @@ def diagnose(model, ds: Dataset, effects=None, *, folds: int = DEFAULT_FOLDS,
                 **options)
 
 
-def diagnose_residual(ds: Dataset, residual: np.ndarray, effects=None, *, folds: int = DEFAULT_FOLDS,
+def diagnose_residual(ds: Dataset, residual: np.ndarray, effects: Iterable[Any] | None = None, *,
+                      folds: int = DEFAULT_FOLDS,
                       min_reduction: float = DEFAULT_MIN_REDUCTION,
                       min_fold_fraction: float = DEFAULT_MIN_FOLD_FRACTION,
                       progress: bool = False) -> Diagnosis:
@@ -233,7 +242,8 @@ def _gauss_newton(X0: np.ndarray, item: dict, ds: Dataset, y, fold, folds: int, 
     return value, (X0 if X is None else X), D
 
 
-def refine_own_shapes(model, ds: Dataset, X, y, fold, folds: int, min_reduction: float,
+def refine_own_shapes(model: Model | None, ds: Dataset, X: np.ndarray, y: np.ndarray, fold: np.ndarray,
+                      folds: int, min_reduction: float,
                       min_fold_fraction: float) -> tuple[list[dict], np.ndarray]:
     """The model's own shape parameters (a spring's rest angle, a Stribeck velocity ...) were picked from
     a grid by `fit`; what the grid step leaves behind (a spring off by 0.2 rad leaves k x 0.2 N m of

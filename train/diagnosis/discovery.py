@@ -36,6 +36,7 @@ Per joint j (only the samples where j moves, as the ranking; the same K contiguo
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -46,6 +47,10 @@ from .cv import Engine, fold_ids, sparse_joint
 from .defaults import DEFAULT_FOLDS, DEFAULT_MIN_REDUCTION
 from .discovery_basis import Term, columns, distinct, generate
 from .discovery_select import MAX_TERMS, select
+
+if TYPE_CHECKING:
+    from ..models.base import Model
+    from .result import Diagnosis
 
 
 class DiscoveryError(CraneError):
@@ -103,7 +108,8 @@ class Discovery:
                 "settings": dict(self.settings)}
 
 
-def discover(model, ds: Dataset, diagnosis=None, *, every_joint: bool = False, folds: int = DEFAULT_FOLDS,
+def discover(model: Model, ds: Dataset, diagnosis: Diagnosis | None = None, *, every_joint: bool = False,
+             folds: int = DEFAULT_FOLDS,
              min_reduction: float = DEFAULT_MIN_REDUCTION, max_terms: int = MAX_TERMS,
              progress: bool = False) -> Discovery:
     """Discovery for every joint of `ds` (see the module docstring). `diagnosis` (train.diagnosis.diagnose's

@@ -23,10 +23,14 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from crane_io.errors import CraneError
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
 
 SMOOTH_SIGN_VELOCITIES = (0.05, 0.25)  # rad/s: v of tanh(dq/v)
 _SKIP_LIBRARY = {"payload", "torque-constant-error"}  # need the arm's dynamics; not a column of one joint
@@ -72,7 +76,7 @@ def _piece(name, code, variables):
     return (name, code, frozenset(variables), (name,))
 
 
-def generate(joint_names, j: int, library=True) -> list[Term]:
+def generate(joint_names: Sequence[str], j: int, library: bool = True) -> list[Term]:
     """Every candidate term for joint index `j` of `joint_names` (before dropping duplicates)."""
     labels = [_label(n, i) for i, n in enumerate(joint_names)]
     out: list[tuple] = []
@@ -148,7 +152,7 @@ def generate(joint_names, j: int, library=True) -> list[Term]:
     return terms
 
 
-def library_terms(joint_names, j: int) -> list[Term]:
+def library_terms(joint_names: Sequence[str], j: int) -> list[Term]:
     """The library's joint-scope effects as terms on joint j: one per column and point of the shape grid."""
     from crane_io.physics.effects import list_effects
 
@@ -175,8 +179,9 @@ def library_terms(joint_names, j: int) -> list[Term]:
     return out
 
 
-def columns(terms: list[Term], q, dq, ddq) -> np.ndarray:
-    """(N, m) matrix of the terms' columns."""
+def columns(terms: list[Term], q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
+    """(N, m) matrix of the terms' columns (each in its term's unit), from q (N, J) rad, dq (N, J) rad/s
+    and ddq (N, J) rad/s^2."""
     if not terms:
         return np.zeros((len(q), 0))
     return np.stack([evaluate(t, q, dq, ddq) for t in terms], axis=1)

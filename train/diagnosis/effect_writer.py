@@ -10,10 +10,14 @@ from __future__ import annotations
 import re
 import textwrap
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from crane_io.errors import ConfigError
 
 from .discovery import Discovery, JointDiscovery
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
 
 
 def effect_name(joint: str) -> str:
@@ -64,7 +68,8 @@ def _effect_class(d: JointDiscovery) -> str:
             f"        return joint_columns(\n            len(q), q.shape[1], joint,\n{cols}\n        )\n")
 
 
-def effect_source(discovery: Discovery, model_dir="MODEL_DIR", sessions=()) -> str:
+def effect_source(discovery: Discovery, model_dir: Path | str = "MODEL_DIR",
+                  sessions: Sequence[Path | str] = ()) -> str:
     """The Python source of the effect file for every significant discovery (ConfigError if none)."""
     found = [d for d in discovery.discovered if d.significant and d.terms]
     if not found:
@@ -95,7 +100,8 @@ def effect_source(discovery: Discovery, model_dir="MODEL_DIR", sessions=()) -> s
     return head + body + "\n\n" + classes
 
 
-def write_effect_file(path, discovery: Discovery, model_dir="MODEL_DIR", sessions=()) -> tuple[Path, list]:
+def write_effect_file(path: Path | str, discovery: Discovery, model_dir: Path | str = "MODEL_DIR",
+                      sessions: Sequence[Path | str] = ()) -> tuple[Path, list]:
     """Write the effect file; returns (path, [(effect name, joint, library effect it sits on or None)])."""
     path = Path(path)
     if path.suffix != ".py":

@@ -5,6 +5,7 @@ columns on a session, and binding effects computed from rigid-body dynamics to t
 from __future__ import annotations
 
 import itertools
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -13,8 +14,12 @@ from crane_io.errors import CraneError
 from ..data.dataset import Dataset
 from .result import DiagnosisError
 
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
+    from typing import Any
 
-def shape_options(effect) -> list[dict | None]:
+
+def shape_options(effect: Any) -> list[dict | None]:
     """Every shape the effect can take (one dict per point of its grid), [None] if it has no shape."""
     if hasattr(effect, "shape_options"):
         return [o or None for o in effect.shape_options()]
@@ -25,25 +30,25 @@ def shape_options(effect) -> list[dict | None]:
     return [dict(zip(names, values)) for values in itertools.product(*(list(grid[n]) for n in names))]
 
 
-def model_params(effect) -> list:
+def model_params(effect: Any) -> list:
     """The parameters a model estimates (not the plant-only ones)."""
     return [p for p in getattr(effect, "params", ()) if getattr(p, "model", True)]
 
 
-def param_units(effect) -> dict[str, str]:
+def param_units(effect: Any) -> dict[str, str]:
     return {p.name: getattr(p, "unit", "") for p in model_params(effect)}
 
 
-def complexity(effect) -> int:
+def complexity(effect: Any) -> int:
     """Number of estimated parameters (linear coefficients + shape parameters chosen from a grid)."""
     return max(len(model_params(effect)), 1)
 
 
-def effect_name(effect) -> str:
+def effect_name(effect: Any) -> str:
     return getattr(effect, "name", type(effect).__name__)
 
 
-def named_values(effect, coefs: np.ndarray, shape: dict | None) -> dict[str, float]:
+def named_values(effect: Any, coefs: np.ndarray, shape: dict | None) -> dict[str, float]:
     """The effect's estimated parameters by name, from its fitted column coefficients and shape."""
     values = effect.values_from_coefficients(np.asarray(coefs, dtype=float), shape)
     keep = {p.name for p in model_params(effect)} or set(values)
@@ -62,7 +67,7 @@ def named_values(effect, coefs: np.ndarray, shape: dict | None) -> dict[str, flo
     return out
 
 
-def candidate_columns(effect, ds: Dataset, joint: int | None) -> list[tuple[dict | None, np.ndarray]]:
+def candidate_columns(effect: Any, ds: Dataset, joint: int | None) -> list[tuple[dict | None, np.ndarray]]:
     """[(shape, columns (N, J, c))] for every shape whose columns are finite and act on some moving
     sample; empty if there is none (the candidate cannot be tried on these data)."""
     out = []
@@ -77,7 +82,7 @@ def candidate_columns(effect, ds: Dataset, joint: int | None) -> list[tuple[dict
     return out
 
 
-def bind(effect, joint_names):
+def bind(effect: Any, joint_names: Sequence[str]) -> Any:
     """Effects computed from the rigid-body dynamics get dynamics of the data's joints."""
     absent = object()
     dyn = getattr(effect, "_dynamics", absent)
@@ -94,7 +99,7 @@ def bind(effect, joint_names):
                              f"joints {', '.join(joint_names)}: {exc}") from None
 
 
-def library_effects():
+def library_effects() -> list[Any]:
     """An instance of every effect in the library (crane_io.physics.effects)."""
     from crane_io.physics.effects import list_effects
 
@@ -104,10 +109,10 @@ def library_effects():
     return out
 
 
-def columns_at(effect, ds: Dataset, joint: int | None):
+def columns_at(effect: Any, ds: Dataset, joint: int | None) -> Callable[[dict], np.ndarray | None]:
     """shape -> the effect's (N, J, c) columns on the session at that shape, or None when they are not
     finite (for refining a shape between grid points)."""
-    def at(shape):
+    def at(shape: dict) -> np.ndarray | None:
         try:
             C = np.asarray(effect.columns(ds.q, ds.dq, ds.ddq, joint, shape), dtype=float)
         except (CraneError, ValueError, ZeroDivisionError, FloatingPointError):

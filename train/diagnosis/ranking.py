@@ -6,12 +6,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .cv import CVFit, Engine, cross_validate
 from .result import Candidate
 from .text import spill_over_sentence
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
 
 PARSIMONY_TOLERANCE = 0.01  # a simpler candidate within 1 percentage point of the best one goes first
 
@@ -71,7 +75,7 @@ def _pick_leader(pool: list[Candidate], fits: dict[int, CVFit], joint_names) -> 
     return max(tops, key=lambda c: float((fits[id(c)].sse_before - fits[id(c)].sse_after).sum()))
 
 
-def forward_selection(engine: Engine, joint_names, results: dict[int, list[Candidate]],
+def forward_selection(engine: Engine, joint_names: Sequence[str], results: dict[int, list[Candidate]],
                       tried: dict[int, tuple], min_reduction: float,
                       min_fold_fraction: float) -> tuple[list[Candidate], Engine]:
     """Nested forward selection (SINDy's sequential idea): what is significant is judged on top of what

@@ -4,12 +4,16 @@ demotion, a summary per joint, and what the residual correlates with when no can
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..data.dataset import Dataset
 from .effects import effect_name, model_params
 from .result import Candidate
+
+if TYPE_CHECKING:
+    from typing import Any
 
 
 def _fmt(value: float) -> str:
@@ -46,7 +50,7 @@ def _signature(effect, joint: str) -> str:
     return text.rstrip(". ")
 
 
-def candidate_sentence(effect, c: Candidate) -> str:
+def candidate_sentence(effect: Any, c: Candidate) -> str:
     """'joint2: <signature>; Coulomb friction of about 0.21 N m explains 64% of the remaining error.'"""
     what = _describe_parameters(effect, c.parameters, c.shape)
     sig = _signature(effect, c.joint)
