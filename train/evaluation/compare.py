@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -25,6 +26,11 @@ from crane_io.errors import CraneError
 from ..models.recorded_effects import effect_labels
 from .heldout import HeldOut, evaluation_data, fit_record, model_settings
 from .metrics import metrics_table, mse
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from ..models.base import Model
 
 
 class CompareError(CraneError):
@@ -58,7 +64,7 @@ class Comparison:
                 "models": [m.to_json() for m in self.models]}
 
 
-def model_sessions(model, model_dir=None) -> list[str]:
+def model_sessions(model: Model, model_dir: Path | str | None = None) -> list[str]:
     """The session files a model was trained on, as its fit record or preprocessing record names them."""
     for record in (fit_record(model_dir), getattr(model, "preprocessing", {}) or {}):
         for key in ("sources", "sessions"):
@@ -67,7 +73,7 @@ def model_sessions(model, model_dir=None) -> list[str]:
     return []
 
 
-def score(model, held: HeldOut, directory: str = "") -> ModelScore:
+def score(model: Model, held: HeldOut, directory: str = "") -> ModelScore:
     ds = held.data
     from ..models.base import predict_on
 
@@ -92,7 +98,8 @@ def _align(reference: HeldOut, other: HeldOut) -> HeldOut:
                    reference.block_starts, reference.description, reference.per_joint)
 
 
-def compare_models(model_dirs, sessions=None, progress: bool = False) -> Comparison:
+def compare_models(model_dirs: Sequence[Path | str], sessions: Sequence[Path | str] | None = None,
+                   progress: bool = False) -> Comparison:
     """Load each model directory and score it on the same held-out samples."""
     from ..data.preprocess import read_preprocessed
     from ..models.registry import load_model
@@ -213,7 +220,7 @@ def table_text(c: Comparison, metric: str = "mse") -> str:
     return "\n".join(lines) + f"\n({metric.upper()} in {unit} on {c.models[0].n_test} held-out test samples)"
 
 
-def plot(c: Comparison, path, metric: str = "mse") -> Path:
+def plot(c: Comparison, path: Path | str, metric: str = "mse") -> Path:
     """The bar chart of the test metric per joint, one bar per model
     (train.evaluation.plots.plot_comparison)."""
     from .plots import plot_comparison

@@ -170,7 +170,7 @@ def _near_contact(t: np.ndarray, contact: np.ndarray, guard_s: float) -> np.ndar
     return nearest <= guard_s + 1e-12
 
 
-def measure_fidelity(session, truth_trace=None, settle_s: float = 1.0,
+def measure_fidelity(session: Path | str, truth_trace: Path | str | None = None, settle_s: float = 1.0,
                      contact_guard_s: float = 0.3) -> Fidelity:
     """The force-channel metrics of one bilateral session (see the module docstring)."""
     if not (np.isfinite(settle_s) and settle_s >= 0):

@@ -13,12 +13,18 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..data.dataset import Dataset
 from ..data.preprocess import PreprocessConfig, read_preprocessed
 from ..data.splits import SplitConfig, Splits, make_splits
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from ..models.base import Model
 
 
 @dataclass
@@ -38,7 +44,7 @@ class HeldOut:
         rows = self.test & self.data.moving[:, j] if self.per_joint else self.test
         return np.flatnonzero(rows)
 
-    def test_mask(self):
+    def test_mask(self) -> np.ndarray | None:
         """(n_test, J) mask of the test rows' scores (per-joint sets), or None (every row counts)."""
         return self.data.moving[self.test] if self.per_joint else None
 
@@ -64,7 +70,8 @@ def held_out_rows(ds: Dataset, splits: Splits) -> np.ndarray:
     return np.flatnonzero(keep)
 
 
-def held_out(ds: Dataset, splits: Splits, sessions=(), seed: int | None = None) -> HeldOut:
+def held_out(ds: Dataset, splits: Splits, sessions: Sequence[Path | str] = (),
+             seed: int | None = None) -> HeldOut:
     rows = held_out_rows(ds, splits)
     test_set = set(np.asarray(splits.index["test"]).tolist())
     window_set = set(np.asarray(splits.index["window"]).tolist())
@@ -85,7 +92,7 @@ def held_out(ds: Dataset, splits: Splits, sessions=(), seed: int | None = None) 
     return HeldOut(ds.subset(rows), test, window, starts, desc, per)
 
 
-def fit_record(model_dir) -> dict:
+def fit_record(model_dir: Path | str | None) -> dict:
     """What `crane-train fit` wrote next to the model (fit_metrics.json: seed, sources ...), or {}."""
     if model_dir is None:
         return {}
@@ -96,7 +103,8 @@ def fit_record(model_dir) -> dict:
         return {}
 
 
-def model_settings(model, model_dir=None) -> tuple[PreprocessConfig, SplitConfig, int]:
+def model_settings(model: Model, model_dir: Path | str | None = None
+                   ) -> tuple[PreprocessConfig, SplitConfig, int]:
     """The preprocessing, split settings and split seed a model was trained with.
 
     The preprocessing is in the model itself; the seed comes from the fit record (fit_metrics.json)
@@ -116,8 +124,8 @@ def model_settings(model, model_dir=None) -> tuple[PreprocessConfig, SplitConfig
     return pconf, sconf, seed
 
 
-def evaluation_data(model, session_paths, seed: int | None = None,
-                    model_dir=None) -> tuple[Dataset, Splits, HeldOut]:
+def evaluation_data(model: Model, session_paths: Sequence[Path | str], seed: int | None = None,
+                    model_dir: Path | str | None = None) -> tuple[Dataset, Splits, HeldOut]:
     """Read and preprocess the sessions as the model's training did, split them the same way and
     return (all data, the splits, the held-out part), on the arm the model was fitted on (a session whose
     arm the operator's hand moved is refused: train.data.session.HandOnArmError)."""
@@ -128,7 +136,8 @@ def evaluation_data(model, session_paths, seed: int | None = None,
     return ds, splits, held_out(ds, splits, session_paths, seed)
 
 
-def diagnosis_data(model, ds: Dataset, model_dir=None, seed: int | None = None) -> tuple[Dataset, str]:
+def diagnosis_data(model: Model, ds: Dataset, model_dir: Path | str | None = None,
+                   seed: int | None = None) -> tuple[Dataset, str]:
     """The rows `crane-train diagnose` judges `model` on, and one sentence saying which.
 
     A physics model (rigid-body: linear in its parameters) is refitted from scratch on K-1 time blocks

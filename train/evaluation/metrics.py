@@ -6,7 +6,12 @@ variants: the error of a joint while it moves); rows=None uses every row.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
 
 
 def _check(tau, tau_hat):
@@ -17,8 +22,9 @@ def _check(tau, tau_hat):
     return tau, tau_hat
 
 
-def mse(tau, tau_hat, mask=None) -> np.ndarray:
-    """Mean squared error per joint, N^2 m^2 (NaN for a joint whose mask is empty)."""
+def mse(tau: np.ndarray, tau_hat: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+    """(J,) mean squared error per joint of torques (N, J) N m over the rows of `mask` (N, J) bool
+    (None: all), in N^2 m^2 (NaN for a joint whose mask is empty)."""
     tau, tau_hat = _check(tau, tau_hat)
     err2 = (tau - tau_hat) ** 2
     if mask is None:
@@ -29,12 +35,13 @@ def mse(tau, tau_hat, mask=None) -> np.ndarray:
         return np.where(count > 0, (err2 * mask).sum(axis=0) / np.maximum(count, 1), np.nan)
 
 
-def rmse(tau, tau_hat, mask=None) -> np.ndarray:
-    """Root mean squared error per joint, N m."""
+def rmse(tau: np.ndarray, tau_hat: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+    """(J,) root mean squared error per joint, N m (torques (N, J) N m, as for `mse`)."""
     return np.sqrt(mse(tau, tau_hat, mask))
 
 
-def torque_variance(tau, mask=None) -> np.ndarray:
+def torque_variance(tau: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+    """(J,) variance of each joint's torque `tau` (N, J) N m over the rows of `mask` (None: all), N^2 m^2."""
     tau = np.atleast_2d(np.asarray(tau, dtype=float))
     if mask is None:
         return tau.var(axis=0)
@@ -46,21 +53,24 @@ def torque_variance(tau, mask=None) -> np.ndarray:
     return out
 
 
-def nmse(tau, tau_hat, mask=None) -> np.ndarray:
+def nmse(tau: np.ndarray, tau_hat: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
     """MSE divided by the variance of the measured torque (same rows): 0 perfect, 1 = predicting the mean."""
     var = torque_variance(tau, mask)
     with np.errstate(invalid="ignore", divide="ignore"):
         return mse(tau, tau_hat, mask) / np.where(var > 0, var, np.nan)
 
 
-def masked_loss_value(tau, tau_hat, moving) -> float:
-    """The paper's eq. (3) evaluated on numpy arrays (the masked loss over all rows)."""
+def masked_loss_value(tau: np.ndarray, tau_hat: np.ndarray, moving: np.ndarray) -> float:
+    """The paper's eq. (3) evaluated on numpy arrays (the masked loss over all rows), N^2 m^2; tau, tau_hat
+    (N, J) N m, moving (N, J) bool."""
     tau, tau_hat = _check(tau, tau_hat)
     return float((np.asarray(moving, dtype=float) * (tau - tau_hat) ** 2).mean())
 
 
-def metrics_table(tau, tau_hat, joint_names, mask=None) -> dict:
-    """{'mse': {joint: v}, 'rmse': ..., 'nmse': ...} as plain floats (JSON-ready)."""
+def metrics_table(tau: np.ndarray, tau_hat: np.ndarray, joint_names: Sequence[str],
+                  mask: np.ndarray | None = None) -> dict:
+    """{'mse': {joint: v}, 'rmse': ..., 'nmse': ...} as plain floats (JSON-ready): mse in N^2 m^2, rmse
+    in N m, nmse dimensionless."""
     out = {}
     for name, fn in (("mse", mse), ("rmse", rmse), ("nmse", nmse)):
         vals = fn(tau, tau_hat, mask)

@@ -16,6 +16,11 @@ from typing import TYPE_CHECKING
 
 import matplotlib
 
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from matplotlib.figure import Figure
+
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
@@ -44,7 +49,7 @@ def _panels(n: int, width: float, height: float):
     return fig, flat[:n], [row[0] for row in axes]
 
 
-def plot_mse_vs_samples(results: dict, path) -> Path:
+def plot_mse_vs_samples(results: dict, path: Path | str) -> Path:
     """`results` is the results.json document (train.evaluation.sweep.SweepResult.to_json())."""
     joints = results["joints"]
     title = f"mean and 95 % CI over {results.get('trials', '?')} trials"
@@ -86,8 +91,9 @@ def _shade(ax, t, still):
         ax.axvspan(t[a] - dt / 2, t[b - 1] + dt / 2, color="0.85", lw=0, zorder=0)
 
 
-def plot_window(window: dict, joints, path, title: str = "") -> Path:
-    """window: {'t': (n,), 'tau': (n, J), 'moving': (n, J), 'predictions': {method: (n, J)}}."""
+def plot_window(window: dict, joints: Sequence[str], path: Path | str, title: str = "") -> Path:
+    """window: {'t': (n,) s, 'tau': (n, J) N m, 'moving': (n, J) bool,
+    'predictions': {method: (n, J) N m}}."""
     t = np.asarray(window["t"], dtype=float)
     t = t - t[0]
     tau = np.asarray(window["tau"], dtype=float)
@@ -135,7 +141,7 @@ def change_text(v: float, ref: float) -> str:
     return f"{pct:+.0f}%"
 
 
-def comparison_figure(c: Comparison, metric: str = "mse"):
+def comparison_figure(c: Comparison, metric: str = "mse") -> Figure:
     """The comparison chart as a matplotlib figure (the caller closes it): joints on the x axis, in each
     joint's group one bar per model in the given order, the same colour for a model in every group, a
     log axis of the test metric, the change against the first model above every later bar."""
@@ -204,7 +210,7 @@ def comparison_figure(c: Comparison, metric: str = "mse"):
     return fig
 
 
-def plot_comparison(c: Comparison, path, metric: str = "mse") -> Path:
+def plot_comparison(c: Comparison, path: Path | str, metric: str = "mse") -> Path:
     """Write comparison_figure(c, metric) to the PNG `path`."""
     fig = comparison_figure(c, metric)
     path = Path(path)

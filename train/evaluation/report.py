@@ -15,11 +15,21 @@ import datetime as _dt
 import html
 import io
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..models.recorded_effects import effect_labels
 from .heldout import HeldOut
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from matplotlib.figure import Figure
+
+    from ..diagnosis.discovery import Discovery, JointDiscovery
+    from ..diagnosis.result import Diagnosis
+    from ..models.base import Model
 
 CSS = """
 body { font-family: -apple-system, "Segoe UI", Helvetica, Arial, sans-serif; margin: 2em auto;
@@ -48,7 +58,8 @@ def error_stats(measured: np.ndarray, predicted: np.ndarray) -> dict:
     return {"n": n, "mse": mse, "rmse": float(np.sqrt(mse)), "nmse": mse / var if var > 0 else float("nan")}
 
 
-def binned_means(x: np.ndarray, y: np.ndarray, bins: int = 12, min_count: int = 5):
+def binned_means(x: np.ndarray, y: np.ndarray, bins: int = 12, min_count: int = 5
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Mean of y in quantile bins of x with a 95 % interval (normal approximation, independent samples).
 
     Returns (centres, means, half_widths, counts) for the bins holding at least `min_count` samples.
@@ -140,7 +151,7 @@ def _shade_dead_zones(ax, t, moving):
         ax.axvspan(t[a] - dt / 2, t[b - 1] + dt / 2, color="0.85", lw=0, zorder=0)
 
 
-def figure_time(held: HeldOut, pred: np.ndarray, j: int):
+def figure_time(held: HeldOut, pred: np.ndarray, j: int) -> Figure:
     """Top: measured and predicted torque over the window, dead zones shaded. Bottom: residual over
     time for all held-out samples."""
     import matplotlib
@@ -176,7 +187,7 @@ def figure_time(held: HeldOut, pred: np.ndarray, j: int):
     return fig
 
 
-def figure_binned(held: HeldOut, pred: np.ndarray, j: int):
+def figure_binned(held: HeldOut, pred: np.ndarray, j: int) -> Figure:
     """Residual of joint j (samples where it moves) against its angle, velocity and acceleration."""
     import matplotlib
 
@@ -202,7 +213,7 @@ def figure_binned(held: HeldOut, pred: np.ndarray, j: int):
     return fig
 
 
-def figure_discovery(found):
+def figure_discovery(found: JointDiscovery) -> Figure:
     """A discovered expression (train.diagnosis.discovery.JointDiscovery) against the residual it explains
     (what the base model leaves on the joint's moving samples, all of them): left, over a stretch of samples;
     right, residual against the expression's value (on the diagonal when the expression explains it)."""
@@ -235,7 +246,7 @@ def figure_discovery(found):
     return fig
 
 
-def discovery_section(discovery) -> str:
+def discovery_section(discovery: Discovery) -> str:
     """HTML of a discovery (train.diagnosis.discovery.Discovery): each joint's sentence, and for every
     significant expression its terms with uncertainties and its fit against the residual."""
     parts = ["<h2 id='discovery'>Discovery</h2><p>A sparse regression of each joint's residual on a "
@@ -268,7 +279,9 @@ def _table(head: list[str], rows: list[list]) -> str:
     return f"<table><tr>{th}</tr>{body}</table>"
 
 
-def report_html(model, model_dir, held: HeldOut, sessions=(), diagnosis=None, discovery=None) -> str:
+def report_html(model: Model, model_dir: Path | str | None, held: HeldOut,
+                sessions: Sequence[Path | str] = (),
+                diagnosis: Diagnosis | None = None, discovery: Discovery | None = None) -> str:
     """The report page as a string (with the discovered expressions when `discovery` is given)."""
     ds = held.data
     from ..models.base import predict_on
@@ -321,7 +334,7 @@ def report_html(model, model_dir, held: HeldOut, sessions=(), diagnosis=None, di
     return "\n".join(parts)
 
 
-def write_report(path, page: str) -> Path:
+def write_report(path: Path | str, page: str) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(page, encoding="utf-8")

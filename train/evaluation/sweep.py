@@ -21,6 +21,7 @@ import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -38,6 +39,9 @@ from ..models.mlp import features
 from ..models.rigid_body import RigidBodyModel
 from ..progress import ProgressLines
 from .metrics import mse, torque_variance
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
 
 RESULTS_VERSION = 1
 TABLE_JOINTS = 4  # joint columns per printed table (7 joints: a table of 4, then one of 3)
@@ -96,7 +100,7 @@ def _ci95(values: np.ndarray) -> np.ndarray:
         return np.where(n > 1, t * sd / np.sqrt(np.maximum(n, 1)), np.nan)
 
 
-def draw_subsets(pool_size: int, sizes, trials: int, seed: int) -> dict:
+def draw_subsets(pool_size: int, sizes: Sequence[int], trials: int, seed: int) -> dict:
     """{(size, trial): sorted row indices into the pool}; the same draws for every method."""
     out = {}
     for size in sizes:
@@ -119,8 +123,9 @@ def _summarise(per_trial: np.ndarray, test_var: np.ndarray, sizes, rows_used) ->
             "train_rows_mean": [float(np.mean(r)) for r in rows_used]}
 
 
-def run_rigid_body(splits: Splits, subsets: dict, sizes, trials, progress: bool = True, effects=(),
-                   lines: ProgressLines | None = None):
+def run_rigid_body(splits: Splits, subsets: dict, sizes: Sequence[int], trials: int, progress: bool = True,
+                   effects: Sequence = (), lines: ProgressLines | None = None
+                   ) -> tuple[np.ndarray, list[list[int]], RigidBodyModel | None]:
     """(S, T, J) test MSE, rows used per (size, trial), and the model of trial 0 at the largest size.
     `lines`: plain progress lines (for a log), at most one per size, the last one always."""
     J = len(splits.pool.joint_names)
@@ -149,7 +154,8 @@ def run_rigid_body(splits: Splits, subsets: dict, sizes, trials, progress: bool 
     return out, rows_used, largest
 
 
-def mlp_jobs(splits: Splits, subsets: dict, sizes, trials, methods, seed: int) -> dict:
+def mlp_jobs(splits: Splits, subsets: dict, sizes: Sequence[int], trials: int, methods: Sequence[str],
+             seed: int) -> dict:
     """Everything the MLPs of a sweep train on: stacked data X, Y, W (rows < N: the pool with the
     dead-zone mask as loss weights, for the masked loss; rows >= N: the same pool with weight 1, for MSE),
     and per model its key (method, size index, trial), training rows and seed."""
@@ -173,8 +179,9 @@ def mlp_jobs(splits: Splits, subsets: dict, sizes, trials, methods, seed: int) -
     return job
 
 
-def run_mlps(splits: Splits, subsets: dict, sizes, trials, methods, settings: MLPSettings, seed: int,
-             progress: bool = True, lines: ProgressLines | None = None):
+def run_mlps(splits: Splits, subsets: dict, sizes: Sequence[int], trials: int, methods: Sequence[str],
+             settings: MLPSettings, seed: int, progress: bool = True, lines: ProgressLines | None = None
+             ) -> tuple[dict[str, tuple[np.ndarray, list[list[int]]]], dict[str, np.ndarray]]:
     """Every MLP of the sweep in one batched run. Returns {method: ((S, T, J) mse, rows_used)} and the
     window predictions of trial 0 at the largest size. `lines`: plain progress lines (for a log) per
     epoch when due, the last epoch always."""
@@ -209,10 +216,11 @@ def run_mlps(splits: Splits, subsets: dict, sizes, trials, methods, settings: ML
     return results, window_pred
 
 
-def run_sweep(dataset: Dataset, sizes, trials: int = 10, methods=SWEEP_METHODS, seed: int = 0,
+def run_sweep(dataset: Dataset, sizes: Sequence[int], trials: int = 10,
+              methods: Sequence[str] = SWEEP_METHODS, seed: int = 0,
               progress: bool | ProgressLines = True, split_config: SplitConfig | None = None,
               scale_to_data: bool = False, mlp_settings: MLPSettings | None = None, threads: int | None = 1,
-              notify=None) -> SweepResult:
+              notify: Callable[[str], object] | None = None) -> SweepResult:
     """Run the experiment; see the module docstring. `threads` sets torch's intra-op threads
     (1 is fastest for these tiny networks; None leaves torch's setting alone). `progress`: True for
     tqdm bars, False for nothing, a train.progress.ProgressLines for plain lines (a log). `notify`:
@@ -326,7 +334,7 @@ def format_table(result: SweepResult | dict) -> str:
     return "\n".join(lines)
 
 
-def write_results(result: SweepResult, out_dir) -> dict:
+def write_results(result: SweepResult, out_dir: Path | str) -> dict:
     """results.json, results.csv, mse_vs_samples.png and window_torque.png in out_dir; returns the paths."""
     from .plots import plot_mse_vs_samples, plot_window
 
