@@ -33,6 +33,7 @@ from .diagnosis.defaults import DEFAULT_FOLDS, DEFAULT_MIN_REDUCTION
 if TYPE_CHECKING:
     from .data.dataset import Dataset
     from .data.splits import Splits
+    from .diagnosis.discovery import Discovery
     from .diagnosis.result import Diagnosis
     from .evaluation.compare import Comparison
     from .models.base import Model
@@ -225,7 +226,7 @@ def diagnose_model(model_dir: PathLike, sessions: Sessions, *, folds: int = DEFA
 
 def discover_terms(model_dir: PathLike, sessions: Sessions, *, every_joint: bool = False,
                    folds: int = DEFAULT_FOLDS, min_reduction: float = DEFAULT_MIN_REDUCTION,
-                   effect_files: Sequence[PathLike] = (), progress: bool = False):
+                   effect_files: Sequence[PathLike] = (), progress: bool = False) -> Discovery:
     """What term would explain the model's residual? A sparse regression per joint on a basis of physical
     terms (train/diagnosis/discovery.py), on top of the library's best effect where that one is significant
     (from the model alone on every joint with `every_joint`). Returns a train.diagnosis.discovery.Discovery

@@ -7,6 +7,10 @@ from __future__ import annotations
 
 import sys
 import time
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from typing import TextIO
 
 _clock = time.monotonic  # the tests replace it
 
@@ -19,7 +23,7 @@ def _isatty(stream) -> bool:
         return False
 
 
-def show_progress(requested: bool = True, stream=None) -> bool:
+def show_progress(requested: bool = True, stream: TextIO | None = None) -> bool:
     """True when progress bars should be drawn: `requested` and `stream` (default sys.stderr) is a TTY."""
     if not requested:
         return False
@@ -59,7 +63,7 @@ class ProgressLines:
         return True
 
 
-def progress_lines(requested: bool = True, stream=None, prefix: str = "",
+def progress_lines(requested: bool = True, stream: TextIO | None = None, prefix: str = "",
                    interval: float = 10.0) -> ProgressLines | None:
     """The plain-line counterpart of `show_progress`: a ProgressLines on `stream` (default sys.stderr)
     when progress was `requested` and the stream is NOT a terminal (there the bars are drawn), else None."""

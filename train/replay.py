@@ -30,7 +30,7 @@ class ReplayData:
     rows: int = 0  # samples in the file
 
 
-def read_replay(path, every: int = 10) -> ReplayData:
+def read_replay(path: Path | str, every: int = 10) -> ReplayData:
     """What the view shows of session `path`, every `every`-th sample. SessionFileError (one sentence) for
     a file that is not a readable session (train.data.session.read_session checks the required part)."""
     path = Path(path)
@@ -69,7 +69,7 @@ def read_replay(path, every: int = 10) -> ReplayData:
     return ReplayData(follower.t[idx], data, names, bil, arms, n)
 
 
-def replay_session(path, *, save=None, every: int = 10) -> ReplayData:
+def replay_session(path: Path | str, *, save: Path | str | None = None, every: int = 10) -> ReplayData:
     """Replay session `path` into a spawned rerun viewer, or into the .rrd file `save`. Raises
     ViewUnavailableError without rerun, SessionFileError for a bad session, ViewError when the file or
     viewer cannot be opened."""

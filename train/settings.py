@@ -31,7 +31,7 @@ def config_sections() -> dict:
     return {"preprocess": PreprocessConfig, "splits": SplitConfig, "mlp": MLPSettings}
 
 
-def load_config(path=None) -> dict:
+def load_config(path: Path | str | None = None) -> dict:
     """{'preprocess': PreprocessConfig, 'splits': SplitConfig, 'mlp': MLPSettings} from the defaults
     file overlaid with `path` (TOML, sections as in train/config/train.toml); each value checked against
     the settings' field types (crane_io.toml_config.from_table)."""
@@ -99,7 +99,7 @@ def parse_effect(text: str) -> tuple[str, str | None, dict | None]:
     return name, joint, shape or None
 
 
-def writable_output(path, kind: str) -> Path:
+def writable_output(path: Path | str, kind: str) -> Path:
     """Check, before any work, that the output `path` (kind "dir" or "file") can be written; nothing is
     created. A path under a file, an existing one of the other kind or a read-only place -> ConfigError."""
     path = Path(path)
