@@ -330,7 +330,7 @@ def write_session(out: Path | str, s: ImportedSession, *, source: str = "import"
             for name, data in ((sf.T, s.t), (sf.Q, s.q), (sf.TAU, s.tau)):
                 g.create_dataset(name, data=data, **sf.FILTERS)
             if s.current is not None:
-                current = s.current.astype(sf.ARM_MEMBER[sf.CURRENT].dtype)
+                current: np.ndarray = s.current.astype(sf.ARM_MEMBER[sf.CURRENT].dtype)
                 g.create_dataset(sf.CURRENT, data=current, **sf.FILTERS)
         os.replace(tmp, out)
     except BaseException:

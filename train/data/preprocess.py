@@ -36,6 +36,7 @@ from .session import ARMS, RawSession, read_sessions
 
 if TYPE_CHECKING:
     from collections.abc import Container, Iterable, Sequence
+    from os import PathLike
     from pathlib import Path
 
 # A joint whose (filtered) angle spans less than this never moved: a joint held in position mode only
@@ -202,7 +203,7 @@ def preprocess(sessions: list[RawSession] | RawSession, config: PreprocessConfig
                    context_ddq=cat["cddq"])
 
 
-def read_preprocessed(paths: Path | str | Sequence[Path | str], config: PreprocessConfig,
+def read_preprocessed(paths: Path | str | Sequence[str | PathLike[str]], config: PreprocessConfig,
                       hand_free: bool = True) -> Dataset:
     """Read the sessions' `config.arm` group and preprocess it. With `hand_free` (the default: fitting
     and evaluating an inverse-dynamics model), a session whose arm the operator's hand moved is refused

@@ -45,6 +45,7 @@ from crane_io.session_format import (  # noqa: F401 - FORMAT_VERSION: the newest
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
+    from os import PathLike
 
 MIN_SAMPLES = 100  # fewer raw samples than this cannot be filtered and split meaningfully
 _TRUNCATED = re.compile(r"truncated file: eof = (?P<eof>\d+).*stored_eof = (?P<stored>\d+)")
@@ -157,7 +158,7 @@ def check_version(path: Path, attrs: dict, fmt: str, newest: int) -> int:
     return version
 
 
-def read_session(path: Path | str, arm: str = "follower") -> RawSession:
+def read_session(path: str | PathLike[str], arm: str = "follower") -> RawSession:
     """Read and validate one session file; see the module docstring for what is checked."""
     path = Path(path)
     with _open(path) as f:
@@ -209,7 +210,7 @@ def read_session(path: Path | str, arm: str = "follower") -> RawSession:
                       path=str(path), attrs=attrs, truncated=truncated, arm=arm)
 
 
-def read_sessions(paths: Path | str | Sequence[Path | str], arm: str = "follower",
+def read_sessions(paths: Path | str | Sequence[str | PathLike[str]], arm: str = "follower",
                   hand_free: bool = False) -> list[RawSession]:
     """Read several session files; they must name the same joints. With `hand_free`, a session whose
     `arm` the operator's hand moved is refused (check_hand_free)."""

@@ -220,7 +220,7 @@ def run_sweep(dataset: Dataset, sizes: Sequence[int], trials: int = 10,
               methods: Sequence[str] = SWEEP_METHODS, seed: int = 0,
               progress: bool | ProgressLines = True, split_config: SplitConfig | None = None,
               scale_to_data: bool = False, mlp_settings: MLPSettings | None = None, threads: int | None = 1,
-              notify: Callable[[str], object] | None = None) -> SweepResult:
+              notify: Callable[[str | None], object] | None = None) -> SweepResult:
     """Run the experiment; see the module docstring. `threads` sets torch's intra-op threads
     (1 is fastest for these tiny networks; None leaves torch's setting alone). `progress`: True for
     tqdm bars, False for nothing, a train.progress.ProgressLines for plain lines (a log). `notify`:

@@ -20,7 +20,7 @@ This module imports numpy only (pinocchio comes with the rigid-body dynamics whe
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -29,6 +29,7 @@ from crane_io.physics.loop_model import MLPPath, PathSum, RigidPath
 
 if TYPE_CHECKING:
     from .base import Model
+    from .hybrid import HybridModel
 
 
 class PredictorError(CraneError):
@@ -82,13 +83,14 @@ class NumpyPredictor(PathSum):
     def from_model(cls, model: Model) -> NumpyPredictor:
         method = getattr(model, "method", "")
         if method in ("mlp-mse", "mlp-masked"):
-            paths = [_mlp_path(model)]
+            paths: list[MLPPath | RigidPath] = [_mlp_path(model)]
         elif method == "rigid-body":
             paths = [_rigid_path(model)]
         elif method == "hybrid":
-            if model.rigid is None or model.mlp is None:
+            hybrid = cast("HybridModel", model)
+            if hybrid.rigid is None or hybrid.mlp is None:
                 raise PredictorError("the hybrid model has not been fitted or loaded")
-            paths = [_rigid_path(model.rigid), _mlp_path(model.mlp)]
+            paths = [_rigid_path(hybrid.rigid), _mlp_path(hybrid.mlp)]
         else:
             raise PredictorError(f"no fast predictor for model method {method!r}")
         return cls(model.joint_names, paths)

@@ -15,7 +15,7 @@ import json
 import os
 import zipfile
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -24,6 +24,7 @@ from crane_io.physics.loop_model import EXPORT_FILE, EXPORT_FORMAT_VERSION, SI_U
 
 if TYPE_CHECKING:
     from .base import Model
+    from .hybrid import HybridModel
 
 # the weight files of each method, relative to the model directory (what the export was made from)
 SOURCE_FILES = {"mlp-mse": ("mlp.pt",), "mlp-masked": ("mlp.pt",), "rigid-body": ("rigid_body.npz",),
@@ -104,9 +105,9 @@ def export_arrays(model: Model, directory: Path | str) -> dict:
               "source_files": np.array(list(sources), dtype=str),
               "source_sha256": np.array(sources_sha256(directory, sources))}
     if method in ("rigid-body", "hybrid"):
-        arrays.update(_rigid_arrays(model.rigid if method == "hybrid" else model))
+        arrays.update(_rigid_arrays(cast("HybridModel", model).rigid if method == "hybrid" else model))
     if method in ("mlp-mse", "mlp-masked", "hybrid"):
-        arrays.update(_mlp_arrays(model.mlp if method == "hybrid" else model))
+        arrays.update(_mlp_arrays(cast("HybridModel", model).mlp if method == "hybrid" else model))
     return arrays
 
 

@@ -123,7 +123,7 @@ class RigidBodyModel(Model):
                          block=int(block), p0=float(p0), payload_mass=float(payload_mass),
                          locked=dict(locked or {}), context=bool(context), rows=rows)
         self.block, self.p0 = int(block), float(p0)
-        self._dyn = None
+        self._dyn: ArmDynamics | None = None
         self.context_joints: tuple[str, ...] = ()  # other arm joints that move: free in the kinematics
         self.locked_resolved: dict | None = None  # locked angles the dynamics use (None: options' locked)
         self.theta: np.ndarray | None = None
