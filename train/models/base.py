@@ -68,7 +68,9 @@ class Model(abc.ABC):
     def fit(self, train: Dataset, val: Dataset | None = None) -> Model: ...
 
     @abc.abstractmethod
-    def predict(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray: ...
+    def predict(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
+        """(N, J) joint torques, N m, from positions q (N, J) rad, velocities dq (N, J) rad/s and
+        accelerations ddq (N, J) rad/s^2."""
 
     def predict_dataset(self, ds: Dataset) -> np.ndarray:
         """Predict on a Dataset; a model whose kinematics read context joints (rigid-body, hybrid)

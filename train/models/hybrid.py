@@ -88,6 +88,9 @@ class HybridModel(Model):
 
     def predict(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray,
                 context: dict | None = None) -> np.ndarray:
+        """(N, J) joint torques, N m, from positions q (N, J) rad, velocities dq (N, J) rad/s and
+        accelerations ddq (N, J) rad/s^2;
+        `context`: the context joints' {'names', 'q', 'dq', 'ddq'} (Dataset.context)."""
         self._check_fitted()
         return self.rigid.predict(q, dq, ddq, context=context) + self.mlp.predict(q, dq, ddq)
 

@@ -95,6 +95,8 @@ class MLPModel(Model):
         return self.params is not None
 
     def predict(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
+        """(N, J) joint torques, N m, from positions q (N, J) rad, velocities dq (N, J) rad/s and
+        accelerations ddq (N, J) rad/s^2."""
         self._check_fitted()
         return predict(self.params, self.norm, features(q, dq, ddq))[0].astype(float)
 

@@ -221,8 +221,9 @@ class RigidBodyModel(Model):
 
     def regressor(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, terms: list[dict] | None = None,
                   context: dict | None = None) -> np.ndarray:
-        """(N, J, p) base regressor followed by every effect term's columns. `context`: the context
-        joints' {'names', 'q', 'dq', 'ddq'} (Dataset.context), needed when the model has any."""
+        """(N, J, p) base regressor followed by every effect term's columns (predict = regressor @ theta,
+        N m), from q (N, J) rad, dq (N, J) rad/s, ddq (N, J) rad/s^2. `context`: the context joints'
+        {'names', 'q', 'dq', 'ddq'} (Dataset.context), needed when the model has any."""
         q, dq, ddq = (np.atleast_2d(np.asarray(a, dtype=float)) for a in (q, dq, ddq))
         fq, fdq, fddq = self._full_inputs(q, dq, ddq, context)
         if self.context_joints:
@@ -355,6 +356,9 @@ class RigidBodyModel(Model):
 
     def predict(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray,
                 context: dict | None = None) -> np.ndarray:
+        """(N, J) joint torques, N m, from positions q (N, J) rad, velocities dq (N, J) rad/s and
+        accelerations ddq (N, J) rad/s^2;
+        `context`: the context joints' {'names', 'q', 'dq', 'ddq'} (Dataset.context)."""
         self._check_fitted()
         return self.regressor(q, dq, ddq, context=context) @ self.theta
 
