@@ -130,7 +130,7 @@ def diagnose_residual(ds: Dataset, residual: np.ndarray, effects: Iterable[Any] 
                       min_reduction: float = DEFAULT_MIN_REDUCTION,
                       min_fold_fraction: float = DEFAULT_MIN_FOLD_FRACTION,
                       progress: bool = False) -> Diagnosis:
-    """Rank candidate effects by how much of `residual` (N, J) each explains, cross-validated (the
+    """Rank candidate effects by how much of `residual` (N, J) N m each explains, cross-validated (the
     options as for `diagnose`)."""
     residual = np.asarray(residual, dtype=float)
     return _run(ds, None, residual, residual, effects, folds=folds, min_reduction=min_reduction,
