@@ -14,9 +14,10 @@
 # 5. the follower's friction dither (docs/examples/dither.toml; README "Contact at standstill"), with
 #    the nominal observer and with a rigid-body + friction model fitted per joint (--eval-set
 #    per-joint) on free motion recorded with the dither (the follower's training data of step 1 with
-#    the dither on: the same seed), joint 4 undithered in the evaluation (docs/examples/dither-model.toml);
-#    the model once with the default dead zone (alpha 0.1: free motion) and once with alpha 0.3
-#    (contact). Same seed and length as step 3: the ratios are against its nominal run without dither.
+#    the dither on: the same seed), joint 4 dithered in antiphase in the evaluation
+#    (docs/examples/dither-model.toml); the model once with the default dead zone (alpha 0.1: free
+#    motion) and once with alpha 0.2 (a wider dead zone: contact). Same seed and length as step 3: the
+#    ratios are against its nominal run without dither.
 # Results land in $OUT (default out/loop): fidelity-*.json, fidelity.md (the tables), models/.
 # Environment: TRAIN_S (simulated s of each training run, default 180), EVAL_S (default 120);
 # REUSE=1 keeps the sessions and models already in $OUT (re-runs only what is missing).
@@ -88,17 +89,17 @@ echo "== 5/5 friction dither: ${EVAL_S} s on the contact-wall plant, nominal and
 have "$OUT/train-follower-dither.h5" ||
     $BIN/crane-collect run --sim --seed 21 --duration "$TRAIN_S" --config docs/examples/dither.toml \
         -o "$OUT/train-follower-dither.h5" --force --quiet
-for a in 0.1 0.3; do
+for a in 0.1 0.2; do
     have "$OUT/models/follower-rigid-body+friction-pj-a$a" ||
         $FIT "$OUT/train-follower-dither.h5" --model rigid-body --effect coulomb --effect viscous --eval-set per-joint \
             --alpha $a -o "$OUT/models/follower-rigid-body+friction-pj-a$a"
 done
-for m in nominal+dither rigid-body+friction+dither rigid-body+friction+dither-a0.3; do
+for m in nominal+dither rigid-body+friction+dither rigid-body+friction+dither-a0.2; do
     case $m in
         nominal+dither) args=(--config docs/examples/dither.toml) ;;
         rigid-body+friction+dither) args=(--config docs/examples/dither-model.toml
             --model "$OUT/models/follower-rigid-body+friction-pj-a0.1") ;;
-        *) args=(--config docs/examples/dither-model.toml --model "$OUT/models/follower-rigid-body+friction-pj-a0.3") ;;
+        *) args=(--config docs/examples/dither-model.toml --model "$OUT/models/follower-rigid-body+friction-pj-a0.2") ;;
     esac
     have "$OUT/fidelity-$m.json" && continue
     $BIN/crane-collect run --sim --plant contact-wall --task contact --seed 23 --duration "$EVAL_S" \
