@@ -44,7 +44,7 @@ class JointGains:
     kf: float  # dimensionless
     cutoff: float  # rad/s, pseudo-derivative and observer cutoff g
     viscous: float  # N m s/rad, RFOB viscous friction D
-    dither: float = 1.0  # the follower's friction dither on this joint, times controller.dither_amplitude
+    dither: float = 1.0  # follower's dither on this joint, x controller.dither_amplitude (< 0: antiphase)
 
 
 @dataclass(frozen=True)
@@ -253,7 +253,8 @@ def _build(values: dict, where: str) -> Config:
         for key in ("inertia", "kp", "cutoff"):
             gains[key] = _pos(where, f"controller.{name}.{key}", table[key])
         for key in ("kd", "kf", "viscous", "dither"):
-            gains[key] = _nonneg(where, f"controller.{name}.{key}", table[key])
+            check = _finite if key == "dither" else _nonneg  # dither < 0: antiphase
+            gains[key] = check(where, f"controller.{name}.{key}", table[key])
         joints[name] = JointGains(**gains)
     for key in ("gravity_m0", "gravity_m1", "gravity_m2"):
         _need(math.isfinite(c[key]), where, f"controller.{key}", "a finite number", c[key])

@@ -10,7 +10,14 @@
 #    with pressing the follower against the walls, with the plants' true external torques written
 #    beside the session (--truth-trace); crane-train fidelity on each;
 # 4. the modelling loop in force terms: a hidden Coulomb friction on joint 2 leaves a false force on
-#    that joint until the diagnosis names it and the model gets it.
+#    that joint until the diagnosis names it and the model gets it;
+# 5. the follower's friction dither (docs/examples/dither.toml; README "Contact at standstill"), with
+#    the nominal observer and with a rigid-body + friction model fitted per joint (--eval-set
+#    per-joint) on free motion recorded with the dither (the follower's training data of step 1 with
+#    the dither on: the same seed), joint 4 dithered in antiphase in the evaluation
+#    (docs/examples/dither-model.toml); the model once with the default dead zone (alpha 0.1: free
+#    motion) and once with alpha 0.2 (a wider dead zone: contact). Same seed and length as step 3: the
+#    ratios are against its nominal run without dither.
 # Results land in $OUT (default out/loop): fidelity-*.json, fidelity.md (the tables), models/.
 # Environment: TRAIN_S (simulated s of each training run, default 180), EVAL_S (default 120);
 # REUSE=1 keeps the sessions and models already in $OUT (re-runs only what is missing).
@@ -26,14 +33,14 @@ FIT="$BIN/crane-train fit --scale-to-data --no-progress --seed 1"
 # have PATH: with REUSE=1, PATH exists already (skip the step that makes it)
 have() { [ -n "${REUSE:-}" ] && [ -e "$1" ]; }
 
-echo "== 1/4 training data: ${TRAIN_S} s with the hand on the leader, ${TRAIN_S} s with the hand on the follower"
+echo "== 1/5 training data: ${TRAIN_S} s with the hand on the leader, ${TRAIN_S} s with the hand on the follower"
 have "$OUT/train-follower.h5" ||
     $BIN/crane-collect run --sim --seed 21 --duration "$TRAIN_S" -o "$OUT/train-follower.h5" --force --quiet
 have "$OUT/train-leader.h5" ||
     $BIN/crane-collect run --sim --seed 22 --duration "$TRAIN_S" --hand-on follower -o "$OUT/train-leader.h5" \
         --force --quiet
 
-echo "== 2/4 models of each arm"
+echo "== 2/5 models of each arm"
 for arm in follower leader; do
     S="$OUT/train-$arm.h5"
     M="$OUT/models/$arm"
@@ -44,7 +51,7 @@ for arm in follower leader; do
     have "$M-hybrid" || $FIT "$S" --arm $arm --model hybrid --effect coulomb --effect viscous -o "$M-hybrid"
 done
 
-echo "== 3/4 evaluation: ${EVAL_S} s on the contact-wall plant per model (the same seed: the same operator)"
+echo "== 3/5 evaluation: ${EVAL_S} s on the contact-wall plant per model (the same seed: the same operator)"
 for m in nominal rigid-body rigid-body+friction mlp-masked hybrid hybrid-both-arms; do
     args=()
     case $m in
@@ -59,7 +66,7 @@ for m in nominal rigid-body rigid-body+friction mlp-masked hybrid hybrid-both-ar
         > "$OUT/fidelity-$m.json"
 done
 
-echo "== 4/4 the modelling loop in force terms: a hidden Coulomb friction on joint 2"
+echo "== 4/5 the modelling loop in force terms: a hidden Coulomb friction on joint 2"
 KNOWN=(--effect coulomb:joint=joint1 --effect viscous:joint=joint1 --effect viscous:joint=joint2
        --effect coulomb:joint=joint4 --effect viscous:joint=joint4 --effect rotor-inertia:joint=joint4)
 have "$OUT/hc-train.h5" ||
@@ -76,6 +83,29 @@ for m in nominal hc-baseline hc-with-coulomb; do
         --truth-trace "$OUT/hc-eval-$m.truth.h5" --force --quiet "${args[@]}"
     $BIN/crane-train fidelity "$OUT/hc-eval-$m.h5" --truth-trace "$OUT/hc-eval-$m.truth.h5" --json \
         > "$OUT/hc-fidelity-$m.json"
+done
+
+echo "== 5/5 friction dither: ${EVAL_S} s on the contact-wall plant, nominal and with a model"
+have "$OUT/train-follower-dither.h5" ||
+    $BIN/crane-collect run --sim --seed 21 --duration "$TRAIN_S" --config docs/examples/dither.toml \
+        -o "$OUT/train-follower-dither.h5" --force --quiet
+for a in 0.1 0.2; do
+    have "$OUT/models/follower-rigid-body+friction-pj-a$a" ||
+        $FIT "$OUT/train-follower-dither.h5" --model rigid-body --effect coulomb --effect viscous --eval-set per-joint \
+            --alpha $a -o "$OUT/models/follower-rigid-body+friction-pj-a$a"
+done
+for m in nominal+dither rigid-body+friction+dither rigid-body+friction+dither-a0.2; do
+    case $m in
+        nominal+dither) args=(--config docs/examples/dither.toml) ;;
+        rigid-body+friction+dither) args=(--config docs/examples/dither-model.toml
+            --model "$OUT/models/follower-rigid-body+friction-pj-a0.1") ;;
+        *) args=(--config docs/examples/dither-model.toml --model "$OUT/models/follower-rigid-body+friction-pj-a0.2") ;;
+    esac
+    have "$OUT/fidelity-$m.json" && continue
+    $BIN/crane-collect run --sim --plant contact-wall --task contact --seed 23 --duration "$EVAL_S" \
+        -o "$OUT/eval-$m.h5" --truth-trace "$OUT/eval-$m.truth.h5" --force --quiet "${args[@]}"
+    $BIN/crane-train fidelity "$OUT/eval-$m.h5" --truth-trace "$OUT/eval-$m.truth.h5" --json \
+        > "$OUT/fidelity-$m.json"
 done
 
 $BIN/python scripts/fidelity_table.py "$OUT" | tee "$OUT/fidelity.md"

@@ -147,3 +147,22 @@ def test_dither_removes_the_static_friction_offset_at_the_wall(tmp_path):
     assert abs(offset0) > 0.05
     assert abs(offset1) < 0.3 * abs(offset0)
     assert rms1 / true1 < 0.6 * (rms0 / true0)
+
+
+def test_a_negative_joint_factor_dithers_that_joint_in_antiphase(tmp_path):
+    """[controller.jointN] dither < 0: the joint's wave is the others' with the opposite sign (so two
+    coupled joints' waves do not cancel each other's); non-finite factors are refused."""
+    cfg = load_config()
+    values = cfg.values
+    values["controller"]["dither_amplitude"] = 0.4
+    values["controller"]["joint4"]["dither"] = -1.5
+    _, _, dither, _ = _commands(_build(values, "the test"))
+    names = list(ARM.joint_names)
+    j1, j4 = names.index("joint1"), names.index("joint4")
+    assert np.abs(dither[:, j1]).max() > 0.3
+    assert np.allclose(dither[:, j4], -1.5 * dither[:, j1])
+    path = tmp_path / "c.toml"
+    path.write_text("[controller.joint4]\ndither = nan\n")
+    with pytest.raises(ConfigError) as err:
+        load_config(path)
+    assert "controller.joint4.dither" in str(err.value)
