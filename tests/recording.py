@@ -18,6 +18,20 @@ def recorded_rows(out: Path) -> int:
         return 0
 
 
+def complete_rows(out: Path) -> int:
+    """Rows that every per-cycle dataset of a session file being written holds so far (SWMR read). The
+    recorder extends its datasets one after another, so a reader can see `follower/t` a chunk ahead of
+    the others: a crash then keeps only the rows all of them hold (crane-collect recover)."""
+    from collect.session_copy import row_datasets
+
+    try:
+        with h5py.File(out, "r", libver="latest", swmr=True) as f:
+            data = row_datasets(f)
+            return min(d.shape[0] for d in data) if data else 0
+    except (OSError, KeyError):
+        return 0
+
+
 def wait_for_rows(proc, out: Path, rows: int, timeout: float = 60) -> None:
     """Wait until the running process `proc` has recorded `rows` rows; fail if it exits or times out."""
     end = time.monotonic() + timeout
