@@ -32,6 +32,17 @@ mkdir -p "$OUT/models"
 FIT="$BIN/crane-train fit --scale-to-data --no-progress --seed 1"
 # have PATH: with REUSE=1, PATH exists already (skip the step that makes it)
 have() { [ -n "${REUSE:-}" ] && [ -e "$1" ]; }
+# evaluate NAME ARGS...: one contact-task run on contact-wall (seed 23: the same operator every time) with
+# the extra run options ARGS, and its fidelity as $OUT/fidelity-NAME.json
+evaluate() {
+    local m=$1
+    shift
+    have "$OUT/fidelity-$m.json" && return 0
+    $BIN/crane-collect run --sim --plant contact-wall --task contact --seed 23 --duration "$EVAL_S" \
+        -o "$OUT/eval-$m.h5" --truth-trace "$OUT/eval-$m.truth.h5" --force --quiet "$@"
+    $BIN/crane-train fidelity "$OUT/eval-$m.h5" --truth-trace "$OUT/eval-$m.truth.h5" --json \
+        > "$OUT/fidelity-$m.json"
+}
 
 echo "== 1/5 training data: ${TRAIN_S} s with the hand on the leader, ${TRAIN_S} s with the hand on the follower"
 have "$OUT/train-follower.h5" ||
@@ -59,11 +70,7 @@ for m in nominal rigid-body rigid-body+friction mlp-masked hybrid hybrid-both-ar
         hybrid-both-arms) args=(--model "$OUT/models/follower-hybrid" --leader-model "$OUT/models/leader-hybrid") ;;
         *) args=(--model "$OUT/models/follower-$m") ;;
     esac
-    have "$OUT/fidelity-$m.json" && continue
-    $BIN/crane-collect run --sim --plant contact-wall --task contact --seed 23 --duration "$EVAL_S" \
-        -o "$OUT/eval-$m.h5" --truth-trace "$OUT/eval-$m.truth.h5" --force --quiet "${args[@]}"
-    $BIN/crane-train fidelity "$OUT/eval-$m.h5" --truth-trace "$OUT/eval-$m.truth.h5" --json \
-        > "$OUT/fidelity-$m.json"
+    evaluate "$m" "${args[@]}"
 done
 
 echo "== 4/5 the modelling loop in force terms: a hidden Coulomb friction on joint 2"
@@ -101,11 +108,7 @@ for m in nominal+dither rigid-body+friction+dither rigid-body+friction+dither-a0
             --model "$OUT/models/follower-rigid-body+friction-pj-a0.1") ;;
         *) args=(--config docs/examples/dither-model.toml --model "$OUT/models/follower-rigid-body+friction-pj-a0.2") ;;
     esac
-    have "$OUT/fidelity-$m.json" && continue
-    $BIN/crane-collect run --sim --plant contact-wall --task contact --seed 23 --duration "$EVAL_S" \
-        -o "$OUT/eval-$m.h5" --truth-trace "$OUT/eval-$m.truth.h5" --force --quiet "${args[@]}"
-    $BIN/crane-train fidelity "$OUT/eval-$m.h5" --truth-trace "$OUT/eval-$m.truth.h5" --json \
-        > "$OUT/fidelity-$m.json"
+    evaluate "$m" "${args[@]}"
 done
 
 $BIN/python scripts/fidelity_table.py "$OUT" | tee "$OUT/fidelity.md"
