@@ -8,7 +8,9 @@ seed), its own Adam state and step count, and its own best-validation-epoch weig
 takes ceil(n_m / batch_size) steps over a fresh permutation of its rows (the last batch may be short);
 the whole batch runs max_m of that many steps and a model whose epoch is over sits the rest out
 (no gradient, no Adam step). So every model follows exactly the trajectory the plain one-model loop
-`train_plain` follows with the same seed; only floating-point summation order differs.
+`train_plain` follows with the same seed; only floating-point summation order differs (the gradients
+are written out rather than taken through autograd, and Adam runs on all models' parameters as one
+(M, P) tensor: docs/train.md, "The sweep").
 
 Loss per model on a minibatch (the per-model terms of train.models.losses.weighted_loss):
 sum_ij w_ij (y_ij - yhat_ij)^2 / (J n) in standardised units,
@@ -118,18 +120,15 @@ def train_mlps(X: np.ndarray, Y: np.ndarray, W: np.ndarray, rows: Sequence[np.nd
     D, J, H = X.shape[1], Y.shape[1], s.hidden
     rngs = [np.random.default_rng(sd) for sd in seeds]
     inits = [init_params(r, D, H, J) for r in rngs]
-    params = {k: torch.tensor(np.stack([p[k] for p in inits]), requires_grad=True) for k in inits[0]}
     norms = [standardisation(X, Y, np.asarray(r)) for r in rows]
     norm = {k: np.stack([n[k] for n in norms]) for k in norms[0]}
     nt = {k: torch.as_tensor(v) for k, v in norm.items()}
-    Xt = torch.as_tensor(np.asarray(X, dtype=np.float32))
-    # per-model standardised copies of the data would cost M x N; standardise per batch instead
-    Yt = torch.as_tensor(np.asarray(Y, dtype=np.float32))
-    Wt = torch.as_tensor(np.asarray(W, dtype=np.float32))
-    # padding row N: zeros, weight 0
-    Xt = torch.cat([Xt, torch.zeros(1, D)])
-    Yt = torch.cat([Yt, torch.zeros(1, J)])
-    Wt = torch.cat([Wt, torch.zeros(1, J)])
+    # one table [X | Y | W] so that a minibatch is one gather; padding row N: zeros, weight 0
+    # (per-model standardised copies of the data would cost M x N; standardise per batch instead)
+    table = torch.as_tensor(np.vstack([
+        np.hstack([np.asarray(X, dtype=np.float32), np.asarray(Y, dtype=np.float32),
+                   np.asarray(W, dtype=np.float32)]),
+        np.zeros((1, D + 2 * J), dtype=np.float32)]))
     xv = torch.as_tensor(np.asarray(X_val, dtype=np.float32))
     yv = torch.as_tensor(np.asarray(Y_val, dtype=np.float32))
     xv_std = (xv.unsqueeze(0) - nt["x_mean"].unsqueeze(1)) / nt["x_std"].unsqueeze(1)  # (M, V, D)
@@ -137,56 +136,59 @@ def train_mlps(X: np.ndarray, Y: np.ndarray, W: np.ndarray, rows: Sequence[np.nd
         wv = torch.as_tensor(np.asarray(W_val, dtype=np.float32))  # (V, J)
         wv_n = wv.sum(dim=0).clamp(min=1)
 
-    exp_avg = {k: torch.zeros_like(v) for k, v in params.items()}
-    exp_sq = {k: torch.zeros_like(v) for k, v in params.items()}
-    step = torch.zeros(M)
-    b1, b2 = s.betas
-    best = {k: v.detach().clone() for k, v in params.items()}
+    # All of a model's parameters in one row of `flat` (W1, b1, W2 transposed, b2), so that Adam is a few
+    # element-wise operations on (M, P) tensors instead of a few per parameter tensor. The matmuls take
+    # contiguous copies (a strided view makes the CPU batched matmul several times slower); W2 is kept as
+    # (M, J, H) because the batched matmul of (B, H) by (H, J) with J = 3 is ~3x faster with that layout.
+    # The gradients are written out (a 2-layer ReLU network), not taken through autograd.
+    flat, views = _flat_params(inits, D, H, J)
+    exp_avg, exp_sq = torch.zeros_like(flat), torch.zeros_like(flat)
+    steps_done = np.zeros(M)
+    best = flat.clone()
     best_val = torch.full((M,), float("inf"))
     best_epoch = np.zeros(M, dtype=int)
     train_loss = np.zeros((s.epochs, M))
     val_mse = np.zeros((s.epochs, M, J))
     rows = [np.asarray(r, dtype=np.int64) for r in rows]
+    sizes = np.array([len(r) for r in rows])
     pad = len(X)
     x_mean, x_std = nt["x_mean"].unsqueeze(1), nt["x_std"].unsqueeze(1)
     y_mean, y_std = nt["y_mean"].unsqueeze(1), nt["y_std"].unsqueeze(1)
+    xs, ys, ws = slice(0, D), slice(D, D + J), slice(D + J, D + 2 * J)
 
-    for epoch in range(s.epochs):
-        orders = [r[rng.permutation(len(r))] for r, rng in zip(rows, rngs)]
-        batches = torch.as_tensor(_epoch_batches(orders, s.batch_size))
-        batches = torch.where(batches < 0, pad, batches)
-        loss_sum = torch.zeros(M)
-        loss_n = torch.zeros(M)
-        for idx in batches:  # idx (M, B)
-            valid = idx != pad
-            count = valid.sum(dim=1).to(torch.float32)
-            active = count > 0
-            xb = (Xt[idx] - x_mean) / x_std
-            yb = (Yt[idx] - y_mean) / y_std
-            wb = Wt[idx]
-            out = forward(params, xb)
-            J_ = out.shape[-1]
-            per_model = (wb * (out - yb) ** 2).sum(dim=(1, 2)) / (J_ * count.clamp(min=1))
-            for p in params.values():
-                p.grad = None
-            per_model.sum().backward()
-            with torch.no_grad():
-                loss_sum += per_model.detach() * active
-                loss_n += active
-                step += active.to(step.dtype)
-                a = active.to(torch.float32)
-                bc1 = 1 - b1 ** step.clamp(min=1)
-                bc2 = 1 - b2 ** step.clamp(min=1)
-                for k, p in params.items():
-                    shape = (M,) + (1,) * (p.dim() - 1)
-                    am = a.view(shape)
-                    g = p.grad
-                    exp_avg[k].mul_(1 - am * (1 - b1)).add_(am * (1 - b1) * g)
-                    exp_sq[k].mul_(1 - am * (1 - b2)).add_(am * (1 - b2) * g * g)
-                    denom = (exp_sq[k].sqrt() / bc2.sqrt().view(shape)).add_(s.eps)
-                    p.sub_(am * (s.lr / bc1).view(shape) * exp_avg[k] / denom)
-        with torch.no_grad():
-            pred = forward(params, xv_std) * y_std + y_mean
+    def net(x):  # x (M, B, D) standardised -> (hidden, output, W2t)
+        w1, w2t = views["W1"].contiguous(), views["W2t"].contiguous()
+        hidden = torch.baddbmm(views["b1"].unsqueeze(1), x, w1).relu_()  # in place: a fresh 25 MB output
+        # (the validation pass) costs ~4x more to write than to update
+        return hidden, torch.baddbmm(views["b2"].unsqueeze(1), hidden, w2t.transpose(1, 2)), w2t
+
+    with torch.no_grad():
+        for epoch in range(s.epochs):
+            orders = [r[rng.permutation(len(r))] for r, rng in zip(rows, rngs)]
+            batches = torch.as_tensor(_epoch_batches(orders, s.batch_size))
+            batches = torch.where(batches < 0, pad, batches)
+            f = _step_factors(sizes, len(batches), s, steps_done, J)
+            steps_done = steps_done + np.ceil(sizes / s.batch_size)
+            loss_sum = torch.zeros(M)
+            for k, idx in enumerate(batches):  # idx (M, B)
+                batch = table[idx]
+                xb = (batch[..., xs] - x_mean) / x_std
+                werr_scale = f["grad_scale"][k]
+                hidden, out, w2t = net(xb)
+                err = out - (batch[..., ys] - y_mean) / y_std
+                werr = batch[..., ws] * err
+                loss_sum += (werr * err).sum(dim=(1, 2)) * f["loss_scale"][k]
+                # d(sum of the models' losses)/d(out), then back through the two layers
+                d_out = werr * werr_scale  # (M, B, J)
+                d_pre = torch.ops.aten.threshold_backward(torch.bmm(d_out, w2t), hidden, 0)  # (M, B, H)
+                grad = torch.cat([torch.bmm(xb.transpose(1, 2), d_pre).view(M, -1), d_pre.sum(dim=1),
+                                  torch.bmm(d_out.transpose(1, 2), hidden).view(M, -1), d_out.sum(dim=1)],
+                                 dim=1)
+                # Adam; a model whose epoch is over (factors 1 and 0) keeps its moments and weights
+                exp_avg.mul_(f["keep1"][k]).add_(grad * f["take1"][k])
+                exp_sq.mul_(f["keep2"][k]).addcmul_(grad * f["take2"][k], grad)
+                flat.sub_(exp_avg * f["lr"][k] / exp_sq.sqrt().mul_(f["unbias2"][k]).add_(s.eps))
+            pred = net(xv_std)[1] * y_std + y_mean
             if W_val is None:
                 vm = ((pred - yv.unsqueeze(0)) ** 2).mean(dim=1)  # (M, J)
             else:
@@ -194,17 +196,59 @@ def train_mlps(X: np.ndarray, Y: np.ndarray, W: np.ndarray, rows: Sequence[np.nd
             score = vm.mean(dim=1)
             better = score < best_val
             if better.any():
-                for k, p in params.items():
-                    shape = (M,) + (1,) * (p.dim() - 1)
-                    best[k] = torch.where(better.view(shape), p.detach(), best[k])
+                best = torch.where(better.view(M, 1), flat, best)
                 best_val = torch.where(better, score, best_val)
                 best_epoch[better.numpy()] = epoch
-        train_loss[epoch] = (loss_sum / loss_n.clamp(min=1)).numpy()
-        val_mse[epoch] = vm.numpy()
-        if progress is not None:
-            progress(epoch + 1, s.epochs)
-    return BatchedResult({k: v.numpy().copy() for k, v in best.items()}, norm, best_epoch,
+            train_loss[epoch] = loss_sum.numpy() / np.maximum(np.ceil(sizes / s.batch_size), 1)
+            val_mse[epoch] = vm.numpy()
+            if progress is not None:
+                progress(epoch + 1, s.epochs)
+    kept = _views(best, M, D, H, J)
+    params = {"W1": kept["W1"], "b1": kept["b1"], "W2": kept["W2t"].transpose(1, 2), "b2": kept["b2"]}
+    return BatchedResult({k: np.ascontiguousarray(v.numpy()) for k, v in params.items()}, norm, best_epoch,
                          best_val.numpy().copy(), train_loss, val_mse)
+
+
+def _step_factors(sizes: np.ndarray, n_steps: int, s: MLPSettings, steps_done: np.ndarray, J: int) -> dict:
+    """Per minibatch step k of one epoch, (M, 1[, 1]) float32 tensors: the loss and gradient scales
+    (1 / (J n) of each model's batch) and the Adam factors (moment decay and bias corrections, 1 and 0
+    for a model whose epoch is over), computed for the whole epoch at once."""
+    k = np.arange(n_steps)[:, None]
+    count = np.clip(sizes[None, :] - k * s.batch_size, 0, s.batch_size).astype(float)  # (S, M)
+    active = (count > 0).astype(float)
+    step = steps_done[None, :] + np.minimum(k + 1, np.ceil(sizes / s.batch_size)[None, :])
+    step = np.maximum(step, 1)
+    b1, b2 = s.betas
+    return {name: torch.as_tensor(v.astype(np.float32)).view(n_steps, -1, *shape) for name, v, shape in (
+        ("loss_scale", active / (J * np.maximum(count, 1)), ()),
+        ("grad_scale", 2.0 * active / (J * np.maximum(count, 1)), (1, 1)),
+        ("keep1", 1 - active * (1 - b1), (1,)),
+        ("take1", active * (1 - b1), (1,)),
+        ("keep2", 1 - active * (1 - b2), (1,)),
+        ("take2", active * (1 - b2), (1,)),
+        ("lr", active * s.lr / (1 - b1 ** step), (1,)),
+        ("unbias2", 1 / np.sqrt(1 - b2 ** step), (1,)),
+    )}
+
+
+def _views(flat: torch.Tensor, M: int, D: int, H: int, J: int) -> dict:
+    """W1 (M, D, H), b1 (M, H), W2t (M, J, H), b2 (M, J) as views of the rows of `flat` (M, P)."""
+    sizes = {"W1": (D, H), "b1": (H,), "W2t": (J, H), "b2": (J,)}
+    out, at = {"_flat": flat}, 0
+    for name, shape in sizes.items():
+        n = math.prod(shape)
+        out[name] = flat[:, at:at + n].view((M, *shape))
+        at += n
+    return out
+
+
+def _flat_params(inits: list[dict], D: int, H: int, J: int) -> tuple[torch.Tensor, dict]:
+    """The initial parameters of every model, one row each (see _views)."""
+    rows = [np.concatenate([p["W1"].ravel(), p["b1"], p["W2"].T.ravel(), p["b2"]]) for p in inits]
+    flat = torch.tensor(np.stack(rows).astype(np.float32))
+    views = _views(flat, len(inits), D, H, J)
+    views.pop("_flat")
+    return flat, views
 
 
 def train_plain(X: np.ndarray, Y: np.ndarray, W: np.ndarray, rows: np.ndarray | Sequence[int],
