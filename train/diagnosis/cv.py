@@ -80,15 +80,27 @@ class Engine:
         self.Xy = np.stack([self._part(self._wxf, k).T @ self._part(self._yf, k) for k in range(folds)])
         self.yy = np.array([float(self._part(self._wyf, k) @ self._part(self._yf, k)) for k in range(folds)])
         self._cache: dict[int, tuple] = {}  # id(C) -> (C, scale, per-fold XC, CC, Cy)
+        # per joint, its rows alone (contiguous copies): most candidates act on one joint, and their
+        # cross products then need only that joint's rows (the others add exact zeros)
+        if self._slices is not None:
+            wx3 = self._wxf.reshape(n, j, self.p)
+            self._by_joint = [(np.ascontiguousarray(wx3[:, i]), self.W[:, i].copy(),
+                               np.ascontiguousarray(self._wyf.reshape(n, j)[:, i])) for i in range(j)]
+            self._row_edges = [(int(edges[k]), int(edges[k + 1])) for k in range(folds)]
 
     def extended(self, C: np.ndarray) -> Engine:
         """The same problem with the columns C (N, J, c) added to the basis."""
         return Engine(np.concatenate([self.X, C], axis=2), self.y, self.W, self.fold, self.K)
 
-    def _scale(self, A):
-        w = self.W[:, :, None]
-        s = np.sqrt((w * A * A).sum(axis=(0, 1)) / max(w.sum(), 1.0))
+    def _scale(self, A, squares=None):
+        """Per column of A (N, J, c), its weighted RMS (1 where it is ~0). `squares`: _squares(A)."""
+        sq = self._squares(A) if squares is None else squares
+        s = np.sqrt(sq.sum(axis=0) / max(self.W.sum(), 1.0))
         return np.where(s > 1e-12, s, 1.0)
+
+    def _squares(self, A):
+        """(J, c): the weighted sum of squares of each column of A (N, J, c) on each joint's rows."""
+        return (self.W[:, :, None] * A * A).sum(axis=0)
 
     def _solve(self, G, b):
         n = len(b)
@@ -129,16 +141,36 @@ class Engine:
         hit = self._cache.get(id(C))
         if hit is not None and hit[0] is C:
             return hit[1:]
-        sc = self._scale(C)
-        cf = (C / sc).reshape(-1, C.shape[2])
-        parts = [self._part(cf, k) for k in range(self.K)]
-        stats = (sc, np.stack([self._part(self._wxf, k).T @ c for k, c in enumerate(parts)]),
-                 np.stack([(self._part(self._wk[k], k)[:, None] * c).T @ c for k, c in enumerate(parts)]),
-                 np.stack([c.T @ self._part(self._wyf, k) for k, c in enumerate(parts)]))
+        squares = self._squares(C)
+        sc = self._scale(C, squares)
+        used = np.flatnonzero(squares.any(axis=1))  # the joints on whose weighted rows C is not zero
+        if self._slices is not None and len(used) < C.shape[1]:
+            stats = (sc, *self._stats_by_joint(C / sc, used))
+        else:
+            cf = (C / sc).reshape(-1, C.shape[2])
+            parts = [self._part(cf, k) for k in range(self.K)]
+            stats = (sc, np.stack([self._part(self._wxf, k).T @ c for k, c in enumerate(parts)]),
+                     np.stack([(self._part(self._wk[k], k)[:, None] * c).T @ c for k, c in enumerate(parts)]),
+                     np.stack([c.T @ self._part(self._wyf, k) for k, c in enumerate(parts)]))
         if len(self._cache) > 64:
             self._cache.clear()
         self._cache[id(C)] = (C, *stats)
         return stats
+
+    def _stats_by_joint(self, Cs: np.ndarray, used: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """_stats' per-fold cross products of the scaled columns Cs from the rows of the joints `used`
+        only (Cs is zero on every other joint's rows; contiguous folds)."""
+        c = Cs.shape[2]
+        XC, CC, Cy = np.zeros((self.K, self.p, c)), np.zeros((self.K, c, c)), np.zeros((self.K, c))
+        for i in used:
+            wx, w, wy = self._by_joint[i]
+            ci = np.ascontiguousarray(Cs[:, i])
+            for k, (a, b) in enumerate(self._row_edges):
+                part = ci[a:b]
+                XC[k] += wx[a:b].T @ part
+                CC[k] += (w[a:b, None] * part).T @ part
+                Cy[k] += part.T @ wy[a:b]
+        return XC, CC, Cy
 
     def heldout_sse(self, C: np.ndarray | None, th_x: np.ndarray, th_c: np.ndarray | None,
                     k: int) -> np.ndarray:
