@@ -28,8 +28,7 @@ $BIN/crane-train fit "$S" --model rigid-body -o "$OUT/models/rigid-body" --seed 
 
 echo "== 5/7 where does it fail? (HTML report) and which physical effect is missing? (diagnose)"
 $BIN/crane-train report "$OUT/models/rigid-body" "$S" -o "$OUT/report-rigid-body.html"
-$BIN/crane-train diagnose "$OUT/models/rigid-body" "$S"
-$BIN/crane-train diagnose "$OUT/models/rigid-body" "$S" --json > "$OUT/diagnosis.json"
+$BIN/crane-train diagnose "$OUT/models/rigid-body" "$S" --json-out "$OUT/diagnosis.json"
 
 echo "== 6/7 add what the diagnosis names (Coulomb and viscous friction), and the networks"
 $BIN/crane-train fit "$S" --model rigid-body --effect coulomb --effect viscous \

@@ -124,8 +124,10 @@ def test_diagnose_cli_json_report_and_compare_end_to_end(case, planted_dir, tmp_
     assert set(first["parameters"]["coulomb"]) == {"value", "std", "unit"}
     assert first["parameters"]["coulomb"]["unit"] == "N m"
     assert set(doc["summary"]) == {"joint1", "joint2", "joint4"}
-    r = runner.invoke(main, ["diagnose", str(base), str(session)])
-    assert r.exit_code == 0 and "Coulomb friction of about" in r.output
+    saved = tmp_path / "diag" / "diagnosis.json"
+    r = runner.invoke(main, ["diagnose", str(base), str(session), "--json-out", str(saved)])
+    assert r.exit_code == 0 and "Coulomb friction of about" in r.output  # the text, and the JSON saved
+    assert json.loads(saved.read_text()) == doc
     fixed = tmp_path / "fixed"
     args = ["fit", str(session), "--model", "rigid-body", "-o", str(fixed), "--seed", str(SEED),
             "--scale-to-data", "--no-progress"]
@@ -151,6 +153,12 @@ def test_diagnose_bad_input_is_one_sentence(case, tmp_path):
     assert r.exit_code != 0 and r.output.startswith("Error: ") and "Traceback" not in r.output
     r = CliRunner().invoke(main, ["diagnose", str(tmp_path), str(tmp_path / "missing.h5")])
     assert r.exit_code != 0 and r.output.startswith("Error: ")
+    session = _session_path(case, "hidden-coulomb")
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    r = CliRunner().invoke(main, ["diagnose", str(base), str(session), "--json-out", str(blocker / "d.json")])
+    assert r.exit_code != 0 and r.output.startswith("Error: ") and "is a file, not a folder" in r.output
+    assert blocker.read_text() == ""
 
 
 def test_residual_diagnosis_names_a_planted_term_and_stays_quiet_on_noise():

@@ -14,6 +14,7 @@ basis of physical terms; --write-effect-file writes what is significant as an ef
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import click
 
@@ -32,6 +33,8 @@ def _params_text(params: dict) -> str:
 @click.argument("model_dir", type=click.Path(file_okay=False))
 @click.argument("sessions", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--json", "as_json", is_flag=True, help="Print the diagnosis as JSON (candidates, summary).")
+@click.option("--json-out", "json_out", type=click.Path(dir_okay=False), default=None,
+              help="Also write the JSON document (the one --json prints) to this file, and print the text.")
 @click.option("--folds", default=DEFAULT_FOLDS, show_default=True, type=click.IntRange(2, 50),
               help="Cross-validation folds (contiguous time blocks).")
 @click.option("--min-reduction", default=DEFAULT_MIN_REDUCTION, show_default=True,
@@ -50,11 +53,15 @@ def _params_text(params: dict) -> str:
               help="Write the significant discovered terms as an effect file PATH.py for "
                    "`fit --effect-file` (implies --discover).")
 @cli_errors
-def diagnose(model_dir, sessions, as_json, folds, min_reduction, top, effect_files, discover, discover_all,
-             effect_out):
+def diagnose(model_dir, sessions, as_json, json_out, folds, min_reduction, top, effect_files, discover,
+             discover_all, effect_out):
     """Rank the library's effects by how much of MODEL_DIR's error on SESSION(s) each one removes."""
     if effect_out and not str(effect_out).endswith(".py"):
         raise ConfigError(f"--write-effect-file must name a Python file (.py), got {effect_out}")
+    if json_out is not None:
+        from ..settings import writable_output
+
+        writable_output(json_out, "file")
 
     from ..api import diagnosis_inputs
     from ..diagnosis.diagnose import diagnose as run_diagnosis
@@ -74,7 +81,7 @@ def diagnose(model_dir, sessions, as_json, folds, min_reduction, top, effect_fil
             from ..diagnosis.effect_writer import write_effect_file
 
             written = write_effect_file(effect_out, found, model_dir, sessions)
-    if as_json:
+    if as_json or json_out is not None:
         doc = result.to_json()
         doc.update(model=str(model_dir), sessions=list(sessions))
         if found is not None:
@@ -82,8 +89,13 @@ def diagnose(model_dir, sessions, as_json, folds, min_reduction, top, effect_fil
             doc.update(discovered=disc["discovered"], discovery={"summary": disc["summary"],
                                                                  "settings": disc["settings"]},
                        effect_file=None if written is None else str(written[0]))
-        click.echo(json.dumps(doc, indent=2))
-        return
+        text = json.dumps(doc, indent=2)
+        if json_out is not None:
+            Path(json_out).parent.mkdir(parents=True, exist_ok=True)
+            Path(json_out).write_text(text + "\n")
+        if as_json:
+            click.echo(text)
+            return
     click.echo(f"Diagnosis of {model_dir} ({model.method}) on {judged} of {', '.join(sessions)}; "
                f"{folds}-fold cross-validation over contiguous time blocks of each joint's moving samples.")
     for joint in result.joints:
