@@ -83,3 +83,26 @@ def test_crane_ios_library_modules_import_no_command_line_library():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "False", "a crane_io library module imports click"
+
+
+BLAS_PROBE = textwrap.dedent("""
+    import importlib, json
+    importlib.import_module({module!r})
+    import numpy  # noqa: F401  (the commands import it after the command line module)
+    from threadpoolctl import threadpool_info
+    print(json.dumps([i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]))
+""")
+
+
+@pytest.mark.parametrize("module", ["train.cli", "collect.cli"])
+@pytest.mark.parametrize("env, expected", [({}, 1), ({"OPENBLAS_NUM_THREADS": "2"}, 2)])
+def test_the_commands_run_numpy_on_one_blas_thread_unless_told_otherwise(module, env, expected):
+    """OpenBLAS's spinning threads made diagnose several times slower in CPU on a busy machine; the
+    command lines ask for one thread, and a user's OPENBLAS_NUM_THREADS wins."""
+    import os
+
+    full = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"} | env
+    out = subprocess.run([sys.executable, "-c", BLAS_PROBE.format(module=module)], env=full,
+                         capture_output=True, text=True, check=True)
+    threads = json.loads(out.stdout.strip().splitlines()[-1])
+    assert threads and all(t == min(expected, os.cpu_count() or expected) for t in threads)

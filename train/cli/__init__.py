@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import click
 
-from crane_io.cli_support import LazyGroup
+from crane_io.cli_support import LazyGroup, one_blas_thread
+
+one_blas_thread()  # before numpy is imported (the subcommands import it)
 
 # (module, attribute) of every subcommand; imported lazily so `--help` stays fast.
 COMMANDS = {

@@ -100,7 +100,7 @@ class Engine:
 
     def _squares(self, A):
         """(J, c): the weighted sum of squares of each column of A (N, J, c) on each joint's rows."""
-        return (self.W[:, :, None] * A * A).sum(axis=0)
+        return np.einsum("nj,njc,njc->jc", self.W, A, A)
 
     def _solve(self, G, b):
         n = len(b)
@@ -346,7 +346,8 @@ def identifiability(engine: Engine, C: np.ndarray, effect: Any = None) -> tuple[
         return True, ()
     W = engine.W
     A = np.concatenate([engine.Xs, C / engine._scale(C)], axis=2)
-    G = np.einsum("nj,nja,njb->ab", W, A, A)
+    flat = A.reshape(-1, A.shape[2])
+    G = (W.reshape(-1, 1) * flat).T @ flat  # sum_nj W A_a A_b (a matrix product: ~8x faster than einsum)
     p, c = engine.p, C.shape[2]
     names = [q.name for q in getattr(effect, "linear_params", ())] if effect is not None else []
     tol = IDENTIFIABLE_TOL ** 2
