@@ -26,7 +26,7 @@ def config_sections() -> dict:
     settings modules bring numpy and torch)."""
     from .data.preprocess import PreprocessConfig
     from .data.splits import SplitConfig
-    from .models.batched import MLPSettings
+    from .models.mlp_settings import MLPSettings
 
     return {"preprocess": PreprocessConfig, "splits": SplitConfig, "mlp": MLPSettings}
 

@@ -27,21 +27,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
+from .mlp_settings import DEFAULT_BATCH_SIZE, MLPSettings  # noqa: F401 (their home before)
+
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
-
-DEFAULT_BATCH_SIZE = 32
-
-
-@dataclass
-class MLPSettings:
-    hidden: int = 64  # hidden units (paper: 64)
-    lr: float = 0.01  # Adam learning rate (paper: 0.01)
-    epochs: int = 100  # paper: 100
-    batch_size: int = DEFAULT_BATCH_SIZE  # minibatch size (the paper does not say)
-    betas: tuple[float, float] = (0.9, 0.999)  # Adam defaults
-    eps: float = 1e-8
-
 
 @dataclass
 class BatchedResult:
