@@ -106,3 +106,29 @@ def test_the_commands_run_numpy_on_one_blas_thread_unless_told_otherwise(module,
                          capture_output=True, text=True, check=True)
     threads = json.loads(out.stdout.strip().splitlines()[-1])
     assert threads and all(t == min(expected, os.cpu_count() or expected) for t in threads)
+
+
+FIT_PROBE = textwrap.dedent("""
+    import json, sys
+    from click.testing import CliRunner
+    from train.cli import main
+    result = CliRunner().invoke(main, sys.argv[1:])
+    print(json.dumps({"exit": result.exit_code, "output": result.output[-400:],
+                      "torch": "torch" in sys.modules}))
+""")
+
+
+def test_a_rigid_body_fit_and_its_diagnosis_never_import_torch(tmp_path):
+    """torch takes 1.5-4 s to import; only the networks need it."""
+    from tests.sessions import write_synthetic_session
+
+    session, _ = write_synthetic_session(tmp_path / "s.h5", 60, seed=3)
+    model = tmp_path / "rb"
+    for args in (["fit", str(session), "--model", "rigid-body", "-o", str(model), "--scale-to-data",
+                  "--no-progress"],
+                 ["diagnose", str(model), str(session)]):
+        out = subprocess.run([sys.executable, "-c", FIT_PROBE, *args], capture_output=True, text=True,
+                             check=True)
+        report = json.loads(out.stdout.strip().splitlines()[-1])
+        assert report["exit"] == 0, report["output"]
+        assert not report["torch"], args[0]
