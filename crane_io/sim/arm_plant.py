@@ -128,6 +128,8 @@ class ArmPlant:
         self._bi_l, self._held_l = self._bi.tolist(), self._held.tolist()
         self._bi_mask = sum(1 << i for i in self._bi_l)  # bit i: servo i drives an integrated joint
         self._bi_a = self._held_a = None  # read_arrays' index arrays, made at first use
+        self._kt_kept = (None, None)  # read_arrays: _kt_l and the array of it
+        self._chain_fns = None  # read_arrays: chain_kernel.compiled(), loaded at first use
         locked = {n: v for n, v in config.locked.items() if n not in joints}  # an integrated joint is free
         self.dyn = ArmDynamics(joints, locked=locked, payload_mass=self._payload)
         self.model = self.dyn.model
@@ -639,8 +641,10 @@ class ArmPlant:
     def read_arrays(self) -> tuple:
         """`read_lists` with position, velocity and current as float64 arrays (the same numbers, the same
         random stream; compiled with crane_io.sim.chain_kernel.reading): the simulated chain's fast path."""
-        fns = chain_kernel.compiled()
+        fns = self._chain_fns
         if fns is None:
+            fns = self._chain_fns = chain_kernel.compiled() or False
+        if not fns:
             pos, vel, cur, volt, temp = self.read_lists()
             return np.array(pos), np.array(vel), np.array(cur), volt, temp
         n = len(self.servo_ids)
@@ -664,7 +668,10 @@ class ArmPlant:
         if self._bi_a is None:
             self._bi_a = np.array(self._bi_l, dtype=np.int64)
             self._held_a = np.array(self._held_l, dtype=np.int64)
-        kt = np.array(self._kt_l, dtype=float)
+        kt_l, kt = self._kt_kept
+        if kt_l is not self._kt_l or kt.tolist() != kt_l:  # (a test may change the torque constants)
+            kt = np.array(self._kt_l, dtype=float)
+            self._kt_kept = (self._kt_l, kt)
         pos, vel, cur = fns[3](self.q, self.dq, self.motor_torque, self._held_q, self._held_dq,
                                self._held_current, self._bi_a, self._held_a, kt, n, float(p), raw, flips,
                                signs, vel_sd, cur_sd, z)

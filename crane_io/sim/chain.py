@@ -44,6 +44,7 @@ from crane_io.sim.servo import _I16, _U16, BAUD_CODES, MEMORY_SIZE, EmulatedServ
 GOAL_CURRENT_ADDRESS = X_SERIES["goal_current"].address
 GOAL_POSITION_ADDRESS = X_SERIES["goal_position"].address
 _ID_ADDRESS = X_SERIES["id"].address
+_BAUD_ADDRESS = X_SERIES["baud_rate"].address  # right after the ID (_hearing reads both at once)
 # the items the fast path reads and writes in every servo's memory (_fast_layout checks the models')
 _TORQUE_AT, _MODE_AT = X_SERIES["torque_enable"].address, X_SERIES["operating_mode"].address
 _LIMIT_AT, _HW_ERROR_AT = X_SERIES["current_limit"].address, X_SERIES["hardware_error_status"].address
@@ -121,6 +122,8 @@ class SimulatedChain:
         self._commands = np.zeros((5, len(self._order)))
         self._supply_key: tuple = (None, None)  # the last (voltages, temperatures) and their raw values
         self._supply_raw = (None, None)
+        self._hearing_cache = None  # (key, servos, index): see _hearing
+        self._fast_read_kept = None  # see _fast_sync_reply
         self.servos: dict[int, EmulatedServo] = {}
         self._rekey()
         self.reply_filter: Callable[[bytes], bytes | None] | None = None
@@ -154,7 +157,7 @@ class SimulatedChain:
             return False
         names = ("present_current", "realtime_tick", "present_input_voltage", "moving_threshold",
                  "torque_enable", "operating_mode", "goal_current", "goal_position", "current_limit",
-                 "hardware_error_status", "bus_watchdog", "id")
+                 "hardware_error_status", "bus_watchdog", "id", "baud_rate")
         for s in self._order:
             regs = s.registers
             if any(regs[n].address != X_SERIES[n].address or regs[n].size != X_SERIES[n].size
@@ -405,6 +408,18 @@ class SimulatedChain:
             return bytes(out)
 
     def _hearing(self, baudrate: int | None) -> list[EmulatedServo]:
+        if self.fast:  # the same list as long as the port's speed, who is on the bus, IDs and bauds are
+            key = (baudrate, [s.on_bus for s in self._order],
+                   self.memories[:, _ID_ADDRESS:_BAUD_ADDRESS + 1].tobytes())
+            cached = self._hearing_cache
+            if cached is not None and cached[0] == key:
+                return cached[1]
+            servos = self._hearing_of(baudrate)
+            self._hearing_cache = (key, servos, self._index_of(servos))
+            return servos
+        return self._hearing_of(baudrate)
+
+    def _hearing_of(self, baudrate: int | None) -> list[EmulatedServo]:
         if baudrate is None:
             return [s for s in self._order if s.on_bus]
         code = _BAUD_CODE_OF.get(baudrate)
@@ -504,9 +519,18 @@ class SimulatedChain:
                 return s
         return None
 
+    def _index(self, servos) -> dict[int, EmulatedServo]:
+        """ID -> servo among `servos`; with duplicate IDs the first one wins (as in _by_id). Kept with the
+        list _hearing returned last (IDs and who hears have not changed since: see _hearing) when that
+        list is `servos` and no ID was written since."""
+        cached = self._hearing_cache
+        if (cached is not None and cached[1] is servos
+                and cached[0][2] == self.memories[:, _ID_ADDRESS:_BAUD_ADDRESS + 1].tobytes()):
+            return cached[2]
+        return self._index_of(servos)
+
     @staticmethod
-    def _index(servos) -> dict[int, EmulatedServo]:
-        """ID -> servo among `servos`; with duplicate IDs the first one wins (as in _by_id)."""
+    def _index_of(servos) -> dict[int, EmulatedServo]:
         index: dict[int, EmulatedServo] = {}
         for s in servos:
             index.setdefault(s.id, s)
@@ -571,16 +595,22 @@ class SimulatedChain:
         """The fast path of a Fast Sync Read: every addressed servo answers (on the bus, supports it, its
         watchdog has not expired), the packet built in one compiled call; else None (the general path)."""
         index = self._index(servos)
-        chosen = []
-        for sid in ids:
-            s = index.get(sid)
-            if s is None or not s.supports_fast_sync_read or s.watchdog_expired:
+        kept = self._fast_read_kept  # (index, ids, servos, rows, ids array) of the last fast read
+        if kept is not None and kept[0] is index and kept[1] == ids:
+            chosen, rows, id_array = kept[2], kept[3], kept[4]
+        else:
+            chosen = [index.get(sid) for sid in ids]
+            if None in chosen:
                 return None
-            chosen.append(s)
+            rows = np.array([s.chain_row for s in chosen], dtype=np.int64)
+            id_array = np.array(ids, dtype=np.int64)
+            self._fast_read_kept = (index, ids, chosen, rows, id_array)
+        for s in chosen:
+            if not s.supports_fast_sync_read or s.watchdog_expired:
+                return None
         for s in chosen:
             s.contact(now)
-        packet, crc = fast[2](self.memories, np.array([s.chain_row for s in chosen], dtype=np.int64),
-                              np.array(ids, dtype=np.int64), address, length, _HW_ERROR_AT,
+        packet, crc = fast[2](self.memories, rows, id_array, address, length, _HW_ERROR_AT,
                               chain_kernel.CRC_TABLE_U16)
         packet = packet.tobytes()
         remember(packet[:-2], crc)  # the host checks the packet's CRC next
