@@ -324,3 +324,26 @@ def test_reading_compiled_equals_python_and_read_lists():
             b = fn.py_func(*args, raw, flips, signs, *sds, z)
             for x, y in zip(a, b):
                 assert x.tobytes() == y.tobytes()
+
+
+def test_a_subclass_that_changes_read_lists_or_step_lists_is_not_bypassed():
+    class Offset(ArmPlant):
+        def read_lists(self):
+            pos, vel, cur, volt, temp = super().read_lists()
+            return [x + 0.1 for x in pos], vel, cur, volt, temp
+
+    class Stepped(ArmPlant):
+        steps = 0
+
+        def step_lists(self, *args):
+            self.steps += 1
+            return super().step_lists(*args)
+
+    offset = SimulatedChain(Offset("crane-x7", seed=0), fast=True)
+    plain = SimulatedChain(ArmPlant("crane-x7", seed=0), fast=True)
+    shift = (offset.servos[2].read_register("present_position")
+             - plain.servos[2].read_register("present_position"))
+    assert abs(shift - 0.1 / 0.0015339807878856412) <= 1.5  # the subclass's offset (0.1 rad) is there
+    stepped = SimulatedChain(Stepped("crane-x7", seed=0), fast=True)
+    stepped.advance(0.01)
+    assert stepped.plant.steps == 5

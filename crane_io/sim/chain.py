@@ -700,9 +700,17 @@ class SimulatedChain:
 def _list_method(plant, name: str, variant: str | None = None):
     """`plant.<name>_lists` (the same call with lists instead of arrays; or the method named `variant`) when
     the class whose `name` method the plant uses defines it too, else None: a subclass or a wrapper that
-    changes `read` or `step` (sensor offsets, a delegating __getattr__) is never bypassed."""
-    variant = variant or f"{name}_lists"
+    changes `read` or `step` (sensor offsets, a delegating __getattr__; or, for a variant, `<name>_lists`)
+    is never bypassed."""
+    lists = f"{name}_lists"
+    if variant is None:
+        for klass in type(plant).__mro__:
+            if name in vars(klass):
+                return getattr(plant, lists) if lists in vars(klass) else None
+        return None
+    # the fast path's variant: the first class defining any of the three must define all three
     for klass in type(plant).__mro__:
-        if name in vars(klass):
-            return getattr(plant, variant) if variant in vars(klass) else None
+        found = [m in vars(klass) for m in (name, lists, variant)]
+        if any(found):
+            return getattr(plant, variant) if all(found) else None
     return None
