@@ -11,6 +11,9 @@
 5. The compiled substep kernel (crane_io.sim.plant_kernel, the default) against the reference path
    (`ArmPlant(kernel=False)`: pinocchio and Python floats per substep), 3 and 7 joints, the plant alone:
    blocks of the two alternated in one process, CPU time, and their ratio.
+6. The simulated chain side alone (SimulatedChain.feed: Goal Current Sync Write + Fast Sync Read bytes
+   in, the reply out, the plant step included) on its fast path (crane_io.sim.chain_kernel, the default)
+   against its general path (`SimulatedChain(fast=False)`), 3 and 7 joints: blocks alternated, CPU time.
 
 Every timed loop runs one cycle first (the kernel's first call in a process loads it from numba's cache,
 or compiles it once on a new machine: see `first_call`).
@@ -146,6 +149,53 @@ def through_chain(steps: int, arms: int = 1, preset: str = "crane-x7") -> tuple[
         return _timed(cycle, steps)
 
 
+def _chain_cycle(preset: str, fast: bool):
+    """One arm-cycle of the simulated chain side alone (crane_io.sim.chain.SimulatedChain.feed, plant step
+    included): prebuilt Goal Current Sync Write (the integrated joints' servos in current mode) + Fast
+    Sync Read of the present block of all 8 servos, on the fast or the general path."""
+    from crane_io.sim import protocol as p
+    from crane_io.sim.chain import SimulatedChain
+
+    plant = ArmPlant(preset, seed=0)
+    chain = SimulatedChain(plant, fast=fast)
+    cur_ids = [plant.servo_ids[i] for i in plant._bi_l]
+    for sid in cur_ids:
+        chain.feed(p.instruction_packet(sid, p.INST_WRITE, bytes((11, 0, 0))))  # current mode
+    for sid in plant.servo_ids:
+        chain.feed(p.instruction_packet(sid, p.INST_WRITE, bytes((64, 0, 1))))  # torque on
+    idx, amplitude = _per_joint(plant.joints)
+    waves = [(amplitude * np.sin(2 * np.pi * 0.4 * i * PERIOD) / plant.kt[idx] / 2.69e-3).astype(int)
+             for i in range(250)]  # a slowly varying current (one period of it, repeated)
+    writes = [p.instruction_packet(p.BROADCAST_ID, p.INST_SYNC_WRITE, bytes((102, 0, 2, 0)) + b"".join(
+        bytes((sid,)) + int(v).to_bytes(2, "little", signed=True) for sid, v in zip(cur_ids, w)))
+        for w in waves]
+    read = p.instruction_packet(p.BROADCAST_ID, p.INST_FAST_SYNC_READ,
+                                bytes((126, 0, 10, 0)) + bytes(plant.servo_ids))
+    feed = chain.feed
+
+    def cycle(i):
+        feed(writes[i % 250])
+        feed(read)
+
+    cycle(0)
+    return cycle
+
+
+def chain_fast_vs_general(cycles: int, preset: str = "crane-x7") -> tuple[float, float]:
+    """(general path, fast path) CPU s per arm-cycle of the chain side (_chain_cycle), blocks alternated."""
+    runs = {False: _chain_cycle(preset, False), True: _chain_cycle(preset, True)}
+    cpu = {True: 0.0, False: 0.0}
+    block = max(1, cycles // (2 * REPEATS))
+    for b in range(2 * REPEATS):
+        for fast, cycle in runs.items():
+            t = time.process_time()
+            for i in range(b * block, (b + 1) * block):
+                cycle(i)
+            cpu[fast] += time.process_time() - t
+    done = block * 2 * REPEATS
+    return cpu[False] / done, cpu[True] / done
+
+
 def _rows(label: str, wall: float, cpu: float, note: str, goal: float | None = None) -> list[dict]:
     rows = [{"benchmark": "plant", "metric": f"{label}: simulated s per wall s", "value": PERIOD / wall,
              "unit": "x real time", "note": note},
@@ -180,6 +230,12 @@ def run(quick: bool = False) -> list[dict]:
             note = f"CPU {ref * 1e6:.1f} / {fast * 1e6:.1f} us a step (with read), blocks alternated"
             rows.append({"benchmark": "plant", "metric": f"{label}: ArmPlant alone, reference path / kernel",
                          "value": ref / fast, "unit": "x", "note": note})
+        for preset, label in (("crane-x7", "3 joints"), ("crane-x7-7dof", "7 joints")):
+            general, fast = chain_fast_vs_general(steps, preset)
+            note = (f"CPU {general * 1e6:.1f} / {fast * 1e6:.1f} us an arm-cycle (Goal Current sync write + "
+                    "fast sync read bytes in, reply out, plant step included), blocks alternated")
+            rows.append({"benchmark": "plant", "metric": f"{label}: chain side, general / fast path",
+                         "value": general / fast, "unit": "x", "note": note})
         rows.append({"benchmark": "plant", "metric": "kernel: first plant in a process",
                      "value": first_call(),
                      "unit": "CPU s", "note": "numba import + cached machine code (no cache: compile)"})

@@ -60,7 +60,7 @@ from crane_io.dynamixel.units import AMPERE_PER_CURRENT_LSB, RAD_PER_PULSE, RADS
 from crane_io.errors import ConfigError
 from crane_io.physics.dynamics import ArmDynamics
 from crane_io.physics.effects import PlantTerms, get_effect
-from crane_io.sim import plant_kernel
+from crane_io.sim import chain_kernel, plant_kernel
 from crane_io.sim.environment import Environment
 from crane_io.sim.plant_api import ActuatorCommand, SensorReading
 from crane_io.sim.plant_config import ARM_JOINTS, PlantConfig, check_joints, load_plant_config
@@ -68,6 +68,7 @@ from crane_io.sim.simple_plant import DEFAULT_INERTIA, DEFAULT_VISCOUS, SimplePl
 
 _PULSE_SIGNS = np.array((-RAD_PER_PULSE, RAD_PER_PULSE))  # one-pulse position noise
 _TWO_TO_MINUS_53 = 1.0 / 9007199254740992.0  # Generator.random: (64-bit output >> 11) x 2**-53
+_EMPTY_U64, _EMPTY_F64 = np.zeros(0, dtype=np.uint64), np.zeros(0)
 
 
 def _SUBSTEP_KEY(n: int) -> struct.Struct:  # noqa: N802 (it names a struct, as it did for 3 joints)
@@ -125,6 +126,10 @@ class ArmPlant:
         self._kt_l = self.kt.tolist()  # (torque-constant-error is applied by _compile_effects)
         self._held_kt_l = self.kt[self._held].tolist()
         self._bi_l, self._held_l = self._bi.tolist(), self._held.tolist()
+        self._bi_mask = sum(1 << i for i in self._bi_l)  # bit i: servo i drives an integrated joint
+        self._bi_a = self._held_a = None  # read_arrays' index arrays, made at first use
+        self._kt_kept = (None, None)  # read_arrays: _kt_l and the array of it
+        self._chain_fns = None  # read_arrays: chain_kernel.compiled(), loaded at first use
         locked = {n: v for n, v in config.locked.items() if n not in joints}  # an integrated joint is free
         self.dyn = ArmDynamics(joints, locked=locked, payload_mass=self._payload)
         self.model = self.dyn.model
@@ -632,6 +637,68 @@ class ArmPlant:
             if cur_sd > 0:
                 cur = [x + (0.0 + cur_sd * next(z)) for x in cur]
         return pos, vel, cur, [12.0] * n, [35.0] * n
+
+    def read_arrays(self) -> tuple:
+        """`read_lists` with position, velocity and current as float64 arrays (the same numbers, the same
+        random stream; compiled with crane_io.sim.chain_kernel.reading): the simulated chain's fast path."""
+        fns = self._chain_fns
+        if fns is None:
+            fns = self._chain_fns = chain_kernel.compiled() or False
+        if not fns:
+            pos, vel, cur, volt, temp = self.read_lists()
+            return np.array(pos), np.array(vel), np.array(cur), volt, temp
+        n = len(self.servo_ids)
+        s = self.config.sensor
+        p = s.position_noise_probability
+        raw, flips, signs = _EMPTY_U64, _EMPTY_F64, _EMPTY_F64
+        if p > 0:
+            rng = self.rng
+            if n % 2 == 0 and self._raw_signs_ok is not rng:  # as _position_noise decides it
+                bg = rng.bit_generator
+                pcg = type(bg) is np.random.PCG64 and not bg.state["has_uint32"]
+                self._raw_signs_ok = rng if pcg else None
+            if n % 2 == 0 and self._raw_signs_ok is rng:
+                raw = rng.bit_generator.random_raw(n + n // 2)
+            else:
+                flips, signs = (np.array(x) for x in self._position_noise(n))
+        vel_sd = s.velocity_noise_lsb * RADS_PER_VELOCITY_LSB if s.velocity_noise_lsb > 0 else 0.0
+        cur_sd = s.current_noise_lsb * AMPERE_PER_CURRENT_LSB if s.current_noise_lsb > 0 else 0.0
+        draws = (vel_sd > 0) + (cur_sd > 0)
+        z = self.rng.standard_normal(draws * n) if draws else _EMPTY_F64
+        if self._bi_a is None:
+            self._bi_a = np.array(self._bi_l, dtype=np.int64)
+            self._held_a = np.array(self._held_l, dtype=np.int64)
+        kt_l, kt = self._kt_kept
+        if kt_l is not self._kt_l or kt.tolist() != kt_l:  # (a test may change the torque constants)
+            kt = np.array(self._kt_l, dtype=float)
+            self._kt_kept = (self._kt_l, kt)
+        pos, vel, cur = fns[3](self.q, self.dq, self.motor_torque, self._held_q, self._held_dq,
+                               self._held_current, self._bi_a, self._held_a, kt, n, float(p), raw, flips,
+                               signs, vel_sd, cur_sd, z)
+        return pos, vel, cur, [12.0] * n, [35.0] * n
+
+    def step_command(self, cmds: np.ndarray, position_mask: int, dt: float) -> bool:
+        """`step_lists` from the commands as one (5, servos) float array (driving 1.0/0.0, operating mode,
+        goal current A, goal position rad, current limit A; the simulated chain's fast path) when the kernel
+        takes them as they are: no integrated joint's servo driving in a position mode (bit i of
+        `position_mask`: servo i is), no overload model. Returns False (nothing done) otherwise."""
+        if dt <= 0:
+            return True
+        if self._kstep is None or self.config.overload.enabled or position_mask & self._bi_mask:
+            return False
+        hmat = self._khmat.get(dt)
+        if hmat is None:
+            hmat = self._khmat[dt] = np.array(self._held_matrix(dt))
+        n_sub = max(1, math.ceil(dt / self.h - 1e-9))
+        out = self._kstep_arm(self.q, self.dq, self._held_q, self._held_dq, cmds, self._kpd0, self.external,
+                              self._held_ext, dt / n_sub, n_sub, dt, hmat, self._kgeo, self._karm, self._kpar,
+                              self._kcog, self._kscal, self._khpar)
+        n, k = len(self._bi_l), len(self._held_l)
+        b = 3 * n
+        self.q, self.dq, self.motor_torque = out[:n], out[n:2 * n], out[2 * n:b]
+        self._held_q, self._held_dq, self._held_current = out[b:b + k], out[b + k:b + 2 * k], out[b + 2 * k:]
+        self.time += dt
+        return True
 
     def _position_noise(self, n: int) -> tuple[list, list]:
         """(n uniforms, n signed one-pulse errors): `rng.random(n)`, then -+RAD_PER_PULSE as

@@ -24,6 +24,7 @@ Hooks for fault-injection tests: `servos`, `remove_servo`/`restore_servo`, `repl
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping
@@ -32,15 +33,23 @@ from dataclasses import dataclass
 import numpy as np
 
 from crane_io.dynamixel.control_table import X_SERIES, XM430_W350, ServoModel
+from crane_io.dynamixel.crc import remember
 from crane_io.errors import ConfigError
+from crane_io.sim import chain_kernel
 from crane_io.sim import protocol as p
 from crane_io.sim.plant_api import ActuatorCommand, Plant
-from crane_io.sim.servo import BAUD_CODES, EmulatedServo
+from crane_io.sim.servo import _I16, _U16, BAUD_CODES, MEMORY_SIZE, EmulatedServo
 
 # a write to Goal Current or Goal Position is a lockstep tick
 GOAL_CURRENT_ADDRESS = X_SERIES["goal_current"].address
 GOAL_POSITION_ADDRESS = X_SERIES["goal_position"].address
 _ID_ADDRESS = X_SERIES["id"].address
+_BAUD_ADDRESS = X_SERIES["baud_rate"].address  # right after the ID (_hearing reads both at once)
+# the items the fast path reads and writes in every servo's memory (_fast_layout checks the models')
+_TORQUE_AT, _MODE_AT = X_SERIES["torque_enable"].address, X_SERIES["operating_mode"].address
+_LIMIT_AT, _HW_ERROR_AT = X_SERIES["current_limit"].address, X_SERIES["hardware_error_status"].address
+_PRESENT_AT, _TICK_AT = X_SERIES["present_current"].address, X_SERIES["realtime_tick"].address
+_SUPPLY_AT, _THRESHOLD_AT = X_SERIES["present_input_voltage"].address, X_SERIES["moving_threshold"].address
 STEP_BUDGET_S = 0.001  # wall clock: most real time spent stepping the plant per packet or touch
 MAX_LAG_S = 0.1  # wall clock: a plant further behind real time than this slips ahead to now
 _BAUD_CODE_OF = {rate: code for code, rate in BAUD_CODES.items()}  # bit/s -> Baud Rate register value
@@ -80,6 +89,7 @@ class SimulatedChain:
         max_substep_s: float = 0.001,
         step_budget_s: float = STEP_BUDGET_S,
         max_lag_s: float = MAX_LAG_S,
+        fast: bool | None = None,
     ):
         if clock not in ("lockstep", "wall"):
             raise ConfigError(f"clock must be 'lockstep' or 'wall', not {clock!r}")
@@ -96,11 +106,24 @@ class SimulatedChain:
         self.step_budget_s = float(step_budget_s)
         self.max_lag_s = float(max_lag_s)
         models = dict(models or {})
+        # every servo's control table is a row of one array (the fast path reads and writes them at once)
+        self.memories = np.zeros((len(plant.servo_ids), MEMORY_SIZE), dtype=np.uint8)
         self._order: list[EmulatedServo] = [
             EmulatedServo(sid, models.get(sid, XM430_W350), baud_code=baud_code,
-                          return_delay_time=return_delay_time)
-            for sid in plant.servo_ids
+                          return_delay_time=return_delay_time, memory=self.memories[i])
+            for i, sid in enumerate(plant.servo_ids)
         ]
+        for i, s in enumerate(self._order):
+            s.chain_row = i
+        if fast is None:
+            fast = os.environ.get("CRANE_CHAIN_FAST", "1") != "0"
+        self.fast = bool(fast) and self._fast_layout()
+        self._fast_fns = None  # chain_kernel.compiled(), loaded at first use
+        self._commands = np.zeros((5, len(self._order)))
+        self._supply_key: tuple = (None, None)  # the last (voltages, temperatures) and their raw values
+        self._supply_raw = (None, None)
+        self._hearing_cache = None  # (key, servos, index): see _hearing
+        self._fast_read_kept = None  # see _fast_sync_reply
         self.servos: dict[int, EmulatedServo] = {}
         self._rekey()
         self.reply_filter: Callable[[bytes], bytes | None] | None = None
@@ -125,6 +148,38 @@ class SimulatedChain:
     def for_arm(cls, arm, plant: Plant, **kwargs) -> SimulatedChain:
         """A chain whose servo models follow an ArmDescription (crane_io.description)."""
         return cls(plant, {j.servo_id: j.model for j in arm.joints}, **kwargs)
+
+    # ---- the fast path ---------------------------------------------------------------------------
+    def _fast_layout(self) -> bool:
+        """The fast path's compiled functions take every servo's items at the X series' addresses."""
+        first = self._order[0] if self._order else None
+        if first is None:
+            return False
+        names = ("present_current", "realtime_tick", "present_input_voltage", "moving_threshold",
+                 "torque_enable", "operating_mode", "goal_current", "goal_position", "current_limit",
+                 "hardware_error_status", "bus_watchdog", "id", "baud_rate")
+        for s in self._order:
+            regs = s.registers
+            if any(regs[n].address != X_SERIES[n].address or regs[n].size != X_SERIES[n].size
+                   or regs[n].signed != X_SERIES[n].signed for n in names):
+                return False
+            gc = regs["goal_current"]
+            if gc.access != "RW" or gc.eeprom:
+                return False
+        return True
+
+    def _fast(self):
+        """The compiled functions when the fast path is on (and numba there), else None."""
+        if not self.fast:
+            return None
+        fns = self._fast_fns
+        if fns is None:
+            fns = chain_kernel.compiled()
+            if fns is None:
+                self.fast = False
+                return None
+            self._fast_fns = fns
+        return fns
 
     # ---- fault-injection hooks ------------------------------------------------------------------
     def remove_servo(self, servo_id: int) -> None:
@@ -241,17 +296,33 @@ class SimulatedChain:
         """(read_lists or None, step_lists or None) of `plant` (see _list_method), found once per plant."""
         kept_for, methods = self._plant_lists_methods
         if kept_for is not plant:  # first use, or the plant was replaced
-            methods = (_list_method(plant, "read"), _list_method(plant, "step"))
+            methods = (_list_method(plant, "read"), _list_method(plant, "step"),
+                       _list_method(plant, "read", "read_arrays"),
+                       _list_method(plant, "step", "step_command"))
             self._plant_lists_methods = (plant, methods)
         return methods
 
     def _step(self, dt: float) -> None:
         now = self.time
-        for s in self._order:
+        expired = 0  # bit i: servo i's bus watchdog has expired
+        for i, s in enumerate(self._order):
             s.check_watchdog(now)
+            if s.watchdog_expired:
+                expired |= 1 << i
         plant = self.plant
-        step_lists = self._lists_of(plant)[1]
-        if step_lists is not None:  # the commands as lists, as actuator_command's arrays would hold them
+        methods = self._lists_of(plant)
+        step_lists = methods[1]
+        fast = self._fast()
+        if fast is not None and methods[3] is not None:  # the commands read out at once
+            cmds = self._commands
+            mask = fast[1](self.memories, expired, cmds, _TORQUE_AT, _MODE_AT, GOAL_CURRENT_ADDRESS,
+                           GOAL_POSITION_ADDRESS, _LIMIT_AT)
+            done = methods[3](cmds, mask, dt)
+        else:
+            done = False
+        if done:
+            pass
+        elif step_lists is not None:  # the commands as lists, as actuator_command's arrays would hold them
             step_lists(*zip(*[s.command() for s in self._order]), dt)
         else:
             plant.step(self.actuator_command(), dt)
@@ -261,16 +332,42 @@ class SimulatedChain:
 
     def _read_plant(self) -> None:
         now = self.time
-        position, velocity, current, voltage, temperature = self._plant_lists()
-        for s, pos, vel, cur, volt, temp in zip(self._order, position, velocity, current, voltage,
-                                                temperature):
-            s.set_sensors(pos, vel, cur, now, volt, temp)
+        fast = self._fast()
+        reader = self._lists_of(self.plant)[2] if fast is not None else None
+        if reader is not None:  # the plant's reading as arrays, into every servo's memory at once
+            position, velocity, current, voltage, temperature = reader()
+        else:
+            position, velocity, current, voltage, temperature = self._plant_lists()
+        if fast is not None:
+            volt, temp = self._supply(voltage, temperature)
+            if reader is None:
+                position, velocity, current = (np.array(x, dtype=float)
+                                               for x in (position, velocity, current))
+            done = fast[0](self.memories, position, velocity, current, volt, temp, int(now * 1000) % 32768,
+                           _PRESENT_AT, _TICK_AT, _SUPPLY_AT, _THRESHOLD_AT)
+        if fast is None or not done:
+            if fast is not None:
+                position, velocity, current = position.tolist(), velocity.tolist(), current.tolist()
+            for s, pos, vel, cur, volt, temp in zip(self._order, position, velocity, current, voltage,
+                                                    temperature):
+                s.set_sensors(pos, vel, cur, now, volt, temp)
         errors = self.plant.hardware_errors()
         if errors:
             for sid, bits in errors.items():
                 for s in self._order:
                     if s.id == sid and bits:
                         s.raise_hardware_error(bits)
+
+    def _supply(self, voltage, temperature) -> tuple[np.ndarray, np.ndarray]:
+        """The Present Input Voltage and Temperature register values set_sensors would write (-1: none)."""
+        key = self._supply_key
+        if voltage == key[0] and temperature == key[1]:
+            return self._supply_raw
+        volt = [-1 if v is None else max(0, round(v * 10)) & 0xFFFF for v in voltage]
+        temp = [-1 if t is None else max(0, round(t)) & 0xFF for t in temperature]
+        raw = (np.array(volt, dtype=np.int64), np.array(temp, dtype=np.int64))
+        self._supply_key, self._supply_raw = (list(voltage), list(temperature)), raw
+        return raw
 
     # ---- the wire ------------------------------------------------------------------------------
     def feed(self, data: bytes, baudrate: int | None = None) -> bytes:
@@ -311,6 +408,18 @@ class SimulatedChain:
             return bytes(out)
 
     def _hearing(self, baudrate: int | None) -> list[EmulatedServo]:
+        if self.fast:  # the same list as long as the port's speed, who is on the bus, IDs and bauds are
+            key = (baudrate, [s.on_bus for s in self._order],
+                   self.memories[:, _ID_ADDRESS:_BAUD_ADDRESS + 1].tobytes())
+            cached = self._hearing_cache
+            if cached is not None and cached[0] == key:
+                return cached[1]
+            servos = self._hearing_of(baudrate)
+            self._hearing_cache = (key, servos, self._index_of(servos))
+            return servos
+        return self._hearing_of(baudrate)
+
+    def _hearing_of(self, baudrate: int | None) -> list[EmulatedServo]:
         if baudrate is None:
             return [s for s in self._order if s.on_bus]
         code = _BAUD_CODE_OF.get(baudrate)
@@ -410,9 +519,18 @@ class SimulatedChain:
                 return s
         return None
 
+    def _index(self, servos) -> dict[int, EmulatedServo]:
+        """ID -> servo among `servos`; with duplicate IDs the first one wins (as in _by_id). Kept with the
+        list _hearing returned last (IDs and who hears have not changed since: see _hearing) when that
+        list is `servos` and no ID was written since."""
+        cached = self._hearing_cache
+        if (cached is not None and cached[1] is servos
+                and cached[0][2] == self.memories[:, _ID_ADDRESS:_BAUD_ADDRESS + 1].tobytes()):
+            return cached[2]
+        return self._index_of(servos)
+
     @staticmethod
-    def _index(servos) -> dict[int, EmulatedServo]:
-        """ID -> servo among `servos`; with duplicate IDs the first one wins (as in _by_id)."""
+    def _index_of(servos) -> dict[int, EmulatedServo]:
         index: dict[int, EmulatedServo] = {}
         for s in servos:
             index.setdefault(s.id, s)
@@ -459,6 +577,11 @@ class SimulatedChain:
             return []
         address, length = params[0] | params[1] << 8, params[2] | params[3] << 8
         ids = list(params[4:])
+        fast = self._fast()
+        if fast is not None and length > 0 and address + length <= MEMORY_SIZE:
+            reply = self._fast_sync_reply(fast, servos, ids, address, length, now)
+            if reply is not None:
+                return reply
         blocks, complete = self._fast_blocks(servos, [(i, address, length) for i in ids], now)
         if not blocks:
             return []
@@ -467,6 +590,31 @@ class SimulatedChain:
         if complete:
             return [(p.fast_status_packet(blocks), delay)]
         return [(p.fast_status_prefix(blocks, len(ids), length), delay)]
+
+    def _fast_sync_reply(self, fast, servos, ids, address, length, now):
+        """The fast path of a Fast Sync Read: every addressed servo answers (on the bus, supports it, its
+        watchdog has not expired), the packet built in one compiled call; else None (the general path)."""
+        index = self._index(servos)
+        kept = self._fast_read_kept  # (index, ids, servos, rows, ids array) of the last fast read
+        if kept is not None and kept[0] is index and kept[1] == ids:
+            chosen, rows, id_array = kept[2], kept[3], kept[4]
+        else:
+            chosen = [index.get(sid) for sid in ids]
+            if None in chosen:
+                return None
+            rows = np.array([s.chain_row for s in chosen], dtype=np.int64)
+            id_array = np.array(ids, dtype=np.int64)
+            self._fast_read_kept = (index, ids, chosen, rows, id_array)
+        for s in chosen:
+            if not s.supports_fast_sync_read or s.watchdog_expired:
+                return None
+        for s in chosen:
+            s.contact(now)
+        packet, crc = fast[2](self.memories, rows, id_array, address, length, _HW_ERROR_AT,
+                              chain_kernel.CRC_TABLE_U16)
+        packet = packet.tobytes()
+        remember(packet[:-2], crc)  # the host checks the packet's CRC next
+        return [(packet, chosen[0].return_delay_s)]
 
     def _bulk_requests(self, params):
         return [(params[i], params[i + 1] | params[i + 2] << 8, params[i + 3] | params[i + 4] << 8)
@@ -495,6 +643,23 @@ class SimulatedChain:
             return []
         writes_id = address <= _ID_ADDRESS < address + length  # IDs may change within this packet
         index = None if writes_id else self._index(servos)
+        if address == GOAL_CURRENT_ADDRESS and length == 2 and self._fast() is not None:
+            # the fast path: EmulatedServo.write of Goal Current (2 bytes, signed) without the general
+            # checks that cannot fail for it (RW, RAM, any int16 in range): refused while the watchdog
+            # has expired, else clamped to +-Current Limit
+            for k in range(0, len(body) - len(body) % 3, 3):
+                s = index.get(body[k])
+                if s is not None:
+                    s.contact(now)
+                    if not s.watchdog_expired:
+                        value = body[k + 1] | body[k + 2] << 8
+                        if value & 0x8000:
+                            value -= 0x10000
+                        limit = _U16.unpack_from(s.memory, _LIMIT_AT)[0]
+                        _I16.pack_into(s.memory, GOAL_CURRENT_ADDRESS,
+                                       -limit if value < -limit else limit if value > limit else value)
+            self._lockstep_tick([(address, length)])
+            return []
         for k in range(0, len(body) - len(body) % (1 + length), 1 + length):
             s = self._by_id(servos, body[k]) if writes_id else index.get(body[k])
             if s is not None:
@@ -532,11 +697,20 @@ class SimulatedChain:
                 return
 
 
-def _list_method(plant, name: str):
-    """`plant.<name>_lists` (the same call with lists instead of arrays) when the class whose `name` method
-    the plant uses defines it too, else None: a subclass or a wrapper that changes `read` or `step`
-    (sensor offsets, a delegating __getattr__) is never bypassed."""
+def _list_method(plant, name: str, variant: str | None = None):
+    """`plant.<name>_lists` (the same call with lists instead of arrays; or the method named `variant`) when
+    the class whose `name` method the plant uses defines it too, else None: a subclass or a wrapper that
+    changes `read` or `step` (sensor offsets, a delegating __getattr__; or, for a variant, `<name>_lists`)
+    is never bypassed."""
+    lists = f"{name}_lists"
+    if variant is None:
+        for klass in type(plant).__mro__:
+            if name in vars(klass):
+                return getattr(plant, lists) if lists in vars(klass) else None
+        return None
+    # the fast path's variant: the first class defining any of the three must define all three
     for klass in type(plant).__mro__:
-        if name in vars(klass):
-            return getattr(plant, f"{name}_lists") if f"{name}_lists" in vars(klass) else None
+        found = [m in vars(klass) for m in (name, lists, variant)]
+        if any(found):
+            return getattr(plant, variant) if all(found) else None
     return None

@@ -9,7 +9,11 @@ Optional, for speed: a plant class may define `read_lists()` -> (position, veloc
 temperature) lists and `step_lists(enabled, mode, goal_current, goal_position, gains, limit, dt)` beside
 its `read` and `step`, giving exactly the same results without arrays in between (ArmPlant does). The
 chain uses them only when the class whose `read` / `step` the plant uses defines them too, so a wrapper
-or subclass that changes `read` or `step` is never bypassed.
+or subclass that changes `read` or `step` is never bypassed. Likewise `read_arrays()` (position, velocity,
+current as float arrays, voltage and temperature lists) and `step_command(cmds, position_mask, dt)` (the
+commands as one (5, servos) array; returns False when it cannot take them so) for the chain's fast path
+(crane_io.sim.chain_kernel), used only when the class defining `read` / `step` also defines `read_lists` /
+`step_lists` and them, so that a subclass overriding any of the three is never bypassed.
 """
 
 from __future__ import annotations

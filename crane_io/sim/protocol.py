@@ -181,6 +181,15 @@ class PacketParser:
         self._partial_since = None
 
     def feed(self, data: bytes | bytearray, now: float | None = None) -> list[Packet]:
+        if not self.buffer and len(data) >= 10 and data[:4] == HEADER:
+            # the usual case: exactly one whole packet with a good CRC into an empty buffer (what the
+            # general loop below would make of it, without the loop)
+            length = data[5] | (data[6] << 8)
+            if 3 <= length <= self.max_length and len(data) == 7 + length:
+                raw = bytes(data)
+                if crc16(raw[:-2]) == raw[-2] | (raw[-1] << 8):
+                    self._partial_since = None
+                    return [Packet(raw[4], raw[7], unstuff(raw[8:-2]), raw)]
         dropped = False
         if (
             data

@@ -100,7 +100,10 @@ class EmulatedServo:
         supports_fast_sync_read: bool = True,
         input_voltage: float = 12.0,
         temperature: float = 35.0,
+        memory=None,
     ):
+        """`memory`: a writable buffer of MEMORY_SIZE bytes to hold the control table (the simulated chain
+        gives each servo a row of one array); default a bytearray of its own."""
         self.model = MODELS[model] if isinstance(model, str) else model
         self.registers: dict[str, Register] = dict(self.model.registers)
         self._at: dict[int, Register] = {r.address: r for r in self.registers.values()}
@@ -138,7 +141,12 @@ class EmulatedServo:
             raise ValueError(f"{self.model.name}: control table is not laid out like the X series")
         self.firmware_version = firmware_version
         self.supports_fast_sync_read = supports_fast_sync_read
-        self.memory = bytearray(MEMORY_SIZE)
+        if memory is None:
+            self.memory = bytearray(MEMORY_SIZE)
+        else:
+            self.memory = memoryview(memory).cast("B")
+            if len(self.memory) != MEMORY_SIZE or self.memory.readonly:
+                raise ValueError(f"a servo's memory is a writable buffer of {MEMORY_SIZE} bytes")
         self.on_bus = True  # False: the servo has vanished from the bus (no packets in or out)
         self.registered: tuple[int, bytes] | None = None  # a Reg Write waiting for Action
         self.watchdog_expired = False
