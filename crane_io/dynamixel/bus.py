@@ -631,6 +631,7 @@ class DynamixelBus:
         sent = np.zeros(len(self.ids))
         lsb = units.AMPERE_PER_CURRENT_LSB
         values, limits = amps.tolist(), self.current_limits.tolist()
+        params = []
         for i in self.current_joints:
             # scalar form of units.ampere_to_current(np.clip(...)): same rounding (half to even)
             lim = limits[i]
@@ -638,8 +639,17 @@ class DynamixelBus:
             lim_raw = math.floor(lim / lsb + 1e-9)
             raw = max(-lim_raw, min(lim_raw, raw))
             sent[i] = raw * lsb
-            self._current_writer.changeParam(self.ids[i], [raw & 0xFF, (raw >> 8) & 0xFF])
-        self._send(self._current_writer, "goal current")
+            params += (self.ids[i], raw & 0xFF, (raw >> 8) & 0xFF)
+        # the Sync Write packet as GroupSyncWrite + CranePacketHandler make it, built here directly (a kept
+        # header, the parameters, the CRC); a packet that needs byte stuffing goes the SDK's way
+        cur = _GOAL_CURRENT
+        packet = self._ph.sync_write_packet(cur.address, cur.size, params) if params else None
+        if packet is None:
+            for k in range(0, len(params), 3):
+                self._current_writer.changeParam(params[k], params[k + 1:k + 3])
+            self._send(self._current_writer.txPacket, "goal current")
+        else:
+            self._send(self._ph.send_broadcast, "goal current", self._port, packet)
         return sent
 
     def write_goal_position(self, rad) -> np.ndarray:
@@ -654,7 +664,7 @@ class DynamixelBus:
             raw = int(units.rad_to_position(np.clip(rad[i], self.lower[i], self.upper[i])))
             sent[i] = float(units.position_to_rad(raw))
             self._position_writer.changeParam(self.ids[i], list((raw & 0xFFFFFFFF).to_bytes(4, "little")))
-        self._send(self._position_writer, "goal position")
+        self._send(self._position_writer.txPacket, "goal position")
         return sent
 
     def _command_array(self, values, what: str, used) -> np.ndarray:
@@ -668,9 +678,11 @@ class DynamixelBus:
             raise CommandError(f"{what} for {', '.join(bad)} is not a finite number; nothing was sent")
         return arr
 
-    def _send(self, writer: GroupSyncWrite, what: str) -> None:
+    def _send(self, fn, what: str, *args) -> None:
+        """Send a sync write: `fn(*args)` (a GroupSyncWrite's txPacket, or the packet handler's
+        send_broadcast of a finished packet), retried within the error budget."""
         self._check_stall()
-        if self._retry(self._group_once, writer.txPacket, budget=True):
+        if self._retry(self._group_once, fn, *args, budget=True):
             self.stats.writes += 1
             return
         self.stats.failures += 1
@@ -786,9 +798,9 @@ class DynamixelBus:
         return None
 
     # one try of each kind of transfer, for `_retry`: the value on success, None on failure
-    def _group_once(self, fn) -> bool | None:
+    def _group_once(self, fn, *args) -> bool | None:
         """A sync write's txPacket or a sync read's txRxPacket (data in the reader's data_dict)."""
-        result = self._transfer(fn)
+        result = self._transfer(fn, *args)
         if result == COMM_SUCCESS:
             return True
         self._last_result = result
