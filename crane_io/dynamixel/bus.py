@@ -66,6 +66,7 @@ from crane_io.dynamixel.control_table import (
 )
 from crane_io.dynamixel.crc import crc16
 from crane_io.dynamixel.faults import (
+    STATUS_ALERT_BIT,
     WATCHDOG_EXPIRED,
     CommunicationError,
     ConfigurationMismatchError,
@@ -78,7 +79,6 @@ from crane_io.dynamixel.faults import (
     decode_status_error,
     describe_faults,
     servo_label,
-    status_alert,
 )
 from crane_io.dynamixel.packets import CranePacketHandler
 from crane_io.dynamixel.port import CranePortHandler, open_port
@@ -602,7 +602,8 @@ class DynamixelBus:
         packet = reader.packet
         if packet is not None and reader._fast_ids == self.ids:  # the fast reply, servos in joint order
             rec = np.frombuffer(packet, dtype=_FAST_RECORD, count=len(self.ids), offset=_PKT_FIRST_PARAM)
-            cur, vel, pos = (rec[c].astype(float) for c in ("current", "velocity", "position"))
+            cur, vel, pos = rec["current"].astype(float), rec["velocity"].astype(float), \
+                rec["position"].astype(float)
         else:
             data = reader.data_dict
             raw = np.array(self._present_all.unpack(b"".join([data[sid] for sid in self.ids])),
@@ -610,7 +611,7 @@ class DynamixelBus:
             cur, vel, pos = raw[:, 0], raw[:, 1], raw[:, 2]
         self.stats.reads += 1
         self._update_byte_stats()
-        if check_faults and any(status_alert(e) for e in reader.errors.values()):
+        if check_faults and any(e & STATUS_ALERT_BIT for e in reader.errors.values()):  # status_alert
             faults = self.read_hardware_errors()
             if faults:
                 raise self._fault_error(faults)
