@@ -40,6 +40,11 @@ __all__ = ["BilateralLoop", "RunContext"]
 _LEADER, _FOLLOWER = (SimpleNamespace(**{m.name: fmt.arm_path(arm, m.name) for m in fmt.ARM_MEMBERS})
                       for arm in ARMS)
 _TIMING = SimpleNamespace(**{m.name: fmt.timing_path(m.name) for m in fmt.TIMING_MEMBERS})
+# the members of a recorded row, in the order _record gives their values
+_ROW_MEMBERS = ("t", "q", "tau", "dq_servo", "current", "goal_current", "dq", "tau_dis", "tau_res", "q_goal")
+_ROW_TIMING = ("cycle_start", "period", "bus_time_leader", "bus_time_follower", "compute_time", "overrun")
+_ROW_KEYS = (tuple(getattr(arm, m) for arm in (_LEADER, _FOLLOWER) for m in _ROW_MEMBERS)
+             + tuple(getattr(_TIMING, m) for m in _ROW_TIMING))
 
 
 @dataclass
@@ -91,6 +96,7 @@ class BilateralLoop:
         self.pair = ArmPair(concurrent_io=not sims, checkpoint=stop.check if stop is not None else None)
         self.status = StatusLine(out, config.loop, status)
         self.recorder: SessionRecorder | None = None
+        self._columns: tuple = (None, ())  # (the recorder, its row buffers in _ROW_KEYS order)
         self.operator: SimulatedOperator | None = None
         self.timer = CycleTimer(config.loop.rate_hz, lockstep=not self.paced, spin_s=config.loop.spin_s)
         self.cycles = 0
@@ -321,18 +327,18 @@ class BilateralLoop:
         tl_rec = np.where(bil, sent_l * kt, sl.current * kt)
         tf_rec = np.where(bil, sent_f * kt, sf.current * kt)
         est_l, est_f = self.ctl.leader, self.ctl.follower
-        L, F, T = _LEADER, _FOLLOWER, _TIMING
-        self.recorder.append({
-            L.t: t, L.q: sl.position, L.tau: tl_rec, L.dq_servo: sl.velocity, L.current: sl.current,
-            L.goal_current: sent_l, L.dq: est_l.dq, L.tau_dis: est_l.tau_dis, L.tau_res: est_l.tau_res,
-            L.q_goal: self.q_goal_row,
-            F.t: t if self.lockstep else sf.t - self.t_start_mono, F.q: sf.position, F.tau: tf_rec,
-            F.dq_servo: sf.velocity, F.current: sf.current, F.goal_current: sent_f, F.dq: est_f.dq,
-            F.tau_dis: est_f.tau_dis, F.tau_res: est_f.tau_res, F.q_goal: self.q_goal_row,
-            T.cycle_start: timer.now(), T.period: timer.last_period,
-            T.bus_time_leader: timer.last["bus_leader"], T.bus_time_follower: timer.last["bus_follower"],
-            T.compute_time: timer.last["compute"], T.overrun: timer.last_overrun,
-        })
+        recorder = self.recorder
+        if self._columns[0] is not recorder:
+            self._columns = (recorder, recorder.columns(_ROW_KEYS))
+        last = timer.last
+        recorder.append_values(self._columns[1], (  # in _ROW_KEYS order
+            t, sl.position, tl_rec, sl.velocity, sl.current, sent_l, est_l.dq, est_l.tau_dis, est_l.tau_res,
+            self.q_goal_row,
+            t if self.lockstep else sf.t - self.t_start_mono, sf.position, tf_rec, sf.velocity, sf.current,
+            sent_f, est_f.dq, est_f.tau_dis, est_f.tau_res, self.q_goal_row,
+            timer.now(), timer.last_period, last["bus_leader"], last["bus_follower"], last["compute"],
+            timer.last_overrun,
+        ))
         if self.truth_trace is not None:
             self._record_truth(t)
         timer.add("record", time.perf_counter() - tr)

@@ -112,6 +112,7 @@ class SimulatedOperator:
         self.rng = np.random.default_rng(seed)
         names = self.arm.joint_names
         self.idx = np.array([names.index(n) for n in self.arm.bilateral_joints], dtype=int)
+        self._idx_list = self.idx.tolist()
         m = self.config.safety.limit_margin + self.o.workspace_margin
         lo = np.array([self.arm.joints[i].lower for i in self.idx]) + m
         hi = np.array([self.arm.joints[i].upper for i in self.idx]) - m
@@ -205,7 +206,8 @@ class SimulatedOperator:
         self._seg_b[j] = target
 
     def _advance(self, t: float) -> None:
-        for j in np.flatnonzero(t >= self._seg_t0 + self._seg_T):
+        t0s, Ts = self._seg_t0.tolist(), self._seg_T.tolist()
+        for j in [j for j in range(len(t0s)) if t >= t0s[j] + Ts[j]]:
             # the joint is at rest at the end of its move: continue, pause or resume
             if t < self._phase_end[j]:
                 if self._on[j]:
@@ -333,10 +335,31 @@ class SimulatedOperator:
             self._advance_contact(t)
         else:
             self._advance(t)
+        return self._profile(t)
+
+    def _profile(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         tau = (t - self._seg_t0) / self._seg_T
         s, ds = minimum_jerk(tau)
         d = self._seg_b - self._seg_a
         return self._seg_a + d * s, d * ds / self._seg_T
+
+    def _hand(self, t: float, T: list, q: list, dq: list) -> np.ndarray:
+        """`torque` after the schedule advanced, per joint in Python floats: the arithmetic of
+        `_profile`, `minimum_jerk` and the impedance, operation for operation (the same results, bit for
+        bit, without a dozen small-array numpy calls per cycle). T: the move durations (none is 0)."""
+        o = self.o
+        k_p, k_d, top = o.stiffness, o.damping, o.max_torque
+        out = [0.0] * self.n
+        for j, (i, t0, a, b) in enumerate(zip(self._idx_list, self._seg_t0.tolist(), self._seg_a.tolist(),
+                                              self._seg_b.tolist())):
+            x = min(max((t - t0) / T[j], 0.0), 1.0)  # np.clip: NaN and signed zeros kept alike
+            t2 = x * x
+            s = t2 * x * (10.0 - 15.0 * x + 6.0 * t2)
+            ds = 30.0 * t2 * (1.0 - 2.0 * x + t2)
+            d = b - a
+            tau = k_p * (a + d * s - q[i]) + k_d * (d * ds / T[j] - dq[i])
+            out[i] = min(max(tau, -top), top)
+        return np.array(out)
 
     def moving(self) -> np.ndarray:
         """Which bilateral joints are in a moving phase now (bool (k,))."""
@@ -345,7 +368,17 @@ class SimulatedOperator:
     # ---- the hand -----------------------------------------------------------------------------------
     def torque(self, t: float, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         """External torque (n,) the hand applies to the leader's joints, in arm.joints order."""
-        q_ref, dq_ref = self.reference(t)
+        if self.started:
+            if self.env is not None:
+                self._advance_contact(t)
+            else:
+                self._advance(t)
+            T = self._seg_T.tolist()
+            if 0.0 not in T:
+                return self._hand(t, T, q.tolist(), dq.tolist())
+            q_ref, dq_ref = self._profile(t)
+        else:
+            q_ref, dq_ref = self.reference(t)
         o = self.o
         tau = o.stiffness * (q_ref - q[self.idx]) + o.damping * (dq_ref - dq[self.idx])
         out = self._out.copy()

@@ -54,7 +54,8 @@ def event_row(t: float, kind: str, message: str, joint: str = "") -> np.void:
 
 class SessionRecorder:
     """Write one session. `append(row)` once per cycle with a dict "arm/member" or "timing/member"
-    -> value; `event(t, kind, message, joint="")`; `close(...)`. A context manager.
+    -> value (or `append_values(columns(keys), values)`); `event(t, kind, message, joint="")`;
+    `close(...)`. A context manager.
 
     `lockstep`: rows carry simulated time; only whole chunks are written (no wall-clock flushes).
     `end_attrs`: the end-of-run attributes `close()` will write, {group: {name: type}} with "/" for
@@ -149,7 +150,22 @@ class SessionRecorder:
         buf = self._buf
         for key, value in row.items():
             buf[key][k] = value
-        self._k = k = k + 1
+        self._row_added(k + 1)
+
+    def columns(self, keys) -> tuple:
+        """The row buffers of `keys` ("arm/member", "timing/member"), for `append_values`: a caller that
+        appends the same members every cycle skips building a dict per row."""
+        return tuple(self._buf[key] for key in keys)
+
+    def append_values(self, columns: tuple, values) -> None:
+        """`append(dict(zip(keys, values)))` for the buffers `columns(keys)`: the same row."""
+        k = self._k
+        for b, value in zip(columns, values):
+            b[k] = value
+        self._row_added(k + 1)
+
+    def _row_added(self, k: int) -> None:
+        self._k = k
         if (self._n + k) % self.chunk_rows == 0:  # a chunk is full: write it whole
             self.flush()
         elif not self.lockstep:

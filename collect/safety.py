@@ -27,6 +27,11 @@ from crane_io.errors import ConfigError
 from .config import Config
 
 
+def _floats(x) -> list:
+    """x (an array or a sequence of numbers) as a list of Python floats."""
+    return x.tolist() if isinstance(x, np.ndarray) else np.asarray(x, dtype=float).tolist()
+
+
 @dataclass(frozen=True)
 class Breach:
     kind: str  # joint_limit, velocity, communication, hardware_error, servo_fault
@@ -75,12 +80,12 @@ class SafetyMonitor:
         (stiffness per rad of penetration, damping on outward velocity only). spring=False only cuts
         the outward part (used while aligning, when a joint may start deep inside the zone)."""
         tau = tau * self.bil_f
+        if not self._outside(_floats(q), self.soft_lower.tolist(), self.soft_upper.tolist()):
+            return np.minimum(np.maximum(tau, -self.tau_max), self.tau_max)
         over = q - self.soft_upper
         under = self.soft_lower - q
         up = over > 0
         lo = under > 0
-        if not (up.any() or lo.any()):
-            return np.minimum(np.maximum(tau, -self.tau_max), self.tau_max)
         if not spring:
             tau = np.where(up, np.minimum(tau, 0.0), tau)
             tau = np.where(lo, np.maximum(tau, 0.0), tau)
@@ -94,9 +99,20 @@ class SafetyMonitor:
                 tau = np.where(lo, np.maximum(tau, 0.0) + wall, tau)
         return np.clip(tau, -self.tau_max, self.tau_max) * self.bil
 
+    @staticmethod
+    def _outside(q: list, lower: list, upper: list) -> bool:
+        """Any q[i] above upper[i] or below lower[i] (floats; `q - upper > 0` is `q > upper`)."""
+        for x, lo, hi in zip(q, lower, upper):
+            if x > hi or x < lo:
+                return True
+        return False
+
     # ---- checks -------------------------------------------------------------------------------------
     def check(self, arm_name: str, q: np.ndarray, dq: np.ndarray | None) -> Breach | None:
         """Joint positions beyond limit + overshoot, or velocities beyond the guard."""
+        if not self._outside(_floats(q), self.stop_lower.tolist(), self.stop_upper.tolist()) and (
+                dq is None or not any(abs(v) > m for v, m in zip(_floats(dq), self.vmax.tolist()))):
+            return None  # the usual case, decided without numpy; the same tests as below
         bad = (q > self.stop_upper) | (q < self.stop_lower)
         if bad.any():
             i = int(np.flatnonzero(bad)[0])

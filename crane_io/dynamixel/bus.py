@@ -48,7 +48,8 @@ from dynamixel_sdk import (
     GroupSyncRead,
     GroupSyncWrite,
 )
-from dynamixel_sdk.robotis_def import BROADCAST_ID
+from dynamixel_sdk.protocol2_packet_handler import RXPACKET_MAX_LEN
+from dynamixel_sdk.robotis_def import BROADCAST_ID, COMM_RX_TIMEOUT
 
 from crane_io import shutdown
 from crane_io.description import ArmDescription, default_arm
@@ -63,7 +64,9 @@ from crane_io.dynamixel.control_table import (
     model_by_number,
     span,
 )
+from crane_io.dynamixel.crc import crc16
 from crane_io.dynamixel.faults import (
+    STATUS_ALERT_BIT,
     WATCHDOG_EXPIRED,
     CommunicationError,
     ConfigurationMismatchError,
@@ -76,7 +79,6 @@ from crane_io.dynamixel.faults import (
     decode_status_error,
     describe_faults,
     servo_label,
-    status_alert,
 )
 from crane_io.dynamixel.packets import CranePacketHandler
 from crane_io.dynamixel.port import CranePortHandler, open_port
@@ -85,11 +87,16 @@ from crane_io.errors import ConfigError, CraneError
 
 log = logging.getLogger(__name__)
 
-_PKT_ID = 4
+_PKT_RESERVED, _PKT_ID, _PKT_LEN_L, _PKT_INSTRUCTION = 3, 4, 5, 7  # as in dynamixel-sdk's protocol 2 handler
+_STUFFED = b"\xff\xff\xfd\xfd"  # a stuffed FF FF FD in a packet
 _PKT_FIRST_PARAM = 8  # fast sync read: the first servo's error byte
 _FAST_TRIES_BEFORE_FALLBACK = 2
 _PRESENT = struct.Struct("<hii")  # Present Current, Velocity, Position (addresses 126, 128, 132)
 assert _PRESENT.size == PRESENT_BLOCK_SIZE
+# one servo's part of the Fast Sync Read reply of the Present block: ERR ID DATA CRC
+_FAST_RECORD = np.dtype([("error", "u1"), ("id", "u1"), ("current", "<i2"), ("velocity", "<i4"),
+                         ("position", "<i4"), ("crc", "<u2")])
+assert _FAST_RECORD.itemsize == PRESENT_BLOCK_SIZE + 4
 _GOAL_CURRENT, _GOAL_POSITION = X_SERIES["goal_current"], X_SERIES["goal_position"]  # the goal sync writes
 # the hardware-error poll: ONE sync read of Hardware Error Status (70) .. Bus Watchdog (98); offsets in it
 _POLL_ADDRESS, _POLL_SIZE = span("hardware_error_status", "bus_watchdog")
@@ -150,10 +157,16 @@ class _StatusSyncRead(GroupSyncRead):
     def __init__(self, port, ph, start_address, data_length):
         super().__init__(port, ph, start_address, data_length)
         self.errors: dict[int, int] = {}
+        self.packet: bytes | None = None  # the latest fast reply when it took the fast path (else None)
+        self._fast_head: bytes | None = None  # the expected fast reply's first 8 bytes, its length, IDs
+        self._fast_total = 0
+        self._fast_ids: tuple = ()
+        self._fast_id_bytes: bytes | None = None
 
     def rxPacket(self):  # noqa: N802 (SDK name)
         self.last_result = False
         self.errors = {}
+        self.packet = None
         for dxl_id in self.data_dict:
             data, result, error = self.ph.readRx(self.port, dxl_id, self.data_length)
             if result != COMM_SUCCESS:
@@ -168,7 +181,36 @@ class _StatusSyncRead(GroupSyncRead):
     def fastSyncReadRxPacket(self):  # noqa: N802
         self.last_result = False
         self.errors = {}
-        packet, result = self.ph.rxPacket(self.port, True)
+        self.packet = None
+        port, n = self.port, self.data_length
+        count = len(self.data_dict)
+        chunk = n + 4
+        total = 8 + chunk * count  # header, ID, LEN, INST, then ERR ID DATA CRC per servo
+        head = self._fast_head
+        if head is None or self._fast_total != total or self._fast_ids != tuple(self.data_dict):
+            length = total - 7
+            head = bytes((0xFF, 0xFF, 0xFD, 0x00, BROADCAST_ID, length & 0xFF, length >> 8, 0x55))
+            self._fast_head, self._fast_total = head, total
+            self._fast_ids = tuple(self.data_dict)
+            self._fast_id_bytes = bytes(self._fast_ids) if all(i < 256 for i in self._fast_ids) else None
+        # fast path: the one expected reply read whole, as dynamixel-sdk's rxPacket would accept it (its
+        # header at the start, its CRC right, no byte stuffing, the servos in request order); anything
+        # else goes through rxPacket's own loop with the bytes already read (`_rx_packet`)
+        data = port.readPort(total)
+        if (len(data) == total and data.startswith(head) and _STUFFED not in data
+                and crc16(data[:-2]) == (data[-2] | (data[-1] << 8))
+                and data[9::chunk] == self._fast_id_bytes):
+            port.is_using = False
+            self.packet = data
+            ids = self._fast_ids
+            self.errors = dict(zip(ids, data[8::chunk]))
+            dd = self.data_dict
+            for k, dxl_id in enumerate(ids):
+                start = 10 + k * chunk
+                dd[dxl_id] = bytearray(data[start:start + n])
+            self.last_result = True
+            return COMM_SUCCESS
+        packet, result = _rx_packet(self.ph, port, data)
         if result != COMM_SUCCESS:
             return result
         if packet[_PKT_ID] != BROADCAST_ID:
@@ -176,8 +218,6 @@ class _StatusSyncRead(GroupSyncRead):
         packet = self.ph.removeStuffing(packet)  # rxPacket's own list: unstuffed in place
         length = packet[5] | (packet[6] << 8)
         body = bytes(packet[_PKT_FIRST_PARAM: 7 + length])  # [ERR ID DATA.. CRC CRC] per servo
-        n = self.data_length
-        chunk = n + 4
         if len(body) != chunk * len(self.data_dict):
             return COMM_RX_CORRUPT
         seen = {}
@@ -191,6 +231,53 @@ class _StatusSyncRead(GroupSyncRead):
             self.errors[dxl_id] = error
         self.last_result = True
         return COMM_SUCCESS
+
+
+def _rx_packet(ph, port, prefix=b""):
+    """dynamixel-sdk's Protocol2PacketHandler.rxPacket(port, fast_option=True), step for step, starting
+    with the bytes `prefix` already read from the port (the fast path's read). The SDK reads in pieces
+    (11 bytes, then the rest of the packet); the bytes it sees, and so its verdict, are the same: only
+    reads that would ask for no byte are skipped."""
+    rxpacket = list(prefix)
+    packet_id = BROADCAST_ID
+    result = COMM_TX_FAIL
+    rx_length = len(rxpacket)
+    wait_length = 11  # minimum length (HEADER0..2 RESERVED ID LENGTH_L LENGTH_H INST ERROR CRC16_L CRC16_H)
+    while True:
+        if wait_length > rx_length:
+            rxpacket.extend(port.readPort(wait_length - rx_length))
+            rx_length = len(rxpacket)
+        if rx_length >= wait_length:
+            for idx in range(0, (rx_length - 3)):  # find the packet header
+                if (rxpacket[idx] == 0xFF and rxpacket[idx + 1] == 0xFF and rxpacket[idx + 2] == 0xFD
+                        and rxpacket[idx + 3] != 0xFD):
+                    break
+            if idx == 0:
+                length = rxpacket[_PKT_LEN_L] | (rxpacket[_PKT_LEN_L + 1] << 8)
+                if (rxpacket[_PKT_RESERVED] != 0x00 or rxpacket[_PKT_ID] > packet_id
+                        or length > RXPACKET_MAX_LEN or rxpacket[_PKT_INSTRUCTION] != 0x55):
+                    del rxpacket[0]  # remove the first byte in the packet
+                    rx_length -= 1
+                    continue
+                if wait_length != length + _PKT_LEN_L + 2:
+                    wait_length = length + _PKT_LEN_L + 2
+                    continue
+                if rx_length < wait_length:
+                    if port.isPacketTimeout():
+                        result = COMM_RX_TIMEOUT if rx_length == 0 else COMM_RX_CORRUPT
+                        break
+                    continue
+                crc = rxpacket[wait_length - 2] | (rxpacket[wait_length - 1] << 8)
+                ok = ph.updateCRC(0, rxpacket, wait_length - 2) == crc
+                result = COMM_SUCCESS if ok else COMM_RX_CORRUPT
+                break
+            del rxpacket[0:idx]  # remove unnecessary packets
+            rx_length -= idx
+        elif port.isPacketTimeout():
+            result = COMM_RX_TIMEOUT if rx_length == 0 else COMM_RX_CORRUPT
+            break
+    port.is_using = False
+    return rxpacket, result
 
 
 class DynamixelBus:
@@ -512,20 +599,27 @@ class DynamixelBus:
             log.warning("%s: %s", self.name, self.stats.fallback_note)
 
     def _state_from(self, reader: _StatusSyncRead, t: float, fast: bool, check_faults: bool) -> BusState:
-        data = reader.data_dict
-        raw = np.array(self._present_all.unpack(b"".join([data[sid] for sid in self.ids])),
-                       dtype=float).reshape(-1, 3)  # (8, 3)
+        packet = reader.packet
+        if packet is not None and reader._fast_ids == self.ids:  # the fast reply, servos in joint order
+            rec = np.frombuffer(packet, dtype=_FAST_RECORD, count=len(self.ids), offset=_PKT_FIRST_PARAM)
+            cur, vel, pos = rec["current"].astype(float), rec["velocity"].astype(float), \
+                rec["position"].astype(float)
+        else:
+            data = reader.data_dict
+            raw = np.array(self._present_all.unpack(b"".join([data[sid] for sid in self.ids])),
+                           dtype=float).reshape(-1, 3)  # (8, 3)
+            cur, vel, pos = raw[:, 0], raw[:, 1], raw[:, 2]
         self.stats.reads += 1
         self._update_byte_stats()
-        if check_faults and any(status_alert(e) for e in reader.errors.values()):
+        if check_faults and any(e & STATUS_ALERT_BIT for e in reader.errors.values()):  # status_alert
             faults = self.read_hardware_errors()
             if faults:
                 raise self._fault_error(faults)
         # units.position_to_rad etc., written out (same arithmetic) to skip their asarray calls; columns:
         # Present Current, Velocity, Position
-        return BusState(position=(raw[:, 2] - units.POSITION_CENTER) * units.RAD_PER_PULSE,
-                        velocity=raw[:, 1] * units.RADS_PER_VELOCITY_LSB,
-                        current=raw[:, 0] * units.AMPERE_PER_CURRENT_LSB, t=t, fast=fast)
+        return BusState(position=(pos - units.POSITION_CENTER) * units.RAD_PER_PULSE,
+                        velocity=vel * units.RADS_PER_VELOCITY_LSB,
+                        current=cur * units.AMPERE_PER_CURRENT_LSB, t=t, fast=fast)
 
     def write_goal_current(self, amps) -> np.ndarray:
         """Send the goal current of every current-mode joint in ONE sync write.
@@ -538,6 +632,7 @@ class DynamixelBus:
         sent = np.zeros(len(self.ids))
         lsb = units.AMPERE_PER_CURRENT_LSB
         values, limits = amps.tolist(), self.current_limits.tolist()
+        params = []
         for i in self.current_joints:
             # scalar form of units.ampere_to_current(np.clip(...)): same rounding (half to even)
             lim = limits[i]
@@ -545,8 +640,17 @@ class DynamixelBus:
             lim_raw = math.floor(lim / lsb + 1e-9)
             raw = max(-lim_raw, min(lim_raw, raw))
             sent[i] = raw * lsb
-            self._current_writer.changeParam(self.ids[i], [raw & 0xFF, (raw >> 8) & 0xFF])
-        self._send(self._current_writer, "goal current")
+            params += (self.ids[i], raw & 0xFF, (raw >> 8) & 0xFF)
+        # the Sync Write packet as GroupSyncWrite + CranePacketHandler make it, built here directly (a kept
+        # header, the parameters, the CRC); a packet that needs byte stuffing goes the SDK's way
+        cur = _GOAL_CURRENT
+        packet = self._ph.sync_write_packet(cur.address, cur.size, params) if params else None
+        if packet is None:
+            for k in range(0, len(params), 3):
+                self._current_writer.changeParam(params[k], params[k + 1:k + 3])
+            self._send(self._current_writer.txPacket, "goal current")
+        else:
+            self._send(self._ph.send_broadcast, "goal current", self._port, packet)
         return sent
 
     def write_goal_position(self, rad) -> np.ndarray:
@@ -561,7 +665,7 @@ class DynamixelBus:
             raw = int(units.rad_to_position(np.clip(rad[i], self.lower[i], self.upper[i])))
             sent[i] = float(units.position_to_rad(raw))
             self._position_writer.changeParam(self.ids[i], list((raw & 0xFFFFFFFF).to_bytes(4, "little")))
-        self._send(self._position_writer, "goal position")
+        self._send(self._position_writer.txPacket, "goal position")
         return sent
 
     def _command_array(self, values, what: str, used) -> np.ndarray:
@@ -575,9 +679,11 @@ class DynamixelBus:
             raise CommandError(f"{what} for {', '.join(bad)} is not a finite number; nothing was sent")
         return arr
 
-    def _send(self, writer: GroupSyncWrite, what: str) -> None:
+    def _send(self, fn, what: str, *args) -> None:
+        """Send a sync write: `fn(*args)` (a GroupSyncWrite's txPacket, or the packet handler's
+        send_broadcast of a finished packet), retried within the error budget."""
         self._check_stall()
-        if self._retry(self._group_once, writer.txPacket, budget=True):
+        if self._retry(self._group_once, fn, *args, budget=True):
             self.stats.writes += 1
             return
         self.stats.failures += 1
@@ -693,9 +799,9 @@ class DynamixelBus:
         return None
 
     # one try of each kind of transfer, for `_retry`: the value on success, None on failure
-    def _group_once(self, fn) -> bool | None:
+    def _group_once(self, fn, *args) -> bool | None:
         """A sync write's txPacket or a sync read's txRxPacket (data in the reader's data_dict)."""
-        result = self._transfer(fn)
+        result = self._transfer(fn, *args)
         if result == COMM_SUCCESS:
             return True
         self._last_result = result

@@ -11,7 +11,8 @@ every packet) with some of its steps made cheaper, the bytes on the wire unchang
 - `syncReadTx` (Sync Read and Fast Sync Read) keeps the finished instruction packet (stuffed, with its
   CRC) per request: the control loop sends the same read every cycle;
 - `syncWriteTxOnly` builds its packet as bytes from a kept header (only the parameters change) instead
-  of a list the SDK then stuffs, checks and converts.
+  of a list the SDK then stuffs, checks and converts; `sync_write_packet` + `send_broadcast` do the same
+  for a caller that has the parameters at hand (the bus's Goal Current write, without GroupSyncWrite).
 Packets that do need (un)stuffing go through the SDK's own code.
 """
 
@@ -71,6 +72,18 @@ class CranePacketHandler(Protocol2PacketHandler):
         result = self._send(port, packet)
         if result == COMM_SUCCESS:
             port.is_using = False  # a broadcast: no status packet to wait for (as txRxPacket does)
+        return result
+
+    def sync_write_packet(self, start_address: int, data_length: int, param) -> bytes | None:
+        """The finished Sync Write packet of `param` (ID and data bytes per servo), byte for byte what
+        GroupSyncWrite.txPacket sends through `syncWriteTxOnly`; None when it needs byte stuffing."""
+        return self._sync_packet(INST_SYNC_WRITE, start_address, data_length, param, len(param))
+
+    def send_broadcast(self, port, packet: bytes) -> int:
+        """Send a finished broadcast packet (from `sync_write_packet`) as `syncWriteTxOnly` sends it."""
+        result = self._send(port, packet)
+        if result == COMM_SUCCESS:
+            port.is_using = False
         return result
 
     def _sync_packet(self, inst, start_address, data_length, param, param_length) -> bytes | None:
