@@ -12,8 +12,8 @@
 # 4. the modelling loop in force terms: a hidden Coulomb friction on joint 2 leaves a false force on
 #    that joint until the diagnosis names it and the model gets it;
 # 5. the follower's friction dither (docs/examples/dither.toml; README "Contact at standstill"), with
-#    the nominal observer and with a rigid-body + friction model fitted per joint (--eval-set
-#    per-joint, --alpha 0.2) on free motion recorded with the dither (the follower's training data of
+#    the nominal observer and with a rigid-body + Coulomb + viscous + rotor-inertia model fitted per
+#    joint (--eval-set per-joint, --alpha 0.2) on free motion recorded with the dither (the follower's training data of
 #    step 1 with the dither on: the same seed), joint 4 dithered in antiphase in the evaluation
 #    (docs/examples/dither-model.toml, whose model_coulomb_velocity = 0.1 rad/s gives the model's
 #    Coulomb terms a smooth sign in the loop); the model once with its sign as fitted (the dead
@@ -105,7 +105,7 @@ for c in 25 40; do
     [ $c = 40 ] && cfg=(--config "$OUT/cutoff40.toml")
     have "$OUT/models/follower-rigid-body+friction-pj-c$c" ||
         $FIT "$OUT/train-follower-dither.h5" "${cfg[@]}" --model rigid-body --effect coulomb --effect viscous \
-            --eval-set per-joint --alpha 0.2 -o "$OUT/models/follower-rigid-body+friction-pj-c$c"
+            --effect rotor-inertia --eval-set per-joint --alpha 0.2 -o "$OUT/models/follower-rigid-body+friction-pj-c$c"
 done
 # dither-model.toml's smooth Coulomb sign (model_coulomb_velocity = 0.1 rad/s) off: the sign as fitted
 sed 's/^model_coulomb_velocity = .*/model_coulomb_velocity = 0.0/' docs/examples/dither-model.toml \
