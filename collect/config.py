@@ -73,6 +73,7 @@ class ControllerConfig:
     dither_frequency: float = 50.0  # Hz
     dither_wave: str = "sine"  # "sine" or "square"
     dither_filter: bool = True  # the follower's tau_res averaged over one dither period
+    model_coulomb_velocity: float = 0.0  # rad/s, v0: a model's Coulomb sign(dq) -> tanh(dq/v0); 0: off
 
 
 @dataclass(frozen=True)
@@ -270,6 +271,8 @@ def _build(values: dict, where: str) -> Config:
         dither_frequency=_pos(where, "controller.dither_frequency", c["dither_frequency"]),
         dither_wave=c["dither_wave"],
         dither_filter=c["dither_filter"],
+        model_coulomb_velocity=_nonneg(where, "controller.model_coulomb_velocity",
+                                       c["model_coulomb_velocity"]),
     )
     _need(c["dither_wave"] in DITHER_WAVES, where, "controller.dither_wave",
           "one of " + ", ".join(DITHER_WAVES), c["dither_wave"])

@@ -73,6 +73,9 @@ def load_reaction_models(paths: dict, arm: ArmDescription) -> dict[str, ArmModel
 def reaction_factories(models: dict[str, ArmModel], arm: ArmDescription, config: Config) -> dict:
     """{arm name: () -> ModelReaction} for BilateralController(models=...): fresh filter state per reset."""
     rate = config.loop.rate_hz
+    for m in models.values():  # the loop's smooth sign of the Coulomb-type terms (0: as fitted)
+        if hasattr(m.model, "set_coulomb_velocity"):
+            m.model.set_coulomb_velocity(config.controller.model_coulomb_velocity)
 
     def factory(m: ArmModel):
         return lambda: ModelReaction(m.model, arm.joint_names, m.limit, rate)

@@ -29,7 +29,10 @@ joint anywhere in its band - and the masked loss never asked the model for it; a
 sign(dq) would flip with the velocity's noise and throw steps of twice the friction into the force
 channel. So the model is given dq = 0 for a joint inside its dead zone: it predicts what the joint
 needs standing still apart from friction, and the friction it holds reads as reaction, as with the
-nominal observer. A model saved without `dead_zone_rad_s` gets the filtered velocity as it is.
+nominal observer. A model saved without `dead_zone_rad_s` gets the filtered velocity as it is, and
+so does a model whose Coulomb-type terms use the loop's smooth sign tanh(dq / v0) (`[controller]
+model_coulomb_velocity` > 0, set on the model by collect/loop_models.py): there the tanh, not the dead
+zone, keeps a creeping joint's friction near zero.
 
 The filters run at the time that really passed: a cycle that came late (a loaded machine, a slow
 adapter) is filtered with Tustin coefficients for its own dt, as the controller's observers are, so the
@@ -180,7 +183,7 @@ class ModelReaction:
     def _predict(self) -> None:
         inp = self.inputs
         dq = inp.dq
-        if self.dead_zone is not None:
+        if self.dead_zone is not None and not getattr(self.model, "coulomb_velocity", 0.0) > 0:
             dq = np.where(np.abs(dq) > self.dead_zone, dq, 0.0)
         pred = np.array(self.model.predict_one(inp.q, dq, inp.ddq), dtype=float)
         self._ok = np.isfinite(pred) & (np.abs(pred) <= self.limit)

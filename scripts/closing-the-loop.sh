@@ -12,12 +12,14 @@
 # 4. the modelling loop in force terms: a hidden Coulomb friction on joint 2 leaves a false force on
 #    that joint until the diagnosis names it and the model gets it;
 # 5. the follower's friction dither (docs/examples/dither.toml; README "Contact at standstill"), with
-#    the nominal observer and with a rigid-body + friction model fitted per joint (--eval-set
-#    per-joint) on free motion recorded with the dither (the follower's training data of step 1 with
-#    the dither on: the same seed), joint 4 dithered in antiphase in the evaluation
-#    (docs/examples/dither-model.toml); the model once with the default dead zone (alpha 0.1: free
-#    motion) and once with alpha 0.2 (a wider dead zone: contact). Same seed and length as step 3: the
-#    ratios are against its nominal run without dither.
+#    the nominal observer and with a rigid-body + Coulomb + viscous + rotor-inertia model fitted per
+#    joint (--eval-set per-joint, --alpha 0.2) on free motion recorded with the dither (the follower's training data of
+#    step 1 with the dither on: the same seed), joint 4 dithered in antiphase in the evaluation
+#    (docs/examples/dither-model.toml, whose model_coulomb_velocity = 0.1 rad/s gives the model's
+#    Coulomb terms a smooth sign in the loop); the model once with its sign as fitted (the dead
+#    zone), once with the smooth sign, and once fitted with 40 rad/s filters instead of the paper's
+#    25 (less delay, more noise). Same seed and length as step 3: the ratios are against its nominal
+#    run without dither.
 # Results land in $OUT (default out/loop): fidelity-*.json, fidelity.md (the tables), models/.
 # Environment: TRAIN_S (simulated s of each training run, default 180), EVAL_S (default 120);
 # REUSE=1 keeps the sessions and models already in $OUT (re-runs only what is missing).
@@ -96,17 +98,26 @@ echo "== 5/5 friction dither: ${EVAL_S} s on the contact-wall plant, nominal and
 have "$OUT/train-follower-dither.h5" ||
     $BIN/crane-collect run --sim --seed 21 --duration "$TRAIN_S" --config docs/examples/dither.toml \
         -o "$OUT/train-follower-dither.h5" --force --quiet
-for a in 0.1 0.2; do
-    have "$OUT/models/follower-rigid-body+friction-pj-a$a" ||
-        $FIT "$OUT/train-follower-dither.h5" --model rigid-body --effect coulomb --effect viscous --eval-set per-joint \
-            --alpha $a -o "$OUT/models/follower-rigid-body+friction-pj-a$a"
+# the same fit with the paper's filters (25 rad/s) and with 40 rad/s (less delay in the loop, more noise)
+printf '[preprocess]\ncutoff_rad_s = 40.0\npseudo_diff_rad_s = 40.0\n' > "$OUT/cutoff40.toml"
+for c in 25 40; do
+    cfg=()
+    [ $c = 40 ] && cfg=(--config "$OUT/cutoff40.toml")
+    have "$OUT/models/follower-rigid-body+friction-pj-c$c" ||
+        $FIT "$OUT/train-follower-dither.h5" "${cfg[@]}" --model rigid-body --effect coulomb --effect viscous \
+            --effect rotor-inertia --eval-set per-joint --alpha 0.2 -o "$OUT/models/follower-rigid-body+friction-pj-c$c"
 done
-for m in nominal+dither rigid-body+friction+dither rigid-body+friction+dither-a0.2; do
+# dither-model.toml's smooth Coulomb sign (model_coulomb_velocity = 0.1 rad/s) off: the sign as fitted
+sed 's/^model_coulomb_velocity = .*/model_coulomb_velocity = 0.0/' docs/examples/dither-model.toml \
+    > "$OUT/dither-model-sign.toml"
+for m in nominal+dither rigid-body+friction+dither-sign rigid-body+friction+dither rigid-body+friction+dither-c40; do
     case $m in
         nominal+dither) args=(--config docs/examples/dither.toml) ;;
+        rigid-body+friction+dither-sign) args=(--config "$OUT/dither-model-sign.toml"
+            --model "$OUT/models/follower-rigid-body+friction-pj-c25") ;;
         rigid-body+friction+dither) args=(--config docs/examples/dither-model.toml
-            --model "$OUT/models/follower-rigid-body+friction-pj-a0.1") ;;
-        *) args=(--config docs/examples/dither-model.toml --model "$OUT/models/follower-rigid-body+friction-pj-a0.2") ;;
+            --model "$OUT/models/follower-rigid-body+friction-pj-c25") ;;
+        *) args=(--config docs/examples/dither-model.toml --model "$OUT/models/follower-rigid-body+friction-pj-c40") ;;
     esac
     evaluate "$m" "${args[@]}"
 done

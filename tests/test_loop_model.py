@@ -316,3 +316,40 @@ def test_loading_and_predicting_imports_neither_torch_nor_train(saved):
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
                           cwd=Path(__file__).resolve().parents[1])
     assert done.returncode == 0, done.stderr
+
+
+def test_the_loops_smooth_coulomb_sign_replaces_sign_by_tanh_and_zero_restores_the_model(saved):
+    """set_coulomb_velocity(v0): each Coulomb-type term's sign(dq) becomes tanh(dq / v0); the rest of the
+    prediction is untouched, and v0 = 0 gives load_model(dir).predict again."""
+    from crane_io.errors import ConfigError
+    from crane_io.physics.loop_model import _scalar_name
+
+    for method in ("rigid-body", "hybrid"):
+        loop = LoopModel.load(saved[method])
+        ref = load_model(saved[method])
+        test = _data(60, 3)
+        expected = ref.predict(test.q, test.dq, test.ddq)
+        rigid = next(p for p in loop.paths if hasattr(p, "set_coulomb_velocity"))
+        terms = [(_scalar_name(fn), j, c, s) for j, fn, c, s in rigid.scalar_terms]
+        coulomb = {j: c[0] for name, j, c, s in terms if name == "coulomb"}
+        assert sorted(coulomb) == [0, 1, 2]
+        stribeck = next((c[0], s["stribeck_velocity"]) for name, j, c, s in terms if name == "stribeck")
+        v0 = 0.3
+        loop.set_coulomb_velocity(v0)
+        assert loop.coulomb_velocity == v0
+        got = np.array([loop.predict_one(q, dq, ddq).copy() for q, dq, ddq in zip(test.q, test.dq, test.ddq)])
+        change = np.tanh(test.dq / v0) - np.sign(test.dq)
+        want = expected + change * np.array([coulomb[0], coulomb[1], coulomb[2]])
+        want[:, 1] += stribeck[0] * np.exp(-(test.dq[:, 1] / stribeck[1]) ** 2) * change[:, 1]
+        np.testing.assert_allclose(got, want, rtol=RTOL, atol=ATOL)
+        assert np.abs(got - expected).max() > 0.01  # a real change
+        loop.set_coulomb_velocity(0.0)
+        got = np.array([loop.predict_one(q, dq, ddq).copy() for q, dq, ddq in zip(test.q, test.dq, test.ddq)])
+        np.testing.assert_allclose(got, expected, rtol=RTOL, atol=ATOL)
+        for bad in (-0.1, float("nan")):
+            with pytest.raises(ConfigError, match="smoothing velocity"):
+                loop.set_coulomb_velocity(bad)
+    mlp = LoopModel.load(saved["mlp-masked"])
+    before = mlp.predict_one(test.q[0], test.dq[0], test.ddq[0]).copy()
+    mlp.set_coulomb_velocity(0.3)  # a network has no Coulomb term: nothing changes
+    np.testing.assert_array_equal(mlp.predict_one(test.q[0], test.dq[0], test.ddq[0]), before)

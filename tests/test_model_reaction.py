@@ -165,3 +165,45 @@ def test_a_late_cycle_is_filtered_for_the_time_that_really_passed():
     assert np.allclose(run(0.004, True), speed, rtol=1e-6)
     assert np.allclose(run(0.004, False), 2 * speed, rtol=1e-6)  # what the fixed coefficients read
     assert np.array_equal(run(1 / RATE, True), run(1 / RATE, False))
+
+
+def test_the_controllers_coulomb_velocity_reaches_the_model_and_is_checked(tmp_path):
+    from collect.config import load_config as load
+    from collect.loop_models import ArmModel, reaction_factories
+    from crane_io.errors import ConfigError
+
+    class Smoothable(LinearModel):
+        coulomb_velocity = 0.0
+
+        def set_coulomb_velocity(self, v0):
+            self.coulomb_velocity = v0
+
+    arm = default_arm()
+    model = Smoothable(("joint2",))
+    assert load().controller.model_coulomb_velocity == 0.0  # off by default
+    reaction_factories({"follower": ArmModel("follower", model, np.array([50.0]))}, arm, load())
+    assert model.coulomb_velocity == 0.0
+    path = tmp_path / "c.toml"
+    path.write_text("[controller]\nmodel_coulomb_velocity = 0.1\n")
+    reaction_factories({"follower": ArmModel("follower", model, np.array([50.0]))}, arm, load(path))
+    assert model.coulomb_velocity == 0.1
+    path.write_text("[controller]\nmodel_coulomb_velocity = -0.1\n")
+    with pytest.raises(ConfigError, match="controller.model_coulomb_velocity"):
+        load(path)
+
+
+def test_with_the_smooth_coulomb_sign_the_dead_zone_is_not_applied():
+    names = ("joint1", "joint2", "joint4")
+    runs = {}
+    for v0 in (0.0, 0.1):
+        model = LinearModel(names, a=0.0, b=1.0, c=0.0)
+        model.coulomb_velocity = v0  # as LoopModel.set_coulomb_velocity records it
+        model.preprocessing["dead_zone_rad_s"] = [0.05, 0.05, 0.05]
+        reaction = ModelReaction(model, names, np.full(3, 100.0), RATE)
+        t = np.arange(300) / RATE
+        for k in range(len(t)):  # joint2 creeps at 0.01 rad/s, inside the dead zone
+            reaction.update(np.array([0.5 * t[k], 0.01 * t[k], 0.0]), np.zeros(3))
+        runs[v0] = model.calls[-1][1]
+    assert runs[0.0][1] == 0.0  # the dead zone as fitted
+    assert runs[0.1][1] == pytest.approx(0.01, rel=0.05)  # the smooth sign: the velocity as it is
+    assert runs[0.1][0] == runs[0.0][0]  # a moving joint is not affected

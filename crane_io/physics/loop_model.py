@@ -146,6 +146,26 @@ SCALAR_EFFECTS = {
 }
 
 
+def _ssgn(v: float, v0: float) -> float:
+    return math.tanh(v / v0)  # the smooth sign of the loop's `coulomb_velocity` option (v0 > 0)
+
+
+# the same formulas with sign(v) replaced by tanh(v / v0) (`RigidPath.set_coulomb_velocity`); the shape
+# dict carries v0 as "coulomb_velocity"
+SMOOTH_SIGN_EFFECTS = {
+    "coulomb": lambda q, v, a, c, s: c[0] * _ssgn(v, s["coulomb_velocity"]),
+    "coulomb-asym": lambda q, v, a, c, s: (c[0] if v > 0 else c[1]) * _ssgn(v, s["coulomb_velocity"]),
+    "stribeck": lambda q, v, a, c, s: (c[0] * _gauss(v, s["stribeck_velocity"])
+                                       * _ssgn(v, s["coulomb_velocity"])),
+    "stiction": lambda q, v, a, c, s: (c[0] + c[1] * _gauss(v, s["stiction_velocity"]))
+                                      * _ssgn(v, s["coulomb_velocity"]),
+}
+
+
+def _scalar_name(fn) -> str | None:
+    return next((k for k, f in SCALAR_EFFECTS.items() if f is fn), None)
+
+
 def _builtin_class(name: str):
     from crane_io.physics.effects import library
 
@@ -197,6 +217,30 @@ class RigidPath:
                                           effect._shape(shape)))
             else:
                 self.generic_terms.append((effect, None if joint is None else int(joint), shape, coefs))
+        self._sign_terms = tuple(self.scalar_terms)  # as fitted: sign(dq)
+        self.coulomb_velocity = 0.0
+
+    def set_coulomb_velocity(self, v0: float) -> None:
+        """The friction terms' sign(dq) becomes tanh(dq / v0) (v0 rad/s > 0; 0: the sign as fitted, the
+        model's own prediction). Applies to the built-in coulomb, coulomb-asym, stribeck and stiction
+        terms; ConfigError for a negative or non-finite v0, or when such a term is not one of the
+        scalar built-in terms (a user effect named like one, or one acting on every joint)."""
+        v0 = float(v0)
+        if not (math.isfinite(v0) and v0 >= 0):
+            raise ConfigError(f"the Coulomb smoothing velocity must be zero or a positive number of "
+                              f"rad/s, not {v0}")
+        for effect, _, _, _ in self.generic_terms:
+            if v0 > 0 and effect.name in SMOOTH_SIGN_EFFECTS:
+                raise ConfigError(f"the effect term {effect.name} of this model cannot be smoothed in the "
+                                  f"loop (it is not a built-in term of one joint)")
+        if v0 == 0:
+            self.scalar_terms = list(self._sign_terms)
+        else:
+            self.scalar_terms = [
+                (j, SMOOTH_SIGN_EFFECTS[fn_name], coefs, {**shape, "coulomb_velocity": v0})
+                if (fn_name := _scalar_name(fn)) in SMOOTH_SIGN_EFFECTS else (j, fn, coefs, shape)
+                for j, fn, coefs, shape in self._sign_terms]
+        self.coulomb_velocity = v0
 
     def __call__(self, q, dq, ddq, out: np.ndarray) -> np.ndarray:
         if self._perm is None:
@@ -267,6 +311,7 @@ class LoopModel(PathSum):
         self.preprocessing = dict(preprocessing)
         self.units = dict(units)
         self.sha256 = sha256
+        self._coulomb_velocity = 0.0
 
     def __repr__(self) -> str:
         return f"<LoopModel {self.method} {', '.join(self.joint_names)} from {self.path}>"
@@ -274,6 +319,20 @@ class LoopModel(PathSum):
     @classmethod
     def load(cls, directory) -> LoopModel:
         return _Loader(directory).load()
+
+    @property
+    def coulomb_velocity(self) -> float:
+        """v0 of `set_coulomb_velocity` (0: the friction terms' sign as fitted)."""
+        return self._coulomb_velocity
+
+    def set_coulomb_velocity(self, v0: float) -> None:
+        """In every rigid-body path, the built-in Coulomb-type terms' sign(dq) becomes tanh(dq / v0)
+        (RigidPath.set_coulomb_velocity; v0 = 0 restores the model's own prediction). A network has no
+        such term: for mlp-* models the call only records v0; a hybrid's network part is unchanged."""
+        for path in self.paths:
+            if isinstance(path, RigidPath):
+                path.set_coulomb_velocity(v0)
+        self._coulomb_velocity = float(v0)
 
     def check_for_arm(self, bilateral_joints, arm: str | None = None) -> None:
         """LoopModelError unless every joint of the model is among `bilateral_joints` (and, when `arm` is
