@@ -1,0 +1,136 @@
+"""The per-cycle scalar paths of the simulated operator and the safety monitor give the same bits as the
+array formulas they stand in for (collect/operator.py, collect/safety.py): soft zones, stops, guards,
+NaN and signed zeros included."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from collect.config import load_config
+from collect.operator import SimulatedOperator, minimum_jerk
+from collect.runner import run_arm
+from collect.safety import SafetyMonitor
+
+
+def _setup(joints):
+    cfg = load_config()
+    if joints is not None:
+        cfg = cfg.with_bilateral_joints(joints)
+    return cfg, run_arm(cfg)
+
+
+def _array_reference(op: SimulatedOperator, t: float):
+    """What reference(t) computed before (the segments as they stand after advancing to t)."""
+    tau = (t - op._seg_t0) / op._seg_T
+    s, ds = minimum_jerk(tau)
+    d = op._seg_b - op._seg_a
+    return op._seg_a + d * s, d * ds / op._seg_T
+
+
+def _array_limit(m: SafetyMonitor, q, tau, dq, spring=True):
+    """SafetyMonitor.limit_torque's array code (the path taken when a joint is in a soft zone)."""
+    tau = tau * m.bil_f
+    over, under = q - m.soft_upper, m.soft_lower - q
+    up, lo = over > 0, under > 0
+    if not (up.any() or lo.any()):
+        return np.minimum(np.maximum(tau, -m.tau_max), m.tau_max)
+    if not spring:
+        tau = np.where(up, np.minimum(tau, 0.0), tau)
+        tau = np.where(lo, np.maximum(tau, 0.0), tau)
+    else:
+        v = np.zeros_like(q) if dq is None else dq
+        if up.any():
+            wall = -m.k_wall * over - m.d_wall * np.maximum(v, 0.0)
+            tau = np.where(up, np.minimum(tau, 0.0) + wall, tau)
+        if lo.any():
+            wall = m.k_wall * under - m.d_wall * np.minimum(v, 0.0)
+            tau = np.where(lo, np.maximum(tau, 0.0) + wall, tau)
+    return np.clip(tau, -m.tau_max, m.tau_max) * m.bil
+
+
+def _array_check(m: SafetyMonitor, q, dq) -> tuple[str, int] | None:
+    bad = (q > m.stop_upper) | (q < m.stop_lower)
+    if bad.any():
+        return "joint_limit", int(np.flatnonzero(bad)[0])
+    if dq is not None and (np.abs(dq) > m.vmax).any():
+        return "velocity", int(np.flatnonzero(np.abs(dq) > m.vmax)[0])
+    return None
+
+
+@pytest.mark.parametrize("joints", [None, "all"])
+def test_operator_reference_and_torque_match_the_array_formulas(joints):
+    cfg, arm = _setup(joints)
+    op = SimulatedOperator(3, arm, cfg.loop.rate_hz, cfg)
+    rng = np.random.default_rng(0)
+    q = np.array([0.0, 0.2, 0.0, -1.2, 0.0, 0.0, 0.0, 0.0])
+    op.start(q, 0.0)
+    o = cfg.operator
+    for k in range(3000):  # 6 s: moves, pauses and segment ends
+        t = k * 0.002
+        qk = q + rng.normal(0, 0.3, 8)
+        dqk = rng.normal(0, 2.0, 8) * (k % 5 != 0)  # zeros now and then
+        got = op.torque(t, qk, dqk)
+        q_ref, dq_ref = _array_reference(op, t)
+        want = np.zeros(8)
+        want[op.idx] = np.clip(o.stiffness * (q_ref - qk[op.idx]) + o.damping * (dq_ref - dqk[op.idx]),
+                               -o.max_torque, o.max_torque)
+        assert got.dtype == want.dtype and got.shape == (8,)
+        assert got.tobytes() == want.tobytes()
+        r_q, r_dq = op.reference(t)
+        assert r_q.tobytes() == q_ref.tobytes() and r_dq.tobytes() == dq_ref.tobytes()
+
+
+def test_operator_torque_passes_nan_through_like_the_arrays():
+    cfg, arm = _setup(None)
+    op = SimulatedOperator(0, arm, cfg.loop.rate_hz, cfg)
+    op.start(np.zeros(8), 0.0)
+    q = np.zeros(8)
+    q[op.idx[0]] = np.nan
+    out = op.torque(0.01, q, np.zeros(8))
+    assert np.isnan(out[op.idx[0]]) and np.isfinite(np.delete(out, op.idx[0])).all()
+
+
+@pytest.mark.parametrize("joints", [None, "all"])
+def test_safety_fast_paths_match_the_array_code(joints):
+    cfg, arm = _setup(joints)
+    m = SafetyMonitor(cfg, arm)
+    rng = np.random.default_rng(1)
+    mid = 0.5 * (m.lower + m.upper)
+    half = 0.5 * (m.upper - m.lower)
+    for k in range(4000):
+        # mostly inside, now and then in a soft zone, past a stop, at exact bounds, NaN, -0.0
+        q = mid + half * rng.uniform(-1.0, 1.0, 8) * (0.9 if k % 3 else 1.05)
+        if k % 17 == 0:
+            q[k % 8] = m.soft_upper[k % 8]
+        if k % 19 == 0:
+            q[k % 8] = m.stop_lower[k % 8]
+        if k % 23 == 0:
+            q[k % 8] = np.nan
+        tau = rng.normal(0, 5.0, 8)
+        if k % 7 == 0:
+            tau[:] = -0.0
+        dq = rng.normal(0, 3.0, 8)
+        if k % 29 == 0:
+            dq[k % 8] = m.vmax[k % 8]
+        if k % 31 == 0:
+            dq[(k + 1) % 8] = np.nan
+        for spring in (True, False):
+            got = m.limit_torque(q, tau, dq, spring=spring)
+            want = _array_limit(m, q, tau, dq, spring)
+            assert got.tobytes() == want.tobytes(), (k, spring)
+        for d in (dq, None):
+            b = m.check("leader", q, d)
+            want = _array_check(m, q, d)
+            assert (None if b is None else (b.kind, m.names.index(b.joint))) == want, k
+
+
+def test_safety_takes_lists_and_other_shapes_the_old_way():
+    cfg, arm = _setup(None)
+    m = SafetyMonitor(cfg, arm)
+    q = [0.0, 0.2, 0.0, -1.2, 0.0, 0.0, 0.0, 0.1]
+    out = m.limit_torque(np.array(q), np.ones(8))
+    assert out.tobytes() == _array_limit(m, np.array(q), np.ones(8), None).tobytes()
+    assert m.check("leader", np.array(q), None) is None
+    b = m.check("follower", np.array(q) + np.where(np.arange(8) == 1, 3.0, 0.0), None)
+    assert b is not None and b.kind == "joint_limit" and b.joint == m.names[1]
