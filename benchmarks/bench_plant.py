@@ -94,17 +94,23 @@ def plant_alone(steps: int, preset: str = "crane-x7", kernel: bool | None = None
 
 def kernel_vs_reference(steps: int, preset: str = "crane-x7") -> tuple[float, float]:
     """(reference CPU s per step, kernel CPU s per step) of the plant alone, blocks alternated."""
-    cycles = {True: _alone_cycle(preset, True), False: _alone_cycle(preset, False)}
-    cpu = {True: 0.0, False: 0.0}
+    per_step = _alternated({True: _alone_cycle(preset, True), False: _alone_cycle(preset, False)}, steps)
+    return per_step[False], per_step[True]
+
+
+def _alternated(cycles: dict, steps: int) -> dict:
+    """CPU s per call of each cycle(i) in `cycles`, run in alternated blocks (2 x REPEATS of them) so that
+    a change in the machine's load falls on all of them alike."""
+    cpu = dict.fromkeys(cycles, 0.0)
     block = max(1, steps // (2 * REPEATS))
     for b in range(2 * REPEATS):
-        for kernel, cycle in cycles.items():
+        for key, cycle in cycles.items():
             t = time.process_time()
             for i in range(b * block, (b + 1) * block):
                 cycle(i)
-            cpu[kernel] += time.process_time() - t
+            cpu[key] += time.process_time() - t
     done = block * 2 * REPEATS
-    return cpu[False] / done, cpu[True] / done
+    return {key: c / done for key, c in cpu.items()}
 
 
 def first_call(preset: str = "crane-x7") -> float:
@@ -183,17 +189,8 @@ def _chain_cycle(preset: str, fast: bool):
 
 def chain_fast_vs_general(cycles: int, preset: str = "crane-x7") -> tuple[float, float]:
     """(general path, fast path) CPU s per arm-cycle of the chain side (_chain_cycle), blocks alternated."""
-    runs = {False: _chain_cycle(preset, False), True: _chain_cycle(preset, True)}
-    cpu = {True: 0.0, False: 0.0}
-    block = max(1, cycles // (2 * REPEATS))
-    for b in range(2 * REPEATS):
-        for fast, cycle in runs.items():
-            t = time.process_time()
-            for i in range(b * block, (b + 1) * block):
-                cycle(i)
-            cpu[fast] += time.process_time() - t
-    done = block * 2 * REPEATS
-    return cpu[False] / done, cpu[True] / done
+    per_cycle = _alternated({False: _chain_cycle(preset, False), True: _chain_cycle(preset, True)}, cycles)
+    return per_cycle[False], per_cycle[True]
 
 
 def _rows(label: str, wall: float, cpu: float, note: str, goal: float | None = None) -> list[dict]:

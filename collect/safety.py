@@ -79,13 +79,21 @@ class SafetyMonitor:
         Inside the soft zone the outward part of the command is cut and a damped spring pushes back
         (stiffness per rad of penetration, damping on outward velocity only). spring=False only cuts
         the outward part (used while aligning, when a joint may start deep inside the zone)."""
-        tau = tau * self.bil_f
         if not self._outside(_floats(q), self.soft_lower.tolist(), self.soft_upper.tolist()):
-            return np.minimum(np.maximum(tau, -self.tau_max), self.tau_max)
+            return np.minimum(np.maximum(tau * self.bil_f, -self.tau_max), self.tau_max)
+        return self.limit_torque_arrays(q, tau, dq, spring)
+
+    def limit_torque_arrays(self, q: np.ndarray, tau: np.ndarray, dq: np.ndarray | None = None,
+                            spring: bool = True) -> np.ndarray:
+        """limit_torque in array operations only: what it computes when a joint is in its soft zone, and
+        the reference its usual-case shortcut is tested against (the same bits)."""
+        tau = tau * self.bil_f
         over = q - self.soft_upper
         under = self.soft_lower - q
         up = over > 0
         lo = under > 0
+        if not (up.any() or lo.any()):
+            return np.minimum(np.maximum(tau, -self.tau_max), self.tau_max)
         if not spring:
             tau = np.where(up, np.minimum(tau, 0.0), tau)
             tau = np.where(lo, np.maximum(tau, 0.0), tau)

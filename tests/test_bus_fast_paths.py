@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from dynamixel_sdk import COMM_RX_CORRUPT, COMM_SUCCESS, GroupSyncWrite
+from dynamixel_sdk import COMM_SUCCESS, GroupSyncWrite
 from fakes import FlipCrcByte, OverloadBit
 
 from crane_io.dynamixel import bus as bus_mod
@@ -44,7 +44,7 @@ class FakePort:
 
 
 class SdkReader(_StatusSyncRead):
-    """The reply parse as it was before the fast path: the SDK's rxPacket, then the old parse."""
+    """The reply parse as it was before the fast path: the SDK's own rxPacket, then the packet's blocks."""
 
     def fastSyncReadRxPacket(self):  # noqa: N802
         self.last_result = False
@@ -53,25 +53,7 @@ class SdkReader(_StatusSyncRead):
         packet, result = self.ph.rxPacket(self.port, True)
         if result != COMM_SUCCESS:
             return result
-        if packet[4] != 0xFE:
-            return COMM_RX_CORRUPT
-        packet = self.ph.removeStuffing(packet)
-        length = packet[5] | (packet[6] << 8)
-        body = bytes(packet[8: 7 + length])
-        chunk = self.data_length + 4
-        if len(body) != chunk * len(self.data_dict):
-            return COMM_RX_CORRUPT
-        seen = {}
-        for k in range(0, len(body), chunk):
-            dxl_id = body[k + 1]
-            if dxl_id not in self.data_dict or dxl_id in seen:
-                return COMM_RX_CORRUPT
-            seen[dxl_id] = (bytearray(body[k + 2:k + 2 + self.data_length]), body[k])
-        for dxl_id, (data, error) in seen.items():
-            self.data_dict[dxl_id] = data
-            self.errors[dxl_id] = error
-        self.last_result = True
-        return COMM_SUCCESS
+        return self.take_fast_packet(packet)
 
 
 def _blocks(errors=None, ids=IDS, seed=0):

@@ -28,27 +28,6 @@ def _array_reference(op: SimulatedOperator, t: float):
     return op._seg_a + d * s, d * ds / op._seg_T
 
 
-def _array_limit(m: SafetyMonitor, q, tau, dq, spring=True):
-    """SafetyMonitor.limit_torque's array code (the path taken when a joint is in a soft zone)."""
-    tau = tau * m.bil_f
-    over, under = q - m.soft_upper, m.soft_lower - q
-    up, lo = over > 0, under > 0
-    if not (up.any() or lo.any()):
-        return np.minimum(np.maximum(tau, -m.tau_max), m.tau_max)
-    if not spring:
-        tau = np.where(up, np.minimum(tau, 0.0), tau)
-        tau = np.where(lo, np.maximum(tau, 0.0), tau)
-    else:
-        v = np.zeros_like(q) if dq is None else dq
-        if up.any():
-            wall = -m.k_wall * over - m.d_wall * np.maximum(v, 0.0)
-            tau = np.where(up, np.minimum(tau, 0.0) + wall, tau)
-        if lo.any():
-            wall = m.k_wall * under - m.d_wall * np.minimum(v, 0.0)
-            tau = np.where(lo, np.maximum(tau, 0.0) + wall, tau)
-    return np.clip(tau, -m.tau_max, m.tau_max) * m.bil
-
-
 def _array_check(m: SafetyMonitor, q, dq) -> tuple[str, int] | None:
     bad = (q > m.stop_upper) | (q < m.stop_lower)
     if bad.any():
@@ -117,7 +96,7 @@ def test_safety_fast_paths_match_the_array_code(joints):
             dq[(k + 1) % 8] = np.nan
         for spring in (True, False):
             got = m.limit_torque(q, tau, dq, spring=spring)
-            want = _array_limit(m, q, tau, dq, spring)
+            want = m.limit_torque_arrays(q, tau, dq, spring)
             assert got.tobytes() == want.tobytes(), (k, spring)
         for d in (dq, None):
             b = m.check("leader", q, d)
@@ -130,7 +109,7 @@ def test_safety_takes_lists_and_other_shapes_the_old_way():
     m = SafetyMonitor(cfg, arm)
     q = [0.0, 0.2, 0.0, -1.2, 0.0, 0.0, 0.0, 0.1]
     out = m.limit_torque(np.array(q), np.ones(8))
-    assert out.tobytes() == _array_limit(m, np.array(q), np.ones(8), None).tobytes()
+    assert out.tobytes() == m.limit_torque_arrays(np.array(q), np.ones(8), None).tobytes()
     assert m.check("leader", np.array(q), None) is None
     b = m.check("follower", np.array(q) + np.where(np.arange(8) == 1, 3.0, 0.0), None)
     assert b is not None and b.kind == "joint_limit" and b.joint == m.names[1]

@@ -213,11 +213,19 @@ class _StatusSyncRead(GroupSyncRead):
         packet, result = _rx_packet(self.ph, port, data)
         if result != COMM_SUCCESS:
             return result
+        return self.take_fast_packet(packet)
+
+    def take_fast_packet(self, packet: list) -> int:
+        """Take the blocks of a Fast Sync Read status packet as rxPacket returned it (a list of bytes,
+        possibly stuffed): COMM_SUCCESS, or COMM_RX_CORRUPT for a packet not addressed to the broadcast
+        ID, of the wrong length, or with an unknown or repeated servo ID."""
         if packet[_PKT_ID] != BROADCAST_ID:
             return COMM_RX_CORRUPT
         packet = self.ph.removeStuffing(packet)  # rxPacket's own list: unstuffed in place
         length = packet[5] | (packet[6] << 8)
         body = bytes(packet[_PKT_FIRST_PARAM: 7 + length])  # [ERR ID DATA.. CRC CRC] per servo
+        n = self.data_length
+        chunk = n + 4
         if len(body) != chunk * len(self.data_dict):
             return COMM_RX_CORRUPT
         seen = {}
