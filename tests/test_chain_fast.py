@@ -347,3 +347,24 @@ def test_a_subclass_that_changes_read_lists_or_step_lists_is_not_bypassed():
     stepped = SimulatedChain(Stepped("crane-x7", seed=0), fast=True)
     stepped.advance(0.01)
     assert stepped.plant.steps == 5
+
+
+def test_a_new_chain_has_its_kernels_compiled_before_the_first_packet():
+    """Compiled lazily, the kernels were compiled (seconds on a fresh checkout) at the first packet, while a
+    host on a pseudo-terminal waited for the reply and then declared the servos silent. A fresh process:
+    building the chain alone leaves every kernel with its signature compiled (or loaded from the cache)."""
+    import json
+    import subprocess
+    import sys
+
+    probe = (
+        "import json\n"
+        "from crane_io.sim import chain_kernel, plant_kernel\n"
+        "from crane_io.sim.arm_plant import ArmPlant\n"
+        "from crane_io.sim.chain import SimulatedChain\n"
+        "chain = SimulatedChain(ArmPlant('crane-x7', seed=0), fast=True)\n"
+        "fns = list(chain_kernel.compiled()) + [plant_kernel.compiled()[0]]\n"
+        "print(json.dumps({f.__name__: len(f.signatures) for f in fns}))\n")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
+    counts = json.loads(out.stdout.strip().splitlines()[-1])
+    assert counts == {"sensors_into": 1, "commands": 1, "fast_status": 1, "reading": 1, "step_arm": 1}

@@ -118,7 +118,8 @@ class SimulatedChain:
         if fast is None:
             fast = os.environ.get("CRANE_CHAIN_FAST", "1") != "0"
         self.fast = bool(fast) and self._fast_layout()
-        self._fast_fns = None  # chain_kernel.compiled(), loaded at first use
+        self._fast_fns = None  # chain_kernel.compiled()
+        self._fast()  # loaded (or compiled) now, not at the first packet a host waits on (crane_io.sim.jit)
         self._commands = np.zeros((5, len(self._order)))
         self._supply_key: tuple = (None, None)  # the last (voltages, temperatures) and their raw values
         self._supply_raw = (None, None)

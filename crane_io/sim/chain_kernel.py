@@ -13,7 +13,6 @@ the servos it is given; the chain decides when that applies (crane_io.sim.chain,
 from __future__ import annotations
 
 import math
-import types
 
 import numpy as np
 
@@ -197,22 +196,29 @@ def reading(q, dq, tau, hq, hdq, hcur, bi, held, kt, n, p, raw, flips, signs, ve
     return pos, vel, cur
 
 
+# the argument types the simulated chain and ArmPlant.read_arrays call them with (compiled up front,
+# crane_io.sim.jit)
+_F, _I = "float64[::1]", "int64[::1]"
+SIGNATURES = {
+    "sensors_into": (f"(uint8[:, ::1], {_F}, {_F}, {_F}, {_I}, {_I}, int64, int64, int64, int64, int64)",),
+    "commands": ("(uint8[:, ::1], int64, float64[:, ::1], int64, int64, int64, int64, int64)",),
+    "fast_status": (f"(uint8[:, ::1], {_I}, {_I}, int64, int64, int64, {_I})",),
+    "reading": (f"({_F}, {_F}, {_F}, {_F}, {_F}, {_F}, {_I}, {_I}, {_F}, int64, float64, uint64[::1], {_F}, "
+                f"{_F}, float64, float64, {_F})",),
+}
+
+
 def compiled():
-    """(sensors_into, commands, fast_status, reading) compiled with numba, or None without numba."""
+    """(sensors_into, commands, fast_status, reading) compiled with numba, or None without numba. The
+    first call of a process compiles them, or loads them from numba's cache (crane_io.sim.jit)."""
     global _COMPILED
     if _COMPILED is None:
-        try:
-            import numba
-        except ImportError:
-            _COMPILED = False
-            return None
-        jit = numba.njit(cache=True)
-        ns = dict(globals())
-        for name in ("_quantise", "_put", "_get_u", "_get_s", "_crc_byte", "sensors_into", "commands",
-                     "fast_status", "reading"):
-            f = ns[name]
-            ns[name] = jit(types.FunctionType(f.__code__, ns, f.__name__, f.__defaults__))
-        _COMPILED = (ns["sensors_into"], ns["commands"], ns["fast_status"], ns["reading"])
+        from crane_io.sim.jit import compile_functions
+
+        fns = compile_functions(globals(), ("_quantise", "_put", "_get_u", "_get_s", "_crc_byte",
+                                            "sensors_into", "commands", "fast_status", "reading"), SIGNATURES)
+        _COMPILED = False if fns is None else (fns["sensors_into"], fns["commands"], fns["fast_status"],
+                                               fns["reading"])
     return _COMPILED or None
 
 

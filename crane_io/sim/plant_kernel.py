@@ -48,7 +48,6 @@ Array layouts (float64; built by ArmPlant):
 from __future__ import annotations
 
 import math
-import types
 
 import numpy as np
 
@@ -418,23 +417,24 @@ def step_arm(q, dq, hq, hdq, cmds, pd, ext, hext, h, n_sub, dt, hmat, geo, arm, 
     return out
 
 
+_F, _F2 = "float64[::1]", "float64[:, ::1]"
+# the argument types ArmPlant calls step_arm with (compiled up front, crane_io.sim.jit)
+SIGNATURES = {
+    "step_arm": (f"({_F}, {_F}, {_F}, {_F}, {_F2}, {_F2}, {_F}, {_F}, float64, int64, float64, {_F}, {_F2}, "
+                 f"{_F}, {_F2}, {_F2}, {_F}, {_F2})",),
+}
+
+
 def compiled():
     """The numba-compiled (`step_arm`, `step`, `dynamics`), or None when numba is not installed. The first
-    call of a process compiles or loads from the cache."""
+    call of a process compiles step_arm or loads it from numba's cache (crane_io.sim.jit)."""
     global _COMPILED
     if _COMPILED is None:
-        try:
-            import numba
-        except ImportError:  # numba is a dependency; without it ArmPlant takes its reference path
-            _COMPILED = False
-            return None
-        jit = numba.njit(cache=True, error_model="numpy")
-        ns = dict(globals())  # the compiled functions call each other; the module keeps the Python ones
-        for name in ("_kinematics", "_rnea", "_crba", "dynamics", "_kinetic", "_solve", "step",
-                     "step_arm"):
-            f = ns[name]
-            ns[name] = jit(types.FunctionType(f.__code__, ns, f.__name__, f.__defaults__))
-        _COMPILED = (ns["step_arm"], ns["step"], ns["dynamics"])
+        from crane_io.sim.jit import compile_functions
+
+        fns = compile_functions(globals(), ("_kinematics", "_rnea", "_crba", "dynamics", "_kinetic", "_solve",
+                                            "step", "step_arm"), SIGNATURES, error_model="numpy")
+        _COMPILED = False if fns is None else (fns["step_arm"], fns["step"], fns["dynamics"])
     return _COMPILED or None
 
 

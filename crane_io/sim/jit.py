@@ -1,0 +1,32 @@
+"""Compiling the simulator's kernels (crane_io.sim.plant_kernel, crane_io.sim.chain_kernel) with numba.
+
+`compile_functions(namespace, names, signatures)` compiles the named plain-Python functions of a module
+with `njit(cache=True)` (no `fastmath`: the same IEEE operations as the Python source), so that they call
+each other compiled, and compiles the `signatures` given (name -> argument types, numba's string form)
+at once: loaded from numba's cache or compiled right then, in the thread that builds the simulator. A
+kernel compiled lazily instead would be compiled at its first call, which for a simulator serving a
+pseudo-terminal is while a host waits for a reply: on a fresh checkout that is several seconds, and the
+host rightly declares the servos silent. Returns None when numba is not installed.
+"""
+
+from __future__ import annotations
+
+import types
+
+
+def compile_functions(namespace: dict, names: tuple[str, ...], signatures: dict[str, tuple[str, ...]],
+                      **options) -> dict | None:
+    """name -> compiled function for `names` (see the module docstring); None without numba."""
+    try:
+        import numba
+    except ImportError:
+        return None
+    jit = numba.njit(cache=True, **options)
+    ns = dict(namespace)  # the compiled functions call each other; the module keeps the Python ones
+    for name in names:
+        f = ns[name]
+        ns[name] = jit(types.FunctionType(f.__code__, ns, f.__name__, f.__defaults__))
+    for name, sigs in signatures.items():
+        for sig in sigs:
+            ns[name].compile(sig)
+    return {name: ns[name] for name in names}
