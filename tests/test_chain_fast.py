@@ -139,17 +139,15 @@ def test_the_fast_path_answers_and_steps_as_the_general_path_does_through_faults
     for c in chains:
         c.servos[3].supports_fast_sync_read = True
     # mode changes: an integrated joint's servo to position mode and back; a held one to current mode
-    _feed(chains, _write(2, TORQUE, 0, 1))
-    _feed(chains, _write(2, MODE, 3, 1))
-    _feed(chains, _write(2, TORQUE, 1, 1))
+    def set_mode(sid, mode):  # the Operating Mode is EEPROM: torque off, the mode, torque on
+        for address, value in ((TORQUE, 0), (MODE, mode), (TORQUE, 1)):
+            _feed(chains, _write(sid, address, value, 1))
+
+    set_mode(2, 3)
     run(5)
-    _feed(chains, _write(9, TORQUE, 0, 1))
-    _feed(chains, _write(9, MODE, 0, 1))
-    _feed(chains, _write(9, TORQUE, 1, 1))
+    set_mode(9, 0)
     run(5, read_ids=ids)
-    _feed(chains, _write(2, TORQUE, 0, 1))
-    _feed(chains, _write(2, MODE, 0, 1))
-    _feed(chains, _write(2, TORQUE, 1, 1))
+    set_mode(2, 0)
     run(3)
     # an ID change: 8 becomes 20 (EEPROM: torque off first); the old ID is gone, the new one answers
     _feed(chains, _write(8, TORQUE, 0, 1))

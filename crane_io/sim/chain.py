@@ -117,9 +117,10 @@ class SimulatedChain:
             s.chain_row = i
         if fast is None:
             fast = os.environ.get("CRANE_CHAIN_FAST", "1") != "0"
-        self.fast = bool(fast) and self._fast_layout()
-        self._fast_fns = None  # chain_kernel.compiled()
-        self._fast()  # loaded (or compiled) now, not at the first packet a host waits on (crane_io.sim.jit)
+        # the compiled functions, loaded (or compiled) now, not at the first packet a host waits on
+        # (crane_io.sim.jit); None without numba, and then no fast path
+        self._fast_fns = chain_kernel.compiled() if fast and self._fast_layout() else None
+        self.fast = self._fast_fns is not None
         self._commands = np.zeros((5, len(self._order)))
         self._supply_key: tuple = (None, None)  # the last (voltages, temperatures) and their raw values
         self._supply_raw = (None, None)
@@ -170,17 +171,8 @@ class SimulatedChain:
         return True
 
     def _fast(self):
-        """The compiled functions when the fast path is on (and numba there), else None."""
-        if not self.fast:
-            return None
-        fns = self._fast_fns
-        if fns is None:
-            fns = chain_kernel.compiled()
-            if fns is None:
-                self.fast = False
-                return None
-            self._fast_fns = fns
-        return fns
+        """The compiled functions when the fast path is on, else None."""
+        return self._fast_fns if self.fast else None
 
     # ---- fault-injection hooks ------------------------------------------------------------------
     def remove_servo(self, servo_id: int) -> None:
@@ -321,12 +313,11 @@ class SimulatedChain:
             done = methods[3](cmds, mask, dt)
         else:
             done = False
-        if done:
-            pass
-        elif step_lists is not None:  # the commands as lists, as actuator_command's arrays would hold them
-            step_lists(*zip(*[s.command() for s in self._order]), dt)
-        else:
-            plant.step(self.actuator_command(), dt)
+        if not done:  # step_command did not step the plant (no fast path, or a case it hands back)
+            if step_lists is not None:  # the commands as lists, as actuator_command's arrays would hold them
+                step_lists(*zip(*[s.command() for s in self._order]), dt)
+            else:
+                plant.step(self.actuator_command(), dt)
         self.time += dt
         self.stats.plant_steps += 1
         self._read_plant()
