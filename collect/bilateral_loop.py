@@ -41,6 +41,9 @@ _LEADER, _FOLLOWER = (SimpleNamespace(**{m.name: fmt.arm_path(arm, m.name) for m
                       for arm in ARMS)
 _TIMING = SimpleNamespace(**{m.name: fmt.timing_path(m.name) for m in fmt.TIMING_MEMBERS})
 # the members of a recorded row, in the order _record gives their values
+# a paced loop stops the recorder's deferred writes this long before the next deadline (the wait's
+# final spin is 0.2 ms): what is left waits for the next cycle's slack
+WRITE_MARGIN_S = 3e-4
 _ROW_MEMBERS = ("t", "q", "tau", "dq_servo", "current", "goal_current", "dq", "tau_dis", "tau_res", "q_goal")
 _ROW_TIMING = ("cycle_start", "period", "bus_time_leader", "bus_time_follower", "compute_time", "overrun")
 _ROW_KEYS = (tuple(getattr(arm, m) for arm in (_LEADER, _FOLLOWER) for m in _ROW_MEMBERS)
@@ -158,9 +161,14 @@ class BilateralLoop:
                      between_cycles=self.between_cycles)
 
     def between_cycles(self) -> None:
-        """After a cycle's writes, before the wait: the small garbage collection kept out of the cycle."""
+        """After a cycle's writes, before the wait: the small garbage collection kept out of the cycle,
+        and the recorder's deferred chunk writes that fit before the next deadline."""
         if self.realtime is not None:
             self.realtime.collect_garbage()
+        recorder = self.recorder
+        if recorder is not None and recorder.deferred_writes:
+            timer = self.timer
+            recorder.write_pending(timer.deadline - WRITE_MARGIN_S, timer.clock)
 
     # -- bilateral control --------------------------------------------------------------------------
     def run(self, duration: float | None) -> str:

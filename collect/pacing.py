@@ -48,6 +48,16 @@ class CycleTimer:
         self._totals: dict[str, float] = dict.fromkeys(SECTIONS, 0.0)
         self._max_sections: dict[str, float] = dict.fromkeys(SECTIONS, 0.0)
 
+    @property
+    def deadline(self) -> float:
+        """The current cycle's deadline, in `clock`'s seconds (meaningless in lockstep)."""
+        return self._deadline
+
+    @property
+    def clock(self):
+        """The clock the timer paces by (time.perf_counter unless given)."""
+        return self._clock
+
     # ---- pacing -------------------------------------------------------------------------------------
     def start(self) -> float:
         """Begin the first cycle now; returns its start time (0.0, seconds since start)."""

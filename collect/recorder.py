@@ -16,6 +16,18 @@ first copy behind (an SWMR writer never reuses file space); the recorder counts 
 they exceed `compact_above` of the file, rewrites the file compactly after closing it. Events are
 written at once (their chunks are uncompressed, so a rewrite keeps its place).
 
+A paced loop cannot afford to write a chunk inside a cycle: compressing and checksumming some 26
+datasets and flushing the file takes 3-4 ms of CPU, longer than the 2 ms period, so every chunk
+written in the cycle was a late cycle (a 10-minute real-time run: 1238 periods more than 2 ms late).
+With `deferred_writes` (crane-collect sets it for every paced run) a full chunk's rows are copied aside
+and written one dataset at a time by `write_pending(deadline, clock)`, which the loop calls after each
+cycle's writes, with the time left before its next deadline: it writes while the next dataset's
+learned cost fits (then the file flush, as its own step), so a chunk reaches the file over a few
+cycles instead of in one. The rows wait at most a few cycles longer, well inside `max_unsaved_s`; a
+chunk that falls due while writes are still pending first finishes them, and `flush()` and `close()`
+write everything at once. A crash between two of a chunk's datasets leaves one dataset a chunk ahead of
+another, which `crane-collect recover` already cuts to the rows they all hold.
+
 Close never reopens the file (a live reader would make a second open fail): the end-of-run values are
 written into the attributes created before the SWMR switch, `complete = True` last, then the file is
 closed. A recorder holds an advisory lock while it writes (collect/session_lock.py) so that
@@ -69,7 +81,7 @@ class SessionRecorder:
                  attrs: dict | None = None, arms=sf.ARMS, force: bool = False,
                  flush_interval_s: float = sf.CHUNK_S, max_unsaved_s: float = sf.MAX_UNSAVED_S,
                  lockstep: bool = False, chunk_rows: int | None = None, end_attrs: dict | None = None,
-                 compact_above: float = sf.COMPACT_ABOVE,
+                 compact_above: float = sf.COMPACT_ABOVE, deferred_writes: bool = False,
                  clock=time.monotonic):
         self.path = Path(path)
         if self.path.exists():
@@ -99,6 +111,11 @@ class SessionRecorder:
         self.waste_bytes = 0  # bytes of chunks written and then superseded (never reused under SWMR)
         self.compacted = False
         self.closed = False
+        # deferred writes (a paced loop): [(key, n0, n1, rows, partial)], then the file flush
+        self.deferred_writes = bool(deferred_writes)
+        self._pending: list[tuple] = []
+        self._pending_flush = False
+        self._write_cost = _FIRST_WRITE_COST_S  # s: the learned cost of one dataset's write
         self._lock = None
         f = self._f
         # the required attributes (sf.REQUIRED_ROOT), then `complete`
@@ -167,26 +184,78 @@ class SessionRecorder:
     def _row_added(self, k: int) -> None:
         self._k = k
         if (self._n + k) % self.chunk_rows == 0:  # a chunk is full: write it whole
-            self.flush()
+            self._rows_due()
         elif not self.lockstep:
             now = self._clock()
             if k == 1:
                 self._oldest = now
             elif now - self._oldest >= self.max_unsaved_s:
-                self.flush()
+                self._rows_due()
+
+    def _rows_due(self) -> None:
+        """The buffered rows are to be written: now, or (deferred_writes) by write_pending."""
+        if not self.deferred_writes:
+            self.flush()
+            return
+        self._write_all_pending()  # an earlier chunk first (normally long done)
+        k = self._k
+        n0, n1 = self._n, self._n + k
+        partial = n0 % self.chunk_rows
+        for key in self._ds:
+            b = self._buf[key]
+            self._pending.append((key, n0, n1, b[:k].copy(), partial))
+            if b.dtype.kind == "f":
+                b[:k] = np.nan  # a member not given in some row stays NaN, never stale
+        self._pending_flush = True
+        self._n = n1
+        self._k = 0
+
+    @property
+    def pending_writes(self) -> int:
+        """Deferred steps not yet done (dataset writes, plus the file flush that ends them)."""
+        return len(self._pending) + self._pending_flush
+
+    def write_pending(self, deadline: float | None = None, clock=None) -> int:
+        """Do deferred writes: all of them when `deadline` is None, otherwise while the next one's
+        learned cost still ends before `deadline` (a time of `clock`, default the recorder's clock);
+        at least nothing, at most everything. Returns the number of steps left."""
+        clock = clock or self._clock
+        pending = self._pending
+        while pending or self._pending_flush:
+            if deadline is not None and clock() + self._write_cost > deadline:
+                break
+            t0 = clock()
+            if pending:
+                self._write_rows(*pending.pop(0))
+            else:
+                self._f.flush()
+                self._pending_flush = False
+            took = clock() - t0
+            self._write_cost = max(took, self._write_cost * _COST_DECAY)
+        return self.pending_writes
+
+    def _write_all_pending(self) -> None:
+        if self._pending or self._pending_flush:
+            self.write_pending(None)
+
+    def _write_rows(self, key: str, n0: int, n1: int, rows: np.ndarray, partial: int) -> None:
+        ds = self._ds[key]
+        if partial:  # the chunk on disk is superseded by the one written now
+            self.waste_bytes += _chunk_size(ds, n0 - partial)
+        ds.resize(n1, axis=0)
+        ds[n0:n1] = rows
 
     def flush(self) -> None:
-        """Write the buffered rows now (whole chunks where they fall on chunk boundaries)."""
+        """Write the deferred and the buffered rows now (whole chunks where they fall on chunk
+        boundaries), and flush the file."""
+        self._write_all_pending()
         k = self._k
         if k:
             n0, n1 = self._n, self._n + k
             partial = n0 % self.chunk_rows
-            for key, ds in self._ds.items():
-                if partial:  # the chunk on disk is superseded by the one written now
-                    self.waste_bytes += _chunk_size(ds, n0 - partial)
-                ds.resize(n1, axis=0)
+            for key in self._ds:
                 b = self._buf[key]
-                ds[n0:n1] = b[:k]
+                self._write_rows(key, n0, n1, b[:k], partial)
                 if b.dtype.kind == "f":
                     b[:k] = np.nan  # a member not given in some row stays NaN, never stale
             self._n = n1
@@ -272,6 +341,10 @@ class SessionRecorder:
     def __exit__(self, exc_type, exc, tb):
         self.close(complete=exc_type is None)
         return False
+
+
+_FIRST_WRITE_COST_S = 3e-4  # a dataset's write before any was timed (compressed chunk of 0.5 s)
+_COST_DECAY = 0.99  # per write: a slow write raises the learned cost at once, which then decays
 
 
 def _chunk_size(ds: h5py.Dataset, row: int) -> int:

@@ -185,4 +185,4 @@ def make_recorder(output: Path, config: Config, arm: ArmDescription, hw: dict, *
     # the wall clock, which keeps the file compact however slowly the loop runs
     return SessionRecorder(output, joint_names=arm.joint_names, rate_hz=config.loop.rate_hz,
                            source="sim" if simulated else "hardware", attrs=attrs, force=force,
-                           lockstep=attrs[sf.LOCKSTEP_ATTR])
+                           lockstep=attrs[sf.LOCKSTEP_ATTR], deferred_writes=not attrs[sf.LOCKSTEP_ATTR])

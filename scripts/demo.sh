@@ -21,7 +21,11 @@ $BIN/crane-train info "$S"
 
 echo "== 3/7 the paper's sweep: rigid-body, mlp-mse, mlp-masked over 10 training-set sizes, 10 trials each"
 echo "   (the paper's 300..3000 samples, scaled down to the data if the session is shorter: the sweep says so)"
-$BIN/crane-train sweep "$S" -o "$OUT/sweep" --seed "$SEED" --scale-to-data
+echo "   runs beside steps 4-7, which need only the session; its log is $OUT/sweep.log, shown when it ends"
+# The sweep trains on one core; the modelling loop below uses the other (on one core both still finish).
+$BIN/crane-train sweep "$S" -o "$OUT/sweep" --seed "$SEED" --scale-to-data > "$OUT/sweep.log" 2>&1 &
+sweep_pid=$!
+trap 'kill "$sweep_pid" 2> /dev/null || true' EXIT
 
 echo "== 4/7 a rigid-body (Newton-Euler) model of the follower"
 $BIN/crane-train fit "$S" --model rigid-body -o "$OUT/models/rigid-body" --seed "$SEED" --scale-to-data
@@ -41,6 +45,15 @@ echo "== 7/7 watch the error fall"
 $BIN/crane-train compare "$OUT/models/rigid-body" "$OUT/models/rigid-body+friction" \
     "$OUT/models/mlp-masked" "$OUT/models/hybrid" -o "$OUT/compare.png"
 
+echo "== 3/7 (the sweep, run beside 4-7)"
+if ! wait "$sweep_pid"; then
+    cat "$OUT/sweep.log"
+    echo "Error: the sweep failed (its log: $OUT/sweep.log)" >&2
+    exit 1
+fi
+trap - EXIT
+cat "$OUT/sweep.log"
+
 echo
-echo "Done. In $OUT/: sweep/ (results.json, results.csv, mse_vs_samples.png, window_torque.png),"
+echo "Done. In $OUT/: sweep/ (results.json, results.csv, mse_vs_samples.png, window_torque.png), sweep.log,"
 echo "report-rigid-body.html, diagnosis.json, models/, compare.png."
