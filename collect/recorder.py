@@ -16,13 +16,15 @@ first copy behind (an SWMR writer never reuses file space); the recorder counts 
 they exceed `compact_above` of the file, rewrites the file compactly after closing it. Events are
 written at once (their chunks are uncompressed, so a rewrite keeps its place).
 
-A paced loop cannot afford to write a chunk inside a cycle: compressing and checksumming some 26
-datasets and flushing the file takes 3-4 ms of CPU, longer than the 2 ms period, so every chunk
-written in the cycle was a late cycle (a 10-minute real-time run: 1238 periods more than 2 ms late).
-With `deferred_writes` (crane-collect sets it for every paced run) a full chunk's rows are copied aside
-and written one dataset at a time by `write_pending(deadline, clock)`, which the loop calls after each
-cycle's writes, with the time left before its next deadline: it writes while the next dataset's
-learned cost fits (then the file flush, as its own step), so a chunk reaches the file over a few
+A paced loop cannot afford to write a chunk inside a cycle: writing some 26 datasets (compressed,
+checksummed) and flushing the SWMR file takes 3-7 ms, most of it the file flush, longer than the 2 ms
+period, so every chunk written in the cycle was a late cycle (a 10-minute real-time run: 1238 periods
+more than 2 ms late). With `deferred_writes` (crane-collect sets it for every paced run) a full
+chunk's rows are copied aside and written one dataset at a time by `write_pending(deadline, clock)`,
+which the loop calls after each cycle's writes, with the time left before its next deadline: each step
+writes one dataset and flushes that dataset alone (H5Dflush, ~0.1-0.3 ms), while the next step's
+learned cost fits, and the file flush that ends the chunk is a step of its own (then cheap, the
+datasets' metadata being out already), so a chunk reaches the file over a few
 cycles instead of in one. The rows wait at most a few cycles longer, well inside `max_unsaved_s`; a
 chunk that falls due while writes are still pending first finishes them, and `flush()` and `close()`
 write everything at once. A crash between two of a chunk's datasets leaves one dataset a chunk ahead of
@@ -226,12 +228,15 @@ class SessionRecorder:
                 break
             t0 = clock()
             if pending:
+                key = pending[0][0]
                 self._write_rows(*pending.pop(0))
+                self._ds[key].id.flush()  # this dataset's chunk and index reach the file now
             else:
-                self._f.flush()
+                self._f.flush()  # what is left of the file's metadata (the datasets' own went above)
                 self._pending_flush = False
             took = clock() - t0
-            self._write_cost = max(took, self._write_cost * _COST_DECAY)
+            # a slow step raises the estimate at once; capped, so one stall cannot stop the writes
+            self._write_cost = min(max(took, self._write_cost * _COST_DECAY), _MAX_WRITE_COST_S)
         return self.pending_writes
 
     def _write_all_pending(self) -> None:
@@ -343,8 +348,9 @@ class SessionRecorder:
         return False
 
 
-_FIRST_WRITE_COST_S = 3e-4  # a dataset's write before any was timed (compressed chunk of 0.5 s)
-_COST_DECAY = 0.99  # per write: a slow write raises the learned cost at once, which then decays
+_FIRST_WRITE_COST_S = 4e-4  # a dataset's write + flush before any was timed (a 0.5 s chunk: ~0.1-0.3 ms)
+_COST_DECAY = 0.95  # per step: a slow step raises the learned cost at once, which then decays
+_MAX_WRITE_COST_S = 1e-3  # the learned cost's cap: a stall (disk) must not keep the writes waiting
 
 
 def _chunk_size(ds: h5py.Dataset, row: int) -> int:
