@@ -22,9 +22,10 @@ period, so every chunk written in the cycle was a late cycle (a 10-minute real-t
 more than 2 ms late). With `deferred_writes` (crane-collect sets it for every paced run) a full
 chunk's rows are copied aside and written one dataset at a time by `write_pending(deadline, clock)`,
 which the loop calls after each cycle's writes, with the time left before its next deadline: each step
-writes one dataset and flushes that dataset alone (H5Dflush, ~0.1-0.3 ms), while the next step's
-learned cost fits, and the file flush that ends the chunk is a step of its own (then cheap, the
-datasets' metadata being out already), so a chunk reaches the file over a few
+writes one dataset and flushes that dataset alone (H5Dflush, ~0.1-0.3 ms, SWMR's own pattern), while
+the next step's learned cost fits. The whole-file flush is left out: it grew with the file (0.6 ms
+at the start, 6-12 ms after five minutes) and a file whose datasets were flushed one by one opens and
+recovers whole after a SIGKILL (tests). So a chunk reaches the file over a few
 cycles instead of in one. The rows wait at most a few cycles longer, well inside `max_unsaved_s`; a
 chunk that falls due while writes are still pending first finishes them, and `flush()` and `close()`
 write everything at once. A crash between two of a chunk's datasets leaves one dataset a chunk ahead of
@@ -113,10 +114,9 @@ class SessionRecorder:
         self.waste_bytes = 0  # bytes of chunks written and then superseded (never reused under SWMR)
         self.compacted = False
         self.closed = False
-        # deferred writes (a paced loop): [(key, n0, n1, rows, partial)], then the file flush
+        # deferred writes (a paced loop): [(key, n0, n1, rows, partial)], one dataset each
         self.deferred_writes = bool(deferred_writes)
         self._pending: list[tuple] = []
-        self._pending_flush = False
         self._write_cost = _FIRST_WRITE_COST_S  # s: the learned cost of one dataset's write
         self._lock = None
         f = self._f
@@ -208,14 +208,13 @@ class SessionRecorder:
             self._pending.append((key, n0, n1, b[:k].copy(), partial))
             if b.dtype.kind == "f":
                 b[:k] = np.nan  # a member not given in some row stays NaN, never stale
-        self._pending_flush = True
         self._n = n1
         self._k = 0
 
     @property
     def pending_writes(self) -> int:
-        """Deferred steps not yet done (dataset writes, plus the file flush that ends them)."""
-        return len(self._pending) + self._pending_flush
+        """Deferred dataset writes not yet done."""
+        return len(self._pending)
 
     def write_pending(self, deadline: float | None = None, clock=None) -> int:
         """Do deferred writes: all of them when `deadline` is None, otherwise while the next one's
@@ -223,24 +222,20 @@ class SessionRecorder:
         at least nothing, at most everything. Returns the number of steps left."""
         clock = clock or self._clock
         pending = self._pending
-        while pending or self._pending_flush:
+        while pending:
             if deadline is not None and clock() + self._write_cost > deadline:
                 break
             t0 = clock()
-            if pending:
-                key = pending[0][0]
-                self._write_rows(*pending.pop(0))
-                self._ds[key].id.flush()  # this dataset's chunk and index reach the file now
-            else:
-                self._f.flush()  # what is left of the file's metadata (the datasets' own went above)
-                self._pending_flush = False
+            key = pending[0][0]
+            self._write_rows(*pending.pop(0))
+            self._ds[key].id.flush()  # H5Dflush: this dataset's chunk and index reach the file now
             took = clock() - t0
             # a slow step raises the estimate at once; capped, so one stall cannot stop the writes
             self._write_cost = min(max(took, self._write_cost * _COST_DECAY), _MAX_WRITE_COST_S)
         return self.pending_writes
 
     def _write_all_pending(self) -> None:
-        if self._pending or self._pending_flush:
+        if self._pending:
             self.write_pending(None)
 
     def _write_rows(self, key: str, n0: int, n1: int, rows: np.ndarray, partial: int) -> None:

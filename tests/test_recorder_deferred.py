@@ -1,7 +1,8 @@
 """The recorder's deferred writes (collect/recorder.py, `deferred_writes`): a paced loop's full chunk is
 copied aside and written one dataset at a time between cycles (`write_pending`), so no chunk is
 written inside a cycle; the file ends up the same as one written at once, and a crash between two of
-a chunk's datasets leaves a file `crane-collect recover` restores."""
+a chunk's datasets (each flushed on its own, the file never flushed as a whole) leaves a file that
+opens and that `crane-collect recover` restores."""
 
 from __future__ import annotations
 
@@ -58,18 +59,18 @@ def test_a_full_chunk_waits_for_write_pending_and_the_file_equals_one_written_at
     for rec in (plain, deferred):
         _rows(rec, 0, 50)  # one full chunk
     assert plain.pending_writes == 0 and plain._ds["follower/q"].shape[0] == 50
-    # the deferred recorder wrote nothing yet: every dataset plus the file flush is pending
-    assert deferred.pending_writes == n_datasets + 1
+    # the deferred recorder wrote nothing yet: every dataset is pending
+    assert deferred.pending_writes == n_datasets
     assert all(ds.shape[0] == 0 for ds in deferred._ds.values())
     assert deferred.rows == 50
     # a deadline already past: nothing is written
-    assert deferred.write_pending(deadline=-1.0, clock=lambda: 0.0) == n_datasets + 1
+    assert deferred.write_pending(deadline=-1.0, clock=lambda: 0.0) == n_datasets
     # a deadline a few steps away: some written, not all
     clock = StepClock()
     left = deferred.write_pending(deadline=clock.t + 8e-3, clock=clock)
-    assert 0 < left < n_datasets + 1
+    assert 0 < left < n_datasets
     written = sum(ds.shape[0] == 50 for ds in deferred._ds.values())
-    assert written == n_datasets + 1 - left
+    assert written == n_datasets - left
     # the rows given later land in the right place while earlier ones are still pending
     for rec in (plain, deferred):
         _rows(rec, 50, 30)
@@ -77,7 +78,7 @@ def test_a_full_chunk_waits_for_write_pending_and_the_file_equals_one_written_at
     assert deferred.write_pending() == 0
     for rec in (plain, deferred):
         _rows(rec, 80, 50)  # a second chunk due (with 30 rows of the third buffered)
-    assert deferred.pending_writes == n_datasets + 1
+    assert deferred.pending_writes == n_datasets
     plain.close()
     deferred.close()  # writes what is pending and buffered
     a, b = _contents(tmp_path / "plain.h5"), _contents(tmp_path / "deferred.h5")
@@ -95,7 +96,7 @@ def test_a_chunk_due_while_the_last_is_pending_writes_the_last_first(tmp_path):
     _rows(rec, 0, 50)
     _rows(rec, 50, 50)  # nobody called write_pending: the first chunk is written before the second waits
     assert rec._ds["leader/q"].shape[0] == 50
-    assert rec.pending_writes == len(rec._ds) + 1
+    assert rec.pending_writes == len(rec._ds)
     rec.close()
     with h5py.File(tmp_path / "s.h5", "r") as f:
         np.testing.assert_array_equal(f["leader/t"][()], np.arange(100) / RATE)
@@ -113,7 +114,6 @@ for k in range(100):
                 "timing/cycle_start": k / 100})
 steps = iter(range(1000))
 rec.write_pending(deadline=6.5, clock=lambda: float(next(steps)))  # a few of the second chunk's datasets
-rec._f.flush()
 print("ready", rec.pending_writes, flush=True)
 time.sleep(300)
 """
@@ -173,7 +173,7 @@ def test_a_paced_run_writes_its_chunks_between_cycles(tmp_path, monkeypatch):
     n_datasets = 2 * 10 + 6
     assert len(after_row) == 600
     # rows 250 and 500 fill the 0.5 s chunks: all of each is pending when its row is in
-    assert after_row[249] == n_datasets + 1 and after_row[499] == n_datasets + 1
+    assert after_row[249] == n_datasets and after_row[499] == n_datasets
     assert any(d is not None for d in deadlines)  # the loop's calls, with its next deadline
     with h5py.File(out, "r") as f:
         assert f.attrs["complete"]
