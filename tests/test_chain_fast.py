@@ -216,9 +216,21 @@ def test_the_lockstep_cycle_takes_one_compiled_call_per_packet_and_agrees_throug
         c.plant.q = c.plant.q.copy()
         c.plant.motor_torque = c.plant.motor_torque + 0.0
     _cycle(chains, [2, 3, 5], [-100, 50, 0])
+    # Sync Writes of Goal Position (a lockstep tick too): clamped to the position limits in Position mode
+    def sync_write_position(values):
+        body = b"".join(bytes((i,)) + int(v).to_bytes(4, "little", signed=True) for i, v in values)
+        return p.instruction_packet(p.BROADCAST_ID, p.INST_SYNC_WRITE, bytes((GOAL_POSITION, 0, 4, 0)) + body)
+
+    for sid, address, value in ((9, TORQUE, 0), (9, 48, 3000), (9, 52, 1000), (9, TORQUE, 1)):
+        _feed(chains, _write(sid, address, value, 4 if address in (48, 52) else 1))
+    for values in ([(9, 2048)], [(9, 5000), (8, -7), (6, 2**31 - 1)], [(9, -5), (4, 100)],
+                   [(9, 999), (99, 1)]):
+        _feed(chains, sync_write_position(values))
+        _cycle(chains, [2, 3, 5], [1, 1, 1])
+    assert chains[0].servos[9].read_register("goal_position") == 1000
     # a Sync Write of another item, an instruction to one servo, a read that is not fast
-    _feed(chains, p.instruction_packet(p.BROADCAST_ID, p.INST_SYNC_WRITE, bytes((GOAL_POSITION, 0, 4, 0))
-                                       + bytes((9,)) + (2048).to_bytes(4, "little")))
+    _feed(chains, p.instruction_packet(p.BROADCAST_ID, p.INST_SYNC_WRITE, bytes((116 + 4, 0, 4, 0))
+                                       + bytes((9,)) + (20).to_bytes(4, "little")))
     _feed(chains, _write(2, GOAL_CURRENT, 20, 2))
     _feed(chains, p.instruction_packet(p.BROADCAST_ID, p.INST_SYNC_READ,
                                        bytes((PRESENT, 0, 10, 0)) + bytes(ids)))
@@ -442,4 +454,4 @@ def test_a_new_chain_has_its_kernels_compiled_before_the_first_packet():
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
     counts = json.loads(out.stdout.strip().splitlines()[-1])
     assert counts == {"sensors_into": 1, "commands": 1, "fast_status": 1, "reading": 1, "step_arm": 1,
-                      "sync_write_current": 1, "sense": 1, "fast_sync_read": 1}
+                      "sync_write_goal": 1, "sense": 1, "fast_sync_read": 1}

@@ -700,7 +700,7 @@ class ArmPlant:
 
     # ---- the simulated chain's compiled lockstep cycle (crane_io.sim.lockstep_kernel) ----------------------
     def kernel_step_args(self, dt: float) -> tuple | None:
-        """The plant's arguments of lockstep_kernel.sync_write_current for a step of dt (the step
+        """The plant's arguments of lockstep_kernel.sync_write_goal for a step of dt (the step
         `step_command` takes to the compiled kernel; the kernel writes the new state into the packed state,
         and the caller calls `kernel_stepped(dt)`), or None when the kernel is off, the overload model on, or
         dt not positive (then the plant steps through step_command / step_lists)."""
@@ -815,14 +815,14 @@ class ArmPlant:
         self._saturated_time[:] = 0.0
 
     def set_external_torque(self, torque: np.ndarray) -> None:
-        torque = np.asarray(torque, dtype=float)
+        torque = np.array(torque, dtype=float)  # a copy of its own
         if torque.shape != (len(self.servo_ids),):
             raise ValueError(f"external torque needs {len(self.servo_ids)} values, got {torque.shape}")
-        if not np.isfinite(torque).all():
+        if not all(map(math.isfinite, torque.tolist())):  # (per float: cheaper than numpy for 8 values)
             raise ValueError("external torque must be finite")
-        self.external = torque[self._bi].copy()
-        self._held_ext = torque[self._held].copy()
-        self._external_all = torque.copy()
+        self.external = torque.take(self._bi)
+        self._held_ext = torque.take(self._held)
+        self._external_all = torque
 
     def external_torque(self) -> np.ndarray:
         """(8,) the external torque (N m, e.g. the operator's hand) last set by set_external_torque,

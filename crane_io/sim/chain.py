@@ -169,14 +169,14 @@ class SimulatedChain:
             return False
         names = ("present_current", "realtime_tick", "present_input_voltage", "moving_threshold",
                  "torque_enable", "operating_mode", "goal_current", "goal_position", "current_limit",
-                 "hardware_error_status", "bus_watchdog", "id", "baud_rate")
+                 "hardware_error_status", "bus_watchdog", "id", "baud_rate", "max_position_limit",
+                 "min_position_limit")
         for s in self._order:
             regs = s.registers
             if any(regs[n].address != X_SERIES[n].address or regs[n].size != X_SERIES[n].size
                    or regs[n].signed != X_SERIES[n].signed for n in names):
                 return False
-            gc = regs["goal_current"]
-            if gc.access != "RW" or gc.eeprom:
+            if any(regs[n].access != "RW" or regs[n].eeprom for n in ("goal_current", "goal_position")):
                 return False
         return True
 
@@ -429,8 +429,9 @@ class SimulatedChain:
 
     def _lockstep_packet(self, data: bytes, baudrate: int | None) -> bytes | None:
         """The fast path of the lockstep cycle's two usual packets, one whole packet into an empty parser:
-        a Sync Write of Goal Current (written, watchdogs, commands and, when the plant's compiled kernel takes
-        them, the plant step in one compiled call, then the reading in another) and a Fast Sync Read that
+        a Sync Write of Goal Current or Position (written, watchdogs, commands and, when the plant's compiled
+        kernel takes them, the plant step in one compiled call, then the reading in another) and a Fast Sync
+        Read that
         every addressed servo answers. What feed would return, or None when the packet is not such a case
         and nothing was done (feed's general path takes it; crane_io.sim.lockstep_kernel)."""
         if baudrate is None:

@@ -2,9 +2,10 @@
 sends an arm every cycle, each handled whole by one call instead of the parser, the chain's handlers and
 one compiled call per stage.
 
-- `sync_write_current`: a Sync Write of Goal Current, checked (header, length, CRC, no byte stuffing, address
-  and size) and written into the servo memories of the servos that hear it (clamped to each one's Current
-  Limit, refused while its Bus Watchdog has expired), then the lockstep tick: every servo's watchdog, the
+- `sync_write_goal`: a Sync Write of Goal Current (or Goal Position), checked (header, length, CRC, no byte
+  stuffing, address and size) and written into the servo memories of the servos that hear it (clamped to
+  each one's Current Limit, or position limits in Position mode; refused while its Bus Watchdog has
+  expired), then the lockstep tick: every servo's watchdog, the
   servos' commands (chain_kernel.commands) and, when the plant's compiled kernel takes them as they are,
   the whole plant step (plant_kernel.step_arm) on the plant's packed state;
 - `sense`: the plant's reading (chain_kernel.reading, from the noise the plant drew) quantised into every
@@ -45,6 +46,8 @@ LIMIT_AT, HW_AT = X_SERIES["current_limit"].address, X_SERIES["hardware_error_st
 WD_AT, PRESENT_AT = X_SERIES["bus_watchdog"].address, X_SERIES["present_current"].address
 TICK_AT, SUPPLY_AT = X_SERIES["realtime_tick"].address, X_SERIES["present_input_voltage"].address
 THRESHOLD_AT = X_SERIES["moving_threshold"].address
+MAX_POS_AT, MIN_POS_AT = X_SERIES["max_position_limit"].address, X_SERIES["min_position_limit"].address
+MODE_POSITION = 3  # (crane_io.dynamixel.control_table): Goal Position is clamped to the position limits
 INST_SYNC_WRITE, INST_FAST_SYNC_READ = 0x83, 0x8A
 L_N, L_K, L_PC, L_NC, L_GEO, L_PAR, L_COG, L_SCAL, L_HPAR, L_PD0, L_IDX = range(11)
 _TABLE = chain_kernel.CRC_TABLE_U16
@@ -91,9 +94,10 @@ def _anyone_hears(mem, sst, baud_code):
     return False
 
 
-def sync_write_current(pkt, mem, sst, baud_code, max_length, now, cmds, plant_on, bi_mask, kst, ext, hext,
+def sync_write_goal(pkt, mem, sst, baud_code, max_length, now, cmds, plant_on, bi_mask, kst, ext, hext,
                        hmat, arm, kpk, klay, h, n_sub, dt):
-    """A Sync Write of Goal Current on the lockstep clock at chain time `now` (see the module docstring).
+    """A Sync Write of Goal Current or Goal Position on the lockstep clock at chain time `now` (see the module
+    docstring).
     Returns -1: not such a packet, nothing done; 0: no servo hears it, nothing done; 1: written, the plant
     stepped by dt (`plant_on`: the plant's arguments are given; the caller advances the clocks and reads the
     plant); 2: written, the plant not stepped (the caller steps it: a case the plant kernel hands back)."""
@@ -102,24 +106,37 @@ def sync_write_current(pkt, mem, sst, baud_code, max_length, now, cmds, plant_on
         return -1
     address = np.int64(pkt[8]) | (np.int64(pkt[9]) << 8)
     size = np.int64(pkt[10]) | (np.int64(pkt[11]) << 8)
-    if address != GC_AT or size != 2:
+    if not ((address == GC_AT and size == 2) or (address == GP_AT and size == 4)):
         return -1
     if not _anyone_hears(mem, sst, baud_code):
         return 0
     nb = end - 12
-    for k in range(12, 12 + nb - nb % 3, 3):
+    for k in range(12, 12 + nb - nb % (1 + size), 1 + size):
         r = _row_of(mem, sst, baud_code, pkt[k])
         if r < 0:
             continue
         sst[r, S_CONTACT] = now
-        if sst[r, S_EXPIRED] == 0.0:  # refused while the watchdog has expired
+        if sst[r, S_EXPIRED] != 0.0:  # refused while the watchdog has expired
+            continue
+        m = mem[r]
+        if size == 2:  # Goal Current: clamped to +-Current Limit
             value = np.int64(pkt[k + 1]) | (np.int64(pkt[k + 2]) << 8)
             if value & 0x8000:
                 value -= 0x10000
-            m = mem[r]
             limit = chain_kernel_get_u(m, LIMIT_AT, 2)
             value = -limit if value < -limit else limit if value > limit else value
             chain_kernel_put(m, GC_AT, value, 2)
+        else:  # Goal Position: in Position mode clamped to the position limits
+            value = (np.int64(pkt[k + 1]) | (np.int64(pkt[k + 2]) << 8) | (np.int64(pkt[k + 3]) << 16)
+                     | (np.int64(pkt[k + 4]) << 24))
+            if value & 0x80000000:
+                value -= 0x100000000
+            if m[MODE_AT] == MODE_POSITION:
+                hi = chain_kernel_get_u(m, MAX_POS_AT, 4)
+                lo = chain_kernel_get_u(m, MIN_POS_AT, 4)
+                value = hi if value > hi else value  # max(lo, min(hi, value))
+                value = lo if lo > value else value
+            chain_kernel_put(m, GP_AT, value & 0xFFFFFFFF, 4)
     # the lockstep tick: the watchdogs at the chain's time, the commands, the plant
     expired = np.int64(0)
     for r in range(mem.shape[0]):
@@ -212,7 +229,7 @@ _ALIASES = ("chain_kernel_crc_byte", "chain_kernel_get_u", "chain_kernel_put", "
 _F, _I, _U8, _PKT = "float64[::1]", "int64[::1]", "uint8[::1]", "Array(uint8, 1, 'C', readonly=True)"
 _M, _S2 = "uint8[:, ::1]", "float64[:, ::1]"
 SIGNATURES = {
-    "sync_write_current": (f"({_PKT}, {_M}, {_S2}, int64, int64, float64, {_S2}, boolean, int64, {_F}, "
+    "sync_write_goal": (f"({_PKT}, {_M}, {_S2}, int64, int64, float64, {_S2}, boolean, int64, {_F}, "
                            f"{_F}, {_F}, {_F}, {_F}, {_F}, {_I}, float64, int64, float64)",),
     "sense": (f"({_M}, {_F}, {_I}, {_F}, float64, uint64[::1], {_F}, {_F}, float64, float64, {_F}, {_I}, "
               f"{_I}, int64, {_S2})",),
@@ -221,7 +238,7 @@ SIGNATURES = {
 
 
 def compiled():
-    """(sync_write_current, sense, fast_sync_read) compiled with numba, or None without numba. The first call
+    """(sync_write_goal, sense, fast_sync_read) compiled with numba, or None without numba. The first call
     of a process compiles them, or loads them from numba's cache (crane_io.sim.jit)."""
     global _COMPILED
     if _COMPILED is None:
@@ -234,10 +251,10 @@ def compiled():
         plant_names = ("_kinematics", "_rnea", "_crba", "dynamics", "_kinetic", "_solve", "step")
         chain_names = ("_quantise", "_put", "_get_u", "_get_s", "_crc_byte")
         names = (*plant_names, *chain_names, *_ALIASES, "_params_end", "_row_of", "_anyone_hears",
-                 "sync_write_current", "sense", "fast_sync_read")
+                 "sync_write_goal", "sense", "fast_sync_read")
         fns = compile_functions(ns, names, SIGNATURES, qualname_prefix="lockstep_kernel.",
                                 error_model="numpy")
-        _COMPILED = False if fns is None else (fns["sync_write_current"], fns["sense"], fns["fast_sync_read"])
+        _COMPILED = False if fns is None else (fns["sync_write_goal"], fns["sense"], fns["fast_sync_read"])
     return _COMPILED or None
 
 
