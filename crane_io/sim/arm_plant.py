@@ -264,6 +264,7 @@ class ArmPlant:
                                *self._held_l], dtype=np.int64)
         self._kdt: dict[float, tuple] = {}  # dt -> (substep, its hmat, n_sub, dt / n_sub)
         self._kst = self._kviews = None  # the packed state and its views (_kernel_state)
+        self._supply_lists = ([12.0] * len(self.servo_ids), [35.0] * len(self.servo_ids))  # (never changed)
 
     @property
     def kernel(self) -> bool:
@@ -731,8 +732,7 @@ class ArmPlant:
         kst = self._kernel_state()
         if kst is None:
             return None
-        n = len(self.servo_ids)
-        return (kst, self._klay, self._kt_array(), *self._noise(), [12.0] * n, [35.0] * n)
+        return (kst, self._klay, self._kt_array(), *self._noise(), *self._supply_lists)
 
     def _kernel_state(self) -> np.ndarray | None:
         """The packed state (integrated joints' angles, velocities, motor torques, held joints' angles,

@@ -449,7 +449,7 @@ class SimulatedChain:
             step_args = self._lists_of(plant)[5]
             if step_args is not None:
                 args = step_args(dt)
-            result = fns[0](np.frombuffer(data, dtype=np.uint8), self.memories, self.servo_state, code,
+            result = fns[0](data, self.memories, self.servo_state, code,
                             self.parser.max_length, self.time, self._commands, args is not None,
                             *(args if args is not None else self._no_plant_args))
             if result < 0:
@@ -467,7 +467,7 @@ class SimulatedChain:
             return b""
         if inst == p.INST_FAST_SYNC_READ and self.fast_sync_read and self.reply_filter is None:
             buf = self._reply_buffer
-            result = fns[2](np.frombuffer(data, dtype=np.uint8), self.memories, self.servo_state, code,
+            result = fns[2](data, self.memories, self.servo_state, code,
                             self.parser.max_length, self.time, buf)
             if result < 0:
                 return None

@@ -60,7 +60,7 @@ def _params_end(pkt, inst, max_length):
     """The end of an unstuffed instruction packet's parameters (they start at 8), when `pkt` is exactly one
     whole packet with the instruction `inst` for the broadcast ID, a LEN the parser accepts, a good CRC and
     no byte stuffing in its parameters; else -1."""
-    n = pkt.shape[0]
+    n = len(pkt)
     if n < 10 or pkt[0] != 0xFF or pkt[1] != 0xFF or pkt[2] != 0xFD or pkt[3] != 0x00:
         return -1
     length = np.int64(pkt[5]) | (np.int64(pkt[6]) << 8)
@@ -225,8 +225,8 @@ plant_kernel_step_arm = plant_kernel.step_arm
 _ALIASES = ("chain_kernel_crc_byte", "chain_kernel_get_u", "chain_kernel_put", "chain_kernel_commands",
             "chain_kernel_reading", "chain_kernel_sensors_into", "chain_kernel_fast_status",
             "plant_kernel_step_arm")
-# (the packet is the host's bytes: a read-only array)
-_F, _I, _U8, _PKT = "float64[::1]", "int64[::1]", "uint8[::1]", "Array(uint8, 1, 'C', readonly=True)"
+# (the packet: the host's bytes object itself)
+_F, _I, _U8, _PKT = "float64[::1]", "int64[::1]", "uint8[::1]", "Bytes(uint8, 1, 'C', readonly=True)"
 _M, _S2 = "uint8[:, ::1]", "float64[:, ::1]"
 SIGNATURES = {
     "sync_write_goal": (f"({_PKT}, {_M}, {_S2}, int64, int64, float64, {_S2}, boolean, int64, {_F}, "
