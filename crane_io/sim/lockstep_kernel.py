@@ -19,8 +19,8 @@ general path takes the packet: anything unusual (another instruction or address,
 has no Fast Sync Read or whose watchdog expired, a servo in a position mode on an integrated joint, the
 overload model, a stuffed packet) stays there. tests/test_chain_fast.py drives both with the same packets.
 
-They are the chain_kernel and plant_kernel functions compiled together (so they call each other compiled,
-without numba's per-call argument handling in between), with the same IEEE operations (no fastmath).
+They call the chain_kernel functions (compiled here again) and plant_kernel's compiled step_arm from compiled
+code, without numba's per-call argument handling in between, with the same IEEE operations (no fastmath).
 
 Servo state (`sst`, one row per servo, crane_io.sim.servo's columns): last contact time, watchdog expired,
 on the bus, answers Fast Sync Read. Plant state (`kst`, crane_io.sim.arm_plant's packed layout): angles,
@@ -244,16 +244,18 @@ def compiled():
     if _COMPILED is None:
         from crane_io.sim.jit import compile_functions
 
-        # the two modules' helpers under their own names (the functions above call them), then this module's
-        ns = dict(vars(plant_kernel))
-        ns.update(vars(chain_kernel))
+        # the plant kernel's step_arm as plant_kernel compiled it (its own cache entry: a fresh checkout
+        # compiles the dynamics once); the chain kernel's small functions compiled anew, under their own names
+        plant = plant_kernel.compiled()
+        ns = dict(vars(chain_kernel))
         ns.update(globals())
-        plant_names = ("_kinematics", "_rnea", "_crba", "dynamics", "_kinetic", "_solve", "step")
-        chain_names = ("_quantise", "_put", "_get_u", "_get_s", "_crc_byte")
-        names = (*plant_names, *chain_names, *_ALIASES, "_params_end", "_row_of", "_anyone_hears",
-                 "sync_write_goal", "sense", "fast_sync_read")
-        fns = compile_functions(ns, names, SIGNATURES, qualname_prefix="lockstep_kernel.",
-                                error_model="numpy")
+        fns = None
+        if plant is not None:
+            ns["plant_kernel_step_arm"] = plant[0]
+            names = ("_quantise", "_put", "_get_u", "_get_s", "_crc_byte", *_ALIASES[:-1], "_params_end",
+                     "_row_of", "_anyone_hears", "sync_write_goal", "sense", "fast_sync_read")
+            fns = compile_functions(ns, names, SIGNATURES, qualname_prefix="lockstep_kernel.",
+                                    error_model="numpy")
         _COMPILED = False if fns is None else (fns["sync_write_goal"], fns["sense"], fns["fast_sync_read"])
     return _COMPILED or None
 
