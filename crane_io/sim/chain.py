@@ -431,9 +431,9 @@ class SimulatedChain:
         """The fast path of the lockstep cycle's two usual packets, one whole packet into an empty parser:
         a Sync Write of Goal Current or Position (written, watchdogs, commands and, when the plant's compiled
         kernel takes them, the plant step in one compiled call, then the reading in another) and a Fast Sync
-        Read that
-        every addressed servo answers. What feed would return, or None when the packet is not such a case
-        and nothing was done (feed's general path takes it; crane_io.sim.lockstep_kernel)."""
+        Read that every addressed servo answers (with no reply filter set). What feed would return, or None
+        when the packet is not such a case and nothing was done (feed's general path takes it;
+        crane_io.sim.lockstep_kernel)."""
         if baudrate is None:
             code = -1
         else:
