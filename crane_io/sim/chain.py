@@ -38,7 +38,7 @@ from crane_io.errors import ConfigError
 from crane_io.sim import chain_kernel, lockstep_kernel
 from crane_io.sim import protocol as p
 from crane_io.sim.plant_api import ActuatorCommand, Plant
-from crane_io.sim.servo import _I16, _U16, BAUD_CODES, MEMORY_SIZE, STATE_SIZE, EmulatedServo
+from crane_io.sim.servo import _I16, _U16, BAUD_CODES, MEMORY_SIZE, S_ON_BUS, STATE_SIZE, EmulatedServo
 
 # a write to Goal Current or Goal Position is a lockstep tick
 GOAL_CURRENT_ADDRESS = X_SERIES["goal_current"].address
@@ -483,7 +483,7 @@ class SimulatedChain:
 
     def _hearing(self, baudrate: int | None) -> list[EmulatedServo]:
         if self.fast:  # the same list as long as the port's speed, who is on the bus, IDs and bauds are
-            key = (baudrate, [s.on_bus for s in self._order],
+            key = (baudrate, self.servo_state[:, S_ON_BUS].tobytes(),
                    self.memories[:, _ID_ADDRESS:_BAUD_ADDRESS + 1].tobytes())
             cached = self._hearing_cache
             if cached is not None and cached[0] == key:
