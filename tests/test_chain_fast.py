@@ -179,6 +179,94 @@ def test_the_fast_path_answers_and_steps_as_the_general_path_does_through_faults
     run(5)
 
 
+def test_the_lockstep_cycle_takes_one_compiled_call_per_packet_and_agrees_through_odd_packets():
+    """The usual Sync Write of Goal Current and Fast Sync Read skip the parser and the handlers
+    (crane_io.sim.lockstep_kernel); split, stuffed, foreign-speed and other packets, and a plant whose state
+    arrays were replaced, still give what the general path gives."""
+    chains = _pair(lambda: ArmPlant("crane-x7", seed=5))
+    ids = _bring_up(chains, [2, 3, 5])
+    handled = []
+    fast = chains[0]
+    general_handle = fast._handle
+    fast._handle = lambda *a, **k: handled.append(a[0].instruction) or general_handle(*a, **k)
+    rng = np.random.default_rng(4)
+    for _ in range(10):
+        _cycle(chains, [2, 3, 5], rng.integers(-300, 300, 3), ids)
+    assert handled == []  # every packet took the lockstep path
+    assert fast.plant._kviews is not None and fast.plant.q is fast.plant._kviews[0]
+    # a packet in two pieces, two packets in one piece
+    pkt = _sync_write_current([2, 3, 5], [40, -40, 5])
+    _feed(chains, pkt[:9])
+    _feed(chains, pkt[9:])
+    _feed(chains, _fast_read(ids) + _sync_write_current([2, 3, 5], [1, 2, 3]))
+    # byte stuffing: a goal current of -1 (FF FF) followed by ID 253 (FD), and a read of such IDs
+    _feed(chains, _sync_write_current([2, 253, 3], [-1, 7, 7]))
+    _feed(chains, _fast_read([2, 0xFF, 0xFF, 0xFD]))
+    # at a port speed the servos are set to, at another, at one no servo can be set to
+    for baud in (3_000_000, 57_600, 12_345):
+        for data in (_sync_write_current([2, 3, 5], [9, 9, 9]), _fast_read(ids)):
+            replies = [c.feed(data, baudrate=baud) for c in chains]
+            assert replies[0] == replies[1]
+            _same(chains)
+    # the plant's state set or replaced from outside between packets
+    for c in chains:
+        c.plant.set_state(q=np.linspace(-0.3, 0.3, 8), dq=np.full(8, 0.01))
+    _cycle(chains, [2, 3, 5], [100, 100, 100])
+    for c in chains:
+        c.plant.q = c.plant.q.copy()
+        c.plant.motor_torque = c.plant.motor_torque + 0.0
+    _cycle(chains, [2, 3, 5], [-100, 50, 0])
+    # Sync Writes of Goal Position (a lockstep tick too): clamped to the position limits in Position mode
+    def sync_write_position(values):
+        body = b"".join(bytes((i,)) + int(v).to_bytes(4, "little", signed=True) for i, v in values)
+        return p.instruction_packet(p.BROADCAST_ID, p.INST_SYNC_WRITE, bytes((GOAL_POSITION, 0, 4, 0)) + body)
+
+    for sid, address, value in ((9, TORQUE, 0), (9, 48, 3000), (9, 52, 1000), (9, TORQUE, 1)):
+        _feed(chains, _write(sid, address, value, 4 if address in (48, 52) else 1))
+    for values in ([(9, 2048)], [(9, 5000), (8, -7), (6, 2**31 - 1)], [(9, -5), (4, 100)],
+                   [(9, 999), (99, 1)]):
+        _feed(chains, sync_write_position(values))
+        _cycle(chains, [2, 3, 5], [1, 1, 1])
+    assert chains[0].servos[9].read_register("goal_position") == 1000
+    # a Sync Write of another item, an instruction to one servo, a read that is not fast
+    _feed(chains, p.instruction_packet(p.BROADCAST_ID, p.INST_SYNC_WRITE, bytes((116 + 4, 0, 4, 0))
+                                       + bytes((9,)) + (20).to_bytes(4, "little")))
+    _feed(chains, _write(2, GOAL_CURRENT, 20, 2))
+    _feed(chains, p.instruction_packet(p.BROADCAST_ID, p.INST_SYNC_READ,
+                                       bytes((PRESENT, 0, 10, 0)) + bytes(ids)))
+    # the chain's Fast Sync Read switched off, a reply filter
+    for c in chains:
+        c.fast_sync_read = False
+    _cycle(chains, [2, 3, 5], [3, 3, 3])
+    for c in chains:
+        c.fast_sync_read = True
+        c.reply_filter = lambda chunk: chunk
+    _cycle(chains, [2, 3, 5], [4, 4, 4])
+    n_general = len(handled)
+    for c in chains:
+        c.reply_filter = None
+    _cycle(chains, [2, 3, 5], [5, 5, 5])
+    assert len(handled) == n_general  # back on the lockstep path
+
+
+def test_the_lockstep_cycle_with_the_plants_reference_path_and_overload():
+    """A plant integrating on its reference path (kernel=False) or with the overload model: the packets take
+    the compiled calls, the plant its general step."""
+    import dataclasses
+
+    def overloaded():
+        plant = ArmPlant("crane-x7", seed=2)
+        plant.config = dataclasses.replace(plant.config, overload=dataclasses.replace(
+            plant.config.overload, enabled=True, time_s=0.01))
+        return plant
+
+    for factory in (lambda: ArmPlant("crane-x7", seed=2, kernel=False), overloaded):
+        chains = _pair(factory)
+        ids = _bring_up(chains, [2, 3, 5])
+        for k in range(15):
+            _cycle(chains, [2, 3, 5], [2000 * (-1) ** k, 30000, -50], ids)
+
+
 def test_the_fast_path_on_a_plant_without_array_methods():
     """SimplePlant has no read_arrays / step_command: the chain's compiled sensors and fast reads still
     apply, the general plant calls stay."""
@@ -357,12 +445,13 @@ def test_a_new_chain_has_its_kernels_compiled_before_the_first_packet():
 
     probe = (
         "import json\n"
-        "from crane_io.sim import chain_kernel, plant_kernel\n"
+        "from crane_io.sim import chain_kernel, lockstep_kernel, plant_kernel\n"
         "from crane_io.sim.arm_plant import ArmPlant\n"
         "from crane_io.sim.chain import SimulatedChain\n"
         "chain = SimulatedChain(ArmPlant('crane-x7', seed=0), fast=True)\n"
-        "fns = list(chain_kernel.compiled()) + [plant_kernel.compiled()[0]]\n"
+        "fns = [*chain_kernel.compiled(), plant_kernel.compiled()[0], *lockstep_kernel.compiled()]\n"
         "print(json.dumps({f.__name__: len(f.signatures) for f in fns}))\n")
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
     counts = json.loads(out.stdout.strip().splitlines()[-1])
-    assert counts == {"sensors_into": 1, "commands": 1, "fast_status": 1, "reading": 1, "step_arm": 1}
+    assert counts == {"sensors_into": 1, "commands": 1, "fast_status": 1, "reading": 1, "step_arm": 1,
+                      "sync_write_goal": 1, "sense": 1, "fast_sync_read": 1}

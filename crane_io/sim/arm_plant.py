@@ -255,6 +255,16 @@ class ArmPlant:
             self._held_l)], dtype=float).reshape(-1, k.HELD_COLS)
         self._kpd0 = np.zeros((n, 6))  # no servo PD
         self._khmat: dict[float, np.ndarray] = {}
+        # the same parameters packed for the simulated chain's compiled lockstep cycle (crane_io.sim.
+        # lockstep_kernel's layout): one float array and its int64 layout, with the servo indices
+        parts = (geo, par, self._kcog, self._kscal, self._khpar, self._kpd0)
+        offsets = np.cumsum([0] + [p.size for p in parts])[:-1].tolist()
+        self._kpack = np.concatenate([p.ravel() for p in parts])
+        self._klay = np.array([n, len(self._held_l), par.shape[1], self._kcog.shape[0], *offsets, *self._bi_l,
+                               *self._held_l], dtype=np.int64)
+        self._kdt: dict[float, tuple] = {}  # dt -> (substep, its hmat, n_sub, dt / n_sub)
+        self._kst = self._kviews = None  # the packed state and its views (_kernel_state)
+        self._supply_lists = ([12.0] * len(self.servo_ids), [35.0] * len(self.servo_ids))  # (never changed)
 
     @property
     def kernel(self) -> bool:
@@ -648,6 +658,28 @@ class ArmPlant:
             pos, vel, cur, volt, temp = self.read_lists()
             return np.array(pos), np.array(vel), np.array(cur), volt, temp
         n = len(self.servo_ids)
+        p, raw, flips, signs, vel_sd, cur_sd, z = self._noise()
+        if self._bi_a is None:
+            self._bi_a = np.array(self._bi_l, dtype=np.int64)
+            self._held_a = np.array(self._held_l, dtype=np.int64)
+        pos, vel, cur = fns[3](self.q, self.dq, self.motor_torque, self._held_q, self._held_dq,
+                               self._held_current, self._bi_a, self._held_a, self._kt_array(), n, p, raw,
+                               flips, signs, vel_sd, cur_sd, z)
+        return pos, vel, cur, [12.0] * n, [35.0] * n
+
+    def _kt_array(self) -> np.ndarray:
+        """The torque constants as an array (kept while `_kt_l` holds the same values)."""
+        kt_l, kt = self._kt_kept
+        if kt_l is not self._kt_l or kt.tolist() != kt_l:  # (a test may change the torque constants)
+            kt = np.array(self._kt_l, dtype=float)
+            self._kt_kept = (self._kt_l, kt)
+        return kt
+
+    def _noise(self) -> tuple:
+        """read_arrays' draws from the sensor-noise generator, in its order: (probability of a one-pulse
+        position error, the raw PCG64 outputs for it (or empty), else its uniforms and signs, velocity noise
+        sd, current noise sd, the standard normals of both)."""
+        n = len(self.servo_ids)
         s = self.config.sensor
         p = s.position_noise_probability
         raw, flips, signs = _EMPTY_U64, _EMPTY_F64, _EMPTY_F64
@@ -665,17 +697,62 @@ class ArmPlant:
         cur_sd = s.current_noise_lsb * AMPERE_PER_CURRENT_LSB if s.current_noise_lsb > 0 else 0.0
         draws = (vel_sd > 0) + (cur_sd > 0)
         z = self.rng.standard_normal(draws * n) if draws else _EMPTY_F64
-        if self._bi_a is None:
-            self._bi_a = np.array(self._bi_l, dtype=np.int64)
-            self._held_a = np.array(self._held_l, dtype=np.int64)
-        kt_l, kt = self._kt_kept
-        if kt_l is not self._kt_l or kt.tolist() != kt_l:  # (a test may change the torque constants)
-            kt = np.array(self._kt_l, dtype=float)
-            self._kt_kept = (self._kt_l, kt)
-        pos, vel, cur = fns[3](self.q, self.dq, self.motor_torque, self._held_q, self._held_dq,
-                               self._held_current, self._bi_a, self._held_a, kt, n, float(p), raw, flips,
-                               signs, vel_sd, cur_sd, z)
-        return pos, vel, cur, [12.0] * n, [35.0] * n
+        return float(p), raw, flips, signs, vel_sd, cur_sd, z
+
+    # ---- the simulated chain's compiled lockstep cycle (crane_io.sim.lockstep_kernel) ----------------------
+    def kernel_step_args(self, dt: float) -> tuple | None:
+        """The plant's arguments of lockstep_kernel.sync_write_goal for a step of dt (the step
+        `step_command` takes to the compiled kernel; the kernel writes the new state into the packed state,
+        and the caller calls `kernel_stepped(dt)`), or None when the kernel is off, the overload model on, or
+        dt not positive (then the plant steps through step_command / step_lists)."""
+        if self._kstep is None or self.config.overload.enabled or not dt > 0:
+            return None
+        kst = self._kernel_state()
+        if kst is None:
+            return None
+        per = self._kdt.get(dt)
+        if per is None or per[0] != self.h:
+            n_sub = max(1, math.ceil(dt / self.h - 1e-9))
+            hmat = self._khmat.get(dt)
+            if hmat is None:
+                hmat = self._khmat[dt] = np.array(self._held_matrix(dt))
+            per = self._kdt[dt] = (self.h, hmat, n_sub, dt / n_sub)
+        return (self._bi_mask, kst, self.external, self._held_ext, per[1], self._karm, self._kpack,
+                self._klay, per[3], per[2], dt)
+
+    def kernel_stepped(self, dt: float) -> None:
+        """The compiled lockstep cycle stepped the plant's packed state by dt."""
+        self.time += dt
+
+    def kernel_read_args(self) -> tuple | None:
+        """read_arrays for lockstep_kernel.sense: (packed state, layout, torque constants, the noise drawn as
+        read_arrays draws it, voltages, temperatures), or None (nothing drawn) when the kernel is off."""
+        if self._kstep is None or self._chain_fns is False:
+            return None
+        kst = self._kernel_state()
+        if kst is None:
+            return None
+        return (kst, self._klay, self._kt_array(), *self._noise(), *self._supply_lists)
+
+    def _kernel_state(self) -> np.ndarray | None:
+        """The packed state (integrated joints' angles, velocities, motor torques, held joints' angles,
+        velocities, currents) whose views `q`, `dq`, `motor_torque`, `_held_q`, `_held_dq` and
+        `_held_current` are; made anew (the same values) when one of them was replaced since. None when one
+        has the wrong size."""
+        v = self._kviews
+        if (v is not None and self.q is v[0] and self.dq is v[1] and self.motor_torque is v[2]
+                and self._held_q is v[3] and self._held_dq is v[4] and self._held_current is v[5]):
+            return self._kst
+        n, k = len(self._bi_l), len(self._held_l)
+        parts = (self.q, self.dq, self.motor_torque, self._held_q, self._held_dq, self._held_current)
+        if [np.shape(x) for x in parts] != [(n,)] * 3 + [(k,)] * 3:
+            return None
+        kst = np.concatenate([np.asarray(x, dtype=float) for x in parts])
+        b = 3 * n
+        views = (kst[:n], kst[n:2 * n], kst[2 * n:b], kst[b:b + k], kst[b + k:b + 2 * k], kst[b + 2 * k:])
+        self.q, self.dq, self.motor_torque, self._held_q, self._held_dq, self._held_current = views
+        self._kst, self._kviews = kst, views
+        return kst
 
     def step_command(self, cmds: np.ndarray, position_mask: int, dt: float) -> bool:
         """`step_lists` from the commands as one (5, servos) float array (driving 1.0/0.0, operating mode,
@@ -738,14 +815,14 @@ class ArmPlant:
         self._saturated_time[:] = 0.0
 
     def set_external_torque(self, torque: np.ndarray) -> None:
-        torque = np.asarray(torque, dtype=float)
+        torque = np.array(torque, dtype=float)  # a copy of its own
         if torque.shape != (len(self.servo_ids),):
             raise ValueError(f"external torque needs {len(self.servo_ids)} values, got {torque.shape}")
-        if not np.isfinite(torque).all():
+        if not all(map(math.isfinite, torque.tolist())):  # (per float: cheaper than numpy for 8 values)
             raise ValueError("external torque must be finite")
-        self.external = torque[self._bi].copy()
-        self._held_ext = torque[self._held].copy()
-        self._external_all = torque.copy()
+        self.external = torque.take(self._bi)
+        self._held_ext = torque.take(self._held)
+        self._external_all = torque
 
     def external_torque(self) -> np.ndarray:
         """(8,) the external torque (N m, e.g. the operator's hand) last set by set_external_torque,

@@ -35,10 +35,10 @@ import numpy as np
 from crane_io.dynamixel.control_table import X_SERIES, XM430_W350, ServoModel
 from crane_io.dynamixel.crc import remember
 from crane_io.errors import ConfigError
-from crane_io.sim import chain_kernel
+from crane_io.sim import chain_kernel, lockstep_kernel
 from crane_io.sim import protocol as p
 from crane_io.sim.plant_api import ActuatorCommand, Plant
-from crane_io.sim.servo import _I16, _U16, BAUD_CODES, MEMORY_SIZE, EmulatedServo
+from crane_io.sim.servo import _I16, _U16, BAUD_CODES, MEMORY_SIZE, S_ON_BUS, STATE_SIZE, EmulatedServo
 
 # a write to Goal Current or Goal Position is a lockstep tick
 GOAL_CURRENT_ADDRESS = X_SERIES["goal_current"].address
@@ -108,9 +108,12 @@ class SimulatedChain:
         models = dict(models or {})
         # every servo's control table is a row of one array (the fast path reads and writes them at once)
         self.memories = np.zeros((len(plant.servo_ids), MEMORY_SIZE), dtype=np.uint8)
+        # and every servo's state outside its control table (contact time, watchdog, on the bus, fast reads)
+        self.servo_state = np.zeros((len(plant.servo_ids), STATE_SIZE))
         self._order: list[EmulatedServo] = [
             EmulatedServo(sid, models.get(sid, XM430_W350), baud_code=baud_code,
-                          return_delay_time=return_delay_time, memory=self.memories[i])
+                          return_delay_time=return_delay_time, memory=self.memories[i],
+                          state=self.servo_state[i])
             for i, sid in enumerate(plant.servo_ids)
         ]
         for i, s in enumerate(self._order):
@@ -120,7 +123,14 @@ class SimulatedChain:
         # the compiled functions, loaded (or compiled) now, not at the first packet a host waits on
         # (crane_io.sim.jit); None without numba, and then no fast path
         self._fast_fns = chain_kernel.compiled() if fast and self._fast_layout() else None
-        self.fast = self._fast_fns is not None
+        # the lockstep cycle's usual packets handled whole (crane_io.sim.lockstep_kernel; see feed)
+        self._lockstep_fns = lockstep_kernel.compiled() if self._fast_fns is not None else None
+        self.fast = self._fast_fns is not None and self._lockstep_fns is not None
+        self._reply_buffer = np.zeros(4096, dtype=np.uint8)  # the fast Fast Sync Read reply is built here
+        self._sensed = np.zeros((3, len(self._order)))  # lockstep_kernel.sense's reading (see _read_plant)
+        none = np.zeros(0)  # a plant that lockstep_kernel does not step: its arguments' types
+        self._no_plant_args = (0, none, none, none, np.zeros(4), none, none, np.zeros(11, dtype=np.int64),
+                               0.0, 1, 0.0)
         self._commands = np.zeros((5, len(self._order)))
         self._supply_key: tuple = (None, None)  # the last (voltages, temperatures) and their raw values
         self._supply_raw = (None, None)
@@ -159,14 +169,14 @@ class SimulatedChain:
             return False
         names = ("present_current", "realtime_tick", "present_input_voltage", "moving_threshold",
                  "torque_enable", "operating_mode", "goal_current", "goal_position", "current_limit",
-                 "hardware_error_status", "bus_watchdog", "id", "baud_rate")
+                 "hardware_error_status", "bus_watchdog", "id", "baud_rate", "max_position_limit",
+                 "min_position_limit")
         for s in self._order:
             regs = s.registers
             if any(regs[n].address != X_SERIES[n].address or regs[n].size != X_SERIES[n].size
                    or regs[n].signed != X_SERIES[n].signed for n in names):
                 return False
-            gc = regs["goal_current"]
-            if gc.access != "RW" or gc.eeprom:
+            if any(regs[n].access != "RW" or regs[n].eeprom for n in ("goal_current", "goal_position")):
                 return False
         return True
 
@@ -291,7 +301,9 @@ class SimulatedChain:
         if kept_for is not plant:  # first use, or the plant was replaced
             methods = (_list_method(plant, "read"), _list_method(plant, "step"),
                        _list_method(plant, "read", "read_arrays"),
-                       _list_method(plant, "step", "step_command"))
+                       _list_method(plant, "step", "step_command"),
+                       _list_method(plant, "read", "kernel_read_args"),
+                       _list_method(plant, "step", "kernel_step_args"))
             self._plant_lists_methods = (plant, methods)
         return methods
 
@@ -325,18 +337,29 @@ class SimulatedChain:
     def _read_plant(self) -> None:
         now = self.time
         fast = self._fast()
-        reader = self._lists_of(self.plant)[2] if fast is not None else None
-        if reader is not None:  # the plant's reading as arrays, into every servo's memory at once
-            position, velocity, current, voltage, temperature = reader()
-        else:
-            position, velocity, current, voltage, temperature = self._plant_lists()
-        if fast is not None:
+        methods = self._lists_of(self.plant)
+        sensed = methods[4]() if fast is not None and methods[4] is not None else None
+        if sensed is not None:  # read_arrays + sensors_into in one compiled call (lockstep_kernel.sense)
+            volt, temp = self._supply(sensed[10], sensed[11])
+            done = self._lockstep_fns[1](self.memories, *sensed[:10], volt, temp, int(now * 1000) % 32768,
+                                         self._sensed)
+            if not done:
+                position, velocity, current = self._sensed.copy()
+                voltage, temperature = sensed[10], sensed[11]
+        elif fast is not None:
+            reader = methods[2]
+            if reader is not None:  # the plant's reading as arrays, into every servo's memory at once
+                position, velocity, current, voltage, temperature = reader()
+            else:
+                position, velocity, current, voltage, temperature = self._plant_lists()
             volt, temp = self._supply(voltage, temperature)
             if reader is None:
                 position, velocity, current = (np.array(x, dtype=float)
                                                for x in (position, velocity, current))
             done = fast[0](self.memories, position, velocity, current, volt, temp, int(now * 1000) % 32768,
                            _PRESENT_AT, _TICK_AT, _SUPPLY_AT, _THRESHOLD_AT)
+        else:
+            position, velocity, current, voltage, temperature = self._plant_lists()
         if fast is None or not done:
             if fast is not None:
                 position, velocity, current = position.tolist(), velocity.tolist(), current.tolist()
@@ -368,6 +391,11 @@ class SimulatedChain:
         `baudrate`: the host port's speed when the transport knows it; servos set to another baud
         rate do not understand the host (and stay silent)."""
         with self._lock:
+            if (self.fast and self.clock == "lockstep" and type(data) is bytes and len(data) > 7
+                    and not self.parser.buffer):
+                reply = self._lockstep_packet(data, baudrate)
+                if reply is not None:
+                    return reply
             wall = time.monotonic()
             now = None
             if self.clock == "wall":
@@ -399,9 +427,63 @@ class SimulatedChain:
             self.stats.bytes_sent += len(out)
             return bytes(out)
 
+    def _lockstep_packet(self, data: bytes, baudrate: int | None) -> bytes | None:
+        """The fast path of the lockstep cycle's two usual packets, one whole packet into an empty parser:
+        a Sync Write of Goal Current or Position (written, watchdogs, commands and, when the plant's compiled
+        kernel takes them, the plant step in one compiled call, then the reading in another) and a Fast Sync
+        Read that every addressed servo answers (with no reply filter set). What feed would return, or None
+        when the packet is not such a case and nothing was done (feed's general path takes it;
+        crane_io.sim.lockstep_kernel)."""
+        if baudrate is None:
+            code = -1
+        else:
+            code = _BAUD_CODE_OF.get(baudrate)
+            if code is None:  # a speed no servo can be set to
+                return None
+        inst = data[7]
+        fns = self._lockstep_fns
+        if inst == p.INST_SYNC_WRITE:
+            dt = self.period_s
+            plant = self.plant
+            args = None
+            step_args = self._lists_of(plant)[5]
+            if step_args is not None:
+                args = step_args(dt)
+            result = fns[0](data, self.memories, self.servo_state, code,
+                            self.parser.max_length, self.time, self._commands, args is not None,
+                            *(args if args is not None else self._no_plant_args))
+            if result < 0:
+                return None
+            st = self.stats
+            st.bytes_received += len(data)
+            st.packets_received += 1
+            if result == 1:  # written and stepped: the clocks, the reading
+                plant.kernel_stepped(dt)
+                self.time += dt
+                st.plant_steps += 1
+                self._read_plant()
+            elif result == 2:  # written: the plant steps on the general path
+                self._step(dt)
+            return b""
+        if inst == p.INST_FAST_SYNC_READ and self.fast_sync_read and self.reply_filter is None:
+            buf = self._reply_buffer
+            result = fns[2](data, self.memories, self.servo_state, code,
+                            self.parser.max_length, self.time, buf)
+            if result < 0:
+                return None
+            reply = buf[:result >> 16].tobytes()
+            remember(reply[:-2], result & 0xFFFF)  # the host checks the packet's CRC next
+            st = self.stats
+            st.bytes_received += len(data)
+            st.packets_received += 1
+            st.replies_sent += 1
+            st.bytes_sent += len(reply)
+            return reply
+        return None
+
     def _hearing(self, baudrate: int | None) -> list[EmulatedServo]:
         if self.fast:  # the same list as long as the port's speed, who is on the bus, IDs and bauds are
-            key = (baudrate, [s.on_bus for s in self._order],
+            key = (baudrate, self.servo_state[:, S_ON_BUS].tobytes(),
                    self.memories[:, _ID_ADDRESS:_BAUD_ADDRESS + 1].tobytes())
             cached = self._hearing_cache
             if cached is not None and cached[0] == key:

@@ -15,8 +15,11 @@ import types
 
 
 def compile_functions(namespace: dict, names: tuple[str, ...], signatures: dict[str, tuple[str, ...]],
-                      **options) -> dict | None:
-    """name -> compiled function for `names` (see the module docstring); None without numba."""
+                      qualname_prefix: str = "", **options) -> dict | None:
+    """name -> compiled function for `names` (see the module docstring); None without numba.
+    `qualname_prefix`: put before every function's name in its qualified name, which names its entry in
+    numba's cache (a module that compiles another module's functions with other options, or calls them
+    under other names, keeps its own entries)."""
     try:
         import numba
     except ImportError:
@@ -25,7 +28,9 @@ def compile_functions(namespace: dict, names: tuple[str, ...], signatures: dict[
     ns = dict(namespace)  # the compiled functions call each other; the module keeps the Python ones
     for name in names:
         f = ns[name]
-        ns[name] = jit(types.FunctionType(f.__code__, ns, f.__name__, f.__defaults__))
+        g = types.FunctionType(f.__code__, ns, name, f.__defaults__)
+        g.__qualname__ = qualname_prefix + name if qualname_prefix else f.__qualname__
+        ns[name] = jit(g)
     for name, sigs in signatures.items():
         for sig in sigs:
             ns[name].compile(sig)

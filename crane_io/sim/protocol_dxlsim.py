@@ -21,6 +21,7 @@ class Serial(SerialBase):
         self._chain = None
         self._rx = bytearray()
         self._cond = threading.Condition()
+        self._waiting = 0  # readers waiting on _cond (write notifies only when there are any)
         super().__init__(*args, **kwargs)
 
     def open(self):
@@ -69,14 +70,18 @@ class Serial(SerialBase):
                 return data
         deadline = None if self._timeout is None else time.monotonic() + self._timeout
         with self._cond:
-            while len(self._rx) < size and self.is_open:
-                if deadline is None:
-                    self._cond.wait()
-                    continue
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    break
-                self._cond.wait(left)
+            self._waiting += 1
+            try:
+                while len(self._rx) < size and self.is_open:
+                    if deadline is None:
+                        self._cond.wait()
+                        continue
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        break
+                    self._cond.wait(left)
+            finally:
+                self._waiting -= 1
             data = bytes(self._rx[:size])
             del self._rx[:size]
         return data
@@ -85,11 +90,12 @@ class Serial(SerialBase):
         if not self.is_open:
             raise PortNotOpenError()
         data = to_bytes(data)
-        reply = self._chain.feed(data, baudrate=self._baudrate)
+        reply = self._chain.feed(data, self._baudrate)
         if reply:
             with self._cond:
                 self._rx += reply
-                self._cond.notify_all()
+                if self._waiting:
+                    self._cond.notify_all()
         return len(data)
 
     def servo_time(self) -> float:

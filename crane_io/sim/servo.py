@@ -26,6 +26,8 @@ from __future__ import annotations
 import math
 import struct
 
+import numpy as np
+
 from crane_io.dynamixel.control_table import (
     CONTROL_TABLE_SIZE,
     EEPROM_END,
@@ -47,6 +49,9 @@ from crane_io.dynamixel.units import (
 )
 from crane_io.sim import protocol as p
 
+# a servo's state outside its control table: one float64 per column (EmulatedServo's `state`)
+S_CONTACT, S_EXPIRED, S_ON_BUS, S_FAST_READ = range(4)
+STATE_SIZE = 4
 MEMORY_SIZE = CONTROL_TABLE_SIZE  # the whole X-series control table, Indirect Data included
 BAUD_CODES = {0: 9600, 1: 57600, 2: 115200, 3: 1_000_000, 4: 2_000_000, 5: 3_000_000, 6: 4_000_000,
               7: 4_500_000}
@@ -101,9 +106,13 @@ class EmulatedServo:
         input_voltage: float = 12.0,
         temperature: float = 35.0,
         memory=None,
+        state=None,
     ):
         """`memory`: a writable buffer of MEMORY_SIZE bytes to hold the control table (the simulated chain
-        gives each servo a row of one array); default a bytearray of its own."""
+        gives each servo a row of one array); default a bytearray of its own. `state`: a float64 array of
+        STATE_SIZE holding `last_contact`, `watchdog_expired`, `on_bus` and `supports_fast_sync_read` (the
+        chain gives each servo a row of one array, which its compiled lockstep path reads and writes);
+        default an array of its own."""
         self.model = MODELS[model] if isinstance(model, str) else model
         self.registers: dict[str, Register] = dict(self.model.registers)
         self._at: dict[int, Register] = {r.address: r for r in self.registers.values()}
@@ -140,6 +149,11 @@ class EmulatedServo:
                 and at["position_p_gain"] == at["position_d_gain"] + 4):
             raise ValueError(f"{self.model.name}: control table is not laid out like the X series")
         self.firmware_version = firmware_version
+        if state is None:
+            state = np.zeros(STATE_SIZE)
+        if state.shape != (STATE_SIZE,) or state.dtype != np.float64:
+            raise ValueError(f"a servo's state is a float64 array of {STATE_SIZE} values")
+        self._state = state
         self.supports_fast_sync_read = supports_fast_sync_read
         if memory is None:
             self.memory = bytearray(MEMORY_SIZE)
@@ -161,6 +175,43 @@ class EmulatedServo:
             self.write_register("return_delay_time", return_delay_time)
         _PRESENT.pack_into(self.memory, self._present_at, 0, 0, POSITION_CENTER)  # at 0 rad, at rest
         self.write_register("goal_position", self.read_register("present_position"))
+
+    # ---- the servo's state outside its control table (a row of the chain's `servo_state`) -----------
+    @property
+    def last_contact(self) -> float:
+        """The time (chain seconds) the last instruction for this servo arrived."""
+        return float(self._state[S_CONTACT])
+
+    @last_contact.setter
+    def last_contact(self, now: float) -> None:
+        self._state[S_CONTACT] = now
+
+    @property
+    def watchdog_expired(self) -> bool:
+        """The Bus Watchdog stopped the servo (until 0 is written to it, or a reboot)."""
+        return bool(self._state[S_EXPIRED])
+
+    @watchdog_expired.setter
+    def watchdog_expired(self, value: bool) -> None:
+        self._state[S_EXPIRED] = 1.0 if value else 0.0
+
+    @property
+    def on_bus(self) -> bool:
+        """False: the servo has vanished from the bus (no packets in or out)."""
+        return bool(self._state[S_ON_BUS])
+
+    @on_bus.setter
+    def on_bus(self, value: bool) -> None:
+        self._state[S_ON_BUS] = 1.0 if value else 0.0
+
+    @property
+    def supports_fast_sync_read(self) -> bool:
+        """The firmware answers Fast Sync Read and Fast Bulk Read."""
+        return bool(self._state[S_FAST_READ])
+
+    @supports_fast_sync_read.setter
+    def supports_fast_sync_read(self, value: bool) -> None:
+        self._state[S_FAST_READ] = 1.0 if value else 0.0
 
     # ---- raw register access (no access rules; for the chain and for tests) ---------------------
     @property
@@ -295,14 +346,15 @@ class EmulatedServo:
     # ---- bus watchdog ------------------------------------------------------------------------------
     def contact(self, now: float) -> None:
         """An instruction for this servo arrived at time `now`."""
-        self.last_contact = now
+        self._state[S_CONTACT] = now
 
     def check_watchdog(self, now: float) -> None:
-        if self.watchdog_expired or self.memory[self._torque_at] != 1:
+        st = self._state
+        if st[S_EXPIRED] or self.memory[self._torque_at] != 1:
             return
         raw = self.memory[self._watchdog_at]  # signed; only 1..127 arm the watchdog
-        if 0 < raw < 128 and now - self.last_contact > raw * SECONDS_PER_WATCHDOG_LSB + 1e-9:
-            self.watchdog_expired = True
+        if 0 < raw < 128 and now - float(st[S_CONTACT]) > raw * SECONDS_PER_WATCHDOG_LSB + 1e-9:
+            st[S_EXPIRED] = 1.0
 
     # ---- instruction semantics -----------------------------------------------------------------
     def read(self, address: int, length: int) -> tuple[int, bytes]:
