@@ -34,6 +34,18 @@ so does a model whose Coulomb-type terms use the loop's smooth sign tanh(dq / v0
 model_coulomb_velocity` > 0, set on the model by collect/loop_models.py): there the tanh, not the dead
 zone, keeps a creeping joint's friction near zero.
 
+Two other filterings are options (`[controller]`, docs/collect.md "One lag" and "The loop's own
+cutoff"). `model_cutoff = c` (`cutoff`): the same two lags on both sides at c rad/s instead of the
+model's cutoffs. `model_filters = "observer"` (`one_lag`: each joint's observer cutoff g): the applied
+torque through ONE first-order low-pass at g, the nominal observer's lag, and the model's inputs
+through the training's filter structure at 2 g, whose group delay 2/(2g) = 1/g is that lag's:
+
+    tau_res = L_g(tau_applied)[k-1] - f(x[k-1]),   x = (L_2g(L_2g(q)), L_2g(D_2g(q)), D_2g(D_2g(q)))
+
+which is the nominal estimate minus the model's correction, f(x) less what the nominal observer
+subtracts (gravity, J times its filtered acceleration, viscous): an outside torque reaches tau_res
+through the nominal observer's single lag.
+
 The filters run at the time that really passed: a cycle that came late (a loaded machine, a slow
 adapter) is filtered with Tustin coefficients for its own dt, as the controller's observers are, so the
 model's velocity and acceleration stay in rad/s and rad/s^2; at the nominal period they are exactly the
