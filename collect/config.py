@@ -31,6 +31,7 @@ ARM_JOINTS = JOINT_NAMES[:7]
 PAPER_JOINTS = ("joint1", "joint2", "joint4")
 INERTIA_MODELS = ("dynamics", "constant")
 DITHER_WAVES = ("sine", "square")
+MODEL_FILTERS = ("training", "observer")  # controller.model_filters (docs/collect.md, "A learned model")
 # the friction dither needs at least this many control cycles per period (4: a square wave's two levels
 # are each held for two cycles; a sine is sampled at its peaks and zero crossings)
 DITHER_MIN_CYCLES = 4
@@ -74,6 +75,8 @@ class ControllerConfig:
     dither_wave: str = "sine"  # "sine" or "square"
     dither_filter: bool = True  # the follower's tau_res averaged over one dither period
     model_coulomb_velocity: float = 0.0  # rad/s, v0: a model's Coulomb sign(dq) -> tanh(dq/v0); 0: off
+    model_filters: str = "training"  # a model's observer: "training" (two lags) or "observer" (one lag of g)
+    model_cutoff: float = 0.0  # rad/s: "training" filters at this cutoff instead of the model's (0: its own)
 
 
 @dataclass(frozen=True)
@@ -273,7 +276,11 @@ def _build(values: dict, where: str) -> Config:
         dither_filter=c["dither_filter"],
         model_coulomb_velocity=_nonneg(where, "controller.model_coulomb_velocity",
                                        c["model_coulomb_velocity"]),
+        model_filters=c["model_filters"],
+        model_cutoff=_nonneg(where, "controller.model_cutoff", c["model_cutoff"]),
     )
+    _need(c["model_filters"] in MODEL_FILTERS, where, "controller.model_filters",
+          "one of " + ", ".join(MODEL_FILTERS), c["model_filters"])
     _need(c["dither_wave"] in DITHER_WAVES, where, "controller.dither_wave",
           "one of " + ", ".join(DITHER_WAVES), c["dither_wave"])
     _need(controller.dither_frequency * DITHER_MIN_CYCLES <= loop.rate_hz, where,

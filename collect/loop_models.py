@@ -77,8 +77,13 @@ def reaction_factories(models: dict[str, ArmModel], arm: ArmDescription, config:
         if hasattr(m.model, "set_coulomb_velocity"):
             m.model.set_coulomb_velocity(config.controller.model_coulomb_velocity)
 
+    observer = config.controller.model_filters == "observer"
+
     def factory(m: ArmModel):
-        return lambda: ModelReaction(m.model, arm.joint_names, m.limit, rate)
+        # "observer": one lag at each model joint's observer cutoff g; "training": the model's own filters
+        lag = np.array([config.controller.joints[n].cutoff for n in m.joints]) if observer else None
+        cutoff = config.controller.model_cutoff or None  # 0: the model's training cutoffs
+        return lambda: ModelReaction(m.model, arm.joint_names, m.limit, rate, one_lag=lag, cutoff=cutoff)
 
     return {name: factory(m) for name, m in models.items()}
 

@@ -34,6 +34,18 @@ so does a model whose Coulomb-type terms use the loop's smooth sign tanh(dq / v0
 model_coulomb_velocity` > 0, set on the model by collect/loop_models.py): there the tanh, not the dead
 zone, keeps a creeping joint's friction near zero.
 
+Two other filterings are options (`[controller]`, docs/collect.md "One lag" and "The loop's own
+cutoff"). `model_cutoff = c` (`cutoff`): the same two lags on both sides at c rad/s instead of the
+model's cutoffs. `model_filters = "observer"` (`one_lag`: each joint's observer cutoff g): the applied
+torque through ONE first-order low-pass at g, the nominal observer's lag, and the model's inputs
+through the training's filter structure at 2 g, whose group delay 2/(2g) = 1/g is that lag's:
+
+    tau_res = L_g(tau_applied)[k-1] - f(x[k-1]),   x = (L_2g(L_2g(q)), L_2g(D_2g(q)), D_2g(D_2g(q)))
+
+which is the nominal estimate minus the model's correction, f(x) less what the nominal observer
+subtracts (gravity, J times its filtered acceleration, viscous): an outside torque reaches tau_res
+through the nominal observer's single lag.
+
 The filters run at the time that really passed: a cycle that came late (a loaded machine, a slow
 adapter) is filtered with Tustin coefficients for its own dt, as the controller's observers are, so the
 model's velocity and acceleration stay in rad/s and rad/s^2; at the nominal period they are exactly the
@@ -55,6 +67,11 @@ import numpy as np
 POSE_MARGIN_RAD = 0.1  # how far outside the training data's angles the model is still trusted (5.7 deg)
 
 
+def _cutoff(value):
+    a = np.asarray(value, dtype=float)
+    return float(a) if a.ndim == 0 else a
+
+
 class LagFilters:
     """The paper's first-order low-pass w/(s+w) and pseudo-derivative g s/(s+g), Tustin at `rate_hz`,
     one sample at a time on (k,) vectors, started in steady state at the first sample (as
@@ -64,8 +81,9 @@ class LagFilters:
     loop running late still filters and differentiates in real time: at the nominal period the
     coefficients are exactly those of `rate_hz`."""
 
-    def __init__(self, cutoff_rad_s: float, pseudo_diff_rad_s: float, rate_hz: float):
-        self.w, self.g = float(cutoff_rad_s), float(pseudo_diff_rad_s)
+    def __init__(self, cutoff_rad_s, pseudo_diff_rad_s, rate_hz: float):
+        # scalars (rad/s), or (J,) arrays: one cutoff per joint
+        self.w, self.g = _cutoff(cutoff_rad_s), _cutoff(pseudo_diff_rad_s)
         self.period = None
         self._set(2.0 * float(rate_hz))
         self.period = 1.0 / float(rate_hz)
@@ -136,13 +154,23 @@ class ModelReaction:
     `limit`: (J,) N m per model joint, the largest plausible prediction (the joint's maximum motor
     torque); `rate_hz`: the loop's rate, at which the filters are discretised."""
 
-    def __init__(self, model, arm_joint_names, limit: np.ndarray, rate_hz: float):
+    def __init__(self, model, arm_joint_names, limit: np.ndarray, rate_hz: float, one_lag=None,
+                 cutoff=None):
         self.model = model
         names = list(arm_joint_names)
         self.joint_names = tuple(model.joint_names)
         self.idx = np.array([names.index(n) for n in self.joint_names], dtype=int)
         pre = model.preprocessing
-        self.filters = LagFilters(pre["cutoff_rad_s"], pre["pseudo_diff_rad_s"], rate_hz)
+        self.one_lag = None if one_lag is None else np.asarray(one_lag, dtype=float)  # (J,) rad/s or None
+        if self.one_lag is None:  # the training's filters on both sides (two lags of the model's cutoff,
+            # or of `cutoff` rad/s for both the low-pass and the pseudo-derivative when given)
+            w, g = (pre["cutoff_rad_s"], pre["pseudo_diff_rad_s"]) if not cutoff else (cutoff, cutoff)
+            self.filters = LagFilters(w, g, rate_hz)
+            self.torque_filter = None
+        else:  # the applied torque through one lag of g, the model's inputs through two lags of 2 g
+            self.filters = LagFilters(2.0 * self.one_lag, 2.0 * self.one_lag, rate_hz)
+            self.torque_filter = LagFilters(self.one_lag, self.one_lag, rate_hz)
+        self._u = self._u_lag = None  # one-lag: the last applied torque (J,) and its low-pass
         self.inputs = ModelInputs(self.filters)
         self.limit = np.asarray(limit, dtype=float)
         dz = pre.get("dead_zone_rad_s")
@@ -170,15 +198,28 @@ class ModelReaction:
         inp = self.inputs
         if dt is not None:
             self.filters.set_period(dt)
+            if self.torque_filter is not None:
+                self.torque_filter.set_period(dt)
         first = not inp.started
-        inp.push(q[i], applied_prev[i])
+        u = applied_prev[i]
+        inp.push(q[i], u)
         if first:  # nothing filtered yet: the steady state at this sample is the first pair
             self._predict()
-        tau_res = inp.tau - self._pred
+        tau_res = (inp.tau if self.torque_filter is None else self._one_lag(u)) - self._pred
         ok = self._ok.copy()
         self.fallback_cycles += ~ok
         self._predict()  # for the next cycle, on this cycle's filtered angles
         return tau_res, ok
+
+    def _one_lag(self, u: np.ndarray) -> np.ndarray:
+        """The applied torque (J,) through one first-order low-pass at `one_lag` (steady state at the
+        first sample)."""
+        if self._u is None:
+            self._u_lag = np.array(u, dtype=float)
+        else:
+            self._u_lag = self.torque_filter.low_pass(u, self._u, self._u_lag)
+        self._u = np.array(u, dtype=float)
+        return self._u_lag
 
     def _predict(self) -> None:
         inp = self.inputs

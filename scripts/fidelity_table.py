@@ -13,7 +13,7 @@ JOINTS = ("joint1", "joint2", "joint4")
 MODELS = ("nominal", "rigid-body", "rigid-body+friction", "mlp-masked", "hybrid", "hybrid-both-arms",
           # step 5, the follower's friction dither (ratios against "nominal": no dither, same run)
           "nominal+dither", "rigid-body+friction+dither-sign", "rigid-body+friction+dither",
-          "rigid-body+friction+dither-c40")
+          "rigid-body+friction+dither-observer", "rigid-body+friction+dither-c40")
 HIDDEN = ("nominal", "hc-baseline", "hc-with-coulomb")
 
 

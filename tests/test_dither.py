@@ -166,3 +166,19 @@ def test_a_negative_joint_factor_dithers_that_joint_in_antiphase(tmp_path):
     with pytest.raises(ConfigError) as err:
         load_config(path)
     assert "controller.joint4.dither" in str(err.value)
+
+
+def test_the_example_dither_configurations_load_with_their_documented_settings():
+    """docs/examples/dither.toml and dither-model.toml (scripts/closing-the-loop.sh, README "Closing the
+    loop") are valid configurations, and dither-model.toml holds the setting measured there."""
+    from pathlib import Path
+
+    examples = Path(__file__).resolve().parents[1] / "docs" / "examples"
+    plain = load_config(examples / "dither.toml").controller
+    model = load_config(examples / "dither-model.toml").controller
+    assert plain.dither_amplitude == model.dither_amplitude == 0.4
+    assert plain.model_filters == model.model_filters == "training"
+    assert plain.model_cutoff == 0.0 and model.model_cutoff == 40.0  # the loop's two lags at 40 rad/s
+    assert model.model_coulomb_velocity == 0.1
+    factors = {n: model.joints[n].dither for n in ("joint1", "joint2", "joint4")}
+    assert factors["joint2"] == 2.5 and factors["joint4"] == -1.5 and factors["joint1"] > 1.0

@@ -207,3 +207,130 @@ def test_with_the_smooth_coulomb_sign_the_dead_zone_is_not_applied():
     assert runs[0.0][1] == 0.0  # the dead zone as fitted
     assert runs[0.1][1] == pytest.approx(0.01, rel=0.05)  # the smooth sign: the velocity as it is
     assert runs[0.1][0] == runs[0.0][0]  # a moving joint is not affected
+
+
+# ---- "observer" filters (`[controller] model_filters = "observer"`): the nominal observer's one lag ----
+G = np.array([15.0, 15.0, 20.0])  # the default observer cutoffs of joint1, joint2, joint4
+
+
+def _columns(fn, x, cutoffs):
+    return np.column_stack([fn(x[:, [j]], c, RATE)[:, 0] for j, c in enumerate(cutoffs)])
+
+
+def test_observer_filters_are_one_lag_of_g_on_the_torque_and_the_training_structure_at_2g_on_the_inputs():
+    names = ("joint1", "joint2", "joint4")
+    q, tau = _signals()
+    model = LinearModel(names)
+    reaction = ModelReaction(model, names, np.full(3, 100.0), RATE, one_lag=G)
+    out = [reaction.update(q[k], tau[k - 1] if k else tau[0])[0].copy() for k in range(len(q))]
+    # reference: the model on the training's filters at 2 g (train.data.filters), row k-1; the applied
+    # torque (the previous cycle's) through one first-order low-pass at g
+    d = _columns(pseudo_diff, q, 2 * G)
+    qm = _columns(lowpass, _columns(lowpass, q, 2 * G), 2 * G)
+    dqm, ddqm = _columns(lowpass, d, 2 * G), _columns(pseudo_diff, d, 2 * G)
+    prev_tau = np.vstack([tau[:1], tau[:-1]])
+    want = _columns(lowpass, prev_tau, G)[1:] - (qm[:-1] + 0.5 * dqm[:-1] + 0.1 * ddqm[:-1])
+    np.testing.assert_allclose(np.array(out)[1:], want, rtol=1e-9, atol=1e-9)
+
+
+def test_observer_filters_pass_a_contact_step_through_one_lag_faster_than_the_training_filters():
+    """A step of outside torque at a standstill (the joint pressed against a wall: the applied torque
+    steps, the angles stay): with the observer filters tau_res follows the first-order step response
+    1 - exp(-g t) of the nominal observer; with the training filters (two lags at 25 rad/s) it lags."""
+    names = ("joint1", "joint2", "joint4")
+    runs = {}
+    for one_lag in (None, G):
+        reaction = ModelReaction(LinearModel(names, a=0.0, b=0.0, c=0.0), names, np.full(3, 100.0), RATE,
+                                 one_lag=one_lag)
+        rows = []
+        for k in range(200):
+            rows.append(reaction.update(np.zeros(3), np.full(3, 1.0 if k >= 10 else 0.0))[0].copy())
+        runs[one_lag is None] = np.array(rows)
+    # the torque applied in cycle 9 (passed to cycle 10) steps: tau_res responds from cycle 10 on; the
+    # Tustin low-pass of a step is the continuous response half a sample later
+    t = (np.arange(200) - 10 + 0.5) / RATE
+    after = t > 0.0
+    want = 1.0 - np.exp(-G[None, :] * t[after, None])
+    np.testing.assert_allclose(runs[False][after], want, atol=0.02)  # Tustin vs continuous: < 2 %
+    at = int(np.argmin(np.abs(t - 0.03)))  # 30 ms after the step
+    assert (runs[False][at] > 1.8 * runs[True][at]).all(), (runs[False][at], runs[True][at])
+    # measured 0.37 / 0.37 / 0.46 against 0.18
+
+
+def test_the_controllers_model_filters_option_reaches_the_reaction_and_is_checked(tmp_path):
+    from collect.config import load_config as load
+    from collect.loop_models import ArmModel, reaction_factories
+    from crane_io.errors import ConfigError
+
+    arm = default_arm()
+    model = LinearModel(("joint1", "joint2", "joint4"))
+    assert load().controller.model_filters == "training"  # the default: the model's own filters
+    make = reaction_factories({"follower": ArmModel("follower", model, np.full(3, 50.0))}, arm, load())
+    assert make["follower"]().one_lag is None
+    path = tmp_path / "c.toml"
+    path.write_text('[controller]\nmodel_filters = "observer"\n\n[controller.joint4]\ncutoff = 18.0\n')
+    make = reaction_factories({"follower": ArmModel("follower", model, np.full(3, 50.0))}, arm, load(path))
+    reaction = make["follower"]()
+    assert reaction.one_lag.tolist() == [15.0, 15.0, 18.0]  # each joint's observer cutoff g
+    assert np.allclose(reaction.filters.w, [30.0, 30.0, 36.0])  # the model's inputs at 2 g
+    path.write_text('[controller]\nmodel_filters = "fast"\n')
+    with pytest.raises(ConfigError, match="controller.model_filters"):
+        load(path)
+
+
+@pytest.mark.parametrize("one_lag", [None, G])
+def test_unusable_prediction_falls_back_with_either_filters(one_lag):
+    names = ("joint1", "joint2", "joint4")
+
+    class Broken(LinearModel):
+        def predict_one(self, q, dq, ddq, out=None):
+            y = super().predict_one(q, dq, ddq)
+            y[2] = np.inf
+            return y
+
+    reaction = ModelReaction(Broken(names), names, np.full(3, 5.0), RATE, one_lag=one_lag)
+    for _ in range(5):
+        res, ok = reaction.update(np.zeros(3), np.ones(3))
+        assert ok.tolist() == [True, True, False] and np.isfinite(res).all()
+    assert reaction.fallback_cycles.tolist() == [0, 0, 5]
+
+
+def test_observer_filters_follow_a_late_cycle_in_real_time():
+    speed = 0.8  # rad/s, a ramp sampled every 4 ms: the model's velocity is still the slope
+    names = ("a", "b", "c")
+    reaction = ModelReaction(LinearModel(names), names, np.full(3, 10.0), RATE, one_lag=G)
+    for k in range(2000):
+        reaction.update(np.full(3, speed * k * 0.004), np.ones(3), 0.004)
+    assert np.allclose(reaction.inputs.dq, speed, rtol=1e-6)
+    assert np.allclose(reaction._u_lag, 1.0)
+
+
+def test_a_loop_cutoff_replaces_the_training_cutoffs_on_both_sides(tmp_path):
+    """`[controller] model_cutoff = c`: the training's filter structure, two lags, at c rad/s for the low-pass
+    and the pseudo-derivative alike, on the applied torque and on the model's inputs."""
+    from collect.config import load_config as load
+    from collect.loop_models import ArmModel, reaction_factories
+    from crane_io.errors import ConfigError
+
+    names = ("joint1", "joint2", "joint4")
+    q, tau = _signals()
+    model = LinearModel(names, cutoff=25.0, diff=20.0)
+    path = tmp_path / "c.toml"
+    path.write_text("[controller]\nmodel_cutoff = 40.0\n")
+    make = reaction_factories({"follower": ArmModel("follower", model, np.full(3, 100.0))}, default_arm(),
+                              load(path))
+    assert make["follower"]().filters.w == make["follower"]().filters.g == 40.0  # the option reaches it
+    reaction = ModelReaction(model, names, np.full(3, 100.0), RATE, cutoff=40.0)
+    out = [reaction.update(q[k], tau[k - 1] if k else tau[0])[0].copy() for k in range(len(q))]
+    c = 40.0
+    d = pseudo_diff(q, c, RATE)
+    qm = lowpass(lowpass(q, c, RATE), c, RATE)
+    dqm, ddqm = lowpass(d, c, RATE), pseudo_diff(d, c, RATE)
+    prev_tau = np.vstack([tau[:1], tau[:-1]])
+    want = lowpass(lowpass(prev_tau, c, RATE), c, RATE)[1:] - (qm[:-1] + 0.5 * dqm[:-1] + 0.1 * ddqm[:-1])
+    np.testing.assert_allclose(np.array(out)[1:], want, rtol=1e-9, atol=1e-9)
+    assert load().controller.model_cutoff == 0.0  # the default: the model's own cutoffs
+    assert ModelReaction(model, names, np.full(3, 100.0), RATE).filters.w == 25.0
+    path.write_text("[controller]\nmodel_cutoff = -5.0\n")
+    with pytest.raises(ConfigError, match="controller.model_cutoff"):
+        load(path)
