@@ -67,6 +67,7 @@ class SafetyMonitor:
         self.d_wall = s.limit_damping
         self.bil = np.array([n in self.arm.bilateral_joints for n in names])
         self.bil_f = self.bil.astype(float)
+        self._kernel_constants = None
         self._consecutive = {"leader": 0, "follower": 0}
         self._recent_errors: deque[float] = deque()
         self.errors_total = 0
@@ -106,6 +107,16 @@ class SafetyMonitor:
                 wall = self.k_wall * under - self.d_wall * np.minimum(v, 0.0)
                 tau = np.where(lo, np.maximum(tau, 0.0) + wall, tau)
         return np.clip(tau, -self.tau_max, self.tau_max) * self.bil
+
+    def kernel_constants(self) -> np.ndarray:
+        """The limits as the compiled controller reads them (collect/controller_kernel.py, K_* rows): soft
+        zone bounds, tau_max, stop bounds, velocity guards, bilateral mask; made at the first call (the
+        limits are fixed once the monitor is built)."""
+        if self._kernel_constants is None:
+            self._kernel_constants = np.ascontiguousarray(np.array(
+                [self.soft_lower, self.soft_upper, self.tau_max, self.stop_lower, self.stop_upper, self.vmax,
+                 self.bil_f], dtype=float))
+        return self._kernel_constants
 
     @staticmethod
     def _outside(q: list, lower: list, upper: list) -> bool:
