@@ -88,6 +88,7 @@ class GravityModel:
         self.n = len(arm.joints)
         self._dyn = None
         self._dyn_idx = None
+        self._pin = None  # (pinocchio's gravity, model, data): gravity_torque's call without its checks
         names = arm.joint_names
         self._i2 = names.index("joint2") if "joint2" in names else None
         self._i4 = names.index("joint4") if "joint4" in names else None
@@ -106,14 +107,22 @@ class GravityModel:
                 locked = {n: config.held.get(n, 0.0) for n in names if n not in joints}
                 self._dyn = ArmDynamics(joints=joints, locked=locked)
                 self._dyn_idx = np.array([names.index(n) for n in self._dyn.joint_names])
+                if self._dyn._identity:  # the joints in the model's order: gravity_torque's one-pose call
+                    import pinocchio
+
+                    self._pin = (pinocchio.computeGeneralizedGravity, self._dyn.model, self._dyn.data)
         self._out = np.zeros(self.n)
         # the joints `values` gives, in its order
         self.index = np.array(self._dyn_idx if self.kind == "dynamics" else range(self.n), dtype=np.int64)
 
-    def values(self, q: np.ndarray) -> np.ndarray:
+    def values(self, q: np.ndarray, checked: bool = True) -> np.ndarray:
         """The torques of the joints `index` covers (the compiled controller's gravity input): those
-        `__call__` puts in its (n,) result, the other joints' being 0."""
+        `__call__` puts in its (n,) result, the other joints' being 0. checked=False: without the
+        dynamics' check that those angles are finite (NaN in, NaN out; the caller checks them)."""
         if self.kind == "dynamics":
+            if not checked and self._pin is not None:
+                f, model, data = self._pin
+                return f(model, data, q[self._dyn_idx])  # a new array
             return self._dyn.gravity_torque(q[self._dyn_idx])
         return self(q)
 
@@ -327,6 +336,8 @@ class BilateralController:
         self._consts = c
         self._consts_decay = None  # the decay(dt) array in _consts' C_DECAY row
         self._gidx = np.ascontiguousarray(self.gravity.index, dtype=np.int64)
+        self._finite = self.gravity.kind == "dynamics"  # the kernel checks those angles (as gravity_torque)
+        self._band = float(self.deadband)
         return fns
 
     def decay(self, dt: float) -> np.ndarray:
@@ -380,11 +391,12 @@ class BilateralController:
 
     def _kernel_observers(self, ql: np.ndarray, qf: np.ndarray, dt: float) -> tuple:
         """What _Observer.update does before its arithmetic, for the compiled path: both arms' gravity
-        (the values the kernel takes), the pose-dependent inertia when due, the first cycle's state;
-        the current decay(dt) in the constants. Returns (gravity leader, gravity follower)."""
+        (the values the kernel takes; from the second cycle on unchecked, the kernel checks), the
+        pose-dependent inertia when due, the first cycle's state; the current decay(dt) in the constants.
+        Returns (gravity leader, gravity follower)."""
         s, grav = self._state, self.gravity
-        gl, gf = grav.values(ql), grav.values(qf)
         k = self._cycles
+        gl, gf = grav.values(ql, k == 0), grav.values(qf, k == 0)
         if k % self.inertia.every == 0:
             for q, r in ((ql, 0), (qf, kernel.S_ARM)):
                 J = self.inertia(q)
@@ -404,24 +416,28 @@ class BilateralController:
             self._consts_decay = a
         return gl, gf
 
-    def _step_compiled(self, leader: ArmSignals, follower: ArmSignals, dt: float) -> Commands:
-        n = self.n
-        ql, qf = _kernel_input(leader.q, n), _kernel_input(follower.q, n)
-        dt = float(dt)
+    def _kernel_call(self, f: int, ql: np.ndarray, qf: np.ndarray, dt: float, before: tuple, after: tuple
+                     ) -> tuple[np.ndarray, int]:
+        """Kernel function f (0 step, 1 hold, 2 control) on the two arms' angles (_kernel_input arrays):
+        (its output rows, its status). before, after: its arguments before the gravity and after the
+        constants, up to `finite`."""
+        out = np.empty((kernel.N_OUT_CONTROL if f == 2 else kernel.N_OUT, self.n))
         gl, gf = self._kernel_observers(ql, qf, dt)
-        dq_l, dis_l, res_l, dq_f, dis_f, res_f, tau_l, tau_f, cur_l, cur_f = self._kernel[0](
-            ql, qf, gl, gf, self._gidx, self._state, self._consts, dt, float(self.deadband))
-        self.leader = ArmEstimates(dq_l, dis_l, res_l)
-        self.follower = ArmEstimates(dq_f, dis_f, res_f)
-        return Commands(tau_l, tau_f, cur_l, cur_f)
+        status = self._kernel[f](ql, qf, *before, gl, gf, self._gidx, self._state, self._consts, *after,
+                                 self._finite, out)
+        if status & kernel.NONFINITE:  # nothing changed (the first cycle's angles were checked before)
+            self._cycles -= 1
+            raise ConfigError("the dynamics inputs contain NaN or infinite values")
+        return out, status
 
     def control(self, leader: ArmSignals, follower: ArmSignals, dt: float, safety: SafetyMonitor
                 ) -> tuple[Commands, np.ndarray, np.ndarray, Breach | None]:
         """A bilateral cycle's control: `step`, the safety clamps of both goal torques
         (`safety.limit_torque(q, tau, dq_servo)`), `applied` of what they give, and the safety checks
         (`safety.check` of the leader, then of the follower). Returns (commands, clamped leader torque,
-        clamped follower torque, the first breach or None): what those calls give in that order, in one
-        compiled call on the compiled path."""
+        clamped follower torque, the first breach or None): what those calls give in that order; on the
+        compiled path in one kernel call (the safety monitor's own code only for an arm with a joint in
+        its soft zone, past its stop or faster than its guard)."""
         if self._kernel is None:
             cmd = self.step(leader, follower, dt)
             tau_l = safety.limit_torque(leader.q, cmd.leader_tau, leader.dq_servo)
@@ -438,9 +454,8 @@ class BilateralController:
         dql = ql if dql is None else _kernel_input(dql, n)
         dqf = qf if dqf is None else _kernel_input(dqf, n)
         dt = float(dt)
-        gl, gf = self._kernel_observers(ql, qf, dt)
-        out, status = self._kernel[2](ql, qf, dql, dqf, gl, gf, self._gidx, self._state, self._consts,
-                                      safety.kernel_constants(), dt, float(self.deadband), has_dq)
+        out, status = self._kernel_call(2, ql, qf, dt, (dql, dqf),
+                                        (safety.kernel_constants(), dt, self._band, has_dq))
         dq_l, dis_l, res_l, dq_f, dis_f, res_f, tau_l, tau_f, cur_l, cur_f, lim_l, lim_f = out
         self.leader = ArmEstimates(dq_l, dis_l, res_l)
         self.follower = ArmEstimates(dq_f, dis_f, res_f)
@@ -460,7 +475,14 @@ class BilateralController:
 
     def step(self, leader: ArmSignals, follower: ArmSignals, dt: float) -> Commands:
         if self._kernel is not None:
-            return self._step_compiled(leader, follower, dt)
+            n = self.n
+            ql, qf = _kernel_input(leader.q, n), _kernel_input(follower.q, n)
+            dt = float(dt)
+            out, _ = self._kernel_call(0, ql, qf, dt, (), (dt, self._band))
+            dq_l, dis_l, res_l, dq_f, dis_f, res_f, tau_l, tau_f, cur_l, cur_f = out
+            self.leader = ArmEstimates(dq_l, dis_l, res_l)
+            self.follower = ArmEstimates(dq_f, dis_f, res_f)
+            return Commands(tau_l, tau_f, cur_l, cur_f)
         ql = np.asarray(leader.q, dtype=float)
         qf = np.asarray(follower.q, dtype=float)
         wl, dis_l, res_l = self._obs_l.update(ql, dt)
@@ -494,11 +516,10 @@ class BilateralController:
         if self._kernel is not None:
             n = self.n
             ql, qf = _kernel_input(leader.q, n), _kernel_input(follower.q, n)
-            refs = [_kernel_input(x, n) for x in (*ref_leader, *ref_follower)]
+            refs = tuple(_kernel_input(x, n) for x in (*ref_leader, *ref_follower))
             dt = float(dt)
-            gl, gf = self._kernel_observers(ql, qf, dt)
-            dq_l, dis_l, res_l, dq_f, dis_f, res_f, tau_l, tau_f, cur_l, cur_f = self._kernel[1](
-                ql, qf, gl, gf, self._gidx, self._state, self._consts, dt, *refs)
+            out, _ = self._kernel_call(1, ql, qf, dt, (), (dt, *refs))
+            dq_l, dis_l, res_l, dq_f, dis_f, res_f, tau_l, tau_f, cur_l, cur_f = out
             self.leader = ArmEstimates(dq_l, dis_l, res_l)
             self.follower = ArmEstimates(dq_f, dis_f, res_f)
             return Commands(tau_l, tau_f, cur_l, cur_f)

@@ -9,21 +9,22 @@ reassociation and no fused multiply-add: the same IEEE results bit for bit, whic
 tests/test_controller_kernel.py asserts against the numpy path on random inputs). `error_model="numpy"`:
 a division by zero gives inf or NaN as numpy's does, not an exception.
 
-The controller keeps its state in one (10, n) array (`S_*` rows: per arm z, y, applied, g J, J) and
-its constants in one (8, n) array (`C_*` rows); the gravity torque comes in as the values of the joints
-it covers (`grav`) and their indices (`gidx`), 0 on the others. Both functions return a new (10, n) array,
-the rows `O_*`: each arm's dq, tau_dis, tau_res (NaN on the held joints, `C_HELD`), then the goal
-torques and currents.
+The controller keeps its state in one (12, n) array (`S_*` rows: per arm z, y, applied, g J, J and the
+gravity torque) and its constants in one (9, n) array (`C_*` rows); the gravity torque comes in as the
+values of the joints it covers (`grav`) and their indices (`gidx`), 0 on the others. Each function fills
+the rows `O_*` of the array `out` it is given (each arm's dq, tau_dis, tau_res with NaN on the held
+joints, `C_HELD`; the goal torques and currents; `control`: the clamped goal torques) and returns a
+status: 0, or the bits of what the caller has to see to, NONFINITE before any state changed.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-# state rows: leader z, y, applied, g J, J; then the follower's
-S_Z, S_Y, S_AP, S_GJ, S_J = 0, 1, 2, 3, 4
-S_ARM = 5  # the follower's rows are S_* + S_ARM
-N_STATE = 10
+# state rows: leader z, y, applied, g J, J, gravity torque; then the follower's
+S_Z, S_Y, S_AP, S_GJ, S_J, S_GRAV = 0, 1, 2, 3, 4, 5
+S_ARM = 6  # the follower's rows are S_* + S_ARM
+N_STATE = 12
 # constant rows
 C_G, C_KP, C_KD, C_KF, C_D, C_BIL, C_KT, C_HELD, C_DECAY = 0, 1, 2, 3, 4, 5, 6, 7, 8
 N_CONST = 9
@@ -34,20 +35,26 @@ N_OUT, N_OUT_CONTROL = 10, 12
 # the safety monitor's rows (SafetyMonitor.kernel_constants)
 K_SOFT_LO, K_SOFT_HI, K_TAU_MAX, K_STOP_LO, K_STOP_HI, K_VMAX, K_BIL = 0, 1, 2, 3, 4, 5, 6
 N_SAFETY = 7
-# `control`'s status bits, per arm (leader << 0, follower << 1): in the soft zone (the clamps are left to
-# SafetyMonitor.limit_torque), past a stop or the velocity guard (SafetyMonitor.check says which)
-SOFT_ZONE, CHECK = 1, 4
+# status bits. `control`, per arm (leader << 0, follower << 1): in the soft zone (the clamps are left to
+# SafetyMonitor.limit_torque), past a stop or the velocity guard (SafetyMonitor.check says which).
+# NONFINITE: a joint the gravity model covers is NaN or infinite (the dynamics' ConfigError); nothing done.
+SOFT_ZONE, CHECK, NONFINITE = 1, 4, 16
 
 
-def _gravity(grav, gidx, n):
-    """The gravity torque (n,): grav[k] on joint gidx[k], 0 elsewhere (GravityModel's `out`)."""
-    out = np.zeros(n)
+def _prepare(ql, qf, grav_l, grav_f, gidx, s, finite):
+    """The gravity torques into the state (the joints in gidx); False when `finite` and one of those
+    joints' angles is not finite (then nothing is changed)."""
+    if finite:
+        for k in range(gidx.shape[0]):
+            if not (np.isfinite(ql[gidx[k]]) and np.isfinite(qf[gidx[k]])):
+                return False
     for k in range(gidx.shape[0]):
-        out[gidx[k]] = grav[k]
-    return out
+        s[S_GRAV, gidx[k]] = grav_l[k]
+        s[S_ARM + S_GRAV, gidx[k]] = grav_f[k]
+    return True
 
 
-def _observe(q, grav, s, r, c, dt, i):
+def _observe(q, s, r, c, dt, i):
     """One joint i of _Observer.update for the arm whose state rows start at r: (w, tau_dis, tau_res)."""
     w = c[C_G, i] * (q[i] - s[r + S_Z, i])
     s[r + S_Z, i] = s[r + S_Z, i] + w * dt
@@ -56,7 +63,7 @@ def _observe(q, grav, s, r, c, dt, i):
     y = a * s[r + S_Y, i] + (1.0 - a) * (s[r + S_AP, i] + gjw)
     s[r + S_Y, i] = y
     dis = y - gjw
-    res = dis - grav[i] - c[C_D, i] * w
+    res = dis - s[r + S_GRAV, i] - c[C_D, i] * w
     return w, dis, res
 
 
@@ -76,15 +83,14 @@ def _deadband(e, band):
     return s * m
 
 
-def _step(ql, qf, grav_l, grav_f, gidx, s, c, dt, band, rows):
-    n = ql.shape[0]
-    out = np.empty((rows, n))
-    gl = _gravity(grav_l, gidx, n)
-    gf = _gravity(grav_f, gidx, n)
+def step(ql, qf, grav_l, grav_f, gidx, s, c, dt, band, finite, out):
+    """BilateralController.step's arithmetic for both arms (band: position_deadband, 0 for none)."""
+    if not _prepare(ql, qf, grav_l, grav_f, gidx, s, finite):
+        return NONFINITE
     f = S_ARM
-    for i in range(n):
-        wl, dis_l, res_l = _observe(ql, gl, s, 0, c, dt, i)
-        wf, dis_f, res_f = _observe(qf, gf, s, f, c, dt, i)
+    for i in range(ql.shape[0]):
+        wl, dis_l, res_l = _observe(ql, s, 0, c, dt, i)
+        wf, dis_f, res_f = _observe(qf, s, f, c, dt, i)
         e = ql[i] - qf[i]
         if band > 0:
             e = _deadband(e, band)
@@ -108,12 +114,7 @@ def _step(ql, qf, grav_l, grav_f, gidx, s, c, dt, band, rows):
         out[O_TAU_F, i] = tau_fr
         out[O_CUR_L, i] = tau_l / kt
         out[O_CUR_F, i] = tau_fr / kt
-    return out
-
-
-def step(ql, qf, grav_l, grav_f, gidx, s, c, dt, band):
-    """BilateralController.step's arithmetic for both arms (band: position_deadband, 0 for none)."""
-    return _step(ql, qf, grav_l, grav_f, gidx, s, c, dt, band, N_OUT)
+    return 0
 
 
 def _outside(q, lo, hi):
@@ -124,14 +125,15 @@ def _outside(q, lo, hi):
     return False
 
 
-def control(ql, qf, dql, dqf, grav_l, grav_f, gidx, s, c, k, dt, band, has_dq):
+def control(ql, qf, dql, dqf, grav_l, grav_f, gidx, s, c, k, dt, band, has_dq, finite, out):
     """`step`, then SafetyMonitor.limit_torque's usual case (no joint in its soft zone: tau bil clamped to
     +-tau_max, numpy's NaN rules), applied() of the clamped torques, and SafetyMonitor.check's usual case
     (no joint past its stop, none faster than its guard; dq of arm a only when bit a of has_dq is set).
-    Returns (out, status): out with the clamped torques in O_LIM_L, O_LIM_F; status the SOFT_ZONE and
-    CHECK bits of the arms the safety monitor itself has to see to."""
-    out = _step(ql, qf, grav_l, grav_f, gidx, s, c, dt, band, N_OUT_CONTROL)
-    status = 0
+    The clamped torques go to O_LIM_L, O_LIM_F; the status has the SOFT_ZONE and CHECK bits of the arms
+    the safety monitor itself has to see to."""
+    status = step(ql, qf, grav_l, grav_f, gidx, s, c, dt, band, finite, out)
+    if status:
+        return status
     for arm in range(2):
         q, dq = (ql, dql) if arm == 0 else (qf, dqf)
         if _outside(q, k[K_SOFT_LO], k[K_SOFT_HI]):
@@ -155,22 +157,20 @@ def control(ql, qf, dql, dqf, grav_l, grav_f, gidx, s, c, k, dt, band, has_dq):
                     bad = True
         if bad:
             status |= CHECK << arm
-    return out, status
+    return status
 
 
-def hold(ql, qf, grav_l, grav_f, gidx, s, c, dt, ref_ql, ref_dql, ref_qf, ref_dqf):
+def hold(ql, qf, grav_l, grav_f, gidx, s, c, dt, ref_ql, ref_dql, ref_qf, ref_dqf, finite, out):
     """BilateralController.hold's arithmetic for both arms (their references q, dq)."""
-    n = ql.shape[0]
-    out = np.empty((N_OUT, n))
-    gl = _gravity(grav_l, gidx, n)
-    gf = _gravity(grav_f, gidx, n)
+    if not _prepare(ql, qf, grav_l, grav_f, gidx, s, finite):
+        return NONFINITE
     for arm in range(2):
         r = arm * S_ARM
-        q, grav = (ql, gl) if arm == 0 else (qf, gf)
+        q = ql if arm == 0 else qf
         q_ref, dq_ref = (ref_ql, ref_dql) if arm == 0 else (ref_qf, ref_dqf)
         o = arm * 3
-        for i in range(n):
-            w, dis, res = _observe(q, grav, s, r, c, dt, i)
+        for i in range(q.shape[0]):
+            w, dis, res = _observe(q, s, r, c, dt, i)
             tau = (0.5 * s[r + S_J, i] * (c[C_KP, i] * (q_ref[i] - q[i]) + c[C_KD, i] * (dq_ref[i] - w))
                    + dis) * c[C_BIL, i]
             s[r + S_AP, i] = tau
@@ -180,28 +180,36 @@ def hold(ql, qf, grav_l, grav_f, gidx, s, c, dt, ref_ql, ref_dql, ref_qf, ref_dq
             out[o + O_RES_L, i] = res + held
             out[O_TAU_L + arm, i] = tau
             out[O_CUR_L + arm, i] = tau / c[C_KT, i]
-    return out
+    return 0
 
 
 _F, _F2, _I = "float64[::1]", "float64[:, ::1]", "int64[::1]"
 # the argument types the controller calls them with (compiled up front, crane_io.sim.jit)
 SIGNATURES = {
-    "step": (f"({_F}, {_F}, {_F}, {_F}, {_I}, {_F2}, {_F2}, float64, float64)",),
-    "hold": (f"({_F}, {_F}, {_F}, {_F}, {_I}, {_F2}, {_F2}, float64, {_F}, {_F}, {_F}, {_F})",),
-    "control": (f"({_F}, {_F}, {_F}, {_F}, {_F}, {_F}, {_I}, {_F2}, {_F2}, {_F2}, float64, float64, int64)",),
+    "step": (f"int64({_F}, {_F}, {_F}, {_F}, {_I}, {_F2}, {_F2}, float64, float64, boolean, {_F2})",),
+    "hold": (f"int64({_F}, {_F}, {_F}, {_F}, {_I}, {_F2}, {_F2}, float64, {_F}, {_F}, {_F}, {_F}, boolean, "
+             f"{_F2})",),
+    "control": (f"int64({_F}, {_F}, {_F}, {_F}, {_F}, {_F}, {_I}, {_F2}, {_F2}, {_F2}, float64, float64, "
+                f"int64, boolean, {_F2})",),
 }
 
 
 def compiled():
     """(step, hold, control) compiled with numba, or None without numba: compiled, or loaded from numba's
-    cache, by the first call of a process (crane_io.sim.jit)."""
+    cache, by the first call of a process (crane_io.sim.jit), and then closed to any other argument types
+    (a call with others is a TypeError, never a compilation at run time)."""
     global _COMPILED
     if _COMPILED is None:
         from crane_io.sim.jit import compile_functions
 
-        fns = compile_functions(globals(), ("_gravity", "_observe", "_deadband", "_step", "step", "_outside",
-                                            "control", "hold"), SIGNATURES, error_model="numpy")
-        _COMPILED = False if fns is None else (fns["step"], fns["hold"], fns["control"])
+        names = ("_prepare", "_observe", "_deadband", "step", "_outside", "control", "hold")
+        fns = compile_functions(globals(), names, SIGNATURES, error_model="numpy")
+        if fns is None:
+            _COMPILED = False
+        else:
+            _COMPILED = (fns["step"], fns["hold"], fns["control"])
+            for f in _COMPILED:
+                f.disable_compile()
     return _COMPILED or None
 
 

@@ -128,6 +128,7 @@ class SimulatedOperator:
         self._on = np.zeros(k, dtype=bool)
         self._phase_end = np.zeros(k)  # end of the current on or off phase
         self._out = np.zeros(self.n)
+        self._moves = None  # the free task's moves as torque() reads them (_move_rows); None: to be made
         self.started = False
         self.task = self.o.task
         self._pressing = False
@@ -176,6 +177,7 @@ class SimulatedOperator:
         self._on[:] = False
         self._phase_end[:] = t0 + self.rng.uniform(0.1, 1.0, size=len(self.idx))
         self.started = True
+        self._moves = None
         if self.env is not None:
             self._episode = []
             self._pressing, self._phase = False, "free"
@@ -207,7 +209,10 @@ class SimulatedOperator:
 
     def _advance(self, t: float) -> None:
         t0s, Ts = self._seg_t0.tolist(), self._seg_T.tolist()
-        for j in [j for j in range(len(t0s)) if t >= t0s[j] + Ts[j]]:
+        ended = [j for j in range(len(t0s)) if t >= t0s[j] + Ts[j]]
+        if ended:
+            self._moves = None
+        for j in ended:
             # the joint is at rest at the end of its move: continue, pause or resume
             if t < self._phase_end[j]:
                 if self._on[j]:
@@ -343,21 +348,27 @@ class SimulatedOperator:
         d = self._seg_b - self._seg_a
         return self._seg_a + d * s, d * ds / self._seg_T
 
-    def _hand(self, t: float, T: list, q: list, dq: list) -> np.ndarray:
+    def _move_rows(self) -> tuple[float, bool, list]:
+        """The moves as lists, made again whenever the schedule changes: (the earliest end t0 + T of a move,
+        before which `_advance` has nothing to do; no T is 0; per joint (index, t0, T, a, b - a))."""
+        t0s, Ts, a_s, b_s = (x.tolist() for x in (self._seg_t0, self._seg_T, self._seg_a, self._seg_b))
+        end = min((t0 + T for t0, T in zip(t0s, Ts)), default=math.inf)
+        rows = [(i, t0, T, a, b - a) for i, t0, T, a, b in zip(self._idx_list, t0s, Ts, a_s, b_s)]
+        return end, 0.0 not in Ts, rows
+
+    def _hand(self, t: float, moves: list, q: list, dq: list) -> np.ndarray:
         """`torque` after the schedule advanced, per joint in Python floats: the arithmetic of
         `_profile`, `minimum_jerk` and the impedance, operation for operation (the same results, bit for
-        bit, without a dozen small-array numpy calls per cycle). T: the move durations (none is 0)."""
+        bit, without a dozen small-array numpy calls per cycle). moves: _move_rows' (none has T 0)."""
         o = self.o
         k_p, k_d, top = o.stiffness, o.damping, o.max_torque
         out = [0.0] * self.n
-        for j, (i, t0, a, b) in enumerate(zip(self._idx_list, self._seg_t0.tolist(), self._seg_a.tolist(),
-                                              self._seg_b.tolist())):
-            x = min(max((t - t0) / T[j], 0.0), 1.0)  # np.clip: NaN and signed zeros kept alike
+        for i, t0, T, a, d in moves:
+            x = min(max((t - t0) / T, 0.0), 1.0)  # np.clip: NaN and signed zeros kept alike
             t2 = x * x
             s = t2 * x * (10.0 - 15.0 * x + 6.0 * t2)
             ds = 30.0 * t2 * (1.0 - 2.0 * x + t2)
-            d = b - a
-            tau = k_p * (a + d * s - q[i]) + k_d * (d * ds / T[j] - dq[i])
+            tau = k_p * (a + d * s - q[i]) + k_d * (d * ds / T - dq[i])
             out[i] = min(max(tau, -top), top)
         return np.array(out)
 
@@ -371,11 +382,14 @@ class SimulatedOperator:
         if self.started:
             if self.env is not None:
                 self._advance_contact(t)
+                moves = self._move_rows()
             else:
-                self._advance(t)
-            T = self._seg_T.tolist()
-            if 0.0 not in T:
-                return self._hand(t, T, q.tolist(), dq.tolist())
+                moves = self._moves
+                if moves is None or not t < moves[0]:  # a move may have ended: the schedule goes on
+                    self._advance(t)
+                    moves = self._moves = self._move_rows()
+            if moves[1]:
+                return self._hand(t, moves[2], q.tolist(), dq.tolist())
             q_ref, dq_ref = self._profile(t)
         else:
             q_ref, dq_ref = self.reference(t)

@@ -68,6 +68,12 @@ class SafetyMonitor:
         self.bil = np.array([n in self.arm.bilateral_joints for n in names])
         self.bil_f = self.bil.astype(float)
         self._kernel_constants = None
+        # the bounds as lists for the usual case of limit_torque and check (the limits are fixed once the
+        # monitor is built)
+        self._soft = (self.soft_lower.tolist(), self.soft_upper.tolist())
+        self._stop = (self.stop_lower.tolist(), self.stop_upper.tolist())
+        self._vmax = self.vmax.tolist()
+        self._neg_tau_max = -self.tau_max
         self._consecutive = {"leader": 0, "follower": 0}
         self._recent_errors: deque[float] = deque()
         self.errors_total = 0
@@ -80,8 +86,8 @@ class SafetyMonitor:
         Inside the soft zone the outward part of the command is cut and a damped spring pushes back
         (stiffness per rad of penetration, damping on outward velocity only). spring=False only cuts
         the outward part (used while aligning, when a joint may start deep inside the zone)."""
-        if not self._outside(_floats(q), self.soft_lower.tolist(), self.soft_upper.tolist()):
-            return np.minimum(np.maximum(tau * self.bil_f, -self.tau_max), self.tau_max)
+        if not self._outside(_floats(q), *self._soft):
+            return np.minimum(np.maximum(tau * self.bil_f, self._neg_tau_max), self.tau_max)
         return self.limit_torque_arrays(q, tau, dq, spring)
 
     def limit_torque_arrays(self, q: np.ndarray, tau: np.ndarray, dq: np.ndarray | None = None,
@@ -129,8 +135,8 @@ class SafetyMonitor:
     # ---- checks -------------------------------------------------------------------------------------
     def check(self, arm_name: str, q: np.ndarray, dq: np.ndarray | None) -> Breach | None:
         """Joint positions beyond limit + overshoot, or velocities beyond the guard."""
-        if not self._outside(_floats(q), self.stop_lower.tolist(), self.stop_upper.tolist()) and (
-                dq is None or not any(abs(v) > m for v, m in zip(_floats(dq), self.vmax.tolist()))):
+        if not self._outside(_floats(q), *self._stop) and (
+                dq is None or not any(abs(v) > m for v, m in zip(_floats(dq), self._vmax))):
             return None  # the usual case, decided without numpy; the same tests as below
         bad = (q > self.stop_upper) | (q < self.stop_lower)
         if bad.any():

@@ -113,3 +113,25 @@ def test_safety_takes_lists_and_other_shapes_the_old_way():
     assert m.check("leader", np.array(q), None) is None
     b = m.check("follower", np.array(q) + np.where(np.arange(8) == 1, 3.0, 0.0), None)
     assert b is not None and b.kind == "joint_limit" and b.joint == m.names[1]
+
+
+# ---- the controller helper's additions (issue 13) ------------------------------------------------------
+@pytest.mark.parametrize("joints", [None, "all"])
+def test_operator_torque_skips_only_cycles_where_no_move_ends(joints):
+    """torque() advances the schedule only from the earliest end of a move on: the schedule, the draws and
+    the torques are those of an operator that advances it every cycle."""
+    cfg, arm = _setup(joints)
+    ops = [SimulatedOperator(5, arm, cfg.loop.rate_hz, cfg) for _ in range(2)]
+    q = np.array([0.0, 0.2, 0.0, -1.2, 0.0, 0.0, 0.0, 0.0])
+    rng = np.random.default_rng(3)
+    for op in ops:
+        op.start(q, 0.0)
+    for k in range(6000):  # 12 s: many moves, pauses and resumptions
+        t = k * 0.002
+        qk, dqk = q + rng.normal(0, 0.3, 8), rng.normal(0, 2.0, 8)
+        ops[1]._advance(t)  # every cycle, as before
+        got, want = ops[0].torque(t, qk, dqk), ops[1].torque(t, qk, dqk)
+        assert got.tobytes() == want.tobytes(), k
+        for name in ("_seg_t0", "_seg_T", "_seg_a", "_seg_b", "_on", "_phase_end"):
+            assert getattr(ops[0], name).tobytes() == getattr(ops[1], name).tobytes(), (k, name)
+    assert ops[0].rng.bit_generator.state == ops[1].rng.bit_generator.state
