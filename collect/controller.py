@@ -33,6 +33,12 @@ Kp, Kd, Kf and cutoff g (shared/crane_x7_facts.md section 6a; the Sakaino/Tsuji-
 Goal torques become goal currents through each joint's torque constant. Joints that are not
 bilateral get no current (they are held in position mode by the servos); their observer estimates are
 NaN. The pseudo-derivative velocity is computed for every joint.
+
+Two paths compute all this with the same bits: the numpy one below (the reference; learned models,
+the dither, runs on real arms) and a compiled kernel (collect/controller_kernel.py, issue 13: one call
+per cycle instead of some sixty small numpy operations) that a simulated run takes, numba being loaded
+there already (`BilateralController(compiled=...)`). `control()` is a bilateral cycle's step, safety
+clamps, applied and safety checks in one call.
 """
 
 from __future__ import annotations
@@ -396,7 +402,12 @@ class BilateralController:
         Returns (gravity leader, gravity follower)."""
         s, grav = self._state, self.gravity
         k = self._cycles
-        gl, gf = grav.values(ql, k == 0), grav.values(qf, k == 0)
+        if k and grav._pin is not None:  # GravityModel.values(q, checked=False), inline
+            f, model, data = grav._pin
+            idx = grav._dyn_idx
+            gl, gf = f(model, data, ql[idx]), f(model, data, qf[idx])
+        else:
+            gl, gf = grav.values(ql, k == 0), grav.values(qf, k == 0)
         if k % self.inertia.every == 0:
             for q, r in ((ql, 0), (qf, kernel.S_ARM)):
                 J = self.inertia(q)
