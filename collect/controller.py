@@ -465,8 +465,10 @@ class BilateralController:
         dql = ql if dql is None else _kernel_input(dql, n)
         dqf = qf if dqf is None else _kernel_input(dqf, n)
         dt = float(dt)
-        out, status = self._kernel_call(2, ql, qf, dt, (dql, dqf),
-                                        (safety.kernel_constants(), dt, self._band, has_dq))
+        limits = safety.kernel_constants()
+        if limits.shape != (kernel.N_SAFETY, n):  # the kernel does not check its indices
+            raise ConfigError(f"the safety monitor has {limits.shape[1]} joints, the controller {n}")
+        out, status = self._kernel_call(2, ql, qf, dt, (dql, dqf), (limits, dt, self._band, has_dq))
         dq_l, dis_l, res_l, dq_f, dis_f, res_f, tau_l, tau_f, cur_l, cur_f, lim_l, lim_f = out
         self.leader = ArmEstimates(dq_l, dis_l, res_l)
         self.follower = ArmEstimates(dq_f, dis_f, res_f)
