@@ -33,10 +33,17 @@ Kp, Kd, Kf and cutoff g (shared/crane_x7_facts.md section 6a; the Sakaino/Tsuji-
 Goal torques become goal currents through each joint's torque constant. Joints that are not
 bilateral get no current (they are held in position mode by the servos); their observer estimates are
 NaN. The pseudo-derivative velocity is computed for every joint.
+
+Two paths compute all this with the same bits: the numpy one below (the reference; learned models,
+the dither, runs on real arms) and a compiled kernel (collect/controller_kernel.py, issue 13: one call
+per cycle instead of some sixty small numpy operations) that a simulated run takes, numba being loaded
+there already (`BilateralController(compiled=...)`). `control()` is a bilateral cycle's step, safety
+clamps, applied and safety checks in one call.
 """
 
 from __future__ import annotations
 
+import sys
 import warnings
 from dataclasses import dataclass
 
@@ -45,7 +52,9 @@ import numpy as np
 from crane_io.description import ArmDescription, default_arm
 from crane_io.errors import ConfigError
 
+from . import controller_kernel as kernel
 from .config import Config
+from .safety import Breach, SafetyMonitor
 
 
 @dataclass
@@ -85,6 +94,7 @@ class GravityModel:
         self.n = len(arm.joints)
         self._dyn = None
         self._dyn_idx = None
+        self._pin = None  # (pinocchio's gravity, model, data): gravity_torque's call without its checks
         names = arm.joint_names
         self._i2 = names.index("joint2") if "joint2" in names else None
         self._i4 = names.index("joint4") if "joint4" in names else None
@@ -103,7 +113,24 @@ class GravityModel:
                 locked = {n: config.held.get(n, 0.0) for n in names if n not in joints}
                 self._dyn = ArmDynamics(joints=joints, locked=locked)
                 self._dyn_idx = np.array([names.index(n) for n in self._dyn.joint_names])
+                if self._dyn._identity:  # the joints in the model's order: gravity_torque's one-pose call
+                    import pinocchio
+
+                    self._pin = (pinocchio.computeGeneralizedGravity, self._dyn.model, self._dyn.data)
         self._out = np.zeros(self.n)
+        # the joints `values` gives, in its order
+        self.index = np.array(self._dyn_idx if self.kind == "dynamics" else range(self.n), dtype=np.int64)
+
+    def values(self, q: np.ndarray, checked: bool = True) -> np.ndarray:
+        """The torques of the joints `index` covers (the compiled controller's gravity input): those
+        `__call__` puts in its (n,) result, the other joints' being 0. checked=False: without the
+        dynamics' check that those angles are finite (NaN in, NaN out; the caller checks them)."""
+        if self.kind == "dynamics":
+            if not checked and self._pin is not None:
+                f, model, data = self._pin
+                return f(model, data, q[self._dyn_idx])  # a new array
+            return self._dyn.gravity_torque(q[self._dyn_idx])
+        return self(q)
 
     def __call__(self, q: np.ndarray) -> np.ndarray:
         out = self._out.copy()
@@ -152,7 +179,7 @@ class InertiaModel:
             return self.J
         J = self.J.copy()
         i = self._idx
-        m = np.diag(self._dyn.mass_matrix(q[i]))
+        m = self._dyn.mass_matrix_diagonal(q[i])
         J[i] = np.maximum(0.5 * self.J[i], self.J[i] + m - self._m0)
         return J
 
@@ -196,12 +223,61 @@ class _Observer:
         return w, tau_dis, tau_res
 
 
+class _KernelObserver:
+    """One arm's observer state on the compiled path: rows of the controller's state array
+    (collect/controller_kernel.py); z, y, applied and J read as _Observer's (copies)."""
+
+    model = None  # the compiled path has no learned model
+    fallback = None
+
+    def __init__(self, ctl: BilateralController, row: int):
+        self._ctl = ctl
+        self._s = ctl._state
+        self._r = row
+
+    def _row(self, r: int) -> np.ndarray | None:
+        return self._s[self._r + r].copy() if self._ctl._cycles else None
+
+    @property
+    def z(self):
+        return self._row(kernel.S_Z)
+
+    @property
+    def y(self):
+        return self._row(kernel.S_Y)
+
+    @property
+    def applied(self):
+        return self._row(kernel.S_AP)
+
+    @property
+    def J(self) -> np.ndarray:
+        return self._s[self._r + kernel.S_J].copy()
+
+
+def _kernel_input(x, n: int) -> np.ndarray:
+    """x as the compiled functions take it, (n,) float64 C-contiguous and writeable (x itself when it is
+    one already; otherwise numba would compile another specialisation at the call)."""
+    a = np.asarray(x, dtype=float)
+    if a.shape != (n,) or not a.flags.carray:
+        a = np.array(np.broadcast_to(a, (n,)), dtype=float)
+    return a
+
+
 class BilateralController:
     """`step(leader, follower, dt) -> Commands`; estimates of the last step in `.leader` and
     `.follower` (ArmEstimates). Call `applied(tau_leader, tau_follower)` after safety clamps so the
-    observers see the torque that really went out (otherwise the unclamped reference is assumed)."""
+    observers see the torque that really went out (otherwise the unclamped reference is assumed).
 
-    def __init__(self, config: Config, arm: ArmDescription | None = None, models: dict | None = None):
+    `compiled`: run step, hold and applied on the compiled kernel (collect/controller_kernel.py: the
+    same arithmetic, the same bits, in one call per cycle) instead of the numpy path. It covers the
+    nominal observers without friction dither; True asks for it (a ConfigError when numba is missing,
+    a learned model is given or the dither is on), False never uses it, None (default) uses it when it
+    covers the configuration and numba is already loaded in this process (a simulated run: the
+    simulator's kernels loaded it), so a run on real arms never imports numba for it."""
+
+    def __init__(self, config: Config, arm: ArmDescription | None = None, models: dict | None = None,
+                 compiled: bool | None = None):
         self.config = config
         # arm name ("leader", "follower") -> a factory of its ModelReaction (a fresh one per reset)
         self.models = dict(models or {})
@@ -234,7 +310,41 @@ class BilateralController:
         self.dither_filter = c.dither_filter and self.dither_amplitude > 0.0
         # per joint: dither_amplitude x the joint's `dither` factor, bilateral joints only
         self.dither_amplitudes = self.dither_amplitude * np.array([gains[n].dither for n in names]) * self.bil
+        self._kernel = self._load_kernel(compiled)
         self.reset()
+
+    @property
+    def compiled(self) -> bool:
+        """Whether step, hold and applied run on the compiled kernel."""
+        return self._kernel is not None
+
+    def _load_kernel(self, compiled: bool | None):
+        """(step, hold) of collect/controller_kernel.py, compiled now (or loaded from numba's cache), with
+        the constants array they read; None for the numpy path (see the class docstring)."""
+        if compiled is False:
+            return None
+        why = ("a learned model in an observer" if any(self.models.values())
+               else "the friction dither" if self.dither_amplitude > 0.0 else None)
+        if compiled is None and (why is not None or "numba" not in sys.modules):
+            return None
+        if why is not None:
+            raise ConfigError(f"the compiled controller does not run {why}; use compiled=False")
+        fns = kernel.compiled()
+        if fns is None:
+            if compiled:
+                raise ConfigError("the compiled controller needs numba (pip install numba)")
+            return None
+        c = np.zeros((kernel.N_CONST, self.n))
+        for row, values in ((kernel.C_G, self.g), (kernel.C_KP, self.kp), (kernel.C_KD, self.kd),
+                            (kernel.C_KF, self.kf), (kernel.C_D, self.D), (kernel.C_BIL, self.bil),
+                            (kernel.C_KT, self.kt), (kernel.C_HELD, self._nan_held)):
+            c[row] = values
+        self._consts = c
+        self._consts_decay = None  # the decay(dt) array in _consts' C_DECAY row
+        self._gidx = np.ascontiguousarray(self.gravity.index, dtype=np.int64)
+        self._finite = self.gravity.kind == "dynamics"  # the kernel checks those angles (as gravity_torque)
+        self._band = float(self.deadband)
+        return fns
 
     def decay(self, dt: float) -> np.ndarray:
         """exp(-g dt), the DOB low-pass factor of a step of dt; the last one is kept (the loop's dt is
@@ -247,8 +357,17 @@ class BilateralController:
 
     def reset(self) -> None:
         make = self.models
-        self._obs_l = _Observer(self, make["leader"]() if make.get("leader") else None)
-        self._obs_f = _Observer(self, make["follower"]() if make.get("follower") else None)
+        if self._kernel is not None:
+            self._state = np.zeros((kernel.N_STATE, self.n))
+            for r in (0, kernel.S_ARM):
+                self._state[r + kernel.S_J] = self.J
+                self._state[r + kernel.S_GJ] = self.g * self.J
+            self._cycles = 0  # observer updates so far (the inertia's schedule; 0: no state yet)
+            self._obs_l = _KernelObserver(self, 0)
+            self._obs_f = _KernelObserver(self, kernel.S_ARM)
+        else:
+            self._obs_l = _Observer(self, make["leader"]() if make.get("leader") else None)
+            self._obs_f = _Observer(self, make["follower"]() if make.get("follower") else None)
         self.leader: ArmEstimates | None = None
         self.follower: ArmEstimates | None = None
         self._dither_t = 0.0  # s of bilateral control so far (the dither's time)
@@ -276,7 +395,107 @@ class BilateralController:
         self.dither = self.dither_amplitudes * s
         return self.dither
 
+    def _kernel_observers(self, ql: np.ndarray, qf: np.ndarray, dt: float) -> tuple:
+        """What _Observer.update does before its arithmetic, for the compiled path: both arms' gravity
+        (the values the kernel takes; from the second cycle on unchecked, the kernel checks), the
+        pose-dependent inertia when due, the first cycle's state; the current decay(dt) in the constants.
+        Returns (gravity leader, gravity follower)."""
+        s, grav = self._state, self.gravity
+        k = self._cycles
+        if k and grav._pin is not None:  # GravityModel.values(q, checked=False), inline
+            f, model, data = grav._pin
+            idx = grav._dyn_idx
+            gl, gf = f(model, data, ql[idx]), f(model, data, qf[idx])
+        else:
+            gl, gf = grav.values(ql, k == 0), grav.values(qf, k == 0)
+        if k % self.inertia.every == 0:
+            for q, r in ((ql, 0), (qf, kernel.S_ARM)):
+                J = self.inertia(q)
+                s[r + kernel.S_J] = J
+                np.multiply(self.g, J, out=s[r + kernel.S_GJ])
+            if not k:
+                for q, g, r in ((ql, gl, 0), (qf, gf, kernel.S_ARM)):
+                    full = np.zeros(self.n)
+                    full[grav.index] = g
+                    s[r + kernel.S_Z] = q
+                    s[r + kernel.S_Y] = full * self.bil  # as _Observer.update: no sag when control engages
+                    s[r + kernel.S_AP] = s[r + kernel.S_Y]
+        self._cycles = k + 1
+        a = self.decay(dt)
+        if a is not self._consts_decay:
+            self._consts[kernel.C_DECAY] = a
+            self._consts_decay = a
+        return gl, gf
+
+    def _kernel_call(self, f: int, ql: np.ndarray, qf: np.ndarray, dt: float, before: tuple, after: tuple
+                     ) -> tuple[np.ndarray, int]:
+        """Kernel function f (0 step, 1 hold, 2 control) on the two arms' angles (_kernel_input arrays):
+        (its output rows, its status). before, after: its arguments before the gravity and after the
+        constants, up to `finite`."""
+        out = np.empty((kernel.N_OUT_CONTROL if f == 2 else kernel.N_OUT, self.n))
+        gl, gf = self._kernel_observers(ql, qf, dt)
+        status = self._kernel[f](ql, qf, *before, gl, gf, self._gidx, self._state, self._consts, *after,
+                                 self._finite, out)
+        if status & kernel.NONFINITE:  # nothing changed (the first cycle's angles were checked before)
+            self._cycles -= 1
+            raise ConfigError("the dynamics inputs contain NaN or infinite values")
+        return out, status
+
+    def control(self, leader: ArmSignals, follower: ArmSignals, dt: float, safety: SafetyMonitor
+                ) -> tuple[Commands, np.ndarray, np.ndarray, Breach | None]:
+        """A bilateral cycle's control: `step`, the safety clamps of both goal torques
+        (`safety.limit_torque(q, tau, dq_servo)`), `applied` of what they give, and the safety checks
+        (`safety.check` of the leader, then of the follower). Returns (commands, clamped leader torque,
+        clamped follower torque, the first breach or None): what those calls give in that order; on the
+        compiled path in one kernel call (the safety monitor's own code only for an arm with a joint in
+        its soft zone, past its stop or faster than its guard)."""
+        if self._kernel is None:
+            cmd = self.step(leader, follower, dt)
+            tau_l = safety.limit_torque(leader.q, cmd.leader_tau, leader.dq_servo)
+            tau_f = safety.limit_torque(follower.q, cmd.follower_tau, follower.dq_servo)
+            self.applied(tau_l, tau_f)
+            breach = safety.check("leader", leader.q, leader.dq_servo)
+            if breach is None:
+                breach = safety.check("follower", follower.q, follower.dq_servo)
+            return cmd, tau_l, tau_f, breach
+        n = self.n
+        ql, qf = _kernel_input(leader.q, n), _kernel_input(follower.q, n)
+        dql, dqf = leader.dq_servo, follower.dq_servo
+        has_dq = (dql is not None) | (dqf is not None) << 1
+        dql = ql if dql is None else _kernel_input(dql, n)
+        dqf = qf if dqf is None else _kernel_input(dqf, n)
+        dt = float(dt)
+        limits = safety.kernel_constants()
+        if limits.shape != (kernel.N_SAFETY, n):  # the kernel does not check its indices
+            raise ConfigError(f"the safety monitor has {limits.shape[1]} joints, the controller {n}")
+        out, status = self._kernel_call(2, ql, qf, dt, (dql, dqf), (limits, dt, self._band, has_dq))
+        dq_l, dis_l, res_l, dq_f, dis_f, res_f, tau_l, tau_f, cur_l, cur_f, lim_l, lim_f = out
+        self.leader = ArmEstimates(dq_l, dis_l, res_l)
+        self.follower = ArmEstimates(dq_f, dis_f, res_f)
+        breach = None
+        if status:  # a joint in its soft zone, past its stop or faster than its guard
+            if status & kernel.SOFT_ZONE:
+                lim_l = safety.limit_torque(leader.q, tau_l, leader.dq_servo)
+            if status & kernel.SOFT_ZONE << 1:
+                lim_f = safety.limit_torque(follower.q, tau_f, follower.dq_servo)
+            if status & (kernel.SOFT_ZONE | kernel.SOFT_ZONE << 1):
+                self.applied(lim_l, lim_f)
+            if status & kernel.CHECK:
+                breach = safety.check("leader", leader.q, leader.dq_servo)
+            if breach is None and status & kernel.CHECK << 1:
+                breach = safety.check("follower", follower.q, follower.dq_servo)
+        return Commands(tau_l, tau_f, cur_l, cur_f), lim_l, lim_f, breach
+
     def step(self, leader: ArmSignals, follower: ArmSignals, dt: float) -> Commands:
+        if self._kernel is not None:
+            n = self.n
+            ql, qf = _kernel_input(leader.q, n), _kernel_input(follower.q, n)
+            dt = float(dt)
+            out, _ = self._kernel_call(0, ql, qf, dt, (), (dt, self._band))
+            dq_l, dis_l, res_l, dq_f, dis_f, res_f, tau_l, tau_f, cur_l, cur_f = out
+            self.leader = ArmEstimates(dq_l, dis_l, res_l)
+            self.follower = ArmEstimates(dq_f, dis_f, res_f)
+            return Commands(tau_l, tau_f, cur_l, cur_f)
         ql = np.asarray(leader.q, dtype=float)
         qf = np.asarray(follower.q, dtype=float)
         wl, dis_l, res_l = self._obs_l.update(ql, dt)
@@ -307,6 +526,16 @@ class BilateralController:
         observers (DOB compensation): tau = (J/2) [Kp (q_ref - q) + Kd (dq_ref - w)] + tau_dis (the
         per-arm gains of the bilateral position term; full J Kp is too fast for the observers). Used to
         bring the arms into agreement before bilateral control; the observers carry over seamlessly."""
+        if self._kernel is not None:
+            n = self.n
+            ql, qf = _kernel_input(leader.q, n), _kernel_input(follower.q, n)
+            refs = tuple(_kernel_input(x, n) for x in (*ref_leader, *ref_follower))
+            dt = float(dt)
+            out, _ = self._kernel_call(1, ql, qf, dt, (), (dt, *refs))
+            dq_l, dis_l, res_l, dq_f, dis_f, res_f, tau_l, tau_f, cur_l, cur_f = out
+            self.leader = ArmEstimates(dq_l, dis_l, res_l)
+            self.follower = ArmEstimates(dq_f, dis_f, res_f)
+            return Commands(tau_l, tau_f, cur_l, cur_f)
         out = []
         pairs = ((self._obs_l, leader, ref_leader), (self._obs_f, follower, ref_follower))
         for obs, sig, (q_ref, dq_ref) in pairs:
@@ -334,5 +563,10 @@ class BilateralController:
 
     def applied(self, tau_leader: np.ndarray, tau_follower: np.ndarray) -> None:
         """Tell the observers the torques that were actually commanded this cycle."""
+        if self._kernel is not None:
+            s = self._state
+            np.multiply(np.asarray(tau_leader, dtype=float), self.bil, out=s[kernel.S_AP])
+            np.multiply(np.asarray(tau_follower, dtype=float), self.bil, out=s[kernel.S_ARM + kernel.S_AP])
+            return
         self._obs_l.applied = np.asarray(tau_leader, dtype=float) * self.bil
         self._obs_f.applied = np.asarray(tau_follower, dtype=float) * self.bil

@@ -40,6 +40,7 @@ Tasks ([operator] task):
 from __future__ import annotations
 
 import math
+import sys
 
 import numpy as np
 
@@ -60,6 +61,48 @@ def minimum_jerk(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     s = t2 * tau * (10.0 - 15.0 * tau + 6.0 * t2)
     ds = 30.0 * t2 * (1.0 - 2.0 * tau + t2)
     return s, ds
+
+
+def _hand_kernel(t, moves, q, dq, k_p, k_d, top, out):
+    """SimulatedOperator._hand compiled (`_hand_compiled`): moves (k, 5) rows (index, t0, T, a, b - a);
+    out[index] = the hand's torque, the same operations as _hand's Python floats (Python's min and max:
+    the first argument unless the second is beyond it)."""
+    for j in range(moves.shape[0]):
+        i = int(moves[j, 0])
+        t0, T, a, d = moves[j, 1], moves[j, 2], moves[j, 3], moves[j, 4]
+        x = (t - t0) / T
+        if 0.0 > x:
+            x = 0.0
+        if 1.0 < x:
+            x = 1.0
+        t2 = x * x
+        s = t2 * x * (10.0 - 15.0 * x + 6.0 * t2)
+        ds = 30.0 * t2 * (1.0 - 2.0 * x + t2)
+        tau = k_p * (a + d * s - q[i]) + k_d * (d * ds / T - dq[i])
+        if -top > tau:
+            tau = -top
+        if top < tau:
+            tau = top
+        out[i] = tau
+
+
+_HAND_SIGNATURES = {"_hand_kernel": ("void(float64, float64[:, ::1], float64[::1], float64[::1], float64, "
+                                     "float64, float64, float64[::1])",)}
+_HAND_COMPILED = None
+
+
+def _hand_compiled():
+    """_hand_kernel compiled (or loaded from numba's cache) by crane_io.sim.jit, closed to other argument
+    types; None without numba."""
+    global _HAND_COMPILED
+    if _HAND_COMPILED is None:
+        from crane_io.sim.jit import compile_functions
+
+        fns = compile_functions(globals(), ("_hand_kernel",), _HAND_SIGNATURES)
+        _HAND_COMPILED = False if fns is None else fns["_hand_kernel"]
+        if fns is not None:
+            _HAND_COMPILED.disable_compile()
+    return _HAND_COMPILED or None
 
 
 class _Objects:
@@ -100,11 +143,18 @@ class _Objects:
             self.objects.append(obj)
 
 
+def _f64(x, n: int) -> bool:
+    """x is an (n,) float64 array as _hand_kernel takes it (C-contiguous, writeable)."""
+    return type(x) is np.ndarray and x.dtype == np.float64 and x.shape == (n,) and x.flags.carray
+
+
 class SimulatedOperator:
-    """`SimulatedOperator(seed, arm, rate)`; `start(q0, t0)` then `torque(t, q, dq) -> (n,)` each cycle."""
+    """`SimulatedOperator(seed, arm, rate)`; `start(q0, t0)` then `torque(t, q, dq) -> (n,)` each cycle.
+    The hand's arithmetic runs compiled (`_hand_kernel`, the same bits) when numba is already loaded in
+    this process (the simulator's kernels load it), `compiled=True` asks for it, False never uses it."""
 
     def __init__(self, seed: int = 0, arm: ArmDescription | None = None, rate: float = 500.0,
-                 config: Config | None = None, environment=None):
+                 config: Config | None = None, environment=None, compiled: bool | None = None):
         self.arm = arm or default_arm()
         self.config = config or load_config()
         self.o = self.config.operator
@@ -128,6 +178,11 @@ class SimulatedOperator:
         self._on = np.zeros(k, dtype=bool)
         self._phase_end = np.zeros(k)  # end of the current on or off phase
         self._out = np.zeros(self.n)
+        self._moves = None  # the free task's moves as torque() reads them (_move_rows); None: to be made
+        use = compiled if compiled is not None else "numba" in sys.modules
+        self._kernel = _hand_compiled() if use else None
+        if compiled and self._kernel is None:
+            raise ConfigError("the compiled operator needs numba (pip install numba)")
         self.started = False
         self.task = self.o.task
         self._pressing = False
@@ -176,6 +231,7 @@ class SimulatedOperator:
         self._on[:] = False
         self._phase_end[:] = t0 + self.rng.uniform(0.1, 1.0, size=len(self.idx))
         self.started = True
+        self._moves = None
         if self.env is not None:
             self._episode = []
             self._pressing, self._phase = False, "free"
@@ -207,7 +263,10 @@ class SimulatedOperator:
 
     def _advance(self, t: float) -> None:
         t0s, Ts = self._seg_t0.tolist(), self._seg_T.tolist()
-        for j in [j for j in range(len(t0s)) if t >= t0s[j] + Ts[j]]:
+        ended = [j for j in range(len(t0s)) if t >= t0s[j] + Ts[j]]
+        if ended:
+            self._moves = None
+        for j in ended:
             # the joint is at rest at the end of its move: continue, pause or resume
             if t < self._phase_end[j]:
                 if self._on[j]:
@@ -343,21 +402,27 @@ class SimulatedOperator:
         d = self._seg_b - self._seg_a
         return self._seg_a + d * s, d * ds / self._seg_T
 
-    def _hand(self, t: float, T: list, q: list, dq: list) -> np.ndarray:
+    def _move_rows(self) -> tuple[float, bool, list]:
+        """The moves as lists, made again whenever the schedule changes: (the earliest end t0 + T of a move,
+        before which `_advance` has nothing to do; no T is 0; per joint (index, t0, T, a, b - a))."""
+        t0s, Ts, a_s, b_s = (x.tolist() for x in (self._seg_t0, self._seg_T, self._seg_a, self._seg_b))
+        end = min((t0 + T for t0, T in zip(t0s, Ts)), default=math.inf)
+        rows = [(i, t0, T, a, b - a) for i, t0, T, a, b in zip(self._idx_list, t0s, Ts, a_s, b_s)]
+        return end, 0.0 not in Ts, rows, np.array(rows, dtype=float).reshape(len(rows), 5)
+
+    def _hand(self, t: float, moves: list, q: list, dq: list) -> np.ndarray:
         """`torque` after the schedule advanced, per joint in Python floats: the arithmetic of
         `_profile`, `minimum_jerk` and the impedance, operation for operation (the same results, bit for
-        bit, without a dozen small-array numpy calls per cycle). T: the move durations (none is 0)."""
+        bit, without a dozen small-array numpy calls per cycle). moves: _move_rows' (none has T 0)."""
         o = self.o
         k_p, k_d, top = o.stiffness, o.damping, o.max_torque
         out = [0.0] * self.n
-        for j, (i, t0, a, b) in enumerate(zip(self._idx_list, self._seg_t0.tolist(), self._seg_a.tolist(),
-                                              self._seg_b.tolist())):
-            x = min(max((t - t0) / T[j], 0.0), 1.0)  # np.clip: NaN and signed zeros kept alike
+        for i, t0, T, a, d in moves:
+            x = min(max((t - t0) / T, 0.0), 1.0)  # np.clip: NaN and signed zeros kept alike
             t2 = x * x
             s = t2 * x * (10.0 - 15.0 * x + 6.0 * t2)
             ds = 30.0 * t2 * (1.0 - 2.0 * x + t2)
-            d = b - a
-            tau = k_p * (a + d * s - q[i]) + k_d * (d * ds / T[j] - dq[i])
+            tau = k_p * (a + d * s - q[i]) + k_d * (d * ds / T - dq[i])
             out[i] = min(max(tau, -top), top)
         return np.array(out)
 
@@ -371,11 +436,20 @@ class SimulatedOperator:
         if self.started:
             if self.env is not None:
                 self._advance_contact(t)
+                moves = self._move_rows()
             else:
-                self._advance(t)
-            T = self._seg_T.tolist()
-            if 0.0 not in T:
-                return self._hand(t, T, q.tolist(), dq.tolist())
+                moves = self._moves
+                if moves is None or not t < moves[0]:  # a move may have ended: the schedule goes on
+                    self._advance(t)
+                    moves = self._moves = self._move_rows()
+            if moves[1]:
+                f = self._kernel
+                if f is not None and _f64(q, self.n) and _f64(dq, self.n):
+                    o, out = self.o, np.zeros(self.n)
+                    f(float(t), moves[3], q, dq, float(o.stiffness), float(o.damping), float(o.max_torque),
+                      out)
+                    return out
+                return self._hand(t, moves[2], q.tolist(), dq.tolist())
             q_ref, dq_ref = self._profile(t)
         else:
             q_ref, dq_ref = self.reference(t)

@@ -67,6 +67,13 @@ class SafetyMonitor:
         self.d_wall = s.limit_damping
         self.bil = np.array([n in self.arm.bilateral_joints for n in names])
         self.bil_f = self.bil.astype(float)
+        self._kernel_constants = None
+        # the bounds as lists for the usual case of limit_torque and check (the limits are fixed once the
+        # monitor is built)
+        self._soft = (self.soft_lower.tolist(), self.soft_upper.tolist())
+        self._stop = (self.stop_lower.tolist(), self.stop_upper.tolist())
+        self._vmax = self.vmax.tolist()
+        self._neg_tau_max = -self.tau_max
         self._consecutive = {"leader": 0, "follower": 0}
         self._recent_errors: deque[float] = deque()
         self.errors_total = 0
@@ -79,8 +86,8 @@ class SafetyMonitor:
         Inside the soft zone the outward part of the command is cut and a damped spring pushes back
         (stiffness per rad of penetration, damping on outward velocity only). spring=False only cuts
         the outward part (used while aligning, when a joint may start deep inside the zone)."""
-        if not self._outside(_floats(q), self.soft_lower.tolist(), self.soft_upper.tolist()):
-            return np.minimum(np.maximum(tau * self.bil_f, -self.tau_max), self.tau_max)
+        if not self._outside(_floats(q), *self._soft):
+            return np.minimum(np.maximum(tau * self.bil_f, self._neg_tau_max), self.tau_max)
         return self.limit_torque_arrays(q, tau, dq, spring)
 
     def limit_torque_arrays(self, q: np.ndarray, tau: np.ndarray, dq: np.ndarray | None = None,
@@ -107,6 +114,16 @@ class SafetyMonitor:
                 tau = np.where(lo, np.maximum(tau, 0.0) + wall, tau)
         return np.clip(tau, -self.tau_max, self.tau_max) * self.bil
 
+    def kernel_constants(self) -> np.ndarray:
+        """The limits as the compiled controller reads them (collect/controller_kernel.py, K_* rows): soft
+        zone bounds, tau_max, stop bounds, velocity guards, bilateral mask; made at the first call (the
+        limits are fixed once the monitor is built)."""
+        if self._kernel_constants is None:
+            self._kernel_constants = np.ascontiguousarray(np.array(
+                [self.soft_lower, self.soft_upper, self.tau_max, self.stop_lower, self.stop_upper, self.vmax,
+                 self.bil_f], dtype=float))
+        return self._kernel_constants
+
     @staticmethod
     def _outside(q: list, lower: list, upper: list) -> bool:
         """Any q[i] above upper[i] or below lower[i] (floats; `q - upper > 0` is `q > upper`)."""
@@ -118,8 +135,8 @@ class SafetyMonitor:
     # ---- checks -------------------------------------------------------------------------------------
     def check(self, arm_name: str, q: np.ndarray, dq: np.ndarray | None) -> Breach | None:
         """Joint positions beyond limit + overshoot, or velocities beyond the guard."""
-        if not self._outside(_floats(q), self.stop_lower.tolist(), self.stop_upper.tolist()) and (
-                dq is None or not any(abs(v) > m for v, m in zip(_floats(dq), self.vmax.tolist()))):
+        if not self._outside(_floats(q), *self._stop) and (
+                dq is None or not any(abs(v) > m for v, m in zip(_floats(dq), self._vmax))):
             return None  # the usual case, decided without numpy; the same tests as below
         bad = (q > self.stop_upper) | (q < self.stop_lower)
         if bad.any():

@@ -113,3 +113,49 @@ def test_safety_takes_lists_and_other_shapes_the_old_way():
     assert m.check("leader", np.array(q), None) is None
     b = m.check("follower", np.array(q) + np.where(np.arange(8) == 1, 3.0, 0.0), None)
     assert b is not None and b.kind == "joint_limit" and b.joint == m.names[1]
+
+
+# ---- the controller helper's additions (issue 13) ------------------------------------------------------
+@pytest.mark.parametrize("joints", [None, "all"])
+def test_operator_torque_skips_only_cycles_where_no_move_ends(joints):
+    """torque() advances the schedule only from the earliest end of a move on: the schedule, the draws and
+    the torques are those of an operator that advances it every cycle."""
+    cfg, arm = _setup(joints)
+    ops = [SimulatedOperator(5, arm, cfg.loop.rate_hz, cfg) for _ in range(2)]
+    q = np.array([0.0, 0.2, 0.0, -1.2, 0.0, 0.0, 0.0, 0.0])
+    rng = np.random.default_rng(3)
+    for op in ops:
+        op.start(q, 0.0)
+    for k in range(6000):  # 12 s: many moves, pauses and resumptions
+        t = k * 0.002
+        qk, dqk = q + rng.normal(0, 0.3, 8), rng.normal(0, 2.0, 8)
+        ops[1]._advance(t)  # every cycle, as before
+        got, want = ops[0].torque(t, qk, dqk), ops[1].torque(t, qk, dqk)
+        assert got.tobytes() == want.tobytes(), k
+        for name in ("_seg_t0", "_seg_T", "_seg_a", "_seg_b", "_on", "_phase_end"):
+            assert getattr(ops[0], name).tobytes() == getattr(ops[1], name).tobytes(), (k, name)
+    assert ops[0].rng.bit_generator.state == ops[1].rng.bit_generator.state
+
+
+@pytest.mark.parametrize("joints", [None, "all"])
+def test_the_compiled_hand_gives_the_python_floats_bits(joints):
+    pytest.importorskip("numba")
+    cfg, arm = _setup(joints)
+    ops = [SimulatedOperator(2, arm, cfg.loop.rate_hz, cfg, compiled=c) for c in (True, False)]
+    assert ops[0]._kernel is not None and ops[1]._kernel is None
+    q = np.array([0.0, 0.2, 0.0, -1.2, 0.0, 0.0, 0.0, 0.0])
+    rng = np.random.default_rng(4)
+    for op in ops:
+        op.start(q, 0.0)
+    for k in range(5000):
+        t = k * 0.002
+        qk, dqk = q + rng.normal(0, 0.5, 8), rng.normal(0, 3.0, 8)
+        if k % 17 == 0:
+            qk[k % 8] = np.nan
+        if k % 13 == 0:
+            dqk[:] = -0.0
+        got, want = ops[0].torque(t, qk, dqk), ops[1].torque(t, qk, dqk)
+        assert got.dtype == want.dtype and got.tobytes() == want.tobytes(), k
+    # an array of another type goes the Python way
+    assert ops[0].torque(10.0, q.astype(np.float32), np.zeros(8)).tobytes() == ops[1].torque(
+        10.0, q.astype(np.float32), np.zeros(8)).tobytes()

@@ -21,6 +21,8 @@ Y phi = Y_b phi_b exactly for every sample. Computed once per ArmDynamics and ca
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pinocchio as pin
 import scipy.linalg
@@ -130,7 +132,7 @@ class ArmDynamics:
         if self._identity and type(q) is np.ndarray and q.shape == (self.n_joints,) and q.dtype == float:
             # one pose, already in the model's order (the control loop's call, every cycle): the same
             # pinocchio call without the batch bookkeeping
-            if not np.isfinite(q).all():
+            if not all(map(math.isfinite, q.tolist())):  # np.isfinite(q).all(), in a third of the time
                 raise ConfigError("the dynamics inputs contain NaN or infinite values")
             return np.array(pin.computeGeneralizedGravity(self.model, self.data, q))
         (q,), single = self._batches((q, "q"))
@@ -163,6 +165,16 @@ class ArmDynamics:
         if not self._identity:
             out = out[:, self._perm][:, :, self._perm]
         return out[0] if single else out
+
+    def mass_matrix_diagonal(self, q) -> np.ndarray:
+        """The diagonal of mass_matrix(q), (N, J) or (J,): the joints' own link inertias M_ii(q)."""
+        if self._identity and type(q) is np.ndarray and q.shape == (self.n_joints,) and q.dtype == float:
+            # one pose in the model's order (the controller's pose-dependent inertia): the same values
+            # (mass_matrix's diagonal is crba's plus the 0 of the mirrored strict upper triangle)
+            if not all(map(math.isfinite, q.tolist())):
+                raise ConfigError("the dynamics inputs contain NaN or infinite values")
+            return pin.crba(self.model, self.data, q).diagonal() + 0.0
+        return np.diagonal(self.mass_matrix(q), axis1=-2, axis2=-1).copy()
 
     # ---- regressors ------------------------------------------------------------------------------------
     def _regressor_model_order(self, q, dq, ddq) -> np.ndarray:
