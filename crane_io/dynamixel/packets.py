@@ -51,19 +51,34 @@ class CranePacketHandler(Protocol2PacketHandler):
     # ---- instruction packets -------------------------------------------------------------------------
     def syncReadTx(self, port, start_address, data_length, param, param_length, fast_option):  # noqa: N802
         inst = INST_FAST_SYNC_READ if fast_option else INST_SYNC_READ
-        key = (inst, start_address, data_length, tuple(param[:param_length]))
-        packet = self._sync_reads.get(key)
-        if packet is None:
-            packet = self._sync_packet(inst, start_address, data_length, param, param_length)
-            if packet is None:  # needs byte stuffing: the SDK's own path
-                return super().syncReadTx(port, start_address, data_length, param, param_length, fast_option)
-            if len(self._sync_reads) >= _KEPT_READS:
-                self._sync_reads.clear()
-            self._sync_reads[key] = packet
+        packet = self.sync_read_packet(inst, start_address, data_length, param[:param_length])
+        if packet is None:  # needs byte stuffing: the SDK's own path
+            return super().syncReadTx(port, start_address, data_length, param, param_length, fast_option)
         result = self._send(port, packet)
         if result == COMM_SUCCESS:
             port.setPacketTimeout((11 + data_length) * param_length)
         return result
+
+    def sync_read_packet(self, inst: int, start_address: int, data_length: int, param) -> bytes | None:
+        """The finished (Fast) Sync Read packet `syncReadTx` sends for `param` (the servo IDs), byte for
+        byte; None when it needs byte stuffing (or there is no servo to ask)."""
+        if not param:
+            return None
+        key = (inst, start_address, data_length, tuple(param))
+        packet = self._sync_reads.get(key)
+        if packet is None:
+            packet = self._sync_packet(inst, start_address, data_length, param, len(param))
+            if packet is None:
+                return None
+            if len(self._sync_reads) >= _KEPT_READS:
+                self._sync_reads.clear()
+            self._sync_reads[key] = packet
+        return packet
+
+    def send_packet(self, port, packet: bytes) -> int:
+        """Send a finished instruction packet that expects a reply (the port stays taken for it), as
+        `syncReadTx` sends its packet; the caller sets the packet timeout."""
+        return self._send(port, packet)
 
     def syncWriteTxOnly(self, port, start_address, data_length, param, param_length):  # noqa: N802
         packet = self._sync_packet(INST_SYNC_WRITE, start_address, data_length, param, param_length)
