@@ -43,6 +43,7 @@ class CycleTimer:
         self._deadline = 0.0
         self._cycle_start = 0.0
         self.last: dict[str, float] = dict.fromkeys(SECTIONS, 0.0)
+        self._zeros = dict.fromkeys(SECTIONS, 0.0)  # `last` at the start of a cycle
         self.last_period = 0.0
         self.last_overrun = False
         self._totals: dict[str, float] = dict.fromkeys(SECTIONS, 0.0)
@@ -64,7 +65,10 @@ class CycleTimer:
             return self.start()
         now = self._clock()
         overrun = now > self._deadline
-        if not self.lockstep:
+        if self.lockstep:  # nothing to wait for: the next cycle starts now
+            start = now
+            overrun = False
+        else:
             if overrun:
                 missed = math.floor((now - self._deadline) / self.period)
                 if missed >= 1:  # more than a whole period late: re-anchor the grid at now
@@ -76,13 +80,12 @@ class CycleTimer:
                     self._sleep(remaining - self.spin_s)
                 while self._clock() < self._deadline:
                     pass
-        start = self._clock()
+            start = self._clock()
         period = start - self._cycle_start
-        self._record(period, overrun and not self.lockstep)
+        self._record(period, overrun)
         self._cycle_start = start
         self._deadline += self.period
-        for k in self.last:
-            self.last[k] = 0.0
+        self.last.update(self._zeros)
         return start - self.t0
 
     def _record(self, period: float, overrun: bool) -> None:
@@ -107,10 +110,13 @@ class CycleTimer:
             self.add(name, self._clock() - t)
 
     def add(self, name: str, seconds: float) -> None:
-        self.last[name] = self.last.get(name, 0.0) + seconds
-        self._totals[name] = self._totals.get(name, 0.0) + seconds
+        last, totals = self.last, self._totals
+        last[name] = last.get(name, 0.0) + seconds
+        totals[name] = totals.get(name, 0.0) + seconds
         if seconds > self._max_sections.get(name, 0.0):
             self._max_sections[name] = seconds
+        if name not in self._zeros:  # a section of the caller's own: zeroed with the others
+            self._zeros[name] = 0.0
 
     def now(self) -> float:
         """Seconds since start()."""
