@@ -25,11 +25,9 @@ closed. A recorder holds an advisory lock while it writes (collect/session_lock.
 from __future__ import annotations
 
 import operator
-import threading
 import time
 import zlib
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import h5py
@@ -126,10 +124,9 @@ class SessionRecorder:
             self._add(key, group, name, dtype, row_shape)
         self._buf, self._blocks = _block_buffers(members, self._cap)
         self._row_shapes = {key: tuple(row_shape) for key, _g, _n, _d, row_shape in members}
-        # whole chunks filtered here (in two threads) when that gives HDF5's own bytes (see chunk_bytes)
+        # whole chunks filtered here when that gives HDF5's own bytes (see chunk_bytes)
         self._direct = _filters_match_hdf5(tuple((np.dtype(d).str, tuple(r)) for _k, _g, _n, d, r in members),
                                            self.chunk_rows)
-        self._pool = ThreadPoolExecutor(1, "crane-recorder") if self._direct else None
         self._events = f.create_dataset(sf.EVENTS, shape=(0,), maxshape=(None,), dtype=EVENT_DTYPE,
                                         chunks=(sf.EVENT_CHUNK_ROWS,), fletcher32=True)
         for group, keys in (DEFAULT_END_ATTRS if end_attrs is None else end_attrs).items():
@@ -239,13 +236,13 @@ class SessionRecorder:
     def _write_whole_chunks(self, n0: int) -> None:
         """`flush` of one whole chunk of every dataset starting at row n0 (a chunk never written before):
         each chunk is filtered here as HDF5 would filter it (`chunk_bytes`: the same bytes, checked when
-        the recorder was made) in two threads, zlib running without the GIL, then written as it is.
-        The rows are in the file when this returns, as with HDF5's own writes."""
+        the recorder was made) and written as it is, past HDF5's chunk cache and filter calls (about
+        half the time). The rows are in the file when this returns, as with HDF5's own writes."""
         k = self.chunk_rows
         n1 = n0 + k
-        chunks = _filter_in_two_threads([self._buf[key][:k] for key in self._ds], self._pool)
-        for (key, ds), chunk in zip(self._ds.items(), chunks):
+        for key, ds in self._ds.items():
             row_shape = self._row_shapes[key]
+            chunk = chunk_bytes(self._buf[key][:k])
             ds.id.set_extent((n1,) + row_shape)
             ds.id.write_direct_chunk((n0,) + (0,) * len(row_shape), chunk)
         for block, _members in self._blocks:
@@ -293,8 +290,6 @@ class SessionRecorder:
                 self._f.flush()
         finally:
             closed = True
-            if self._pool is not None:
-                self._pool.shutdown(wait=True)
             try:
                 self._f.close()
             except Exception:  # noqa: BLE001
@@ -358,9 +353,15 @@ def chunk_bytes(data: np.ndarray) -> bytes:
     """One chunk as the datasets' filter pipeline stores it (`FILTERS`: shuffle, deflate, fletcher32, in
     HDF5's order): the bytes regrouped by significance (byte 0 of every value, then byte 1, ...), zlib at
     FILTERS' level, then the Fletcher-32 checksum of that (HDF5's variant) as 4 bytes, little-endian."""
+    return _checksummed(zlib.compress(_shuffled(data), FILTERS["compression_opts"]))
+
+
+def _shuffled(data: np.ndarray) -> bytes:
     a = np.ascontiguousarray(data)
-    raw = a.view(np.uint8).reshape(-1, a.itemsize).T.tobytes() if a.itemsize > 1 else a.tobytes()
-    packed = zlib.compress(raw, FILTERS["compression_opts"])
+    return a.view(np.uint8).reshape(-1, a.itemsize).T.tobytes() if a.itemsize > 1 else a.tobytes()
+
+
+def _checksummed(packed: bytes) -> bytes:
     return packed + _fletcher32(packed).to_bytes(4, "little")
 
 
@@ -411,26 +412,6 @@ def _filters_match_hdf5(members: tuple, rows: int) -> bool:
         ok = False
     _FILTER_CHECKS[key] = ok
     return ok
-
-
-def _filter_in_two_threads(arrays: list[np.ndarray], pool: ThreadPoolExecutor) -> list[bytes]:
-    """[chunk_bytes(a) for a in arrays], computed by this thread and `pool`'s one worker together."""
-    out: list = [None] * len(arrays)
-    todo = iter(sorted(range(len(arrays)), key=lambda i: -arrays[i].nbytes))  # the big ones first
-    lock = threading.Lock()
-
-    def work() -> None:
-        while True:
-            with lock:
-                i = next(todo, None)
-            if i is None:
-                return
-            out[i] = chunk_bytes(arrays[i])
-
-    helper = pool.submit(work)
-    work()
-    helper.result()
-    return out
 
 
 def _chunk_size(ds: h5py.Dataset, row: int) -> int:
