@@ -164,6 +164,7 @@ class _StatusSyncRead(GroupSyncRead):
         self._fast_ids: tuple = ()
         self._fast_id_bytes: bytes | None = None
         self._no_errors = b""  # the error bytes of a reply without errors
+        self._zero_errors: dict[int, int] = {}  # ... and its `errors`
         self._request: bytes | None = None  # fast_read's kept Fast Sync Read packet, for `param`
         self._request_param: list | None = None
 
@@ -200,6 +201,7 @@ class _StatusSyncRead(GroupSyncRead):
             self._fast_ids = tuple(self.data_dict)
             self._fast_id_bytes = bytes(self._fast_ids) if all(i < 256 for i in self._fast_ids) else None
             self._no_errors = bytes(count)
+            self._zero_errors = dict.fromkeys(self._fast_ids, 0)
 
     def fast_read(self) -> tuple[int, bytes | None]:
         """fastSyncRead for the control cycle, the same bytes on the wire: (result, reply). `reply` is the
@@ -232,7 +234,7 @@ class _StatusSyncRead(GroupSyncRead):
                 and data[9::chunk] == self._fast_id_bytes):
             port.is_using = False
             self.packet = data
-            self.errors = dict.fromkeys(self._fast_ids, 0)
+            self.errors = self._zero_errors  # shared: `errors` is always replaced, never changed in place
             self.last_result = True
             return COMM_SUCCESS, data
         return self._take_fast_reply(data), None
@@ -385,6 +387,7 @@ class DynamixelBus:
         self._why = "no reply"  # read_state: why the latest try failed
         self._poll_reader: _StatusSyncRead | None = None
         self._last_tx: float | None = None  # self._now() of the latest transfer
+        self._checked_now: float | None = None  # self._now() of a stall check, for the transfer after it
         # the clock the stall check measures pauses with: the servos' own notion of time. Real servos
         # (and wall-clock simulated ones) live in real time; a lockstep simulated chain only advances
         # with the goal writes, so there a host pause cannot stop a servo and costs no extra read.
@@ -830,12 +833,15 @@ class DynamixelBus:
         pause is measured on the servos' clock (`_now`): simulated time for a lockstep simulated chain."""
         wd, last = self.watchdog_s, self._last_tx
         if wd and self.torque_enabled and last is not None:
-            gap = self._now() - last
+            now = self._now()
+            gap = now - last
             if gap > _STALL_FRACTION * wd:
                 faults = self.read_hardware_errors()
                 expired = {j: [WATCHDOG_EXPIRED] for j, f in faults.items() if WATCHDOG_EXPIRED in f}
                 if expired:
                     raise self._fault_error(expired, gap)
+            else:  # the transfer that follows is stamped with this time (nothing happened in between)
+                self._checked_now = now
 
     def _fault_error(self, faults: dict[str, list[str]], gap: float | None = None) -> ServoFaultError:
         ids = dict(zip(self.joint_names, self.ids))
@@ -871,7 +877,12 @@ class DynamixelBus:
         check. A serial-level exception (the port itself failed) makes it a failed transfer: it returns
         `failed` (shaped like fn's own result) and the port's reason is kept for the message."""
         self.stats.attempts += 1
-        self._last_tx = self._now()
+        now = self._checked_now
+        if now is None:
+            now = self._now()
+        else:
+            self._checked_now = None
+        self._last_tx = now
         try:
             return fn(*args)
         except (serial.SerialException, OSError) as exc:
