@@ -30,13 +30,14 @@ from dynamixel_sdk.protocol2_packet_handler import (
     Protocol2PacketHandler,
 )
 
-from crane_io.dynamixel.crc import crc16
+from crane_io.dynamixel.crc import FixedPrefixCrc, crc16, remember
 
 _LEN_L, _LEN_H = 5, 6
 _STUFF = b"\xff\xff\xfd"
 _STUFFED = b"\xff\xff\xfd\xfd"
 _HEADER = b"\xff\xff\xfd\x00"
 _KEPT_READS = 16  # Sync Read packets kept (a bus sends two kinds: the Present block and the error poll)
+_TABLED_PARAMS = 64  # sync writes with at most this many parameter bytes get their CRC from tables
 
 
 class CranePacketHandler(Protocol2PacketHandler):
@@ -46,7 +47,8 @@ class CranePacketHandler(Protocol2PacketHandler):
     def __init__(self):
         super().__init__()
         self._sync_reads: dict[tuple, bytes] = {}  # (instruction, address, length, IDs) -> packet
-        self._headers: dict[tuple, bytes] = {}  # (instruction, address, length, n params) -> bytes before
+        # (instruction, address, length, n params) -> (the bytes before the params, their CRC tables or None)
+        self._headers: dict[tuple, tuple] = {}
 
     # ---- instruction packets -------------------------------------------------------------------------
     def syncReadTx(self, port, start_address, data_length, param, param_length, fast_option):  # noqa: N802
@@ -105,17 +107,25 @@ class CranePacketHandler(Protocol2PacketHandler):
         """The finished broadcast packet INST ADDR LEN params (CRC appended), as the SDK's txPacket makes
         it; None when it needs byte stuffing."""
         key = (inst, start_address, data_length, param_length)
-        head = self._headers.get(key)
-        if head is None:
+        kept = self._headers.get(key)
+        if kept is None:
             length = param_length + 7  # INST, address, data length, params, CRC
             head = _HEADER + bytes((BROADCAST_ID, length & 0xFF, (length >> 8) & 0xFF, inst,
                                     start_address & 0xFF, (start_address >> 8) & 0xFF,
                                     data_length & 0xFF, (data_length >> 8) & 0xFF))
-            self._headers[key] = head
-        packet = head + bytes(param[:param_length])
+            # a sync write's parameters change every cycle: its CRC from tables (see FixedPrefixCrc)
+            kept = self._headers[key] = (head, FixedPrefixCrc(head, param_length)
+                                         if inst == INST_SYNC_WRITE and param_length <= _TABLED_PARAMS else None)
+        head, tabled = kept
+        params = bytes(param[:param_length])
+        packet = head + params
         if packet.find(_STUFF, 5) >= 0 or len(packet) + 2 > TXPACKET_MAX_LEN:
             return None
-        crc = crc16(packet)
+        if tabled is None:
+            crc = crc16(packet)
+        else:
+            crc = tabled(params)
+            remember(packet, crc)  # the receiving end of a simulated bus checks the same bytes
         return packet + bytes((crc & 0xFF, crc >> 8))
 
     @staticmethod
