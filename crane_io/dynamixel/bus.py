@@ -372,7 +372,7 @@ class DynamixelBus:
         self._present_all = struct.Struct("<" + _PRESENT.format.lstrip("<") * len(self.ids))  # every servo's
         self._n_servos = len(self.ids)
         self._limits_seen: list | None = None  # current_limits as write_goal_current last saw them
-        self._limits_raw: list[int] = []  # ... in Goal Current steps
+        self._current_plan: list[tuple] = []  # ... per current-mode joint (see write_goal_current)
         self.upper = np.array([j.upper for j in joints])
 
         self._ph = CranePacketHandler()
@@ -720,17 +720,17 @@ class DynamixelBus:
         limits = self.current_limits.tolist()
         if limits != self._limits_seen:  # configure() read them back, or a caller changed them
             self._limits_seen = limits
-            self._limits_raw = [math.floor(lim / lsb + 1e-9) for lim in limits]
-        limits_raw, ids = self._limits_raw, self.ids
-        sent = [0.0] * len(ids)
+            # per current-mode joint: index, servo ID, limit in A and in Goal Current steps
+            self._current_plan = [(i, self.ids[i], limits[i], math.floor(limits[i] / lsb + 1e-9))
+                                  for i in self.current_joints]
+        sent = [0.0] * len(self.ids)
         params = []
-        for i in self.current_joints:
+        for i, sid, lim, lim_raw in self._current_plan:
             # scalar form of units.ampere_to_current(np.clip(...)): same rounding (half to even)
-            lim, lim_raw = limits[i], limits_raw[i]
             raw = round(min(max(values[i], -lim), lim) / lsb)
             raw = max(-lim_raw, min(lim_raw, raw))
             sent[i] = raw * lsb
-            params += (ids[i], raw & 0xFF, (raw >> 8) & 0xFF)
+            params += (sid, raw & 0xFF, (raw >> 8) & 0xFF)
         # the Sync Write packet as GroupSyncWrite + CranePacketHandler make it, built here directly (a kept
         # header, the parameters, the CRC); a packet that needs byte stuffing goes the SDK's way
         cur = _GOAL_CURRENT
