@@ -85,8 +85,13 @@ class ArmPair:
             q_l = q_l + off_l
         if off_f is not None:
             q_f = q_f + off_f
-        return self._both([(self.buses["leader"].write_goal_position, q_l),
-                           (self.buses["follower"].write_goal_position, q_f)])
+        buses = self.buses
+        if self.pool is None:
+            timed = self._timed
+            return [timed(buses["leader"].write_goal_position, q_l),
+                    timed(buses["follower"].write_goal_position, q_f)]
+        return self._both([(buses["leader"].write_goal_position, q_l),
+                           (buses["follower"].write_goal_position, q_f)])
 
     # -- stopping -----------------------------------------------------------------------------------------
     def safe_stop(self) -> dict:

@@ -275,3 +275,38 @@ def test_a_sync_write_packet_carries_the_crc_of_its_bytes_and_files_it_for_the_r
         body = packet[:-2]
         assert crc_mod._crc16(body, 0) == packet[-2] | (packet[-1] << 8)
         assert crc_mod._MEMO.get(body) == packet[-2] | (packet[-1] << 8)
+
+
+def test_the_goal_position_packet_and_values_are_the_group_sync_writes(sim):
+    """The goal position write built directly: the bytes GroupSyncWrite sends and the values of the
+    array formulas (units.rad_to_position of np.clip, units.position_to_rad)."""
+    from dynamixel_sdk import GroupSyncWrite
+
+    from crane_io.dynamixel import units
+
+    with _bus(sim) as bus:
+        sent_packets = []
+        write = bus._port.writePort
+
+        def capture(packet):
+            sent_packets.append(bytes(packet))
+            return write(packet)
+
+        bus._port.writePort = capture
+        rng = np.random.default_rng(2)
+        for k in range(40):
+            rad = rng.uniform(-4, 4, 8)
+            if k == 0:
+                rad[bus.position_joints[0]] = -0.0
+            if k == 1:
+                rad[:] = (np.round(rng.uniform(-500, 500, 8)) + 0.5) * units.RAD_PER_PULSE  # ties: half to even
+            sent = bus.write_goal_position(rad)
+            ref = GroupSyncWrite(bus._port, bus._ph, 116, 4)
+            expect = np.zeros(8)
+            for i in bus.position_joints:
+                raw = int(units.rad_to_position(np.clip(rad[i], bus.lower[i], bus.upper[i])))
+                expect[i] = float(units.position_to_rad(raw))
+                ref.addParam(bus.ids[i], list((raw & 0xFFFFFFFF).to_bytes(4, "little")))
+            assert ref.txPacket() == COMM_SUCCESS
+            assert sent_packets[-2] == sent_packets[-1]
+            assert sent.tobytes() == expect.tobytes()

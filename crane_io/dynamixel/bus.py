@@ -747,16 +747,29 @@ class DynamixelBus:
         """Send the goal position of every position-mode (held) joint in ONE sync write, clamped to the
         joint limits. `rad` is (8,); entries of current-mode joints are ignored. Returns what was sent."""
         self._need_port()
-        rad = self._command_array(rad, "goal position", self.position_joints)
-        sent = np.zeros(len(self.ids))
+        _arr, values = self._command_values(rad, "goal position", self.position_joints)
+        sent = [0.0] * len(self.ids)
         if not self.position_joints:  # every joint in current mode: nothing to send (an empty sync write
-            return sent               # is no packet the servos accept)
+            return np.array(sent)     # is no packet the servos accept)
+        lower, upper = self.lower.tolist(), self.upper.tolist()
+        rad_per_pulse, center = units.RAD_PER_PULSE, units.POSITION_CENTER
+        params = []
         for i in self.position_joints:
-            raw = int(units.rad_to_position(np.clip(rad[i], self.lower[i], self.upper[i])))
-            sent[i] = float(units.position_to_rad(raw))
-            self._position_writer.changeParam(self.ids[i], list((raw & 0xFFFFFFFF).to_bytes(4, "little")))
-        self._send(self._position_writer.txPacket, "goal position")
-        return sent
+            # scalar form of units.rad_to_position(np.clip(...)) and position_to_rad: the same float
+            # operations, the same rounding (half to even)
+            raw = round(min(max(values[i], lower[i]), upper[i]) / rad_per_pulse + center)
+            sent[i] = (raw - center) * rad_per_pulse
+            params += (self.ids[i], *(raw & 0xFFFFFFFF).to_bytes(4, "little"))
+        # the packet as the position GroupSyncWrite makes it (see write_goal_current)
+        pos = _GOAL_POSITION
+        packet = self._ph.sync_write_packet(pos.address, pos.size, params)
+        if packet is None:
+            for k in range(0, len(params), 5):
+                self._position_writer.changeParam(params[k], params[k + 1:k + 5])
+            self._send(self._position_writer.txPacket, "goal position")
+        else:
+            self._send(self._ph.send_broadcast, "goal position", self._port, packet)
+        return np.array(sent)
 
     def _command_array(self, values, what: str, used) -> np.ndarray:
         return self._command_values(values, what, used)[0]
