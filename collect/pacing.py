@@ -43,7 +43,6 @@ class CycleTimer:
         self._deadline = 0.0
         self._cycle_start = 0.0
         self.last: dict[str, float] = dict.fromkeys(SECTIONS, 0.0)
-        self._zeros = dict.fromkeys(SECTIONS, 0.0)  # `last` at the start of a cycle
         self.last_period = 0.0
         self.last_overrun = False
         self._totals: dict[str, float] = dict.fromkeys(SECTIONS, 0.0)
@@ -85,7 +84,8 @@ class CycleTimer:
         self._record(period, overrun)
         self._cycle_start = start
         self._deadline += self.period
-        self.last.update(self._zeros)
+        for k in self.last:
+            self.last[k] = 0.0
         return start - self.t0
 
     def _record(self, period: float, overrun: bool) -> None:
@@ -110,13 +110,10 @@ class CycleTimer:
             self.add(name, self._clock() - t)
 
     def add(self, name: str, seconds: float) -> None:
-        last, totals = self.last, self._totals
-        last[name] = last.get(name, 0.0) + seconds
-        totals[name] = totals.get(name, 0.0) + seconds
+        self.last[name] = self.last.get(name, 0.0) + seconds
+        self._totals[name] = self._totals.get(name, 0.0) + seconds
         if seconds > self._max_sections.get(name, 0.0):
             self._max_sections[name] = seconds
-        if name not in self._zeros:  # a section of the caller's own: zeroed with the others
-            self._zeros[name] = 0.0
 
     def now(self) -> float:
         """Seconds since start()."""
