@@ -12,7 +12,10 @@ every packet) with some of its steps made cheaper, the bytes on the wire unchang
   CRC) per request: the control loop sends the same read every cycle;
 - `syncWriteTxOnly` builds its packet as bytes from a kept header (only the parameters change) instead
   of a list the SDK then stuffs, checks and converts; `sync_write_packet` + `send_broadcast` do the same
-  for a caller that has the parameters at hand (the bus's Goal Current write, without GroupSyncWrite).
+  for a caller that has the parameters at hand (the bus's goal writes, without GroupSyncWrite); a sync
+  write's CRC comes from per-position tables made once for its header and length (crc.FixedPrefixCrc);
+- `sync_read_packet` + `send_packet`: the kept (Fast) Sync Read packet and its sending, for the bus's
+  control-cycle read (`_StatusSyncRead.fast_read`).
 Packets that do need (un)stuffing go through the SDK's own code.
 """
 
