@@ -226,8 +226,11 @@ class SessionRecorder:
             n0, n1 = self._n, self._n + k
             partial = n0 % self.chunk_rows
             if not partial and k == self.chunk_rows and self._direct:  # the usual flush: a whole new chunk
-                self._write_whole_chunks(n0)
-                return
+                try:
+                    self._write_whole_chunks(n0)
+                    return
+                except Exception:  # noqa: BLE001 - HDF5 refused a chunk: it writes them itself from now on
+                    self._direct = False
             for key, ds in self._ds.items():
                 if partial:  # the chunk on disk is superseded by the one written now
                     self.waste_bytes += _chunk_size(ds, n0 - partial)
@@ -247,7 +250,7 @@ class SessionRecorder:
         half the time). The rows are in the file when this returns, as with HDF5's own writes."""
         k = self.chunk_rows
         n1 = n0 + k
-        for key, ds in self._ds.items():
+        for key, ds in self._ds.items():  # on an error the rows are still buffered: flush writes them
             row_shape = self._row_shapes[key]
             chunk = chunk_bytes(self._buf[key][:k])
             ds.id.set_extent((n1,) + row_shape)
