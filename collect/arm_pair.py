@@ -57,7 +57,12 @@ class ArmPair:
         """[(ServoState | None, CraneError | None, s)] for leader, follower."""
         if self.checkpoint is not None:
             self.checkpoint()
-        results = self._both([(self.buses[a].read_state,) for a in ARMS])
+        buses = self.buses
+        if self.pool is None:  # one after the other (simulated arms): `_both` without its call lists
+            timed = self._timed
+            results = [timed(buses["leader"].read_state), timed(buses["follower"].read_state)]
+        else:
+            results = self._both([(buses[a].read_state,) for a in ARMS])
         if self.offsets:
             for name, (state, _exc, _s) in zip(ARMS, results):
                 off = self.offsets.get(name)
@@ -66,8 +71,13 @@ class ArmPair:
         return results
 
     def write_currents(self, amps_l, amps_f):
-        return self._both([(self.buses["leader"].write_goal_current, amps_l),
-                           (self.buses["follower"].write_goal_current, amps_f)])
+        buses = self.buses
+        if self.pool is None:
+            timed = self._timed
+            return [timed(buses["leader"].write_goal_current, amps_l),
+                    timed(buses["follower"].write_goal_current, amps_f)]
+        return self._both([(buses["leader"].write_goal_current, amps_l),
+                           (buses["follower"].write_goal_current, amps_f)])
 
     def write_positions(self, q_l, q_f):
         off_l, off_f = self.offsets.get("leader"), self.offsets.get("follower")
@@ -75,8 +85,13 @@ class ArmPair:
             q_l = q_l + off_l
         if off_f is not None:
             q_f = q_f + off_f
-        return self._both([(self.buses["leader"].write_goal_position, q_l),
-                           (self.buses["follower"].write_goal_position, q_f)])
+        buses = self.buses
+        if self.pool is None:
+            timed = self._timed
+            return [timed(buses["leader"].write_goal_position, q_l),
+                    timed(buses["follower"].write_goal_position, q_f)]
+        return self._both([(buses["leader"].write_goal_position, q_l),
+                           (buses["follower"].write_goal_position, q_f)])
 
     # -- stopping -----------------------------------------------------------------------------------------
     def safe_stop(self) -> dict:

@@ -40,10 +40,10 @@ __all__ = ["BilateralLoop", "RunContext"]
 _LEADER, _FOLLOWER = (SimpleNamespace(**{m.name: fmt.arm_path(arm, m.name) for m in fmt.ARM_MEMBERS})
                       for arm in ARMS)
 _TIMING = SimpleNamespace(**{m.name: fmt.timing_path(m.name) for m in fmt.TIMING_MEMBERS})
-# the members of a recorded row, in the order _record gives their values
 # a paced loop stops the recorder's deferred writes this long before the next deadline (the wait's
 # final spin is 0.2 ms): what is left waits for the next cycle's slack
 WRITE_MARGIN_S = 3e-4
+# the members of a recorded row, in the order _record gives their values
 _ROW_MEMBERS = ("t", "q", "tau", "dq_servo", "current", "goal_current", "dq", "tau_dis", "tau_res", "q_goal")
 _ROW_TIMING = ("cycle_start", "period", "bus_time_leader", "bus_time_follower", "compute_time", "overrun")
 _ROW_KEYS = (tuple(getattr(arm, m) for arm in (_LEADER, _FOLLOWER) for m in _ROW_MEMBERS)
@@ -99,7 +99,7 @@ class BilateralLoop:
         self.pair = ArmPair(concurrent_io=not sims, checkpoint=stop.check if stop is not None else None)
         self.status = StatusLine(out, config.loop, status)
         self.recorder: SessionRecorder | None = None
-        self._columns: tuple = (None, ())  # (the recorder, its row buffers in _ROW_KEYS order)
+        self._columns: tuple = (None, None)  # (the recorder, its row_writer of _ROW_KEYS)
         self.operator: SimulatedOperator | None = None
         self.timer = CycleTimer(config.loop.rate_hz, lockstep=not self.paced, spin_s=config.loop.spin_s)
         self.cycles = 0
@@ -200,15 +200,19 @@ class BilateralLoop:
         (sl, el, bt_l), (sf, ef, bt_f) = self.pair.read_both()
         timer.add("bus_leader", bt_l)
         timer.add("bus_follower", bt_f)
-        t = self._session_time(k, sl)
-        failed, breach = self._transfer_faults((el, ef), t, reading=True)
-        if breach is not None:
-            return breach, t
-        if failed:
-            if self.lockstep:  # nothing was written: let the simulated time pass anyway
-                for sim in self.sims.values():
-                    sim.chain.advance(self.period)
-            return None, t
+        t = k * self.period if self.lockstep else self._session_time(k, sl)
+        if el is None and ef is None:  # the usual case of `_transfer_faults`: both reads went through
+            self.safety.bus_ok("leader")
+            self.safety.bus_ok("follower")
+        else:
+            failed, breach = self._transfer_faults((el, ef), t, reading=True)
+            if breach is not None:
+                return breach, t
+            if failed:
+                if self.lockstep:  # nothing was written: let the simulated time pass anyway
+                    for sim in self.sims.values():
+                        sim.chain.advance(self.period)
+                return None, t
         tc = time.perf_counter()
         tau_l, tau_f, breach = self._control(t, sl, sf)
         timer.add("compute", time.perf_counter() - tc)
@@ -217,8 +221,9 @@ class BilateralLoop:
         (sent_l, wl, bw_l), (sent_f, wf, bw_f) = self.pair.write_currents(tau_l / kt, tau_f / kt)
         timer.add("bus_leader", bw_l)
         timer.add("bus_follower", bw_f)
-        _, breach = self._transfer_faults((wl, wf), t, reading=False)
-        if breach is None:
+        if wl is not None or wf is not None:
+            _, breach = self._transfer_faults((wl, wf), t, reading=False)
+        if breach is None and k and self.safety.poll_due(k):
             breach = self._poll_hardware(k, t)
         if breach is not None:
             return breach, t
@@ -332,14 +337,16 @@ class BilateralLoop:
         timer, kt, bil = self.timer, self.kt, self.bil
         e = sl.position - sf.position
         self.err_sq += e * e
-        tl_rec = np.where(bil, sent_l * kt, sl.current * kt)
-        tf_rec = np.where(bil, sent_f * kt, sf.current * kt)
+        # the torque recorded: the commanded one of the current-mode joints, the measured one of the held
+        # joints (np.where(bil, sent * kt, current * kt), selected before the product: the same numbers)
+        tl_rec = np.where(bil, sent_l, sl.current) * kt
+        tf_rec = np.where(bil, sent_f, sf.current) * kt
         est_l, est_f = self.ctl.leader, self.ctl.follower
         recorder = self.recorder
         if self._columns[0] is not recorder:
-            self._columns = (recorder, recorder.columns(_ROW_KEYS))
+            self._columns = (recorder, recorder.row_writer(_ROW_KEYS))
         last = timer.last
-        recorder.append_values(self._columns[1], (  # in _ROW_KEYS order
+        self._columns[1]((  # in _ROW_KEYS order
             t, sl.position, tl_rec, sl.velocity, sl.current, sent_l, est_l.dq, est_l.tau_dis, est_l.tau_res,
             self.q_goal_row,
             t if self.lockstep else sf.t - self.t_start_mono, sf.position, tf_rec, sf.velocity, sf.current,

@@ -74,7 +74,10 @@ class CycleTimer:
             return self.start()
         now = self._clock()
         overrun = now > self._deadline
-        if not self.lockstep:
+        if self.lockstep:  # nothing to wait for: the next cycle starts now
+            start = now
+            overrun = False
+        else:
             if overrun:
                 missed = math.floor((now - self._deadline) / self.period)
                 if missed >= 1:  # more than a whole period late: re-anchor the grid at now
@@ -86,9 +89,9 @@ class CycleTimer:
                     self._sleep(remaining - self.spin_s)
                 while self._clock() < self._deadline:
                     pass
-        start = self._clock()
+            start = self._clock()
         period = start - self._cycle_start
-        self._record(period, overrun and not self.lockstep)
+        self._record(period, overrun)
         self._cycle_start = start
         self._deadline += self.period
         for k in self.last:

@@ -13,7 +13,6 @@ from pathlib import Path
 
 import h5py
 import numpy as np
-import pytest
 
 from collect.recorder import SessionRecorder
 from collect.recovery import recover_session
@@ -153,17 +152,17 @@ def test_a_paced_run_writes_its_chunks_between_cycles(tmp_path, monkeypatch):
     pending; the loop writes them after its cycles, with the deadline of the next cycle; the session
     holds every row, and a lockstep run defers nothing."""
     after_row, deadlines = [], []
-    append, write_pending = SessionRecorder.append_values, SessionRecorder.write_pending
+    row_added, write_pending = SessionRecorder._row_added, SessionRecorder.write_pending
 
-    def spy_append(self, columns, values):
-        append(self, columns, values)
+    def spy_row(self, k):  # every appended row ends here, whichever way it was appended
+        row_added(self, k)
         after_row.append(self.pending_writes)
 
     def spy_write(self, deadline=None, clock=None):
         deadlines.append(deadline)
         return write_pending(self, deadline, clock)
 
-    monkeypatch.setattr(SessionRecorder, "append_values", spy_append)
+    monkeypatch.setattr(SessionRecorder, "_row_added", spy_row)
     monkeypatch.setattr(SessionRecorder, "write_pending", spy_write)
     cfg = tmp_path / "rt.toml"
     cfg.write_text(CONFIG)

@@ -48,7 +48,7 @@ from dynamixel_sdk import (
     GroupSyncRead,
     GroupSyncWrite,
 )
-from dynamixel_sdk.protocol2_packet_handler import RXPACKET_MAX_LEN
+from dynamixel_sdk.protocol2_packet_handler import INST_FAST_SYNC_READ, RXPACKET_MAX_LEN
 from dynamixel_sdk.robotis_def import BROADCAST_ID, COMM_RX_TIMEOUT
 
 from crane_io import shutdown
@@ -105,6 +105,7 @@ _POLL_WATCHDOG = X_SERIES["bus_watchdog"].address - _POLL_ADDRESS
 # what a transfer whose port failed returns, in the shape of the SDK call: a result code, (data or
 # model number, result, error), (result, error)
 _NO_READ, _NO_WRITE = (None, COMM_TX_FAIL, 0), (COMM_TX_FAIL, 0)
+_NO_FAST_READ = (COMM_TX_FAIL, None)  # ... and of the reader's fast_read
 _STALL_FRACTION = 0.5  # a pause longer than this share of the watchdog time makes the bus check it
 
 
@@ -121,7 +122,7 @@ class ServoInfo:
     firmware: int
 
 
-@dataclass
+@dataclass(slots=True)
 class BusState:
     """One synchronous snapshot of every servo, SI units, (8,) arrays in arm.joints order."""
 
@@ -162,6 +163,10 @@ class _StatusSyncRead(GroupSyncRead):
         self._fast_total = 0
         self._fast_ids: tuple = ()
         self._fast_id_bytes: bytes | None = None
+        self._no_errors = b""  # the error bytes of a reply without errors
+        self._zero_errors: dict[int, int] = {}  # ... and its `errors`
+        self._request: bytes | None = None  # fast_read's kept Fast Sync Read packet, for `param`
+        self._request_param: list | None = None
 
     def rxPacket(self):  # noqa: N802 (SDK name)
         self.last_result = False
@@ -182,22 +187,67 @@ class _StatusSyncRead(GroupSyncRead):
         self.last_result = False
         self.errors = {}
         self.packet = None
-        port, n = self.port, self.data_length
+        self._expect_fast_reply()
+        return self._take_fast_reply(self.port.readPort(self._fast_total))
+
+    def _expect_fast_reply(self) -> None:
+        """The expected fast reply's first 8 bytes, length and servo IDs for the servos of data_dict."""
         count = len(self.data_dict)
-        chunk = n + 4
-        total = 8 + chunk * count  # header, ID, LEN, INST, then ERR ID DATA CRC per servo
-        head = self._fast_head
-        if head is None or self._fast_total != total or self._fast_ids != tuple(self.data_dict):
+        total = 8 + (self.data_length + 4) * count  # header, ID, LEN, INST, then ERR ID DATA CRC per servo
+        if self._fast_head is None or self._fast_total != total or self._fast_ids != tuple(self.data_dict):
             length = total - 7
-            head = bytes((0xFF, 0xFF, 0xFD, 0x00, BROADCAST_ID, length & 0xFF, length >> 8, 0x55))
-            self._fast_head, self._fast_total = head, total
+            self._fast_head = bytes((0xFF, 0xFF, 0xFD, 0x00, BROADCAST_ID, length & 0xFF, length >> 8, 0x55))
+            self._fast_total = total
             self._fast_ids = tuple(self.data_dict)
             self._fast_id_bytes = bytes(self._fast_ids) if all(i < 256 for i in self._fast_ids) else None
+            self._no_errors = bytes(count)
+            self._zero_errors = dict.fromkeys(self._fast_ids, 0)
+
+    def fast_read(self) -> tuple[int, bytes | None]:
+        """fastSyncRead for the control cycle, the same bytes on the wire: (result, reply). `reply` is the
+        whole fast reply when it is the expected one with every status error byte 0 (the usual case);
+        then only `packet` and `errors` are updated (not data_dict: the reply holds the data). Otherwise
+        `reply` is None and the reader is left exactly as fastSyncRead leaves it."""
+        request = self._request
+        if request is None or self.is_param_changed or self.param is not self._request_param:
+            # first call, or other servos: the SDK's way (its packet handler keeps the packet)
+            result = self.fastSyncRead()
+            self._request_param = self.param
+            self._request = self.ph.sync_read_packet(INST_FAST_SYNC_READ, self.start_address,
+                                                     self.data_length, self.param)
+            self._expect_fast_reply()
+            return result, None
+        port = self.port
+        result = self.ph.send_packet(port, request)  # as syncReadTx sends it
+        if result != COMM_SUCCESS:
+            return result, None
+        port.setPacketTimeout((11 + self.data_length) * len(self.param))
+        self.last_result = False
+        self.errors = {}
+        self.packet = None
+        total = self._fast_total
+        data = port.readPort(total)
+        chunk = self.data_length + 4
+        if (len(data) == total and data.startswith(self._fast_head) and _STUFFED not in data
+                and data[8::chunk] == self._no_errors
+                and crc16(data[:-2]) == (data[-2] | (data[-1] << 8))
+                and data[9::chunk] == self._fast_id_bytes):
+            port.is_using = False
+            self.packet = data
+            self.errors = self._zero_errors  # shared: `errors` is always replaced, never changed in place
+            self.last_result = True
+            return COMM_SUCCESS, data
+        return self._take_fast_reply(data), None
+
+    def _take_fast_reply(self, data: bytes) -> int:
+        """fastSyncReadRxPacket with the first `_fast_total` bytes already read."""
+        port, n = self.port, self.data_length
+        chunk = n + 4
+        total = self._fast_total
         # fast path: the one expected reply read whole, as dynamixel-sdk's rxPacket would accept it (its
         # header at the start, its CRC right, no byte stuffing, the servos in request order); anything
         # else goes through rxPacket's own loop with the bytes already read (`_rx_packet`)
-        data = port.readPort(total)
-        if (len(data) == total and data.startswith(head) and _STUFFED not in data
+        if (len(data) == total and data.startswith(self._fast_head) and _STUFFED not in data
                 and crc16(data[:-2]) == (data[-2] | (data[-1] << 8))
                 and data[9::chunk] == self._fast_id_bytes):
             port.is_using = False
@@ -320,6 +370,9 @@ class DynamixelBus:
         self.current_limits = np.array([j.current_limit for j in joints])  # A; read back in configure
         self.lower = np.array([j.lower for j in joints])
         self._present_all = struct.Struct("<" + _PRESENT.format.lstrip("<") * len(self.ids))  # every servo's
+        self._n_servos = len(self.ids)
+        self._limits_seen: list | None = None  # current_limits as write_goal_current last saw them
+        self._current_plan: list[tuple] = []  # ... per current-mode joint (see write_goal_current)
         self.upper = np.array([j.upper for j in joints])
 
         self._ph = CranePacketHandler()
@@ -334,6 +387,7 @@ class DynamixelBus:
         self._why = "no reply"  # read_state: why the latest try failed
         self._poll_reader: _StatusSyncRead | None = None
         self._last_tx: float | None = None  # self._now() of the latest transfer
+        self._checked_now: float | None = None  # self._now() of a stall check, for the transfer after it
         # the clock the stall check measures pauses with: the servos' own notion of time. Real servos
         # (and wall-clock simulated ones) live in real time; a lockstep simulated chain only advances
         # with the goal writes, so there a host pause cannot stop a servo and costs no extra read.
@@ -560,7 +614,12 @@ class DynamixelBus:
         self._last_port_error = ""
         self._check_stall()
         self._why = "no reply"
-        state = self._retry(self._read_state_once, self._reader, check_faults, budget=True)
+        reader = self._reader
+        state = self._read_state_once(reader, check_faults)  # the first try of `_retry`, without its loop
+        if state is not None:
+            return state
+        self._spend_error_budget()
+        state = self._retry(self._read_state_once, reader, check_faults, budget=True, done=1)
         if state is not None:
             return state
         self.stats.failures += 1
@@ -579,7 +638,16 @@ class DynamixelBus:
         undecided a plain one right after a failed fast one. None when it failed (why: `_why`)."""
         t = time.monotonic()
         fast = self.stats.fast is not False
-        result = self._transfer(reader.fastSyncRead if fast else reader.txRxPacket)
+        if fast:
+            result, reply = self._transfer(reader.fast_read, failed=_NO_FAST_READ)
+            if reply is not None:  # the expected reply, no status error
+                if reader._fast_ids == self.ids:  # the usual case: the servos in joint order
+                    if self.stats.fast is None:
+                        self.stats.fast = True
+                    return self._state_from_reply(reply, t)
+                result = reader._take_fast_reply(reply)  # else the general path, from data_dict
+        else:
+            result = self._transfer(reader.txRxPacket)
         if result != COMM_SUCCESS and self.stats.fast is None:
             plain_t = time.monotonic()
             if self._transfer(reader.txRxPacket) == COMM_SUCCESS:
@@ -605,6 +673,17 @@ class DynamixelBus:
                 f"the servos on {self.port_name} did not answer fast sync read while plain sync read "
                 "worked; using plain sync read from now on (update the servo firmware to speed up the loop)")
             log.warning("%s: %s", self.name, self.stats.fallback_note)
+
+    def _state_from_reply(self, reply: bytes, t: float) -> BusState:
+        """`_state_from` for a whole fast reply of the servos in joint order without status errors."""
+        rec = np.frombuffer(reply, dtype=_FAST_RECORD, count=self._n_servos, offset=_PKT_FIRST_PARAM)
+        self.stats.reads += 1
+        port = self._port
+        self.stats.bytes_written, self.stats.bytes_read = port.bytes_written, port.bytes_read
+        # the arithmetic of units.position_to_rad etc. (integers converted to float, then scaled)
+        return BusState((rec["position"] - float(units.POSITION_CENTER)) * units.RAD_PER_PULSE,
+                        rec["velocity"] * units.RADS_PER_VELOCITY_LSB,
+                        rec["current"] * units.AMPERE_PER_CURRENT_LSB, t, True)
 
     def _state_from(self, reader: _StatusSyncRead, t: float, fast: bool, check_faults: bool) -> BusState:
         packet = reader.packet
@@ -636,19 +715,22 @@ class DynamixelBus:
         clamped to each servo's Current Limit. Returns the currents actually commanded (A, quantised;
         0 for position-mode joints)."""
         self._need_port()
-        amps = self._command_array(amps, "goal current", self.current_joints)
-        sent = np.zeros(len(self.ids))
+        _arr, values = self._command_values(amps, "goal current", self.current_joints)
         lsb = units.AMPERE_PER_CURRENT_LSB
-        values, limits = amps.tolist(), self.current_limits.tolist()
+        limits = self.current_limits.tolist()
+        if limits != self._limits_seen:  # configure() read them back, or a caller changed them
+            self._limits_seen = limits
+            # per current-mode joint: index, servo ID, limit in A and in Goal Current steps
+            self._current_plan = [(i, self.ids[i], limits[i], math.floor(limits[i] / lsb + 1e-9))
+                                  for i in self.current_joints]
+        sent = [0.0] * len(self.ids)
         params = []
-        for i in self.current_joints:
+        for i, sid, lim, lim_raw in self._current_plan:
             # scalar form of units.ampere_to_current(np.clip(...)): same rounding (half to even)
-            lim = limits[i]
             raw = round(min(max(values[i], -lim), lim) / lsb)
-            lim_raw = math.floor(lim / lsb + 1e-9)
             raw = max(-lim_raw, min(lim_raw, raw))
             sent[i] = raw * lsb
-            params += (self.ids[i], raw & 0xFF, (raw >> 8) & 0xFF)
+            params += (sid, raw & 0xFF, (raw >> 8) & 0xFF)
         # the Sync Write packet as GroupSyncWrite + CranePacketHandler make it, built here directly (a kept
         # header, the parameters, the CRC); a packet that needs byte stuffing goes the SDK's way
         cur = _GOAL_CURRENT
@@ -659,39 +741,63 @@ class DynamixelBus:
             self._send(self._current_writer.txPacket, "goal current")
         else:
             self._send(self._ph.send_broadcast, "goal current", self._port, packet)
-        return sent
+        return np.array(sent)
 
     def write_goal_position(self, rad) -> np.ndarray:
         """Send the goal position of every position-mode (held) joint in ONE sync write, clamped to the
         joint limits. `rad` is (8,); entries of current-mode joints are ignored. Returns what was sent."""
         self._need_port()
-        rad = self._command_array(rad, "goal position", self.position_joints)
-        sent = np.zeros(len(self.ids))
+        _arr, values = self._command_values(rad, "goal position", self.position_joints)
+        sent = [0.0] * len(self.ids)
         if not self.position_joints:  # every joint in current mode: nothing to send (an empty sync write
-            return sent               # is no packet the servos accept)
+            return np.array(sent)     # is no packet the servos accept)
+        lower, upper = self.lower.tolist(), self.upper.tolist()
+        rad_per_pulse, center = units.RAD_PER_PULSE, units.POSITION_CENTER
+        params = []
         for i in self.position_joints:
-            raw = int(units.rad_to_position(np.clip(rad[i], self.lower[i], self.upper[i])))
-            sent[i] = float(units.position_to_rad(raw))
-            self._position_writer.changeParam(self.ids[i], list((raw & 0xFFFFFFFF).to_bytes(4, "little")))
-        self._send(self._position_writer.txPacket, "goal position")
-        return sent
+            # scalar form of units.rad_to_position(np.clip(...)) and position_to_rad: the same float
+            # operations, the same rounding (half to even)
+            raw = round(min(max(values[i], lower[i]), upper[i]) / rad_per_pulse + center)
+            sent[i] = (raw - center) * rad_per_pulse
+            params += (self.ids[i], *(raw & 0xFFFFFFFF).to_bytes(4, "little"))
+        # the packet as the position GroupSyncWrite makes it (see write_goal_current)
+        pos = _GOAL_POSITION
+        packet = self._ph.sync_write_packet(pos.address, pos.size, params)
+        if packet is None:
+            for k in range(0, len(params), 5):
+                self._position_writer.changeParam(params[k], params[k + 1:k + 5])
+            self._send(self._position_writer.txPacket, "goal position")
+        else:
+            self._send(self._ph.send_broadcast, "goal position", self._port, packet)
+        return np.array(sent)
 
     def _command_array(self, values, what: str, used) -> np.ndarray:
+        return self._command_values(values, what, used)[0]
+
+    def _command_values(self, values, what: str, used) -> tuple[np.ndarray, list[float]]:
+        """The command as an (8,) float array and as a list; CommandError for a wrong shape or a value
+        of a used joint that is not finite."""
         arr = np.asarray(values, dtype=float)
         if arr.shape != (len(self.ids),):
             raise CommandError(f"{what} needs {len(self.ids)} values in joint order "
                                f"({', '.join(self.joint_names)}), got shape {arr.shape}")
         values = arr.tolist()
-        bad = [self.joint_names[i] for i in used if not math.isfinite(values[i])]
-        if bad:
-            raise CommandError(f"{what} for {', '.join(bad)} is not a finite number; nothing was sent")
-        return arr
+        isfinite = math.isfinite
+        for i in used:
+            if not isfinite(values[i]):
+                bad = [self.joint_names[i] for i in used if not isfinite(values[i])]
+                raise CommandError(f"{what} for {', '.join(bad)} is not a finite number; nothing was sent")
+        return arr, values
 
     def _send(self, fn, what: str, *args) -> None:
         """Send a sync write: `fn(*args)` (a GroupSyncWrite's txPacket, or the packet handler's
         send_broadcast of a finished packet), retried within the error budget."""
         self._check_stall()
-        if self._retry(self._group_once, fn, *args, budget=True):
+        if self._group_once(fn, *args):  # the first try of `_retry`, without its loop
+            self.stats.writes += 1
+            return
+        self._spend_error_budget()
+        if self._retry(self._group_once, fn, *args, budget=True, done=1):
             self.stats.writes += 1
             return
         self.stats.failures += 1
@@ -740,12 +846,15 @@ class DynamixelBus:
         pause is measured on the servos' clock (`_now`): simulated time for a lockstep simulated chain."""
         wd, last = self.watchdog_s, self._last_tx
         if wd and self.torque_enabled and last is not None:
-            gap = self._now() - last
+            now = self._now()
+            gap = now - last
             if gap > _STALL_FRACTION * wd:
                 faults = self.read_hardware_errors()
                 expired = {j: [WATCHDOG_EXPIRED] for j, f in faults.items() if WATCHDOG_EXPIRED in f}
                 if expired:
                     raise self._fault_error(expired, gap)
+            else:  # the transfer that follows is stamped with this time (nothing happened in between)
+                self._checked_now = now
 
     def _fault_error(self, faults: dict[str, list[str]], gap: float | None = None) -> ServoFaultError:
         ids = dict(zip(self.joint_names, self.ids))
@@ -781,7 +890,12 @@ class DynamixelBus:
         check. A serial-level exception (the port itself failed) makes it a failed transfer: it returns
         `failed` (shaped like fn's own result) and the port's reason is kept for the message."""
         self.stats.attempts += 1
-        self._last_tx = self._now()
+        now = self._checked_now
+        if now is None:
+            now = self._now()
+        else:
+            self._checked_now = None
+        self._last_tx = now
         try:
             return fn(*args)
         except (serial.SerialException, OSError) as exc:
@@ -789,14 +903,15 @@ class DynamixelBus:
             self._last_port_error = str(exc)
             return failed
 
-    def _retry(self, attempt, *args, budget: bool = False, tries: int | None = None):
+    def _retry(self, attempt, *args, budget: bool = False, tries: int | None = None, done: int = 0):
         """THE retry loop of the bus: every transfer that is repeated on a missing or corrupted reply
         goes through here. `attempt(*args)` makes one try (through `_transfer`) and returns what it got,
         or None when it failed. At most `tries` (default 1 + retries) tries; each repeat counts in
         stats.retries; with `budget` (the control cycle's read and writes) each failed try spends the
         error budget, which raises when the link is unusable. Returns the first result that is not None,
-        else None; the caller decides what a failure means (raise, fall back, or go on stopping)."""
-        for k in range(tries or 1 + self.retries):
+        else None; the caller decides what a failure means (raise, fall back, or go on stopping). `done`:
+        tries the caller already made (and spent the budget for) before calling."""
+        for k in range(done, tries or 1 + self.retries):
             if k:
                 self.stats.retries += 1
             out = attempt(*args)

@@ -118,3 +118,26 @@ def crc16_chain(head, parts) -> list[int]:
         out.append(crc)
         crc = table[crc ^ (((crc & 0xFF) << 8) | (crc >> 8))]
     return out
+
+
+class FixedPrefixCrc:
+    """crc16(prefix + params) for `n`-byte params after a fixed `prefix` (a sync write's header), by the
+    CRC's linearity: with the initial value 0 and no final xor, the CRC of a message is the xor of the
+    CRCs of its bytes each alone at its place (zeros elsewhere). So it is the CRC of prefix + n zeros,
+    xored with one table entry per parameter byte: n lookups instead of a pass over the whole packet."""
+
+    def __init__(self, prefix: bytes, n: int):
+        self.n = n
+        self.base = _crc16(bytes(prefix) + bytes(n), 0)
+        tables = []
+        table = CRC_TABLE  # byte v as the last byte: crc16(bytes([v])) == CRC_TABLE[v]
+        for _ in range(n):
+            tables.append(table)
+            table = [((x << 8) & 0xFF00) ^ CRC_TABLE[x >> 8] for x in table]  # one more zero byte after it
+        self.tables = tables[::-1]  # tables[p][v]: byte v at position p of the params
+
+    def __call__(self, params) -> int:
+        crc = self.base
+        for table, byte in zip(self.tables, params):
+            crc ^= table[byte]
+        return crc

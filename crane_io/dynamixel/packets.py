@@ -12,7 +12,10 @@ every packet) with some of its steps made cheaper, the bytes on the wire unchang
   CRC) per request: the control loop sends the same read every cycle;
 - `syncWriteTxOnly` builds its packet as bytes from a kept header (only the parameters change) instead
   of a list the SDK then stuffs, checks and converts; `sync_write_packet` + `send_broadcast` do the same
-  for a caller that has the parameters at hand (the bus's Goal Current write, without GroupSyncWrite).
+  for a caller that has the parameters at hand (the bus's goal writes, without GroupSyncWrite); a sync
+  write's CRC comes from per-position tables made once for its header and length (crc.FixedPrefixCrc);
+- `sync_read_packet` + `send_packet`: the kept (Fast) Sync Read packet and its sending, for the bus's
+  control-cycle read (`_StatusSyncRead.fast_read`).
 Packets that do need (un)stuffing go through the SDK's own code.
 """
 
@@ -30,13 +33,14 @@ from dynamixel_sdk.protocol2_packet_handler import (
     Protocol2PacketHandler,
 )
 
-from crane_io.dynamixel.crc import crc16
+from crane_io.dynamixel.crc import FixedPrefixCrc, crc16, remember
 
 _LEN_L, _LEN_H = 5, 6
 _STUFF = b"\xff\xff\xfd"
 _STUFFED = b"\xff\xff\xfd\xfd"
 _HEADER = b"\xff\xff\xfd\x00"
 _KEPT_READS = 16  # Sync Read packets kept (a bus sends two kinds: the Present block and the error poll)
+_TABLED_PARAMS = 64  # sync writes with at most this many parameter bytes get their CRC from tables
 
 
 class CranePacketHandler(Protocol2PacketHandler):
@@ -46,24 +50,40 @@ class CranePacketHandler(Protocol2PacketHandler):
     def __init__(self):
         super().__init__()
         self._sync_reads: dict[tuple, bytes] = {}  # (instruction, address, length, IDs) -> packet
-        self._headers: dict[tuple, bytes] = {}  # (instruction, address, length, n params) -> bytes before
+        # (instruction, address, length, n params) -> (the bytes before the params, their CRC tables or None)
+        self._headers: dict[tuple, tuple] = {}
 
     # ---- instruction packets -------------------------------------------------------------------------
     def syncReadTx(self, port, start_address, data_length, param, param_length, fast_option):  # noqa: N802
         inst = INST_FAST_SYNC_READ if fast_option else INST_SYNC_READ
-        key = (inst, start_address, data_length, tuple(param[:param_length]))
-        packet = self._sync_reads.get(key)
-        if packet is None:
-            packet = self._sync_packet(inst, start_address, data_length, param, param_length)
-            if packet is None:  # needs byte stuffing: the SDK's own path
-                return super().syncReadTx(port, start_address, data_length, param, param_length, fast_option)
-            if len(self._sync_reads) >= _KEPT_READS:
-                self._sync_reads.clear()
-            self._sync_reads[key] = packet
+        packet = self.sync_read_packet(inst, start_address, data_length, param[:param_length])
+        if packet is None:  # needs byte stuffing: the SDK's own path
+            return super().syncReadTx(port, start_address, data_length, param, param_length, fast_option)
         result = self._send(port, packet)
         if result == COMM_SUCCESS:
             port.setPacketTimeout((11 + data_length) * param_length)
         return result
+
+    def sync_read_packet(self, inst: int, start_address: int, data_length: int, param) -> bytes | None:
+        """The finished (Fast) Sync Read packet `syncReadTx` sends for `param` (the servo IDs), byte for
+        byte; None when it needs byte stuffing (or there is no servo to ask)."""
+        if not param:
+            return None
+        key = (inst, start_address, data_length, tuple(param))
+        packet = self._sync_reads.get(key)
+        if packet is None:
+            packet = self._sync_packet(inst, start_address, data_length, param, len(param))
+            if packet is None:
+                return None
+            if len(self._sync_reads) >= _KEPT_READS:
+                self._sync_reads.clear()
+            self._sync_reads[key] = packet
+        return packet
+
+    def send_packet(self, port, packet: bytes) -> int:
+        """Send a finished instruction packet that expects a reply (the port stays taken for it), as
+        `syncReadTx` sends its packet; the caller sets the packet timeout."""
+        return self._send(port, packet)
 
     def syncWriteTxOnly(self, port, start_address, data_length, param, param_length):  # noqa: N802
         packet = self._sync_packet(INST_SYNC_WRITE, start_address, data_length, param, param_length)
@@ -90,17 +110,25 @@ class CranePacketHandler(Protocol2PacketHandler):
         """The finished broadcast packet INST ADDR LEN params (CRC appended), as the SDK's txPacket makes
         it; None when it needs byte stuffing."""
         key = (inst, start_address, data_length, param_length)
-        head = self._headers.get(key)
-        if head is None:
+        kept = self._headers.get(key)
+        if kept is None:
             length = param_length + 7  # INST, address, data length, params, CRC
             head = _HEADER + bytes((BROADCAST_ID, length & 0xFF, (length >> 8) & 0xFF, inst,
                                     start_address & 0xFF, (start_address >> 8) & 0xFF,
                                     data_length & 0xFF, (data_length >> 8) & 0xFF))
-            self._headers[key] = head
-        packet = head + bytes(param[:param_length])
+            # a sync write's parameters change every cycle: its CRC from tables (see FixedPrefixCrc)
+            tabled = inst == INST_SYNC_WRITE and param_length <= _TABLED_PARAMS
+            kept = self._headers[key] = (head, FixedPrefixCrc(head, param_length) if tabled else None)
+        head, tabled = kept
+        params = bytes(param[:param_length])
+        packet = head + params
         if packet.find(_STUFF, 5) >= 0 or len(packet) + 2 > TXPACKET_MAX_LEN:
             return None
-        crc = crc16(packet)
+        if tabled is None:
+            crc = crc16(packet)
+        else:
+            crc = tabled(params)
+            remember(packet, crc)  # the receiving end of a simulated bus checks the same bytes
         return packet + bytes((crc & 0xFF, crc >> 8))
 
     @staticmethod
