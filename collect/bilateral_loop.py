@@ -275,16 +275,12 @@ class BilateralLoop:
             plant.set_external_torque(self.operator.torque(t, s.position, s.velocity))
         dt = self.period if (self.lockstep or self.last_t is None) else max(t - self.last_t, 1e-4)
         self.last_t = t
-        cmd = self.ctl.step(ArmSignals(ql, sl.velocity, sl.current), ArmSignals(qf, sf.velocity, sf.current),
-                            dt)
-        tau_l = self.safety.limit_torque(ql, cmd.leader_tau, sl.velocity)
-        tau_f = self.safety.limit_torque(qf, cmd.follower_tau, sf.velocity)
-        self.ctl.applied(tau_l, tau_f)
+        # step, both safety clamps, applied, both checks: one compiled call where it can be
+        # (BilateralController.control); the breach is logged by the caller, after the model's events
+        leader, follower = ArmSignals(ql, sl.velocity, sl.current), ArmSignals(qf, sf.velocity, sf.current)
+        _cmd, tau_l, tau_f, breach = self.ctl.control(leader, follower, dt, self.safety)
         if self.models:
             self._model_fallbacks(t)
-        breach = self.safety.check("leader", ql, sl.velocity)
-        if breach is None:
-            breach = self.safety.check("follower", qf, sf.velocity)
         return tau_l, tau_f, breach
 
     def _model_tag(self) -> str:
