@@ -11,12 +11,13 @@ from dynamixel_sdk import COMM_SUCCESS, GroupSyncWrite
 from fakes import FlipCrcByte, OverloadBit
 
 from crane_io.dynamixel import bus as bus_mod
-from crane_io.dynamixel.bus import DynamixelBus, _StatusSyncRead
+from crane_io.dynamixel.bus import _StatusSyncRead
 from crane_io.dynamixel.crc import crc16
 from crane_io.dynamixel.faults import CommunicationError, ServoFaultError
 from crane_io.dynamixel.packets import CranePacketHandler
 from crane_io.sim import simulated_arm
 from crane_io.sim.protocol import fast_status_packet
+from tests.sim_bus import open_bus
 
 IDS = (2, 3, 4, 5, 6, 7, 8, 9)
 N = 10  # Present block bytes per servo
@@ -146,11 +147,7 @@ def sim():
 
 
 def _bus(sim):
-    bus = DynamixelBus(sim.url).open()
-    bus.ping_all()
-    bus.configure(watchdog_s=0.1)
-    bus.torque_on()
-    return bus
+    return open_bus(sim)
 
 
 def test_the_state_from_the_fast_path_equals_the_plain_sync_reads(sim):

@@ -12,10 +12,10 @@ from fakes import FlipCrcByte, OverloadBit
 
 from collect.recorder import SessionRecorder
 from crane_io import session_format as sf
-from crane_io.dynamixel.bus import DynamixelBus
 from crane_io.dynamixel.faults import CommunicationError, ServoFaultError
 from crane_io.sim import simulated_arm
 from crane_io.sim.protocol import fast_status_packet
+from tests.sim_bus import open_bus
 
 NAMES = [f"joint{i}" for i in range(1, 8)] + ["gripper"]
 
@@ -28,11 +28,7 @@ def sim():
 
 
 def _bus(sim):
-    bus = DynamixelBus(sim.url).open()
-    bus.ping_all()
-    bus.configure(watchdog_s=0.1)
-    bus.torque_on()
-    return bus
+    return open_bus(sim)
 
 
 def _present(current: int, velocity: int, position: int) -> bytes:
