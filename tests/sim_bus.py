@@ -12,3 +12,16 @@ def open_bus(sim, watchdog_s: float = 0.1) -> DynamixelBus:
     bus.configure(watchdog_s=watchdog_s)
     bus.torque_on()
     return bus
+
+
+def capture_writes(bus: DynamixelBus) -> list[bytes]:
+    """Every packet `bus` writes from now on, appended to the returned list (and still sent)."""
+    sent: list[bytes] = []
+    write = bus._port.writePort
+
+    def capture(packet):
+        sent.append(bytes(packet))
+        return write(packet)
+
+    bus._port.writePort = capture
+    return sent

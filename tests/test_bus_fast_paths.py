@@ -17,7 +17,7 @@ from crane_io.dynamixel.faults import CommunicationError, ServoFaultError
 from crane_io.dynamixel.packets import CranePacketHandler
 from crane_io.sim import simulated_arm
 from crane_io.sim.protocol import fast_status_packet
-from tests.sim_bus import open_bus
+from tests.sim_bus import capture_writes, open_bus
 
 IDS = (2, 3, 4, 5, 6, 7, 8, 9)
 N = 10  # Present block bytes per servo
@@ -177,14 +177,7 @@ def test_a_crc_error_on_the_fast_path_is_retried_and_an_alert_bit_raises(sim):
 
 def test_the_goal_current_packet_is_the_group_sync_writes(sim):
     with _bus(sim) as bus:
-        sent = []
-        write = bus._port.writePort
-
-        def capture(packet):
-            sent.append(bytes(packet))
-            return write(packet)
-
-        bus._port.writePort = capture
+        sent = capture_writes(bus)
         rng = np.random.default_rng(1)
         for _ in range(20):
             amps = rng.uniform(-3, 3, 8)

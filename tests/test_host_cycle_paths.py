@@ -15,7 +15,7 @@ from crane_io import session_format as sf
 from crane_io.dynamixel.faults import CommunicationError, ServoFaultError
 from crane_io.sim import simulated_arm
 from crane_io.sim.protocol import fast_status_packet
-from tests.sim_bus import open_bus
+from tests.sim_bus import capture_writes, open_bus
 
 NAMES = [f"joint{i}" for i in range(1, 8)] + ["gripper"]
 
@@ -282,14 +282,7 @@ def test_the_goal_position_packet_and_values_are_the_group_sync_writes(sim):
     from crane_io.dynamixel import units
 
     with _bus(sim) as bus:
-        sent_packets = []
-        write = bus._port.writePort
-
-        def capture(packet):
-            sent_packets.append(bytes(packet))
-            return write(packet)
-
-        bus._port.writePort = capture
+        sent_packets = capture_writes(bus)
         rng = np.random.default_rng(2)
         for k in range(40):
             rad = rng.uniform(-4, 4, 8)
