@@ -25,7 +25,6 @@ import math
 
 import numpy as np
 import pinocchio as pin
-import scipy.linalg
 
 from crane_io.errors import ConfigError
 from crane_io.physics.arm_model import GRAVITY, TOOL_FRAME, reduced_model
@@ -213,6 +212,8 @@ class ArmDynamics:
     def _decompose(self, model_rows=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(independent columns, dependent columns, beta) of the regressor stacked over the fixed random
         samples (module docstring), over the rows `model_rows` (model order; None: every row)."""
+        import scipy.linalg  # here: a simulated run never needs it, and importing it costs ~0.3 s of start-up
+
         rng = np.random.default_rng(_BASE_SEED)
         lo = np.array([self.model.lowerPositionLimit[k] for k in range(self.model.nq)])
         hi = np.array([self.model.upperPositionLimit[k] for k in range(self.model.nq)])
