@@ -13,6 +13,14 @@ each with the collector automatic or frozen out of the cycle (a generation-0 col
 cycles). Reported: p50 / p99 / max of |period - nominal| and the overrun share, and the longest
 garbage collection that happened inside the loop. The note says the load average: figures from a
 shared machine only mean something beside it.
+
+The machine's floor (`--floor SECONDS`, and a 10 s row in the table): the same pacing under SCHED_FIFO,
+pinned, collector frozen, with no work at all but reading the pinned core's steal time from /proc/stat
+every cycle. Whatever period errors it shows come from the machine (a virtual machine's host taking the
+core away, interrupts), not from the loop; each late period is checked against the steal ticks counted
+within two cycles of it.
+
+    python benchmarks/bench_realtime.py --floor 600 [--cpu N]   # ten minutes of the floor alone
 """
 
 from __future__ import annotations
@@ -121,6 +129,72 @@ def measure(cycles: int, settings: dict, workload) -> dict:
             "gc_longest": watch.longest, "gc_count": watch.count, "fifo": granted, "sentence": sentence}
 
 
+class _Steal:
+    """Steal-time ticks (USER_HZ, 10 ms) of one core, read from /proc/stat with one kept descriptor."""
+
+    def __init__(self, cpu: int):
+        self._prefix = f"cpu{cpu} ".encode()
+        try:
+            self._f = open("/proc/stat", "rb", buffering=0)
+        except OSError:
+            self._f = None
+
+    def __call__(self) -> int:
+        if self._f is None:
+            return 0
+        self._f.seek(0)
+        for line in self._f.read(1 << 16).split(b"\n"):
+            if line.startswith(self._prefix):
+                fields = line.split()
+                return int(fields[8]) if len(fields) > 8 else 0
+        return 0
+
+
+def floor(seconds: float, cpu: int = -1) -> dict:
+    """The bare paced loop (module docstring): period errors the machine alone causes."""
+    from collect.config import RealtimeConfig
+    from collect.pacing import CycleTimer
+    from collect.realtime import enter_realtime
+
+    cycles = int(seconds * RATE_HZ)
+    gc.collect()
+    rt = enter_realtime(RealtimeConfig(scheduling="fifo", lock_memory=True, freeze_gc=True, cpu=cpu))
+    try:
+        cpu = rt.cpu if rt.cpu is not None else max(os.sched_getaffinity(0))
+        steal = _Steal(int(cpu))
+        ticks = np.zeros(cycles, dtype=np.int64)
+        timer = CycleTimer(RATE_HZ, spin_s=2e-4, window=100)
+        timer.start()
+        for k in range(cycles):
+            ticks[k] = steal()
+            timer.wait()
+        periods = timer.periods()
+        granted, sentence = rt.fifo, rt.sentence()
+    finally:
+        rt.restore()
+    err = np.abs(periods - 1.0 / RATE_HZ)
+    late = np.nonzero(periods - 1.0 / RATE_HZ > 2e-3)[0]  # period k ends at cycle k + 1
+    stolen = np.nonzero(np.diff(ticks) > 0)[0] + 1  # cycles whose read saw a new tick
+    near = sum(1 for i in late if np.any(np.abs(stolen - (i + 1)) <= 2))
+    return {"p50": float(np.percentile(err, 50)), "p99": float(np.percentile(err, 99)),
+            "max": float(err.max()), "late": int(late.size), "late_near_steal": int(near),
+            "steal_ticks": int(ticks[-1] - ticks[0]), "cycles": cycles, "cpu": int(cpu),
+            "chance": float(min(1.0, 5 * stolen.size / max(cycles, 1))), "fifo": granted,
+            "sentence": sentence}
+
+
+def floor_rows(seconds: float, cpu: int = -1) -> list[dict]:
+    m = floor(seconds, cpu)
+    note = (f"{seconds:g} s on CPU {m['cpu']}, load average {os.getloadavg()[0]:.1f}; "
+            f"{m['late']} periods > 2 ms late, {m['late_near_steal']} of them within 2 cycles of a steal "
+            f"tick ({m['steal_ticks']} ticks of 10 ms; chance {m['chance'] * 100:.2f} % of cycles)")
+    if not m["fifo"]:
+        note += "; SCHED_FIFO refused: " + m["sentence"]
+    return [_row("machine floor (no work, SCHED_FIFO): p99 |period - 2 ms|", m["p99"] * 1e3, "ms", note),
+            _row("machine floor (no work, SCHED_FIFO): max |period - 2 ms|", m["max"] * 1e3, "ms",
+                 f"p50 {m['p50'] * 1e6:.0f} us")]
+
+
 def run(quick: bool) -> list[dict]:
     import collect.runner  # noqa: F401 - the whole collect stack in the heap, as in a real run
 
@@ -140,11 +214,15 @@ def run(quick: bool) -> list[dict]:
         rows.append(_row(f"{name}: overruns", m["overruns"] * 100, "%", ""))
         rows.append(_row(f"{name}: longest gc in the loop", m["gc_longest"] * 1e3, "ms",
                          f"{m['gc_count']} collections"))
-    return rows
+    return rows + floor_rows(1.0 if quick else 10.0)
 
 
 if __name__ == "__main__":
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from run_all import table
 
-    print(table(run("--quick" in sys.argv)))
+    if "--floor" in sys.argv:
+        cpu = int(sys.argv[sys.argv.index("--cpu") + 1]) if "--cpu" in sys.argv else -1
+        print(table(floor_rows(float(sys.argv[sys.argv.index("--floor") + 1]), cpu)))
+    else:
+        print(table(run("--quick" in sys.argv)))
