@@ -454,4 +454,4 @@ def test_a_new_chain_has_its_kernels_compiled_before_the_first_packet():
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
     counts = json.loads(out.stdout.strip().splitlines()[-1])
     assert counts == {"sensors_into": 1, "commands": 1, "fast_status": 1, "reading": 1, "step_arm": 1,
-                      "sync_write_goal": 1, "sense": 1, "fast_sync_read": 1}
+                      "sync_write_goal": 1, "sense": 1, "fast_sync_read": 1, "sync_write_read": 1}
