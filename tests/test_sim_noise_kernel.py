@@ -86,3 +86,24 @@ def test_the_plants_cycle_arguments_draw_what_its_noise_draws():
             assert np.array_equal(signs, signs_b)
         assert np.array_equal(flips, flips_b) and np.array_equal(z, z_b), k
         assert a.rng.bit_generator.state == b.rng.bit_generator.state, k
+
+
+def test_copied_or_unpickled_pointers_point_into_their_own_generator():
+    """RngPointers (ArmPlant keeps its generator's so) copied or unpickled with their generator point into
+    the copy's state, not the original's: both then draw the same numbers, each advancing only its own."""
+    import copy
+    import pickle
+
+    rng = np.random.default_rng(6)
+    kept = noise_kernel.RngPointers(rng)
+    for clone in (copy.deepcopy, lambda x: pickle.loads(pickle.dumps(x))):
+        twin_rng, twin = clone((rng, kept))
+        assert twin.rng is twin_rng and twin_rng is not rng
+        state = rng.bit_generator.state
+        out = []
+        for k in (twin, kept):
+            z = np.zeros(16)
+            assert draw(k.array, 8, 0.0, False, 2, np.zeros(8), np.zeros(8), z)
+            out.append(z)
+        assert np.array_equal(out[0], out[1])
+        assert twin_rng.bit_generator.state == rng.bit_generator.state != state

@@ -181,7 +181,7 @@ class ArmPlant:
         self.time = 0.0
         self._last_key, self._last_out = b"", None  # the last substep's inputs and result (_substep)
         self._raw_signs_ok = None  # the generator _pulse_signs may read raw (see there)
-        self._rng_kept = (None, None)  # kernel_cycle_args: the generator and its pointers
+        self._rng_kept = None  # kernel_cycle_args: the generator and its pointers (noise_kernel.RngPointers)
         # per-joint parameters of the substep's scalar loops: (Coulomb +, Coulomb -, Stribeck terms) and
         # (viscous, offset, spring stiffness, stiffness x rest angle, lower stop, upper stop)
         self._kinetic_l = [(self._fc_pos_l[i], self._fc_neg_l[i], tuple(self._strib_l[i]))
@@ -732,8 +732,8 @@ class ArmPlant:
             return None
         rng = self.rng
         kept = self._rng_kept
-        if kept[0] is not rng:
-            kept = self._rng_kept = (rng, noise_kernel.rng_pointers(rng))
+        if kept is None or kept.rng is not rng:
+            kept = self._rng_kept = noise_kernel.RngPointers(rng)
         s = self.config.sensor
         p = s.position_noise_probability
         raw_signs = False
@@ -748,7 +748,7 @@ class ArmPlant:
                 self._raw_signs_ok = None
         vel_sd = s.velocity_noise_lsb * RADS_PER_VELOCITY_LSB if s.velocity_noise_lsb > 0 else 0.0
         cur_sd = s.current_noise_lsb * AMPERE_PER_CURRENT_LSB if s.current_noise_lsb > 0 else 0.0
-        return (*step, self._kt_array(), kept[1], float(p), raw_signs, vel_sd, cur_sd, *self._supply_lists)
+        return (*step, self._kt_array(), kept.array, float(p), raw_signs, vel_sd, cur_sd, *self._supply_lists)
 
     def kernel_stepped(self, dt: float) -> None:
         """The compiled lockstep cycle stepped the plant's packed state by dt."""

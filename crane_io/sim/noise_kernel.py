@@ -26,10 +26,29 @@ from crane_io.dynamixel.units import RAD_PER_PULSE
 
 
 def rng_pointers(rng: np.random.Generator) -> np.ndarray:
-    """`draw`'s rngp for the Generator `rng` (keep `rng` alive while they are used)."""
+    """`draw`'s rngp for the Generator `rng` (keep `rng` alive while they are used: RngPointers)."""
     c = rng.bit_generator.ctypes
     addr = [ctypes.cast(f, ctypes.c_void_p).value for f in (c.next_uint64, c.next_uint32, c.next_double)]
     return np.array([c.state_address, *addr], dtype=np.uint64)
+
+
+class RngPointers:
+    """A Generator with its `rng_pointers` (`.rng`, `.array`). A copy or an unpickled one points into the
+    copied generator, never into the original's memory."""
+
+    __slots__ = ("rng", "array")
+
+    def __init__(self, rng: np.random.Generator):
+        self.rng = rng
+        self.array = rng_pointers(rng)
+
+    def __deepcopy__(self, memo):
+        import copy
+
+        return RngPointers(copy.deepcopy(self.rng, memo))
+
+    def __reduce__(self):
+        return RngPointers, (self.rng,)
 
 
 def _intrinsics():
