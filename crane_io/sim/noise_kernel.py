@@ -42,12 +42,7 @@ class RngPointers:
         self.rng = rng
         self.array = rng_pointers(rng)
 
-    def __deepcopy__(self, memo):
-        import copy
-
-        return RngPointers(copy.deepcopy(self.rng, memo))
-
-    def __reduce__(self):
+    def __reduce__(self):  # (copy.deepcopy too: the pointers made anew for the copied generator)
         return RngPointers, (self.rng,)
 
 
