@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from crane_io.dynamixel.units import RADS_PER_VELOCITY_LSB
 from crane_io.sim import chain_kernel
 from crane_io.sim import protocol as p
 from crane_io.sim.arm_plant import ArmPlant
@@ -454,4 +455,62 @@ def test_a_new_chain_has_its_kernels_compiled_before_the_first_packet():
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
     counts = json.loads(out.stdout.strip().splitlines()[-1])
     assert counts == {"sensors_into": 1, "commands": 1, "fast_status": 1, "reading": 1, "step_arm": 1,
-                      "sync_write_goal": 1, "sense": 1, "fast_sync_read": 1}
+                      "sync_write_goal": 1, "sense": 1, "fast_sync_read": 1, "sync_write_read": 1}
+
+
+@pytest.mark.parametrize("joints", ["crane-x7", "crane-x7-7dof"])
+def test_the_one_call_cycle_draws_the_noise_the_general_path_draws(joints):
+    """lockstep_kernel.sync_write_read draws the sensor noise inside the compiled call from the plant's own
+    Generator: the same readings and generator state as the general path, also when something else draws
+    from the generator between cycles, when the generator is replaced, when the noise settings change
+    (position noise off, more position noise, no velocity noise), and for a plant with its own _noise."""
+    import dataclasses
+
+    chains = _pair(lambda: ArmPlant(joints, seed=8))
+    ids = _bring_up(chains, [2, 3, 4, 5, 6, 7, 8])
+    calls = []
+    one_call = chains[0]._lockstep_fns[3]
+    fns = list(chains[0]._lockstep_fns)
+    fns[3] = lambda *a: calls.append(1) or one_call(*a)
+    chains[0]._lockstep_fns = tuple(fns)
+    rng = np.random.default_rng(2)
+
+    def run(n):
+        for _ in range(n):
+            _cycle(chains, [2, 3, 4, 5, 6, 7, 8], rng.integers(-300, 300, 7), ids)
+
+    run(10)
+    assert len(calls) == 10
+    for c in chains:  # a 32-bit draw from elsewhere leaves half an output in the bit generator
+        c.plant.rng.integers(0, 5, dtype=np.int32)
+    run(5)
+    for c in chains:
+        c.plant.rng = np.random.default_rng(77)
+    run(5)
+    for sensor in ({"position_noise_probability": 0.0}, {"position_noise_probability": 0.4},
+                   {"velocity_noise_lsb": 0.0}, {"current_noise_lsb": 0.0, "velocity_noise_lsb": 0.0}):
+        for c in chains:
+            c.plant.config = dataclasses.replace(
+                c.plant.config, sensor=dataclasses.replace(c.plant.config.sensor, **sensor))
+        run(4)
+    assert len(calls) == 10 + 5 + 5 + 16
+
+
+def test_a_plant_with_its_own_noise_is_not_bypassed():
+    class Quiet(ArmPlant):
+        def _noise(self):
+            p, raw, flips, signs, vel_sd, cur_sd, z = super()._noise()
+            return p, raw, flips, signs, vel_sd, cur_sd, z * 0.0
+
+    chain = SimulatedChain(Quiet("crane-x7", seed=1), fast=True)
+    assert chain.fast and chain.plant.kernel_cycle_args(0.002) is None
+    for sid in (2, 3, 5):
+        chain.feed(_write(sid, MODE, 0, 1))
+    chain.feed(_sync_write_torque(list(chain.plant.servo_ids), 1))
+    for _ in range(5):
+        chain.feed(_sync_write_current([2, 3, 5], [200, -200, 100]))
+    velocity = chain.memories[:, PRESENT + 2:PRESENT + 6].copy().view("<i4").ravel()
+    true = np.zeros(8)
+    true[chain.plant._bi_l], true[chain.plant._held_l] = chain.plant.dq, chain.plant._held_dq
+    assert np.any(true != 0)
+    assert np.array_equal(velocity, np.round(true / RADS_PER_VELOCITY_LSB).astype(int))  # noise-free

@@ -60,7 +60,7 @@ from crane_io.dynamixel.units import AMPERE_PER_CURRENT_LSB, RAD_PER_PULSE, RADS
 from crane_io.errors import ConfigError
 from crane_io.physics.dynamics import ArmDynamics
 from crane_io.physics.effects import PlantTerms, get_effect
-from crane_io.sim import chain_kernel, plant_kernel
+from crane_io.sim import chain_kernel, noise_kernel, plant_kernel
 from crane_io.sim.environment import Environment
 from crane_io.sim.plant_api import ActuatorCommand, SensorReading
 from crane_io.sim.plant_config import ARM_JOINTS, PlantConfig, check_joints, load_plant_config
@@ -181,6 +181,7 @@ class ArmPlant:
         self.time = 0.0
         self._last_key, self._last_out = b"", None  # the last substep's inputs and result (_substep)
         self._raw_signs_ok = None  # the generator _pulse_signs may read raw (see there)
+        self._rng_kept = None  # kernel_cycle_args: the generator and its pointers (noise_kernel.RngPointers)
         # per-joint parameters of the substep's scalar loops: (Coulomb +, Coulomb -, Stribeck terms) and
         # (viscous, offset, spring stiffness, stiffness x rest angle, lower stop, upper stop)
         self._kinetic_l = [(self._fc_pos_l[i], self._fc_neg_l[i], tuple(self._strib_l[i]))
@@ -719,6 +720,35 @@ class ArmPlant:
             per = self._kdt[dt] = (self.h, hmat, n_sub, dt / n_sub)
         return (self._bi_mask, kst, self.external, self._held_ext, per[1], self._karm, self._kpack,
                 self._klay, per[3], per[2], dt)
+
+    def kernel_cycle_args(self, dt: float) -> tuple | None:
+        """kernel_step_args(dt) and what lockstep_kernel.sync_write_read reads the plant with after the step:
+        the torque constants, the noise generator's pointers (crane_io.sim.noise_kernel: the compiled call
+        draws from `rng` what _noise would draw, in its order), the position noise probability, the velocity
+        and current noise sd, then the voltages and temperatures (lists); or None when kernel_step_args is
+        None or the plant draws its noise otherwise (a subclass's own _noise)."""
+        step = self.kernel_step_args(dt)
+        if step is None or self._chain_fns is False or type(self)._noise is not ArmPlant._noise:
+            return None
+        rng = self.rng
+        kept = self._rng_kept
+        if kept is None or kept.rng is not rng:
+            kept = self._rng_kept = noise_kernel.RngPointers(rng)
+        s = self.config.sensor
+        p = s.position_noise_probability
+        raw_signs = False
+        if p > 0:  # the signs as _position_noise draws them: raw when it would, else as integers(0, 2, n)
+            n = len(self.servo_ids)
+            if n % 2 == 0 and self._raw_signs_ok is not rng:
+                bg = rng.bit_generator
+                pcg = type(bg) is np.random.PCG64 and not bg.state["has_uint32"]
+                self._raw_signs_ok = rng if pcg else None
+            raw_signs = n % 2 == 0 and self._raw_signs_ok is rng
+            if not raw_signs:
+                self._raw_signs_ok = None
+        vel_sd = s.velocity_noise_lsb * RADS_PER_VELOCITY_LSB if s.velocity_noise_lsb > 0 else 0.0
+        cur_sd = s.current_noise_lsb * AMPERE_PER_CURRENT_LSB if s.current_noise_lsb > 0 else 0.0
+        return (*step, self._kt_array(), kept.array, float(p), raw_signs, vel_sd, cur_sd, *self._supply_lists)
 
     def kernel_stepped(self, dt: float) -> None:
         """The compiled lockstep cycle stepped the plant's packed state by dt."""

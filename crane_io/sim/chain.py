@@ -128,6 +128,7 @@ class SimulatedChain:
         self.fast = self._fast_fns is not None and self._lockstep_fns is not None
         self._reply_buffer = np.zeros(4096, dtype=np.uint8)  # the fast Fast Sync Read reply is built here
         self._sensed = np.zeros((3, len(self._order)))  # lockstep_kernel.sense's reading (see _read_plant)
+        self._noise_work = np.zeros(4 * len(self._order))  # lockstep_kernel.sync_write_read's noise
         none = np.zeros(0)  # a plant that lockstep_kernel does not step: its arguments' types
         self._no_plant_args = (0, none, none, none, np.zeros(4), none, none, np.zeros(11, dtype=np.int64),
                                0.0, 1, 0.0)
@@ -304,6 +305,9 @@ class SimulatedChain:
                        _list_method(plant, "step", "step_command"),
                        _list_method(plant, "read", "kernel_read_args"),
                        _list_method(plant, "step", "kernel_step_args"))
+            # the step and the reading in one compiled call (lockstep_kernel.sync_write_read) when both fit
+            both = methods[4] is not None and methods[5] is not None
+            methods += (getattr(plant, "kernel_cycle_args", None) if both else None,)
             self._plant_lists_methods = (plant, methods)
         return methods
 
@@ -363,9 +367,16 @@ class SimulatedChain:
         if fast is None or not done:
             if fast is not None:
                 position, velocity, current = position.tolist(), velocity.tolist(), current.tolist()
-            for s, pos, vel, cur, volt, temp in zip(self._order, position, velocity, current, voltage,
-                                                    temperature):
-                s.set_sensors(pos, vel, cur, now, volt, temp)
+            self._set_sensors(position, velocity, current, voltage, temperature, now)
+        self._plant_errors()
+
+    def _set_sensors(self, position, velocity, current, voltage, temperature, now: float) -> None:
+        for s, pos, vel, cur, volt, temp in zip(self._order, position, velocity, current, voltage,
+                                                temperature):
+            s.set_sensors(pos, vel, cur, now, volt, temp)
+
+    def _plant_errors(self) -> None:
+        """The plant's hardware errors latched into its servos."""
         errors = self.plant.hardware_errors()
         if errors:
             for sid, bits in errors.items():
@@ -445,8 +456,31 @@ class SimulatedChain:
         if inst == p.INST_SYNC_WRITE:
             dt = self.period_s
             plant = self.plant
-            args = None
-            step_args = self._lists_of(plant)[5]
+            methods = self._lists_of(plant)
+            cycle = methods[6]
+            args = None if cycle is None else cycle(dt)
+            if args is not None:  # written, stepped and read in one call (lockstep_kernel.sync_write_read)
+                volt, temp = self._supply(args[-2], args[-1])
+                now = self.time
+                result = fns[3](data, self.memories, self.servo_state, code, self.parser.max_length, now,
+                                self._commands, *args[:-2], volt, temp, self._sensed, self._noise_work)
+                if result < 0:
+                    return None
+                st = self.stats
+                st.bytes_received += len(data)
+                st.packets_received += 1
+                if result == 1 or result == 3:  # stepped and read: the clocks (then what sense did not write)
+                    plant.kernel_stepped(dt)
+                    self.time = now = now + dt
+                    st.plant_steps += 1
+                    if result == 3:
+                        position, velocity, current = self._sensed.tolist()
+                        self._set_sensors(position, velocity, current, args[-2], args[-1], now)
+                    self._plant_errors()
+                elif result == 2:  # written: the plant steps on the general path
+                    self._step(dt)
+                return b""
+            step_args = methods[5]
             if step_args is not None:
                 args = step_args(dt)
             result = fns[0](data, self.memories, self.servo_state, code,

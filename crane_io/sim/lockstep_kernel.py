@@ -35,7 +35,7 @@ import numpy as np
 
 from crane_io.dynamixel.control_table import X_SERIES
 from crane_io.dynamixel.units import SECONDS_PER_WATCHDOG_LSB
-from crane_io.sim import chain_kernel, plant_kernel
+from crane_io.sim import chain_kernel, noise_kernel, plant_kernel
 from crane_io.sim.servo import MEMORY_SIZE, S_CONTACT, S_EXPIRED, S_FAST_READ, S_ON_BUS
 
 # the X-series addresses (the chain uses these kernels for servos laid out so: SimulatedChain._fast_layout)
@@ -183,6 +183,32 @@ def sense(mem, kst, klay, kt, p, raw, flips, signs, vel_sd, cur_sd, z, volt, tem
                                      THRESHOLD_AT)
 
 
+def sync_write_read(pkt, mem, sst, baud_code, max_length, now, cmds, bi_mask, kst, ext, hext, hmat, arm, kpk,
+                    klay, h, n_sub, dt, kt, rngp, p, raw_signs, vel_sd, cur_sd, volt, temp, scratch, work):
+    """`sync_write_goal` with the plant's arguments and, when it stepped the plant, the reading at now + dt in
+    the same call: the noise drawn from the plant's generator as ArmPlant._noise draws it (noise_kernel.draw:
+    the same numbers, the same generator state after), then `sense` with the Realtime Tick of now + dt.
+    work: float64, 4 x servos at least (the noise). Returns sync_write_goal's -1, 0 or 2 (nothing read,
+    nothing drawn); 1: stepped and read into every servo's memory; 3: stepped and read into scratch[:3] but
+    sensors_into wrote nothing (the caller sets the sensors from scratch)."""
+    n = mem.shape[0]
+    if (work.shape[0] < 4 * n or scratch.shape[0] < 3 or scratch.shape[1] < n or rngp.shape[0] < 4
+            or (raw_signs and n % 2 != 0)):
+        return -1
+    r = sync_write_goal(pkt, mem, sst, baud_code, max_length, now, cmds, True, bi_mask, kst, ext, hext, hmat,
+                        arm, kpk, klay, h, n_sub, dt)
+    if r != 1:
+        return r
+    draws = (1 if vel_sd > 0 else 0) + (1 if cur_sd > 0 else 0)
+    flips, signs, z = work[0:n], work[n:2 * n], work[2 * n:2 * n + draws * n]
+    noise_kernel_draw(rngp, n, p, raw_signs, draws, flips, signs, z)
+    t = now + dt  # the chain's time after the step, as the caller advances it
+    tick = np.int64(t * 1000.0) % 32768
+    raw = np.empty(0, dtype=np.uint64)
+    done = sense(mem, kst, klay, kt, p, raw, flips, signs, vel_sd, cur_sd, z, volt, temp, tick, scratch)
+    return 1 if done else 3
+
+
 def fast_sync_read(pkt, mem, sst, baud_code, max_length, now, buf):
     """A Fast Sync Read on the lockstep clock at chain time `now`, answered whole: every addressed servo hears
     it, answers Fast Sync Read and has no expired watchdog (then each one's contact time is `now`), and the
@@ -222,9 +248,10 @@ chain_kernel_crc_byte, chain_kernel_get_u, chain_kernel_put = (chain_kernel._crc
 chain_kernel_commands, chain_kernel_reading = chain_kernel.commands, chain_kernel.reading
 chain_kernel_sensors_into, chain_kernel_fast_status = chain_kernel.sensors_into, chain_kernel.fast_status
 plant_kernel_step_arm = plant_kernel.step_arm
+noise_kernel_draw = noise_kernel.draw
 _ALIASES = ("chain_kernel_crc_byte", "chain_kernel_get_u", "chain_kernel_put", "chain_kernel_commands",
             "chain_kernel_reading", "chain_kernel_sensors_into", "chain_kernel_fast_status",
-            "plant_kernel_step_arm")
+            "noise_kernel_draw", "plant_kernel_step_arm")
 # (the packet: the host's bytes object itself)
 _F, _I, _U8, _PKT = "float64[::1]", "int64[::1]", "uint8[::1]", "Bytes(uint8, 1, 'C', readonly=True)"
 _M, _S2 = "uint8[:, ::1]", "float64[:, ::1]"
@@ -234,12 +261,15 @@ SIGNATURES = {
     "sense": (f"({_M}, {_F}, {_I}, {_F}, float64, uint64[::1], {_F}, {_F}, float64, float64, {_F}, {_I}, "
               f"{_I}, int64, {_S2})",),
     "fast_sync_read": (f"({_PKT}, {_M}, {_S2}, int64, int64, float64, {_U8})",),
+    "sync_write_read": (f"({_PKT}, {_M}, {_S2}, int64, int64, float64, {_S2}, int64, {_F}, {_F}, {_F}, {_F}, "
+                        f"{_F}, {_F}, {_I}, float64, int64, float64, {_F}, uint64[::1], float64, boolean, "
+                        f"float64, float64, {_I}, {_I}, {_S2}, {_F})",),
 }
 
 
 def compiled():
-    """(sync_write_goal, sense, fast_sync_read) compiled with numba, or None without numba. The first call
-    of a process compiles them, or loads them from numba's cache (crane_io.sim.jit)."""
+    """(sync_write_goal, sense, fast_sync_read, sync_write_read) compiled with numba, or None without numba.
+    The first call of a process compiles them, or loads them from numba's cache (crane_io.sim.jit)."""
     global _COMPILED
     if _COMPILED is None:
         from crane_io.sim.jit import compile_functions
@@ -247,16 +277,21 @@ def compiled():
         # the plant kernel's step_arm as plant_kernel compiled it (its own cache entry: a fresh checkout
         # compiles the dynamics once); the chain kernel's small functions compiled anew, under their own names
         plant = plant_kernel.compiled()
+        noise = noise_kernel.namespace()
         ns = dict(vars(chain_kernel))
+        ns.update(noise or {})
         ns.update(globals())
         fns = None
-        if plant is not None:
+        if plant is not None and noise is not None:
             ns["plant_kernel_step_arm"] = plant[0]
+            ns["noise_kernel_draw"] = noise["draw"]
             names = ("_quantise", "_put", "_get_u", "_get_s", "_crc_byte", *_ALIASES[:-1], "_params_end",
-                     "_row_of", "_anyone_hears", "sync_write_goal", "sense", "fast_sync_read")
+                     "_row_of", "_anyone_hears", "sync_write_goal", "sense", "fast_sync_read",
+                     "sync_write_read")
             fns = compile_functions(ns, names, SIGNATURES, qualname_prefix="lockstep_kernel.",
                                     error_model="numpy")
-        _COMPILED = False if fns is None else (fns["sync_write_goal"], fns["sense"], fns["fast_sync_read"])
+        _COMPILED = False if fns is None else (fns["sync_write_goal"], fns["sense"], fns["fast_sync_read"],
+                                               fns["sync_write_read"])
     return _COMPILED or None
 
 

@@ -261,27 +261,32 @@ def _solve(a, idx, m, b, x, work):
 def step(q, dq, cmd, h, n_sub, geo, arm, par, cog, scal):
     """n_sub substeps of h; returns (3 n,): angles, velocities, the last substep's motor torque."""
     n = q.shape[0]
-    q = q.copy()
-    dq = dq.copy()
-    tau = np.empty(n)
-    drive = np.empty(n)
-    rhs = np.empty(n)
-    ddq = np.empty(n)
-    vel = np.empty(n)
-    free = np.zeros(n, dtype=np.bool_)
-    idx = np.zeros(n, dtype=np.int64)
-    net = np.empty(n)
-    sol = np.empty(n)
-    mass = np.empty((n, n))
-    work = np.empty((n, n))
-    bias = np.empty(n)
-    rot = np.empty((n, 3, 3))
-    pos = np.empty((n, 3))
-    wk = np.empty((n, 12))
-    zero = np.zeros(n)
-    cm = np.empty(n)
-    ch = np.empty((n, 3))
-    ci = np.empty((n, 3, 3))
+    out = np.empty(3 * n)
+    _integrate(q, dq, cmd, h, n_sub, geo, arm, par, cog, scal, out)
+    return out
+
+
+def _integrate(q0, dq0, cmd, h, n_sub, geo, arm, par, cog, scal, out):
+    """`step` into out[:3 n]; its work arrays are views of two allocations (one float, one int), not twenty
+    (each allocation costs about as much as a joint's substep of arithmetic)."""
+    n = q0.shape[0]
+    fw = np.empty(n * (48 + 2 * n))  # 12 vectors, 2 (n, n), wk, pos, ch, rot, ci
+    iw = np.zeros(2 * n, dtype=np.int64)
+    q, dq, tau, drive, rhs = fw[0:n], fw[n:2 * n], fw[2 * n:3 * n], fw[3 * n:4 * n], fw[4 * n:5 * n]
+    ddq, vel, net, sol = fw[5 * n:6 * n], fw[6 * n:7 * n], fw[7 * n:8 * n], fw[8 * n:9 * n]
+    bias, zero, cm = fw[9 * n:10 * n], fw[10 * n:11 * n], fw[11 * n:12 * n]
+    o = 12 * n
+    mass = fw[o:o + n * n].reshape((n, n))
+    work = fw[o + n * n:o + 2 * n * n].reshape((n, n))
+    o += 2 * n * n
+    wk = fw[o:o + 12 * n].reshape((n, 12))
+    pos = fw[o + 12 * n:o + 15 * n].reshape((n, 3))
+    ch = fw[o + 15 * n:o + 18 * n].reshape((n, 3))
+    rot = fw[o + 18 * n:o + 27 * n].reshape((n, 3, 3))
+    ci = fw[o + 27 * n:o + 36 * n].reshape((n, 3, 3))
+    free, idx = iw[0:n], iw[n:2 * n]  # (free: 1 while the joint moves, in the stick-slip solve)
+    for i in range(n):
+        q[i], dq[i], zero[i] = q0[i], dq0[i], 0.0
     k_stop, d_stop = scal[0], scal[1]
     for _ in range(n_sub):
         for i in range(n):  # the servo's PD in position modes (SimplePlant.motor_torque), clipped as np.clip
@@ -319,7 +324,7 @@ def step(q, dq, cmd, h, n_sub, geo, arm, par, cog, scal):
             _solve(mass, idx, n, net, ddq, work)
         else:  # stick-slip: hold the stuck joints while their holding torque lies in their static band
             for i in range(n):
-                free[i] = dq[i] != 0.0
+                free[i] = 1 if dq[i] != 0.0 else 0
                 vel[i] = dq[i]
             for _pass in range(n + 1):
                 m = 0
@@ -347,7 +352,7 @@ def step(q, dq, cmd, h, n_sub, geo, arm, par, cog, scal):
                         worst, worst_excess, push = s, excess, hold
                 if worst < 0:
                     break
-                free[worst] = True
+                free[worst] = 1
                 vel[worst] = 1e-12 if push > 0 else -1e-12
         # semi-implicit Euler: velocity first (friction stops a joint, it never reverses it), then position
         for i in range(n):
@@ -357,10 +362,8 @@ def step(q, dq, cmd, h, n_sub, geo, arm, par, cog, scal):
                 v = 0.0
             dq[i] = v
             q[i] = q[i] + h * v
-    out = np.empty(3 * n)
     for i in range(n):
         out[i], out[n + i], out[2 * n + i] = q[i], dq[i], tau[i]
-    return out
 
 
 def step_arm(q, dq, hq, hdq, cmds, pd, ext, hext, h, n_sub, dt, hmat, geo, arm, par, cog, scal, hpar):
@@ -411,9 +414,7 @@ def step_arm(q, dq, hq, hdq, cmds, pd, ext, hext, h, n_sub, dt, hmat, geo, arm, 
         for c in range(6):
             cmd[i, C_PD + c] = pd[i, c]
         cmd[i, C_EXT] = ext[i]
-    res = step(q, dq, cmd, h, n_sub, geo, arm, par, cog, scal)
-    for i in range(b):
-        out[i] = res[i]
+    _integrate(q, dq, cmd, h, n_sub, geo, arm, par, cog, scal, out)
     return out
 
 
@@ -432,8 +433,9 @@ def compiled():
     if _COMPILED is None:
         from crane_io.sim.jit import compile_functions
 
-        fns = compile_functions(globals(), ("_kinematics", "_rnea", "_crba", "dynamics", "_kinetic", "_solve",
-                                            "step", "step_arm"), SIGNATURES, error_model="numpy")
+        names = ("_kinematics", "_rnea", "_crba", "dynamics", "_kinetic", "_solve", "_integrate", "step",
+                 "step_arm")
+        fns = compile_functions(globals(), names, SIGNATURES, error_model="numpy")
         _COMPILED = False if fns is None else (fns["step_arm"], fns["step"], fns["dynamics"])
     return _COMPILED or None
 

@@ -20,7 +20,10 @@ class Serial(SerialBase):
     def __init__(self, *args, **kwargs):
         self._chain = None
         self._rx = bytearray()
-        self._cond = threading.Condition()
+        # the input buffer's lock (taken directly where nobody waits or is woken: a Condition's own
+        # `with` costs another Python call) and the condition readers wait on
+        self._lock = threading.Lock()
+        self._cond = threading.Condition(self._lock)
         self._waiting = 0  # readers waiting on _cond (write notifies only when there are any)
         super().__init__(*args, **kwargs)
 
@@ -63,7 +66,7 @@ class Serial(SerialBase):
     def read(self, size=1):
         if not self.is_open:
             raise PortNotOpenError()
-        with self._cond:
+        with self._lock:
             if self._timeout == 0 or len(self._rx) >= size:  # nothing to wait for (the SDK polls with 0)
                 data = bytes(self._rx[:size])
                 del self._rx[:size]
@@ -92,7 +95,7 @@ class Serial(SerialBase):
         data = to_bytes(data)
         reply = self._chain.feed(data, self._baudrate)
         if reply:
-            with self._cond:
+            with self._lock:
                 self._rx += reply
                 if self._waiting:
                     self._cond.notify_all()
@@ -111,7 +114,7 @@ class Serial(SerialBase):
     def reset_input_buffer(self):
         if not self.is_open:
             raise PortNotOpenError()
-        with self._cond:
+        with self._lock:
             self._rx.clear()
 
     def reset_output_buffer(self):
