@@ -107,3 +107,23 @@ def test_copied_or_unpickled_pointers_point_into_their_own_generator():
             out.append(z)
         assert np.array_equal(out[0], out[1])
         assert twin_rng.bit_generator.state == rng.bit_generator.state != state
+
+
+def test_the_compiled_sampler_is_checked_against_numpys_once_a_process():
+    assert noise_kernel.verified()
+
+
+def test_a_sampler_that_differs_from_numpys_leaves_the_noise_to_numpy(monkeypatch):
+    """A numba whose normal sampler is not numpy's (simulated: every normal off by one ulp) is caught by the
+    check, with a warning, and the plant's cycle arguments are then None (the chain draws with numpy)."""
+    def off_by_an_ulp(rngp, n, p, raw_signs, draws, flips, signs, z):
+        ok = draw(rngp, n, p, raw_signs, draws, flips, signs, z)
+        z[: draws * n] = np.nextafter(z[: draws * n], np.inf)
+        return ok
+
+    monkeypatch.setattr(noise_kernel, "_COMPILED", off_by_an_ulp)
+    monkeypatch.setattr(noise_kernel, "_VERIFIED", None)
+    with pytest.warns(UserWarning, match="normal sampler differs"):
+        assert not noise_kernel.verified()
+    plant = ArmPlant("crane-x7", seed=4)
+    assert plant.kernel_step_args(0.002) is not None and plant.kernel_cycle_args(0.002) is None

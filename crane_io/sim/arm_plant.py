@@ -730,6 +730,8 @@ class ArmPlant:
         step = self.kernel_step_args(dt)
         if step is None or self._chain_fns is False or type(self)._noise is not ArmPlant._noise:
             return None
+        if not noise_kernel.verified():  # numba's normal sampler is not numpy's here: draw with numpy
+            return None
         rng = self.rng
         kept = self._rng_kept
         if kept is None or kept.rng is not rng:

@@ -135,3 +135,44 @@ def compiled():
 
 
 _COMPILED = None
+_VERIFIED: bool | None = None
+
+
+def _numpy_draw(rng: np.random.Generator, n: int, raw_signs: bool, draws: int):
+    """What `draw` must give with p > 0, drawn with numpy's own methods (ArmPlant._noise's order)."""
+    if raw_signs:
+        raw = rng.bit_generator.random_raw(n + n // 2)
+        flips = (raw[:n] >> np.uint64(11)) * 2.0 ** -53
+        bits = np.stack([(raw[n:] >> np.uint64(31)) & np.uint64(1), raw[n:] >> np.uint64(63)], axis=1).ravel()
+    else:
+        flips = rng.random(n)
+        bits = rng.integers(0, 2, n)
+    signs = np.where(bits == 1, RAD_PER_PULSE, -RAD_PER_PULSE)
+    return flips, signs, rng.standard_normal(draws * n)
+
+
+def verified() -> bool:
+    """Whether the compiled `draw` gives numpy's numbers and leaves numpy's state, checked once a process on
+    seeded generators (both sign paths, enough normals to reach the ziggurat's rare branches). `draw` rests
+    on numba's port of numpy's normal sampler: a numba whose port differs is caught here, and the plant then
+    draws its noise with numpy (ArmPlant.kernel_cycle_args gives None), with a warning."""
+    global _VERIFIED
+    if _VERIFIED is None:
+        fn = compiled()
+        ok = fn is not None
+        for seed, n, raw_signs, draws in ((7, 3, False, 2), (8, 4, True, 2), (9, 8, False, 4000)):
+            if not ok:
+                break
+            mine, ref = np.random.default_rng(seed), np.random.default_rng(seed)
+            flips, signs, z = np.zeros(n), np.zeros(n), np.zeros(draws * n)
+            ok = bool(fn(rng_pointers(mine), n, 0.5, raw_signs, draws, flips, signs, z))
+            f2, s2, z2 = _numpy_draw(ref, n, raw_signs, draws)
+            ok = ok and (np.array_equal(flips, f2) and np.array_equal(signs, s2) and np.array_equal(z, z2)
+                         and mine.bit_generator.state == ref.bit_generator.state)
+        if fn is not None and not ok:
+            import warnings
+
+            warnings.warn("this numba's normal sampler differs from numpy's: the simulated arms draw their "
+                          "sensor noise with numpy (a little slower, the same sessions)", stacklevel=2)
+        _VERIFIED = ok
+    return _VERIFIED
