@@ -402,11 +402,21 @@ class SimulatedOperator:
         d = self._seg_b - self._seg_a
         return self._seg_a + d * s, d * ds / self._seg_T
 
-    def _move_rows(self) -> tuple[float, bool, list]:
-        """The moves as lists, made again whenever the schedule changes: (the earliest end t0 + T of a move,
-        before which `_advance` has nothing to do; no T is 0; per joint (index, t0, T, a, b - a))."""
+    def _move_rows(self, ends: bool = True) -> tuple[float, bool, list, np.ndarray]:
+        """The moves as lists, made again whenever the schedule changes: (the time before which `_advance`
+        has nothing to do; no T is 0; per joint (index, t0, T, a, b - a); those rows as a (k, 5) array).
+        That time is the earliest over the joints of the end t0 + T of a moving joint's move, and of a
+        pausing joint's max(t0 + T, end of its pause): `_advance` leaves a pausing joint alone until both
+        have passed (it does not draw, nor change its segment). ends=False: that time is not needed (inf)."""
         t0s, Ts, a_s, b_s = (x.tolist() for x in (self._seg_t0, self._seg_T, self._seg_a, self._seg_b))
-        end = min((t0 + T for t0, T in zip(t0s, Ts)), default=math.inf)
+        end = math.inf
+        if ends:
+            for on, t0, T, pause_end in zip(self._on.tolist(), t0s, Ts, self._phase_end.tolist()):
+                e = t0 + T
+                if not on and pause_end > e:
+                    e = pause_end
+                if e < end:
+                    end = e
         rows = [(i, t0, T, a, b - a) for i, t0, T, a, b in zip(self._idx_list, t0s, Ts, a_s, b_s)]
         return end, 0.0 not in Ts, rows, np.array(rows, dtype=float).reshape(len(rows), 5)
 
@@ -436,7 +446,7 @@ class SimulatedOperator:
         if self.started:
             if self.env is not None:
                 self._advance_contact(t)
-                moves = self._move_rows()
+                moves = self._move_rows(False)
             else:
                 moves = self._moves
                 if moves is None or not t < moves[0]:  # a move may have ended: the schedule goes on
