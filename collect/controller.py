@@ -43,6 +43,7 @@ clamps, applied and safety checks in one call.
 
 from __future__ import annotations
 
+import functools
 import sys
 import warnings
 from dataclasses import dataclass
@@ -83,6 +84,30 @@ class Commands:
     follower_tau: np.ndarray
     leader_current: np.ndarray
     follower_current: np.ndarray
+
+
+class _KernelCommands(Commands):
+    """Commands on the compiled path: the rows of the kernel's output array (`controller_kernel.O_*`), each
+    made when first read (BilateralController.control's caller reads the clamped torques instead)."""
+
+    def __init__(self, out: np.ndarray):  # the fields are the properties below
+        self._out = out
+
+    @functools.cached_property
+    def leader_tau(self) -> np.ndarray:
+        return self._out[kernel.O_TAU_L]
+
+    @functools.cached_property
+    def follower_tau(self) -> np.ndarray:
+        return self._out[kernel.O_TAU_F]
+
+    @functools.cached_property
+    def leader_current(self) -> np.ndarray:
+        return self._out[kernel.O_CUR_L]
+
+    @functools.cached_property
+    def follower_current(self) -> np.ndarray:
+        return self._out[kernel.O_CUR_F]
 
 
 class GravityModel:
@@ -255,9 +280,14 @@ class _KernelObserver:
         return self._s[self._r + kernel.S_J].copy()
 
 
+_F64 = np.dtype(np.float64)
+
+
 def _kernel_input(x, n: int) -> np.ndarray:
     """x as the compiled functions take it, (n,) float64 C-contiguous and writeable (x itself when it is
     one already; otherwise numba would compile another specialisation at the call)."""
+    if type(x) is np.ndarray and x.dtype is _F64 and x.shape == (n,) and x.flags.carray:
+        return x  # the usual case (a bus read's array), without np.asarray's call
     a = np.asarray(x, dtype=float)
     if a.shape != (n,) or not a.flags.carray:
         a = np.array(np.broadcast_to(a, (n,)), dtype=float)
@@ -344,6 +374,7 @@ class BilateralController:
         self._gidx = np.ascontiguousarray(self.gravity.index, dtype=np.int64)
         self._finite = self.gravity.kind == "dynamics"  # the kernel checks those angles (as gravity_torque)
         self._band = float(self.deadband)
+        self._limits = (None, None)  # (the SafetyMonitor control() was last given, its kernel_constants())
         return fns
 
     def decay(self, dt: float) -> np.ndarray:
@@ -465,15 +496,28 @@ class BilateralController:
         dql = ql if dql is None else _kernel_input(dql, n)
         dqf = qf if dqf is None else _kernel_input(dqf, n)
         dt = float(dt)
-        limits = safety.kernel_constants()
-        if limits.shape != (kernel.N_SAFETY, n):  # the kernel does not check its indices
-            raise ConfigError(f"the safety monitor has {limits.shape[1]} joints, the controller {n}")
-        out, status = self._kernel_call(2, ql, qf, dt, (dql, dqf), (limits, dt, self._band, has_dq))
-        dq_l, dis_l, res_l, dq_f, dis_f, res_f, tau_l, tau_f, cur_l, cur_f, lim_l, lim_f = out
-        self.leader = ArmEstimates(dq_l, dis_l, res_l)
-        self.follower = ArmEstimates(dq_f, dis_f, res_f)
+        seen = self._limits
+        if seen[0] is safety:  # the limits are fixed once the monitor is built (kernel_constants)
+            limits = seen[1]
+        else:
+            limits = safety.kernel_constants()
+            if limits.shape != (kernel.N_SAFETY, n):  # the kernel does not check its indices
+                raise ConfigError(f"the safety monitor has {limits.shape[1]} joints, the controller {n}")
+            self._limits = (safety, limits)
+        # _kernel_call(2, ...), inline
+        out = np.empty((kernel.N_OUT_CONTROL, n))
+        gl, gf = self._kernel_observers(ql, qf, dt)
+        status = self._kernel[2](ql, qf, dql, dqf, gl, gf, self._gidx, self._state, self._consts, limits, dt,
+                                 self._band, has_dq, self._finite, out)
+        if status & kernel.NONFINITE:  # nothing changed (the first cycle's angles were checked before)
+            self._cycles -= 1
+            raise ConfigError("the dynamics inputs contain NaN or infinite values")
+        self.leader = ArmEstimates(out[kernel.O_DQ_L], out[kernel.O_DIS_L], out[kernel.O_RES_L])
+        self.follower = ArmEstimates(out[kernel.O_DQ_F], out[kernel.O_DIS_F], out[kernel.O_RES_F])
+        lim_l, lim_f = out[kernel.O_LIM_L], out[kernel.O_LIM_F]
         breach = None
         if status:  # a joint in its soft zone, past its stop or faster than its guard
+            tau_l, tau_f = out[kernel.O_TAU_L], out[kernel.O_TAU_F]
             if status & kernel.SOFT_ZONE:
                 lim_l = safety.limit_torque(leader.q, tau_l, leader.dq_servo)
             if status & kernel.SOFT_ZONE << 1:
@@ -484,7 +528,7 @@ class BilateralController:
                 breach = safety.check("leader", leader.q, leader.dq_servo)
             if breach is None and status & kernel.CHECK << 1:
                 breach = safety.check("follower", follower.q, follower.dq_servo)
-        return Commands(tau_l, tau_f, cur_l, cur_f), lim_l, lim_f, breach
+        return _KernelCommands(out), lim_l, lim_f, breach
 
     def step(self, leader: ArmSignals, follower: ArmSignals, dt: float) -> Commands:
         if self._kernel is not None:
