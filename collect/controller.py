@@ -44,6 +44,7 @@ clamps, applied and safety checks in one call.
 from __future__ import annotations
 
 import functools
+import math
 import sys
 import warnings
 from dataclasses import dataclass
@@ -184,6 +185,7 @@ class InertiaModel:
         self.J = J
         self.every = max(1, int(every))
         self._dyn = None
+        self._crba = None  # (pinocchio.crba, model, data): `write`'s call of the dynamics, when it has one
         if kind == "dynamics":
             try:
                 from crane_io.physics.dynamics import ArmDynamics
@@ -198,6 +200,10 @@ class InertiaModel:
                 self._dyn = ArmDynamics(joints=joints, locked=locked)
                 self._idx = np.array([names.index(n) for n in self._dyn.joint_names])
                 self._m0 = np.diag(self._dyn.mass_matrix(np.zeros(len(joints))))
+                if self._dyn._identity:  # mass_matrix_diagonal's one-pose call (crba) without its checks
+                    import pinocchio
+
+                    self._crba = (pinocchio.crba, self._dyn.model, self._dyn.data)
 
     def __call__(self, q: np.ndarray) -> np.ndarray:
         if self._dyn is None:
@@ -207,6 +213,26 @@ class InertiaModel:
         m = self._dyn.mass_matrix_diagonal(q[i])
         J[i] = np.maximum(0.5 * self.J[i], self.J[i] + m - self._m0)
         return J
+
+    def write(self, q: np.ndarray, g: np.ndarray, J_row: np.ndarray, gJ_row: np.ndarray) -> None:
+        """self(q) into J_row and g self(q) into gJ_row ((n,) each), the compiled controller's state rows;
+        J_row must hold self(q) of an earlier pose already, or J (the joints the dynamics do not cover keep
+        their values). The same bits as those of self(q), in fewer operations."""
+        if self._crba is None:
+            J = self(q)
+            J_row[:] = J
+            np.multiply(g, J, out=gJ_row)
+            return
+        crba, model, data = self._crba
+        i = self._idx
+        qi = q[i]
+        if not all(map(math.isfinite, qi.tolist())):  # as mass_matrix_diagonal
+            raise ConfigError("the dynamics inputs contain NaN or infinite values")
+        Ji = self.J[i]
+        x = Ji + (crba(model, data, qi).diagonal() + 0.0)  # (J + m) - m0, as in __call__
+        x -= self._m0
+        J_row[i] = np.maximum(0.5 * Ji, x)
+        np.multiply(g, J_row, out=gJ_row)
 
 
 class _Observer:
@@ -440,10 +466,9 @@ class BilateralController:
         else:
             gl, gf = grav.values(ql, k == 0), grav.values(qf, k == 0)
         if k % self.inertia.every == 0:
-            for q, r in ((ql, 0), (qf, kernel.S_ARM)):
-                J = self.inertia(q)
-                s[r + kernel.S_J] = J
-                np.multiply(self.g, J, out=s[r + kernel.S_GJ])
+            write = self.inertia.write
+            write(ql, self.g, s[kernel.S_J], s[kernel.S_GJ])
+            write(qf, self.g, s[kernel.S_ARM + kernel.S_J], s[kernel.S_ARM + kernel.S_GJ])
             if not k:
                 for q, g, r in ((ql, gl, 0), (qf, gf, kernel.S_ARM)):
                     full = np.zeros(self.n)
