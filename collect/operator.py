@@ -178,7 +178,7 @@ class SimulatedOperator:
         self._on = np.zeros(k, dtype=bool)
         self._phase_end = np.zeros(k)  # end of the current on or off phase
         self._out = np.zeros(self.n)
-        self._moves = None  # the free task's moves as torque() reads them (_move_rows); None: to be made
+        self._moves = None  # the moves as torque() reads them (_move_rows, _contact_rows); None: to be made
         use = compiled if compiled is not None else "numba" in sys.modules
         self._kernel = _hand_compiled() if use else None
         if compiled and self._kernel is None:
@@ -394,6 +394,7 @@ class SimulatedOperator:
             self._advance_contact(t)
         else:
             self._advance(t)
+        self._moves = None  # torque() makes its moves again
         return self._profile(t)
 
     def _profile(self, t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -420,6 +421,20 @@ class SimulatedOperator:
         rows = [(i, t0, T, a, b - a) for i, t0, T, a, b in zip(self._idx_list, t0s, Ts, a_s, b_s)]
         return end, 0.0 not in Ts, rows, np.array(rows, dtype=float).reshape(len(rows), 5)
 
+    def _contact_rows(self) -> tuple[float, bool, list, np.ndarray]:
+        """_move_rows for the contact task, after `_advance_contact`: the time before which it has nothing to
+        do first. In a press episode the end of the stage; in a free phase the next event of its joints'
+        processes (`_advance`) when it comes before the phase's end, else the end of the phase or of the
+        last move running then, whichever is later (a press then starts)."""
+        if self._free_end == math.inf:
+            rows = self._move_rows(False)
+            return (float(self._seg_t0[0] + self._seg_T[0]),) + rows[1:]
+        rows = self._move_rows()
+        if rows[0] < self._free_end:
+            return rows
+        last = max((t0 + T for t0, T in zip(self._seg_t0.tolist(), self._seg_T.tolist())), default=-math.inf)
+        return (max(self._free_end, last),) + rows[1:]
+
     def _hand(self, t: float, moves: list, q: list, dq: list) -> np.ndarray:
         """`torque` after the schedule advanced, per joint in Python floats: the arithmetic of
         `_profile`, `minimum_jerk` and the impedance, operation for operation (the same results, bit for
@@ -444,12 +459,12 @@ class SimulatedOperator:
     def torque(self, t: float, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         """External torque (n,) the hand applies to the leader's joints, in arm.joints order."""
         if self.started:
-            if self.env is not None:
-                self._advance_contact(t)
-                moves = self._move_rows(False)
-            else:
-                moves = self._moves
-                if moves is None or not t < moves[0]:  # a move may have ended: the schedule goes on
+            moves = self._moves
+            if moves is None or not t < moves[0]:  # a move or phase may have ended: the schedule goes on
+                if self.env is not None:
+                    self._advance_contact(t)
+                    moves = self._moves = self._contact_rows()
+                else:
                     self._advance(t)
                     moves = self._moves = self._move_rows()
             if moves[1]:
