@@ -401,6 +401,16 @@ class BilateralController:
         self._finite = self.gravity.kind == "dynamics"  # the kernel checks those angles (as gravity_torque)
         self._band = float(self.deadband)
         self._limits = (None, None)  # (the SafetyMonitor control() was last given, its kernel_constants())
+        # control's native entry (kernel.direct): control() passes it the signature's types only; so the
+        # gravity's own call only when it gives a float64 C-contiguous array (as pinocchio's does)
+        self._control_entry = kernel.direct(fns[2])
+        self._pin = self.gravity._pin
+        if self._pin is not None:
+            f, model, data = self._pin
+            g = f(model, data, np.zeros(len(self.gravity.index)))
+            if not (type(g) is np.ndarray and g.dtype is _F64 and g.flags.carray
+                    and g.shape == self.gravity.index.shape):
+                self._pin = None
         return fns
 
     def decay(self, dt: float) -> np.ndarray:
@@ -459,12 +469,13 @@ class BilateralController:
         Returns (gravity leader, gravity follower)."""
         s, grav = self._state, self.gravity
         k = self._cycles
-        if k and grav._pin is not None:  # GravityModel.values(q, checked=False), inline
-            f, model, data = grav._pin
+        if k and self._pin is not None:  # GravityModel.values(q, checked=False), inline
+            f, model, data = self._pin
             idx = grav._dyn_idx
             gl, gf = f(model, data, ql[idx]), f(model, data, qf[idx])
-        else:
-            gl, gf = grav.values(ql, k == 0), grav.values(qf, k == 0)
+        else:  # as the kernel takes them (control's native entry does not check them)
+            n = len(grav.index)
+            gl, gf = _kernel_input(grav.values(ql, k == 0), n), _kernel_input(grav.values(qf, k == 0), n)
         if k % self.inertia.every == 0:
             write = self.inertia.write
             write(ql, self.g, s[kernel.S_J], s[kernel.S_GJ])
@@ -528,12 +539,15 @@ class BilateralController:
             limits = safety.kernel_constants()
             if limits.shape != (kernel.N_SAFETY, n):  # the kernel does not check its indices
                 raise ConfigError(f"the safety monitor has {limits.shape[1]} joints, the controller {n}")
+            if not (type(limits) is np.ndarray and limits.dtype is _F64 and limits.flags.carray):
+                raise ConfigError("the safety monitor's kernel_constants() are not a C-contiguous float64 "
+                                  "array")
             self._limits = (safety, limits)
         # _kernel_call(2, ...), inline
         out = np.empty((kernel.N_OUT_CONTROL, n))
         gl, gf = self._kernel_observers(ql, qf, dt)
-        status = self._kernel[2](ql, qf, dql, dqf, gl, gf, self._gidx, self._state, self._consts, limits, dt,
-                                 self._band, has_dq, self._finite, out)
+        status = self._control_entry(ql, qf, dql, dqf, gl, gf, self._gidx, self._state, self._consts, limits,
+                                     dt, self._band, has_dq, self._finite, out)
         if status & kernel.NONFINITE:  # nothing changed (the first cycle's angles were checked before)
             self._cycles -= 1
             raise ConfigError("the dynamics inputs contain NaN or infinite values")

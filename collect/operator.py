@@ -93,15 +93,20 @@ _HAND_COMPILED = None
 
 def _hand_compiled():
     """_hand_kernel compiled (or loaded from numba's cache) by crane_io.sim.jit, closed to other argument
-    types; None without numba."""
+    types, as its native entry (collect/controller_kernel.py `direct`); None without numba."""
     global _HAND_COMPILED
     if _HAND_COMPILED is None:
         from crane_io.sim.jit import compile_functions
 
         fns = compile_functions(globals(), ("_hand_kernel",), _HAND_SIGNATURES)
-        _HAND_COMPILED = False if fns is None else fns["_hand_kernel"]
-        if fns is not None:
-            _HAND_COMPILED.disable_compile()
+        if fns is None:
+            _HAND_COMPILED = False
+        else:
+            from .controller_kernel import direct
+
+            fns["_hand_kernel"].disable_compile()
+            # its native entry: torque() passes it the signature's types only (_f64, _move_rows' array)
+            _HAND_COMPILED = direct(fns["_hand_kernel"])
     return _HAND_COMPILED or None
 
 

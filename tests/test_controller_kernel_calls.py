@@ -108,3 +108,39 @@ def test_the_compiled_control_commands_read_as_the_numpy_ones(joints):
     # each cycle's commands are its own: the later cycles did not change the earlier ones
     for got, want in kept:
         assert all(getattr(got, name).tobytes() == w.tobytes() for name, w in zip(FIELDS, want))
+
+
+def test_the_native_entries_are_used_and_give_the_dispatchers_results():
+    from collect import controller_kernel
+    from collect.operator import _hand_compiled
+
+    step, _hold, control = controller_kernel.compiled()
+    cfg = _config()
+    ctl = BilateralController(cfg, run_arm(cfg), compiled=True)
+    assert ctl._control_entry is not control and callable(ctl._control_entry)
+    assert _hand_compiled() is not None and not hasattr(_hand_compiled(), "signatures")
+    # the entry gives the dispatcher's bits (one cycle of `step` on both, from the same state)
+    n = ctl.n
+    rng = np.random.default_rng(1)
+    ql, qf, gl, gf = (rng.normal(0, 0.5, n) for _ in range(4))
+    gidx = np.arange(n, dtype=np.int64)
+    state = rng.normal(0, 1.0, (controller_kernel.N_STATE, n))
+    consts = np.abs(rng.normal(1.0, 0.2, (controller_kernel.N_CONST, n)))
+    outs = []
+    for f in (step, controller_kernel.direct(step)):
+        s, out = state.copy(), np.zeros((controller_kernel.N_OUT, n))
+        assert f(ql, qf, gl, gf, gidx, s, consts, DT, 0.0, True, out) == 0
+        outs.append((s.tobytes(), out.tobytes()))
+    assert controller_kernel.direct(step) is not step
+    assert outs[0] == outs[1]
+
+
+def test_direct_keeps_a_dispatcher_it_cannot_bypass():
+    from collect import controller_kernel
+
+    class Several:
+        signatures = ("a", "b")
+
+    d = Several()
+    assert controller_kernel.direct(d) is d
+    assert controller_kernel.direct(len) is len
