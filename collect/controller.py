@@ -38,7 +38,9 @@ Two paths compute all this with the same bits: the numpy one below (the referenc
 the dither, runs on real arms) and a compiled kernel (collect/controller_kernel.py, issue 13: one call
 per cycle instead of some sixty small numpy operations) that a simulated run takes, numba being loaded
 there already (`BilateralController(compiled=...)`). `control()` is a bilateral cycle's step, safety
-clamps, applied and safety checks in one call.
+clamps, applied and safety checks in one call; on the compiled path it calls the kernel's native entry
+(controller_kernel.direct: the arguments' types are guaranteed here, not matched per call), keeps the safety
+monitor's limits between calls, and makes the commands' rows only when they are read.
 """
 
 from __future__ import annotations
