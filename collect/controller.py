@@ -93,8 +93,10 @@ class _KernelCommands(Commands):
     """Commands on the compiled path: the rows of the kernel's output array (`controller_kernel.O_*`), each
     made when first read (BilateralController.control's caller reads the clamped torques instead)."""
 
-    def __init__(self, out: np.ndarray):  # the fields are the properties below
+    def __init__(self, out: np.ndarray | None = None, **fields):  # the fields are the properties below
         self._out = out
+        if out is None:  # the fields given (dataclasses.replace, copy)
+            Commands.__init__(self, **fields)
 
     @functools.cached_property
     def leader_tau(self) -> np.ndarray:

@@ -105,6 +105,9 @@ def test_the_compiled_control_commands_read_as_the_numpy_ones(joints):
             x, y = getattr(want, name), getattr(got, name)
             assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes(), (k, name)
         kept.append((got, [getattr(want, name).copy() for name in FIELDS]))
+    changed = dataclasses.replace(got, leader_tau=np.ones(8))
+    assert changed.leader_tau.tobytes() == np.ones(8).tobytes()
+    assert changed.follower_current.tobytes() == got.follower_current.tobytes()
     # each cycle's commands are its own: the later cycles did not change the earlier ones
     for got, want in kept:
         assert all(getattr(got, name).tobytes() == w.tobytes() for name, w in zip(FIELDS, want))
