@@ -38,11 +38,15 @@ Two paths compute all this with the same bits: the numpy one below (the referenc
 the dither, runs on real arms) and a compiled kernel (collect/controller_kernel.py, issue 13: one call
 per cycle instead of some sixty small numpy operations) that a simulated run takes, numba being loaded
 there already (`BilateralController(compiled=...)`). `control()` is a bilateral cycle's step, safety
-clamps, applied and safety checks in one call.
+clamps, applied and safety checks in one call; on the compiled path it calls the kernel's native entry
+(controller_kernel.direct: the arguments' types are guaranteed here, not matched per call), keeps the safety
+monitor's limits between calls, and makes the commands' rows only when they are read.
 """
 
 from __future__ import annotations
 
+import functools
+import math
 import sys
 import warnings
 from dataclasses import dataclass
@@ -83,6 +87,32 @@ class Commands:
     follower_tau: np.ndarray
     leader_current: np.ndarray
     follower_current: np.ndarray
+
+
+class _KernelCommands(Commands):
+    """Commands on the compiled path: the rows of the kernel's output array (`controller_kernel.O_*`), each
+    made when first read (BilateralController.control's caller reads the clamped torques instead)."""
+
+    def __init__(self, out: np.ndarray | None = None, **fields):  # the fields are the properties below
+        self._out = out
+        if out is None:  # the fields given (dataclasses.replace, copy)
+            Commands.__init__(self, **fields)
+
+    @functools.cached_property
+    def leader_tau(self) -> np.ndarray:
+        return self._out[kernel.O_TAU_L]
+
+    @functools.cached_property
+    def follower_tau(self) -> np.ndarray:
+        return self._out[kernel.O_TAU_F]
+
+    @functools.cached_property
+    def leader_current(self) -> np.ndarray:
+        return self._out[kernel.O_CUR_L]
+
+    @functools.cached_property
+    def follower_current(self) -> np.ndarray:
+        return self._out[kernel.O_CUR_F]
 
 
 class GravityModel:
@@ -159,6 +189,7 @@ class InertiaModel:
         self.J = J
         self.every = max(1, int(every))
         self._dyn = None
+        self._crba = None  # (pinocchio.crba, model, data): `write`'s call of the dynamics, when it has one
         if kind == "dynamics":
             try:
                 from crane_io.physics.dynamics import ArmDynamics
@@ -173,6 +204,10 @@ class InertiaModel:
                 self._dyn = ArmDynamics(joints=joints, locked=locked)
                 self._idx = np.array([names.index(n) for n in self._dyn.joint_names])
                 self._m0 = np.diag(self._dyn.mass_matrix(np.zeros(len(joints))))
+                if self._dyn._identity:  # mass_matrix_diagonal's one-pose call (crba) without its checks
+                    import pinocchio
+
+                    self._crba = (pinocchio.crba, self._dyn.model, self._dyn.data)
 
     def __call__(self, q: np.ndarray) -> np.ndarray:
         if self._dyn is None:
@@ -182,6 +217,26 @@ class InertiaModel:
         m = self._dyn.mass_matrix_diagonal(q[i])
         J[i] = np.maximum(0.5 * self.J[i], self.J[i] + m - self._m0)
         return J
+
+    def write(self, q: np.ndarray, g: np.ndarray, J_row: np.ndarray, gJ_row: np.ndarray) -> None:
+        """self(q) into J_row and g self(q) into gJ_row ((n,) each), the compiled controller's state rows;
+        J_row must hold self(q) of an earlier pose already, or J (the joints the dynamics do not cover keep
+        their values). The same bits as those of self(q), in fewer operations."""
+        if self._crba is None:
+            J = self(q)
+            J_row[:] = J
+            np.multiply(g, J, out=gJ_row)
+            return
+        crba, model, data = self._crba
+        i = self._idx
+        qi = q[i]
+        if not all(map(math.isfinite, qi.tolist())):  # as mass_matrix_diagonal
+            raise ConfigError("the dynamics inputs contain NaN or infinite values")
+        Ji = self.J[i]
+        x = Ji + (crba(model, data, qi).diagonal() + 0.0)  # (J + m) - m0, as in __call__
+        x -= self._m0
+        J_row[i] = np.maximum(0.5 * Ji, x)
+        np.multiply(g, J_row, out=gJ_row)
 
 
 class _Observer:
@@ -255,9 +310,14 @@ class _KernelObserver:
         return self._s[self._r + kernel.S_J].copy()
 
 
+_F64 = np.dtype(np.float64)
+
+
 def _kernel_input(x, n: int) -> np.ndarray:
     """x as the compiled functions take it, (n,) float64 C-contiguous and writeable (x itself when it is
     one already; otherwise numba would compile another specialisation at the call)."""
+    if type(x) is np.ndarray and x.dtype is _F64 and x.shape == (n,) and x.flags.carray:
+        return x  # the usual case (a bus read's array), without np.asarray's call
     a = np.asarray(x, dtype=float)
     if a.shape != (n,) or not a.flags.carray:
         a = np.array(np.broadcast_to(a, (n,)), dtype=float)
@@ -344,6 +404,17 @@ class BilateralController:
         self._gidx = np.ascontiguousarray(self.gravity.index, dtype=np.int64)
         self._finite = self.gravity.kind == "dynamics"  # the kernel checks those angles (as gravity_torque)
         self._band = float(self.deadband)
+        self._limits = (None, None)  # (the SafetyMonitor control() was last given, its kernel_constants())
+        # control's native entry (kernel.direct): control() passes it the signature's types only; so the
+        # gravity's own call only when it gives a float64 C-contiguous array (as pinocchio's does)
+        self._control_entry = kernel.direct(fns[2])
+        self._pin = self.gravity._pin
+        if self._pin is not None:
+            f, model, data = self._pin
+            g = f(model, data, np.zeros(len(self.gravity.index)))
+            if not (type(g) is np.ndarray and g.dtype is _F64 and g.flags.carray
+                    and g.shape == self.gravity.index.shape):
+                self._pin = None
         return fns
 
     def decay(self, dt: float) -> np.ndarray:
@@ -402,17 +473,17 @@ class BilateralController:
         Returns (gravity leader, gravity follower)."""
         s, grav = self._state, self.gravity
         k = self._cycles
-        if k and grav._pin is not None:  # GravityModel.values(q, checked=False), inline
-            f, model, data = grav._pin
+        if k and self._pin is not None:  # GravityModel.values(q, checked=False), inline
+            f, model, data = self._pin
             idx = grav._dyn_idx
             gl, gf = f(model, data, ql[idx]), f(model, data, qf[idx])
-        else:
-            gl, gf = grav.values(ql, k == 0), grav.values(qf, k == 0)
+        else:  # as the kernel takes them (control's native entry does not check them)
+            n = len(grav.index)
+            gl, gf = _kernel_input(grav.values(ql, k == 0), n), _kernel_input(grav.values(qf, k == 0), n)
         if k % self.inertia.every == 0:
-            for q, r in ((ql, 0), (qf, kernel.S_ARM)):
-                J = self.inertia(q)
-                s[r + kernel.S_J] = J
-                np.multiply(self.g, J, out=s[r + kernel.S_GJ])
+            write = self.inertia.write
+            write(ql, self.g, s[kernel.S_J], s[kernel.S_GJ])
+            write(qf, self.g, s[kernel.S_ARM + kernel.S_J], s[kernel.S_ARM + kernel.S_GJ])
             if not k:
                 for q, g, r in ((ql, gl, 0), (qf, gf, kernel.S_ARM)):
                     full = np.zeros(self.n)
@@ -465,15 +536,31 @@ class BilateralController:
         dql = ql if dql is None else _kernel_input(dql, n)
         dqf = qf if dqf is None else _kernel_input(dqf, n)
         dt = float(dt)
-        limits = safety.kernel_constants()
-        if limits.shape != (kernel.N_SAFETY, n):  # the kernel does not check its indices
-            raise ConfigError(f"the safety monitor has {limits.shape[1]} joints, the controller {n}")
-        out, status = self._kernel_call(2, ql, qf, dt, (dql, dqf), (limits, dt, self._band, has_dq))
-        dq_l, dis_l, res_l, dq_f, dis_f, res_f, tau_l, tau_f, cur_l, cur_f, lim_l, lim_f = out
-        self.leader = ArmEstimates(dq_l, dis_l, res_l)
-        self.follower = ArmEstimates(dq_f, dis_f, res_f)
+        seen = self._limits
+        if seen[0] is safety:  # the limits are fixed once the monitor is built (kernel_constants)
+            limits = seen[1]
+        else:
+            limits = safety.kernel_constants()
+            if limits.shape != (kernel.N_SAFETY, n):  # the kernel does not check its indices
+                raise ConfigError(f"the safety monitor has {limits.shape[1]} joints, the controller {n}")
+            if not (type(limits) is np.ndarray and limits.dtype is _F64 and limits.flags.carray):
+                raise ConfigError("the safety monitor's kernel_constants() are not a C-contiguous float64 "
+                                  "array")
+            self._limits = (safety, limits)
+        # _kernel_call(2, ...), inline
+        out = np.empty((kernel.N_OUT_CONTROL, n))
+        gl, gf = self._kernel_observers(ql, qf, dt)
+        status = self._control_entry(ql, qf, dql, dqf, gl, gf, self._gidx, self._state, self._consts, limits,
+                                     dt, self._band, has_dq, self._finite, out)
+        if status & kernel.NONFINITE:  # nothing changed (the first cycle's angles were checked before)
+            self._cycles -= 1
+            raise ConfigError("the dynamics inputs contain NaN or infinite values")
+        self.leader = ArmEstimates(out[kernel.O_DQ_L], out[kernel.O_DIS_L], out[kernel.O_RES_L])
+        self.follower = ArmEstimates(out[kernel.O_DQ_F], out[kernel.O_DIS_F], out[kernel.O_RES_F])
+        lim_l, lim_f = out[kernel.O_LIM_L], out[kernel.O_LIM_F]
         breach = None
         if status:  # a joint in its soft zone, past its stop or faster than its guard
+            tau_l, tau_f = out[kernel.O_TAU_L], out[kernel.O_TAU_F]
             if status & kernel.SOFT_ZONE:
                 lim_l = safety.limit_torque(leader.q, tau_l, leader.dq_servo)
             if status & kernel.SOFT_ZONE << 1:
@@ -484,7 +571,7 @@ class BilateralController:
                 breach = safety.check("leader", leader.q, leader.dq_servo)
             if breach is None and status & kernel.CHECK << 1:
                 breach = safety.check("follower", follower.q, follower.dq_servo)
-        return Commands(tau_l, tau_f, cur_l, cur_f), lim_l, lim_f, breach
+        return _KernelCommands(out), lim_l, lim_f, breach
 
     def step(self, leader: ArmSignals, follower: ArmSignals, dt: float) -> Commands:
         if self._kernel is not None:

@@ -93,15 +93,20 @@ _HAND_COMPILED = None
 
 def _hand_compiled():
     """_hand_kernel compiled (or loaded from numba's cache) by crane_io.sim.jit, closed to other argument
-    types; None without numba."""
+    types, as its native entry (collect/controller_kernel.py `direct`); None without numba."""
     global _HAND_COMPILED
     if _HAND_COMPILED is None:
         from crane_io.sim.jit import compile_functions
 
         fns = compile_functions(globals(), ("_hand_kernel",), _HAND_SIGNATURES)
-        _HAND_COMPILED = False if fns is None else fns["_hand_kernel"]
-        if fns is not None:
-            _HAND_COMPILED.disable_compile()
+        if fns is None:
+            _HAND_COMPILED = False
+        else:
+            from .controller_kernel import direct
+
+            fns["_hand_kernel"].disable_compile()
+            # its native entry: torque() passes it the signature's types only (_f64, _move_rows' array)
+            _HAND_COMPILED = direct(fns["_hand_kernel"])
     return _HAND_COMPILED or None
 
 
@@ -178,7 +183,7 @@ class SimulatedOperator:
         self._on = np.zeros(k, dtype=bool)
         self._phase_end = np.zeros(k)  # end of the current on or off phase
         self._out = np.zeros(self.n)
-        self._moves = None  # the free task's moves as torque() reads them (_move_rows); None: to be made
+        self._moves = None  # the moves as torque() reads them (_move_rows, _contact_rows); None: to be made
         use = compiled if compiled is not None else "numba" in sys.modules
         self._kernel = _hand_compiled() if use else None
         if compiled and self._kernel is None:
@@ -394,6 +399,7 @@ class SimulatedOperator:
             self._advance_contact(t)
         else:
             self._advance(t)
+        self._moves = None  # torque() makes its moves again
         return self._profile(t)
 
     def _profile(self, t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -402,13 +408,37 @@ class SimulatedOperator:
         d = self._seg_b - self._seg_a
         return self._seg_a + d * s, d * ds / self._seg_T
 
-    def _move_rows(self) -> tuple[float, bool, list]:
-        """The moves as lists, made again whenever the schedule changes: (the earliest end t0 + T of a move,
-        before which `_advance` has nothing to do; no T is 0; per joint (index, t0, T, a, b - a))."""
+    def _move_rows(self, ends: bool = True) -> tuple[float, bool, list, np.ndarray]:
+        """The moves as lists, made again whenever the schedule changes: (the time before which `_advance`
+        has nothing to do; no T is 0; per joint (index, t0, T, a, b - a); those rows as a (k, 5) array).
+        That time is the earliest over the joints of the end t0 + T of a moving joint's move, and of a
+        pausing joint's max(t0 + T, end of its pause): `_advance` leaves a pausing joint alone until both
+        have passed (it does not draw, nor change its segment). ends=False: that time is not needed (inf)."""
         t0s, Ts, a_s, b_s = (x.tolist() for x in (self._seg_t0, self._seg_T, self._seg_a, self._seg_b))
-        end = min((t0 + T for t0, T in zip(t0s, Ts)), default=math.inf)
+        end = math.inf
+        if ends:
+            for on, t0, T, pause_end in zip(self._on.tolist(), t0s, Ts, self._phase_end.tolist()):
+                e = t0 + T
+                if not on and pause_end > e:
+                    e = pause_end
+                if e < end:
+                    end = e
         rows = [(i, t0, T, a, b - a) for i, t0, T, a, b in zip(self._idx_list, t0s, Ts, a_s, b_s)]
         return end, 0.0 not in Ts, rows, np.array(rows, dtype=float).reshape(len(rows), 5)
+
+    def _contact_rows(self) -> tuple[float, bool, list, np.ndarray]:
+        """_move_rows for the contact task, after `_advance_contact`: the time before which it has nothing to
+        do first. In a press episode the end of the stage; in a free phase the next event of its joints'
+        processes (`_advance`) when it comes before the phase's end, else the end of the phase or of the
+        last move running then, whichever is later (a press then starts)."""
+        if self._free_end == math.inf:
+            rows = self._move_rows(False)
+            return (float(self._seg_t0[0] + self._seg_T[0]),) + rows[1:]
+        rows = self._move_rows()
+        if rows[0] < self._free_end:
+            return rows
+        last = max((t0 + T for t0, T in zip(self._seg_t0.tolist(), self._seg_T.tolist())), default=-math.inf)
+        return (max(self._free_end, last),) + rows[1:]
 
     def _hand(self, t: float, moves: list, q: list, dq: list) -> np.ndarray:
         """`torque` after the schedule advanced, per joint in Python floats: the arithmetic of
@@ -434,12 +464,12 @@ class SimulatedOperator:
     def torque(self, t: float, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         """External torque (n,) the hand applies to the leader's joints, in arm.joints order."""
         if self.started:
-            if self.env is not None:
-                self._advance_contact(t)
-                moves = self._move_rows()
-            else:
-                moves = self._moves
-                if moves is None or not t < moves[0]:  # a move may have ended: the schedule goes on
+            moves = self._moves
+            if moves is None or not t < moves[0]:  # a move or phase may have ended: the schedule goes on
+                if self.env is not None:
+                    self._advance_contact(t)
+                    moves = self._moves = self._contact_rows()
+                else:
                     self._advance(t)
                     moves = self._moves = self._move_rows()
             if moves[1]:
