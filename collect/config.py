@@ -46,6 +46,8 @@ class JointGains:
     cutoff: float  # rad/s, pseudo-derivative and observer cutoff g
     viscous: float  # N m s/rad, RFOB viscous friction D
     dither: float = 1.0  # follower's dither on this joint, x controller.dither_amplitude (< 0: antiphase)
+    dither_min_velocity: float = 0.0  # rad/s: this joint's dither amplitude >= it x 2 pi f x J(q) (0: off)
+    model_cutoff: float = 0.0  # rad/s: this joint's loop filters with a model (0: controller.model_cutoff)
 
 
 @dataclass(frozen=True)
@@ -256,7 +258,7 @@ def _build(values: dict, where: str) -> Config:
         gains = {}
         for key in ("inertia", "kp", "cutoff"):
             gains[key] = _pos(where, f"controller.{name}.{key}", table[key])
-        for key in ("kd", "kf", "viscous", "dither"):
+        for key in ("kd", "kf", "viscous", "dither", "dither_min_velocity", "model_cutoff"):
             check = _finite if key == "dither" else _nonneg  # dither < 0: antiphase
             gains[key] = check(where, f"controller.{name}.{key}", table[key])
         joints[name] = JointGains(**gains)

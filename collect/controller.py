@@ -28,7 +28,10 @@ Kp, Kd, Kf and cutoff g (shared/crane_x7_facts.md section 6a; the Sakaino/Tsuji-
   comb that removes a wave of period N cycles exactly, for N / 2 cycles of delay. The point: a joint
   kept slipping has kinetic friction whose sign alternates within a period and averages out, so a
   joint pressed against something still no longer holds a static-friction offset in tau_res. With
-  `dither_amplitude` = 0 (the default) the commands are exactly those without the term.
+  `dither_amplitude` = 0 (the default) the commands are exactly those without the term. A joint's
+  `dither_min_velocity` v_j > 0 raises its amplitude to |A_j| >= v_j 2 pi f J_j(q) (J_j the follower's
+  nominal inertia at this pose, `inertia_model`), sign kept: the wave's velocity amplitude A / (J 2 pi f)
+  stays at least v_j where the arm's pose makes the joint heavy (issue 10, docs/collect.md).
 
 Goal torques become goal currents through each joint's torque constant. Joints that are not
 bilateral get no current (they are held in position mode by the servos); their observer estimates are
@@ -370,6 +373,9 @@ class BilateralController:
         self.dither_filter = c.dither_filter and self.dither_amplitude > 0.0
         # per joint: dither_amplitude x the joint's `dither` factor, bilateral joints only
         self.dither_amplitudes = self.dither_amplitude * np.array([gains[n].dither for n in names]) * self.bil
+        # issue 10: per joint a velocity floor, |A_j| >= v_j 2 pi f J_j(q) (the follower's inertia this cycle)
+        self.dither_floor = (2.0 * np.pi * self.dither_frequency * self.bil
+                             * np.array([gains[n].dither_min_velocity for n in names]))
         self._kernel = self._load_kernel(compiled)
         self.reset()
 
@@ -463,7 +469,10 @@ class BilateralController:
         self._dither_t += dt
         if self.dither_square:
             s = 1.0 if s >= 0.0 else -1.0
-        self.dither = self.dither_amplitudes * s
+        a = self.dither_amplitudes
+        if self.dither_floor.any():  # at least dither_min_velocity of velocity amplitude at this pose
+            a = np.sign(a) * np.maximum(np.abs(a), self.dither_floor * self._obs_f.J)
+        self.dither = a * s
         return self.dither
 
     def _kernel_observers(self, ql: np.ndarray, qf: np.ndarray, dt: float) -> tuple:

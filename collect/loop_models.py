@@ -83,6 +83,12 @@ def reaction_factories(models: dict[str, ArmModel], arm: ArmDescription, config:
         # "observer": one lag at each model joint's observer cutoff g; "training": the model's own filters
         lag = np.array([config.controller.joints[n].cutoff for n in m.joints]) if observer else None
         cutoff = config.controller.model_cutoff or None  # 0: the model's training cutoffs
+        own = np.array([config.controller.joints[n].model_cutoff for n in m.joints])
+        if own.any():  # per joint: [controller.jointN] model_cutoff where set, else the above, as (w, g)
+            pre = m.model.preprocessing
+            w = np.where(own > 0, own, cutoff or np.broadcast_to(pre["cutoff_rad_s"], own.shape))
+            g = np.where(own > 0, own, cutoff or np.broadcast_to(pre["pseudo_diff_rad_s"], own.shape))
+            cutoff = (w, g)
         return lambda: ModelReaction(m.model, arm.joint_names, m.limit, rate, one_lag=lag, cutoff=cutoff)
 
     return {name: factory(m) for name, m in models.items()}

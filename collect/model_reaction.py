@@ -36,7 +36,9 @@ zone, keeps a creeping joint's friction near zero.
 
 Two other filterings are options (`[controller]`, docs/collect.md "One lag" and "The loop's own
 cutoff"). `model_cutoff = c` (`cutoff`): the same two lags on both sides at c rad/s instead of the
-model's cutoffs. `model_filters = "observer"` (`one_lag`: each joint's observer cutoff g): the applied
+model's cutoffs; with `[controller.jointN] model_cutoff` set, `cutoff` is a pair (w, g) of per-joint
+cutoffs (J,) (collect/loop_models.py), each joint's torque and inputs filtered at its own.
+`model_filters = "observer"` (`one_lag`: each joint's observer cutoff g): the applied
 torque through ONE first-order low-pass at g, the nominal observer's lag, and the model's inputs
 through the training's filter structure at 2 g, whose group delay 2/(2g) = 1/g is that lag's:
 
@@ -164,7 +166,14 @@ class ModelReaction:
         self.one_lag = None if one_lag is None else np.asarray(one_lag, dtype=float)  # (J,) rad/s or None
         if self.one_lag is None:  # the training's filters on both sides (two lags of the model's cutoff,
             # or of `cutoff` rad/s for both the low-pass and the pseudo-derivative when given)
-            w, g = (pre["cutoff_rad_s"], pre["pseudo_diff_rad_s"]) if not cutoff else (cutoff, cutoff)
+            if isinstance(cutoff, tuple):  # per joint (w (J,), g (J,)): collect/loop_models.py
+                w, g = np.broadcast_arrays(*(np.asarray(c, dtype=float) for c in cutoff))
+                pairs = list(dict.fromkeys(zip(w.tolist(), g.tolist())))  # distinct (w, g), in joint order
+                masks = [(w == a) & (g == b) for a, b in pairs]
+                self._extra = [(m, LagFilters(a, b, rate_hz)) for m, (a, b) in zip(masks[1:], pairs[1:])]
+                w, g = pairs[0]
+            else:
+                w, g = (pre["cutoff_rad_s"], pre["pseudo_diff_rad_s"]) if not cutoff else (cutoff, cutoff)
             self.filters = LagFilters(w, g, rate_hz)
             self.torque_filter = None
         else:  # the applied torque through one lag of g, the model's inputs through two lags of 2 g
@@ -172,6 +181,10 @@ class ModelReaction:
             self.torque_filter = LagFilters(self.one_lag, self.one_lag, rate_hz)
         self._u = self._u_lag = None  # one-lag: the last applied torque (J,) and its low-pass
         self.inputs = ModelInputs(self.filters)
+        # per-joint cutoffs: the joints of each further cutoff (mask (J,), filters, inputs at that cutoff);
+        # each joint's torque and prediction come from the filters at its own cutoff, the model evaluated
+        # once per cutoff on every joint's inputs at that cutoff (no mixed delays in coupled terms)
+        self._extra = [(m, f, ModelInputs(f)) for m, f in getattr(self, "_extra", ())]
         self.limit = np.asarray(limit, dtype=float)
         dz = pre.get("dead_zone_rad_s")
         self.dead_zone = (np.asarray(dz, dtype=float) if dz is not None and len(dz) == len(self.idx)
@@ -200,12 +213,18 @@ class ModelReaction:
             self.filters.set_period(dt)
             if self.torque_filter is not None:
                 self.torque_filter.set_period(dt)
+            for _, f, _ in self._extra:
+                f.set_period(dt)
         first = not inp.started
         u = applied_prev[i]
         inp.push(q[i], u)
+        tau_m = inp.tau
+        for m, _, x in self._extra:
+            x.push(q[i], u)
+            tau_m = np.where(m, x.tau, tau_m)
         if first:  # nothing filtered yet: the steady state at this sample is the first pair
             self._predict()
-        tau_res = (inp.tau if self.torque_filter is None else self._one_lag(u)) - self._pred
+        tau_res = (tau_m if self.torque_filter is None else self._one_lag(u)) - self._pred
         ok = self._ok.copy()
         self.fallback_cycles += ~ok
         self._predict()  # for the next cycle, on this cycle's filtered angles
@@ -221,12 +240,17 @@ class ModelReaction:
         self._u = np.array(u, dtype=float)
         return self._u_lag
 
-    def _predict(self) -> None:
-        inp = self.inputs
+    def _predict_on(self, inp: ModelInputs) -> np.ndarray:
         dq = inp.dq
         if self.dead_zone is not None and not getattr(self.model, "coulomb_velocity", 0.0) > 0:
             dq = np.where(np.abs(dq) > self.dead_zone, dq, 0.0)
-        pred = np.array(self.model.predict_one(inp.q, dq, inp.ddq), dtype=float)
+        return np.array(self.model.predict_one(inp.q, dq, inp.ddq), dtype=float)
+
+    def _predict(self) -> None:
+        inp = self.inputs
+        pred = self._predict_on(inp)
+        for m, _, x in self._extra:
+            pred = np.where(m, self._predict_on(x), pred)
         self._ok = np.isfinite(pred) & (np.abs(pred) <= self.limit)
         if self.q_lo is not None:
             self.out_of_range = bool(((inp.q < self.q_lo) | (inp.q > self.q_hi)).any())

@@ -17,11 +17,13 @@
 #    step 1 with the dither on: the same seed), joint 4 dithered in antiphase in the evaluation
 #    (docs/examples/dither-model.toml: model_coulomb_velocity = 0.1 rad/s gives the model's Coulomb
 #    terms a smooth sign in the loop, model_cutoff = 40 runs the loop's two lags at 40 rad/s instead of
-#    the model's 25, joint 1 is dithered at 1.5x); the model with that setting, with its sign as
+#    the model's 25, joint 2's at 45, joint 1's wave has a velocity floor for its heavy poses,
+#    dither_min_velocity); the model with that setting, with its sign as
 #    fitted (the dead zone), with the nominal observer's one lag (model_filters = "observer"), and a
 #    model fitted with 40 rad/s filters run at its own cutoff (its inertia comes out low). Same seed
 #    and length as step 3: the ratios are against its nominal run without dither. (README "Closing
-#    the loop" measured 60 s runs on seeds 23, 29 and 31: EVAL_S=60 and the seed in evaluate().)
+#    the loop" measured 60 s runs on seeds 23, 29, 31, 37 and 41: EVAL_S=60 and the seed in evaluate().)
+#    The own-cutoff variant's sed sets every model_cutoff line, the per-joint one too, to 0.
 # Results land in $OUT (default out/loop): fidelity-*.json, fidelity.md (the tables), models/.
 # Environment: TRAIN_S (simulated s of each training run, default 180), EVAL_S (default 120);
 # REUSE=1 keeps the sessions and models already in $OUT (re-runs only what is missing).
