@@ -198,13 +198,14 @@ class BilateralLoop:
         """Read both arms, control, write both arms, poll, record: (the breach that ends the run, t)."""
         timer, kt = self.timer, self.kt
         (sl, el, bt_l), (sf, ef, bt_f) = self.pair.read_both()
-        timer.add("bus_leader", bt_l)
-        timer.add("bus_follower", bt_f)
         t = k * self.period if self.lockstep else self._session_time(k, sl)
         if el is None and ef is None:  # the usual case of `_transfer_faults`: both reads went through
             self.safety.bus_ok("leader")
             self.safety.bus_ok("follower")
         else:
+            timer.add("bus_leader", bt_l)
+            timer.add("bus_follower", bt_f)
+            bt_l = bt_f = 0.0  # counted
             failed, breach = self._transfer_faults((el, ef), t, reading=True)
             if breach is not None:
                 return breach, t
@@ -215,12 +216,12 @@ class BilateralLoop:
                 return None, t
         tc = time.perf_counter()
         tau_l, tau_f, breach = self._control(t, sl, sf)
-        timer.add("compute", time.perf_counter() - tc)
+        tc = time.perf_counter() - tc
         if breach is not None:
+            timer.add_cycle(bt_l, bt_f, tc)
             return breach, t
         (sent_l, wl, bw_l), (sent_f, wf, bw_f) = self.pair.write_currents(tau_l / kt, tau_f / kt)
-        timer.add("bus_leader", bw_l)
-        timer.add("bus_follower", bw_f)
+        timer.add_cycle(bt_l + bw_l, bt_f + bw_f, tc)  # each bus's read and write, the cycle's compute
         if wl is not None or wf is not None:
             _, breach = self._transfer_faults((wl, wf), t, reading=False)
         if breach is None and k and self.safety.poll_due(k):

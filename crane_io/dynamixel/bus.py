@@ -64,7 +64,7 @@ from crane_io.dynamixel.control_table import (
     model_by_number,
     span,
 )
-from crane_io.dynamixel.crc import crc16, remember
+from crane_io.dynamixel.crc import crc16
 from crane_io.dynamixel.faults import (
     STATUS_ALERT_BIT,
     WATCHDOG_EXPIRED,
@@ -772,7 +772,6 @@ class DynamixelBus:
                 size = kernel(arr, *self._current_args, sent, cycle_kernel.TABLE)
                 if size > 0:  # the packet, as the Python path below builds it
                     packet = self._current_args[-1].tobytes()
-                    remember(packet[:-2], packet[-2] | (packet[-1] << 8))  # for a simulated receiver
                     self._send(self._ph.send_broadcast, "goal current", self._port, packet)
                     return sent
             # a wrong shape or a value that is not finite (raised below), a packet to stuff (sent below)
