@@ -246,7 +246,7 @@ class _StatusSyncRead(GroupSyncRead):
         total = self._fast_total
         data = port.readPort(total)
         kernel, ids = self._kernel, self._id_array
-        if out is not None and kernel is not None and ids is not None:
+        if out is not None and kernel is not None and ids is not None and type(data) is bytes:
             # the same checks as below, and the conversion, compiled
             if kernel(data, self._head_array, ids, out, *self._kernel_args):
                 port.is_using = False
