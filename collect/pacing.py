@@ -130,13 +130,10 @@ class CycleTimer:
     def add_cycle(self, bus_leader: float, bus_follower: float, compute: float) -> None:
         """add("bus_leader", ...), add("bus_follower", ...) and add("compute", ...) of a whole cycle (its
         read and write on each bus together: the sections' maxima are those of a cycle)."""
-        last, totals, peak = self.last, self._totals, self._max_sections
-        for name, seconds in (("bus_leader", bus_leader), ("bus_follower", bus_follower),
-                              ("compute", compute)):
-            last[name] = last.get(name, 0.0) + seconds
-            totals[name] = totals.get(name, 0.0) + seconds
-            if seconds > peak.get(name, 0.0):
-                peak[name] = seconds
+        add = self.add
+        add("bus_leader", bus_leader)
+        add("bus_follower", bus_follower)
+        add("compute", compute)
 
     def now(self) -> float:
         """Seconds since start()."""
