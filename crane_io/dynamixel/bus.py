@@ -452,14 +452,21 @@ class DynamixelBus:
         self._poll_reader = _StatusSyncRead(self._port, self._ph, _POLL_ADDRESS, _POLL_SIZE)
         for sid in self.ids:
             self._poll_reader.addParam(sid)
-        kernels = cycle_kernel.compiled()  # compiled (or loaded from numba's cache) now, not at a packet
+        return self
+
+    def _use_kernels(self) -> None:
+        """The control cycle's compiled calls (crane_io.dynamixel.cycle_kernel), compiled or loaded from
+        numba's cache now, between transfers (never while a reply is awaited); without numba the bus keeps
+        its Python paths. Done by torque_on: a bus that never drives the arm (check, ping) needs no numba."""
+        if self._kernels is not None or self._reader is None:
+            return
+        kernels = cycle_kernel.compiled()
         self._kernels = kernels
         self._limits_seen = None  # the next goal current write plans for the kernel
         if kernels is not None:
             self._reader.use_kernel(kernels[1], float(units.POSITION_CENTER), units.RAD_PER_PULSE,
                                     units.RADS_PER_VELOCITY_LSB, units.AMPERE_PER_CURRENT_LSB,
                                     cycle_kernel.TABLE)
-        return self
 
     def close(self) -> None:
         """Goal current 0 and torque off on every servo that answers, then close the port.
@@ -597,6 +604,7 @@ class DynamixelBus:
         """Hold the held joints where they are (goal position = present), zero the goal current of the
         current-mode joints, then enable torque on every servo."""
         self._need_port()
+        self._use_kernels()  # before the first write: the servos' torque is still off
         for i in self.position_joints:
             joint, sid = self.joint_names[i], self.ids[i]
             self._write(sid, "goal_position", self._read(sid, "present_position", joint), joint)

@@ -14,8 +14,9 @@ on its fast path (the expected length and header, no stuffed FF FF FD FD, every 
 CRC right, the servos in request order) and converts the Present Current, Velocity and Position of each
 servo as `DynamixelBus._state_from_reply` does (integers to float, then scaled).
 
-Compiled when a bus opens (crane_io.sim.jit.compile_functions: explicit signatures, numba's cache), never
-lazily at a first packet; without numba `compiled()` is None and the bus keeps its Python path.
+Compiled when a bus switches torque on (crane_io.sim.jit.compile_functions: explicit signatures, numba's
+cache), never lazily at a first packet; without numba `compiled()` is None and the bus keeps its Python
+path.
 """
 
 from __future__ import annotations
