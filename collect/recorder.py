@@ -201,7 +201,8 @@ class SessionRecorder:
     def row_writer(self, keys) -> Callable[[Sequence], None]:
         """`append_values(columns(keys), values)` as one function of `values` (in `keys` order), for a caller
         that appends the same members every cycle: the members that make up a whole block buffer (all the
-        per-joint members of one dtype) are copied into it in one step per row, the others one by one."""
+        per-joint members of one dtype, or all the scalar ones) are copied into it in one step per row, the
+        others one by one."""
         keys = tuple(keys)
         where = {key: i for i, key in enumerate(keys)}
         blocks, used = [], set()
