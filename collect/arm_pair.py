@@ -46,6 +46,23 @@ class ArmPair:
         except CraneError as exc:
             return None, exc, time.perf_counter() - t
 
+    @staticmethod
+    def _one_after_other(fn_l, fn_f, args_l=(), args_f=()):
+        """[_timed(fn_l, *args_l), _timed(fn_f, *args_f)], one clock reading between the two."""
+        clock = time.perf_counter
+        t0 = clock()
+        try:
+            out_l, err_l = fn_l(*args_l), None
+        except CraneError as exc:
+            out_l, err_l = None, exc
+        t1 = clock()
+        try:
+            out_f, err_f = fn_f(*args_f), None
+        except CraneError as exc:
+            out_f, err_f = None, exc
+        t2 = clock()
+        return [(out_l, err_l, t1 - t0), (out_f, err_f, t2 - t1)]
+
     def _both(self, calls):
         if self.pool is None:
             return [self._timed(*c) for c in calls]
@@ -59,8 +76,7 @@ class ArmPair:
             self.checkpoint()
         buses = self.buses
         if self.pool is None:  # one after the other (simulated arms): `_both` without its call lists
-            timed = self._timed
-            results = [timed(buses["leader"].read_state), timed(buses["follower"].read_state)]
+            results = self._one_after_other(buses["leader"].read_state, buses["follower"].read_state)
         else:
             results = self._both([(buses[a].read_state,) for a in ARMS])
         if self.offsets:
@@ -73,9 +89,8 @@ class ArmPair:
     def write_currents(self, amps_l, amps_f):
         buses = self.buses
         if self.pool is None:
-            timed = self._timed
-            return [timed(buses["leader"].write_goal_current, amps_l),
-                    timed(buses["follower"].write_goal_current, amps_f)]
+            return self._one_after_other(buses["leader"].write_goal_current,
+                                         buses["follower"].write_goal_current, (amps_l,), (amps_f,))
         return self._both([(buses["leader"].write_goal_current, amps_l),
                            (buses["follower"].write_goal_current, amps_f)])
 

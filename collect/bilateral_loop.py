@@ -50,6 +50,46 @@ _ROW_KEYS = (tuple(getattr(arm, m) for arm in (_LEADER, _FOLLOWER) for m in _ROW
              + tuple(getattr(_TIMING, m) for m in _ROW_TIMING))
 
 
+def record_numbers(ql, qf, err_sq, bil, sent_l, current_l, sent_f, current_f, kt, out):
+    """A row's numbers, as `BilateralLoop._record`'s numpy path computes them (the same float operations):
+    err_sq += (ql - qf) ** 2 as e * e, and out[0], out[1] = the recorded torques of leader and follower,
+    np.where(bil, sent, current) * kt."""
+    for j in range(ql.shape[0]):
+        e = ql[j] - qf[j]
+        err_sq[j] += e * e
+        if bil[j]:
+            out[0, j] = sent_l[j] * kt[j]
+            out[1, j] = sent_f[j] * kt[j]
+        else:
+            out[0, j] = current_l[j] * kt[j]
+            out[1, j] = current_f[j] * kt[j]
+
+
+_F = "float64[::1]"
+_RECORD_SIGNATURES = {"record_numbers": (f"void({_F}, {_F}, {_F}, boolean[::1], {_F}, {_F}, {_F}, {_F}, "
+                                         f"{_F}, float64[:, ::1])",)}
+_RECORD_KERNEL = None
+
+
+def _record_kernel():
+    """record_numbers compiled (crane_io.sim.jit; or loaded from numba's cache) for float64 arrays only: an
+    argument of another kind raises TypeError (it is never compiled lazily) and the numpy path takes it.
+    None without numba."""
+    global _RECORD_KERNEL
+    if _RECORD_KERNEL is None:
+        try:
+            from crane_io.sim.jit import compile_functions
+
+            fns = compile_functions(globals(), ("record_numbers",), _RECORD_SIGNATURES,
+                                    qualname_prefix="bilateral_loop.")
+            if fns is not None:
+                fns["record_numbers"].disable_compile()
+        except Exception:  # noqa: BLE001 - a broken numba install: the numpy path, as without numba
+            fns = None
+        _RECORD_KERNEL = False if fns is None else fns["record_numbers"]
+    return _RECORD_KERNEL or None
+
+
 @dataclass
 class RunContext:
     """What a test hook can reach while the loop runs."""
@@ -107,6 +147,7 @@ class BilateralLoop:
         self.t_start_mono: float | None = None  # hardware: the leader's clock at the first cycle
         self.last_t: float | None = None
         self.err_sq = np.zeros(len(arm.joints))
+        self._numbers = _record_kernel()  # compiled now, not at the first row
         self.errors = 0
         self.breach: Breach | None = None
         self.last_event_t = 0.0
@@ -198,13 +239,14 @@ class BilateralLoop:
         """Read both arms, control, write both arms, poll, record: (the breach that ends the run, t)."""
         timer, kt = self.timer, self.kt
         (sl, el, bt_l), (sf, ef, bt_f) = self.pair.read_both()
-        timer.add("bus_leader", bt_l)
-        timer.add("bus_follower", bt_f)
         t = k * self.period if self.lockstep else self._session_time(k, sl)
         if el is None and ef is None:  # the usual case of `_transfer_faults`: both reads went through
             self.safety.bus_ok("leader")
             self.safety.bus_ok("follower")
         else:
+            timer.add("bus_leader", bt_l)
+            timer.add("bus_follower", bt_f)
+            bt_l = bt_f = 0.0  # counted
             failed, breach = self._transfer_faults((el, ef), t, reading=True)
             if breach is not None:
                 return breach, t
@@ -215,12 +257,12 @@ class BilateralLoop:
                 return None, t
         tc = time.perf_counter()
         tau_l, tau_f, breach = self._control(t, sl, sf)
-        timer.add("compute", time.perf_counter() - tc)
+        tc = time.perf_counter() - tc
         if breach is not None:
+            timer.add_cycle(bt_l, bt_f, tc)
             return breach, t
         (sent_l, wl, bw_l), (sent_f, wf, bw_f) = self.pair.write_currents(tau_l / kt, tau_f / kt)
-        timer.add("bus_leader", bw_l)
-        timer.add("bus_follower", bw_f)
+        timer.add_cycle(bt_l + bw_l, bt_f + bw_f, tc)  # each bus's read and write, the cycle's compute
         if wl is not None or wf is not None:
             _, breach = self._transfer_faults((wl, wf), t, reading=False)
         if breach is None and k and self.safety.poll_due(k):
@@ -331,12 +373,22 @@ class BilateralLoop:
     def _record(self, t: float, sl, sf, sent_l, sent_f) -> None:
         tr = time.perf_counter()
         timer, kt, bil = self.timer, self.kt, self.bil
-        e = sl.position - sf.position
-        self.err_sq += e * e
         # the torque recorded: the commanded one of the current-mode joints, the measured one of the held
         # joints (np.where(bil, sent * kt, current * kt), selected before the product: the same numbers)
-        tl_rec = np.where(bil, sent_l, sl.current) * kt
-        tf_rec = np.where(bil, sent_f, sf.current) * kt
+        numbers = self._numbers
+        if numbers is not None:
+            out = np.empty((2, kt.shape[0]))
+            try:
+                numbers(sl.position, sf.position, self.err_sq, bil, sent_l, sl.current, sent_f, sf.current,
+                        kt, out)
+                tl_rec, tf_rec = out[0], out[1]
+            except TypeError:  # arrays of another kind than it was compiled for: the numpy path
+                numbers = None
+        if numbers is None:
+            e = sl.position - sf.position
+            self.err_sq += e * e
+            tl_rec = np.where(bil, sent_l, sl.current) * kt
+            tf_rec = np.where(bil, sent_f, sf.current) * kt
         est_l, est_f = self.ctl.leader, self.ctl.follower
         recorder = self.recorder
         if self._columns[0] is not recorder:

@@ -94,8 +94,9 @@ class CycleTimer:
         self._record(period, overrun)
         self._cycle_start = start
         self._deadline += self.period
-        for k in self.last:
-            self.last[k] = 0.0
+        last = self.last
+        for k in last:
+            last[k] = 0.0
         return start - self.t0
 
     def _record(self, period: float, overrun: bool) -> None:
@@ -120,10 +121,19 @@ class CycleTimer:
             self.add(name, self._clock() - t)
 
     def add(self, name: str, seconds: float) -> None:
-        self.last[name] = self.last.get(name, 0.0) + seconds
-        self._totals[name] = self._totals.get(name, 0.0) + seconds
-        if seconds > self._max_sections.get(name, 0.0):
-            self._max_sections[name] = seconds
+        last, totals, peak = self.last, self._totals, self._max_sections
+        last[name] = last.get(name, 0.0) + seconds
+        totals[name] = totals.get(name, 0.0) + seconds
+        if seconds > peak.get(name, 0.0):
+            peak[name] = seconds
+
+    def add_cycle(self, bus_leader: float, bus_follower: float, compute: float) -> None:
+        """add("bus_leader", ...), add("bus_follower", ...) and add("compute", ...) of a whole cycle (its
+        read and write on each bus together: the sections' maxima are those of a cycle)."""
+        add = self.add
+        add("bus_leader", bus_leader)
+        add("bus_follower", bus_follower)
+        add("compute", compute)
 
     def now(self) -> float:
         """Seconds since start()."""

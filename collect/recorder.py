@@ -201,16 +201,21 @@ class SessionRecorder:
     def row_writer(self, keys) -> Callable[[Sequence], None]:
         """`append_values(columns(keys), values)` as one function of `values` (in `keys` order), for a caller
         that appends the same members every cycle: the members that make up a whole block buffer (all the
-        per-joint members of one dtype) are copied into it in one step per row, the others one by one."""
+        per-joint members of one dtype, or all the scalar ones) are copied into it in one step per row, the
+        others one by one."""
         keys = tuple(keys)
         where = {key: i for i, key in enumerate(keys)}
         blocks, used = [], set()
+        scalars = []  # blocks of scalar members: a row's values go in as one tuple
         for block, members in self._blocks:
-            if block.ndim == 3 and len(members) > 1 and all(m in where for m in members):
+            if block.ndim in (2, 3) and len(members) > 1 and all(m in where for m in members):
                 index = [where[m] for m in members]
-                rows = [block[r].reshape(-1) for r in range(block.shape[0])]  # one flat view per row
                 columns = [(self._buf[m], where[m]) for m in members]
-                blocks.append((operator.itemgetter(*index), rows, columns))
+                if block.ndim == 2:
+                    scalars.append((operator.itemgetter(*index), block, columns))
+                else:
+                    rows = [block[r].reshape(-1) for r in range(block.shape[0])]  # one flat view per row
+                    blocks.append((operator.itemgetter(*index), rows, columns))
                 used.update(members)
         singles = [(self._buf[key], i) for i, key in enumerate(keys) if key not in used]
         concatenate = np.concatenate
@@ -221,6 +226,12 @@ class SessionRecorder:
                 try:
                     concatenate(get(values), out=rows[k])
                 except (ValueError, TypeError):  # a value that is not a (J,) row: member by member
+                    for b, i in members:
+                        b[k] = values[i]
+            for get, block, members in scalars:
+                try:
+                    block[k] = get(values)
+                except (ValueError, TypeError):  # a value that is not a scalar: member by member
                     for b, i in members:
                         b[k] = values[i]
             for b, i in singles:

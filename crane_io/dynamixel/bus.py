@@ -53,7 +53,7 @@ from dynamixel_sdk.robotis_def import BROADCAST_ID, COMM_RX_TIMEOUT
 
 from crane_io import shutdown
 from crane_io.description import ArmDescription, default_arm
-from crane_io.dynamixel import units
+from crane_io.dynamixel import cycle_kernel, units
 from crane_io.dynamixel.control_table import (
     MODE_CURRENT,
     MODE_POSITION,
@@ -167,6 +167,12 @@ class _StatusSyncRead(GroupSyncRead):
         self._zero_errors: dict[int, int] = {}  # ... and its `errors`
         self._request: bytes | None = None  # fast_read's kept Fast Sync Read packet, for `param`
         self._request_param: list | None = None
+        # fast_read(out): the compiled check and conversion of the Present block's reply (`use_kernel`)
+        self._kernel = None
+        self._kernel_args: tuple = ()
+        self._head_array: np.ndarray | None = None  # _fast_head and _fast_id_bytes as arrays, for it
+        self._id_array: np.ndarray | None = None
+        self.decoded = False  # the latest fast_read(out) filled `out`
 
     def rxPacket(self):  # noqa: N802 (SDK name)
         self.last_result = False
@@ -202,12 +208,24 @@ class _StatusSyncRead(GroupSyncRead):
             self._fast_id_bytes = bytes(self._fast_ids) if all(i < 256 for i in self._fast_ids) else None
             self._no_errors = bytes(count)
             self._zero_errors = dict.fromkeys(self._fast_ids, 0)
+            self._head_array = np.frombuffer(self._fast_head, dtype=np.uint8)
+            ok = self._fast_id_bytes is not None and self.data_length == PRESENT_BLOCK_SIZE
+            self._id_array = np.frombuffer(self._fast_id_bytes, dtype=np.uint8) if ok else None
 
-    def fast_read(self) -> tuple[int, bytes | None]:
+    def use_kernel(self, kernel, *args) -> None:
+        """Let fast_read(out) check the reply and convert it into `out` in one compiled call,
+        `kernel(reply, head, ids, out, *args)` (cycle_kernel.present_reply_state: the Present block only)."""
+        self._kernel = kernel
+        self._kernel_args = args
+
+    def fast_read(self, out: np.ndarray | None = None) -> tuple[int, bytes | None]:
         """fastSyncRead for the control cycle, the same bytes on the wire: (result, reply). `reply` is the
         whole fast reply when it is the expected one with every status error byte 0 (the usual case);
         then only `packet` and `errors` are updated (not data_dict: the reply holds the data). Otherwise
-        `reply` is None and the reader is left exactly as fastSyncRead leaves it."""
+        `reply` is None and the reader is left exactly as fastSyncRead leaves it. With `out` ((3, n)
+        floats) and a kernel (`use_kernel`), an accepted reply is also converted into `out` (positions,
+        velocities, currents in the servos' request order) and `decoded` is set."""
+        self.decoded = False
         request = self._request
         if request is None or self.is_param_changed or self.param is not self._request_param:
             # first call, or other servos: the SDK's way (its packet handler keeps the packet)
@@ -227,6 +245,17 @@ class _StatusSyncRead(GroupSyncRead):
         self.packet = None
         total = self._fast_total
         data = port.readPort(total)
+        kernel, ids = self._kernel, self._id_array
+        if out is not None and kernel is not None and ids is not None and type(data) is bytes:
+            # the same checks as below, and the conversion, compiled
+            if kernel(data, self._head_array, ids, out, *self._kernel_args):
+                port.is_using = False
+                self.packet = data
+                self.errors = self._zero_errors
+                self.last_result = True
+                self.decoded = True
+                return COMM_SUCCESS, data
+            return self._take_fast_reply(data), None
         chunk = self.data_length + 4
         if (len(data) == total and data.startswith(self._fast_head) and _STUFFED not in data
                 and data[8::chunk] == self._no_errors
@@ -373,6 +402,10 @@ class DynamixelBus:
         self._n_servos = len(self.ids)
         self._limits_seen: list | None = None  # current_limits as write_goal_current last saw them
         self._current_plan: list[tuple] = []  # ... per current-mode joint (see write_goal_current)
+        self._kernels: tuple | None = None  # crane_io.dynamixel.cycle_kernel.compiled(), when the bus opens
+        self._current_kernel = None  # its goal_current_packet when the current-mode joints suit it ...
+        self._current_args: tuple = ()  # ... and its arguments after the amps, from the plan
+        self._sent_size = 0  # the kernel's packet length
         self.upper = np.array([j.upper for j in joints])
 
         self._ph = CranePacketHandler()
@@ -420,6 +453,20 @@ class DynamixelBus:
         for sid in self.ids:
             self._poll_reader.addParam(sid)
         return self
+
+    def _use_kernels(self) -> None:
+        """The control cycle's compiled calls (crane_io.dynamixel.cycle_kernel), compiled or loaded from
+        numba's cache now, between transfers (never while a reply is awaited); without numba the bus keeps
+        its Python paths. Done by torque_on: a bus that never drives the arm (check, ping) needs no numba."""
+        if self._kernels is not None or self._reader is None:
+            return
+        kernels = cycle_kernel.compiled()
+        self._kernels = kernels
+        self._limits_seen = None  # the next goal current write plans for the kernel
+        if kernels is not None:
+            self._reader.use_kernel(kernels[1], float(units.POSITION_CENTER), units.RAD_PER_PULSE,
+                                    units.RADS_PER_VELOCITY_LSB, units.AMPERE_PER_CURRENT_LSB,
+                                    cycle_kernel.TABLE)
 
     def close(self) -> None:
         """Goal current 0 and torque off on every servo that answers, then close the port.
@@ -557,6 +604,7 @@ class DynamixelBus:
         """Hold the held joints where they are (goal position = present), zero the goal current of the
         current-mode joints, then enable torque on every servo."""
         self._need_port()
+        self._use_kernels()  # before the first write: the servos' torque is still off
         for i in self.position_joints:
             joint, sid = self.joint_names[i], self.ids[i]
             self._write(sid, "goal_position", self._read(sid, "present_position", joint), joint)
@@ -639,11 +687,17 @@ class DynamixelBus:
         t = time.monotonic()
         fast = self.stats.fast is not False
         if fast:
-            result, reply = self._transfer(reader.fast_read, failed=_NO_FAST_READ)
+            out = np.empty((3, self._n_servos))  # filled by the compiled path (a new one per read)
+            result, reply = self._transfer(reader.fast_read, out, failed=_NO_FAST_READ)
             if reply is not None:  # the expected reply, no status error
                 if reader._fast_ids == self.ids:  # the usual case: the servos in joint order
                     if self.stats.fast is None:
                         self.stats.fast = True
+                    if reader.decoded:
+                        stats, port = self.stats, self._port
+                        stats.reads += 1
+                        stats.bytes_written, stats.bytes_read = port.bytes_written, port.bytes_read
+                        return BusState(out[0], out[1], out[2], t, True)
                     return self._state_from_reply(reply, t)
                 result = reader._take_fast_reply(reply)  # else the general path, from data_dict
         else:
@@ -715,14 +769,22 @@ class DynamixelBus:
         clamped to each servo's Current Limit. Returns the currents actually commanded (A, quantised;
         0 for position-mode joints)."""
         self._need_port()
-        _arr, values = self._command_values(amps, "goal current", self.current_joints)
-        lsb = units.AMPERE_PER_CURRENT_LSB
         limits = self.current_limits.tolist()
         if limits != self._limits_seen:  # configure() read them back, or a caller changed them
-            self._limits_seen = limits
-            # per current-mode joint: index, servo ID, limit in A and in Goal Current steps
-            self._current_plan = [(i, self.ids[i], limits[i], math.floor(limits[i] / lsb + 1e-9))
-                                  for i in self.current_joints]
+            self._plan_currents(limits)
+        kernel = self._current_kernel
+        if kernel is not None:
+            arr = np.ascontiguousarray(amps, dtype=float)
+            if arr.shape == (self._n_servos,):
+                sent = np.zeros(self._n_servos)
+                size = kernel(arr, *self._current_args, sent, cycle_kernel.TABLE)
+                if size > 0:  # the packet, as the Python path below builds it
+                    packet = self._current_args[-1].tobytes()
+                    self._send(self._ph.send_broadcast, "goal current", self._port, packet)
+                    return sent
+            # a wrong shape or a value that is not finite (raised below), a packet to stuff (sent below)
+        _arr, values = self._command_values(amps, "goal current", self.current_joints)
+        lsb = units.AMPERE_PER_CURRENT_LSB
         sent = [0.0] * len(self.ids)
         params = []
         for i, sid, lim, lim_raw in self._current_plan:
@@ -742,6 +804,26 @@ class DynamixelBus:
         else:
             self._send(self._ph.send_broadcast, "goal current", self._port, packet)
         return np.array(sent)
+
+    def _plan_currents(self, limits: list) -> None:
+        """write_goal_current's per-joint plan for the Current Limits `limits` (A), and its kernel's
+        arguments: the current-mode joints, their IDs, limits in A and in whole Goal Current steps, and the
+        packet with its header in place (crane_io.dynamixel.cycle_kernel)."""
+        lsb = units.AMPERE_PER_CURRENT_LSB
+        self._limits_seen = limits
+        # per current-mode joint: index, servo ID, limit in A and in Goal Current steps
+        self._current_plan = plan = [(i, self.ids[i], limits[i], math.floor(limits[i] / lsb + 1e-9))
+                                     for i in self.current_joints]
+        self._current_kernel = None
+        if self._kernels is None or not plan or any(sid > 0xFF for _i, sid, _l, _r in plan):
+            return
+        head = self._ph.sync_write_header(_GOAL_CURRENT.address, _GOAL_CURRENT.size, 3 * len(plan))
+        buf = np.zeros(len(head) + 3 * len(plan) + 2, dtype=np.uint8)
+        buf[:len(head)] = np.frombuffer(head, dtype=np.uint8)
+        column = [np.array(c) for c in zip(*plan)]
+        self._current_args = (column[0].astype(np.int64), column[1].astype(np.int64),
+                              column[2].astype(float), column[3].astype(np.int64), lsb, buf)
+        self._current_kernel = self._kernels[0]
 
     def write_goal_position(self, rad) -> np.ndarray:
         """Send the goal position of every position-mode (held) joint in ONE sync write, clamped to the

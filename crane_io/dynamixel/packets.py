@@ -112,10 +112,7 @@ class CranePacketHandler(Protocol2PacketHandler):
         key = (inst, start_address, data_length, param_length)
         kept = self._headers.get(key)
         if kept is None:
-            length = param_length + 7  # INST, address, data length, params, CRC
-            head = _HEADER + bytes((BROADCAST_ID, length & 0xFF, (length >> 8) & 0xFF, inst,
-                                    start_address & 0xFF, (start_address >> 8) & 0xFF,
-                                    data_length & 0xFF, (data_length >> 8) & 0xFF))
+            head = _sync_header(inst, start_address, data_length, param_length)
             # a sync write's parameters change every cycle: its CRC from tables (see FixedPrefixCrc)
             tabled = inst == INST_SYNC_WRITE and param_length <= _TABLED_PARAMS
             kept = self._headers[key] = (head, FixedPrefixCrc(head, param_length) if tabled else None)
@@ -130,6 +127,12 @@ class CranePacketHandler(Protocol2PacketHandler):
             crc = tabled(params)
             remember(packet, crc)  # the receiving end of a simulated bus checks the same bytes
         return packet + bytes((crc & 0xFF, crc >> 8))
+
+    @staticmethod
+    def sync_write_header(start_address: int, data_length: int, param_length: int) -> bytes:
+        """The first 12 bytes of a Sync Write packet with `param_length` parameter bytes (its parameters and
+        CRC follow), as `sync_write_packet` makes them."""
+        return _sync_header(INST_SYNC_WRITE, start_address, data_length, param_length)
 
     @staticmethod
     def _send(port, packet: bytes) -> int:
@@ -174,3 +177,11 @@ class CranePacketHandler(Protocol2PacketHandler):
         if clean and len(packet) >= 7 + length:
             return packet
         return super().removeStuffing(packet)
+
+
+def _sync_header(inst: int, start_address: int, data_length: int, param_length: int) -> bytes:
+    """A broadcast packet's bytes before its parameters: header, ID, LEN, INST, address, data length."""
+    length = param_length + 7  # INST, address, data length, params, CRC
+    return _HEADER + bytes((BROADCAST_ID, length & 0xFF, (length >> 8) & 0xFF, inst,
+                            start_address & 0xFF, (start_address >> 8) & 0xFF,
+                            data_length & 0xFF, (data_length >> 8) & 0xFF))

@@ -1,0 +1,165 @@
+"""The bus's two control-cycle transfers in one compiled call each (numba): the Goal Current Sync Write
+packet built from the amps, and the Fast Sync Read reply of the Present block checked and converted.
+
+`goal_current_packet` does what `DynamixelBus.write_goal_current`'s Python loop does, the same float
+operations in the same order (no fastmath): per current-mode joint the clamp to its Current Limit, the
+rounding half to even, the clamp to the limit's whole steps, the commanded amps, then the parameters (ID,
+Goal Current low, high byte) written into a kept packet whose header is already there, the check for
+byte stuffing and the CRC-16 (the e-manual's byte table). The bytes are those of
+`CranePacketHandler.sync_write_packet`; a packet that would need stuffing, or a command that is not
+finite, is left to the Python path (which raises or stuffs).
+
+`present_reply_state` accepts exactly the Fast Sync Read replies `_StatusSyncRead.fast_read` accepts
+on its fast path (the expected length and header, no stuffed FF FF FD FD, every status error byte 0, the
+CRC right, the servos in request order) and converts the Present Current, Velocity and Position of each
+servo as `DynamixelBus._state_from_reply` does (integers to float, then scaled).
+
+Compiled when a bus switches torque on (as crane_io.sim.jit.compile_functions does: explicit signatures,
+numba's cache), never lazily at a first packet; without numba `compiled()` is None and the bus keeps its
+Python path.
+"""
+
+from __future__ import annotations
+
+import types
+
+import numpy as np
+
+from crane_io.dynamixel.crc import CRC_TABLE
+
+TABLE = np.array(CRC_TABLE, dtype=np.int64)  # the kernels' last argument
+_HEAD_LEN = 12  # a sync write: FF FF FD 00, ID, LEN L H, INST, address L H, data length L H
+
+
+def _crc(buf, n, table):
+    crc = np.int64(0)
+    for i in range(n):
+        crc = ((crc << 8) & 0xFF00) ^ table[((crc >> 8) ^ np.int64(buf[i])) & 0xFF]
+    return crc
+
+
+def goal_current_packet(amps, joints, ids, limits, limits_raw, lsb, buf, sent, table):
+    """Fill `buf` (the header in place) with the Goal Current Sync Write of `amps` and `sent` with the
+    commanded amps (the joints in `joints` only): the packet's length; -1 when an amp value of those
+    joints is not finite, -2 when the packet needs byte stuffing (nothing usable written then)."""
+    m = joints.shape[0]
+    for k in range(m):
+        v = amps[joints[k]]
+        if not np.isfinite(v):
+            return -1
+    p = _HEAD_LEN
+    for k in range(m):
+        i = joints[k]
+        lim = limits[k]
+        v = amps[i]
+        # min(max(v, -lim), lim) as Python evaluates it
+        if not v >= -lim:
+            v = -lim
+        if not v <= lim:
+            v = lim
+        raw = np.int64(np.rint(v / lsb))
+        lim_raw = limits_raw[k]
+        if raw > lim_raw:
+            raw = lim_raw
+        if raw < -lim_raw:
+            raw = -lim_raw
+        sent[i] = raw * lsb
+        buf[p] = ids[k]
+        buf[p + 1] = raw & 0xFF
+        buf[p + 2] = (raw >> 8) & 0xFF
+        p += 3
+    for i in range(5, p - 2):
+        if buf[i] == 0xFF and buf[i + 1] == 0xFF and buf[i + 2] == 0xFD:
+            return -2
+    crc = _crc(buf, p, table)
+    buf[p] = crc & 0xFF
+    buf[p + 1] = crc >> 8
+    return p + 2
+
+
+def _u(data, i, size):
+    v = np.int64(0)
+    for b in range(size):
+        v |= np.int64(data[i + b]) << (8 * b)
+    return v
+
+
+def present_reply_state(data, head, ids, out, center, rad_per_pulse, rads_per_lsb, amps_per_lsb, table):
+    """True when `data` is the whole expected Fast Sync Read reply of the Present block (`head`: its first
+    8 bytes; `ids`: the servos in request order) with no status error; then out[0], out[1], out[2] hold
+    every servo's position (rad), velocity (rad/s) and current (A). False (and `out` unusable) else."""
+    count = ids.shape[0]
+    chunk = 14  # ERR ID, Present Current (2), Velocity (4), Position (4), CRC (2)
+    n = 8 + chunk * count
+    if len(data) != n:
+        return False
+    for i in range(8):
+        if data[i] != head[i]:
+            return False
+    for i in range(n - 3):
+        if data[i] == 0xFF and data[i + 1] == 0xFF and data[i + 2] == 0xFD and data[i + 3] == 0xFD:
+            return False
+    for k in range(count):
+        s = 8 + k * chunk
+        if data[s] != 0 or data[s + 1] != ids[k]:
+            return False
+    if _crc(data, n - 2, table) != (np.int64(data[n - 2]) | (np.int64(data[n - 1]) << 8)):
+        return False
+    for k in range(count):
+        s = 10 + k * chunk
+        cur = _u(data, s, 2)
+        if cur >= 0x8000:
+            cur -= 0x10000
+        vel = _u(data, s + 2, 4)
+        if vel >= 0x80000000:
+            vel -= 0x100000000
+        pos = _u(data, s + 6, 4)
+        if pos >= 0x80000000:
+            pos -= 0x100000000
+        out[0, k] = (np.float64(pos) - center) * rad_per_pulse
+        out[1, k] = np.float64(vel) * rads_per_lsb
+        out[2, k] = np.float64(cur) * amps_per_lsb
+    return True
+
+
+_I, _F, _U8 = "int64[::1]", "float64[::1]", "uint8[::1]"
+_PKT = "Bytes(uint8, 1, 'C', readonly=True)"
+SIGNATURES = {
+    "goal_current_packet": (f"int64({_F}, {_I}, {_I}, {_F}, {_I}, float64, {_U8}, {_F}, {_I})",),
+    "present_reply_state": (f"boolean({_PKT}, {_U8}, {_U8}, float64[:, ::1], float64, float64, float64, "
+                            f"float64, {_I})",),
+}
+_COMPILED = None
+
+
+def compiled():
+    """(goal_current_packet, present_reply_state) compiled with numba (their last argument: `TABLE`), or
+    None without numba. Compiled (or loaded from numba's cache) at the first call of a process."""
+    global _COMPILED
+    if _COMPILED is None:
+        try:
+            fns = _compile(("_crc", "_u", "goal_current_packet", "present_reply_state"), SIGNATURES)
+        except Exception:  # noqa: BLE001 - a broken numba install: the Python path, as without numba
+            fns = None
+        _COMPILED = False if fns is None else (fns["goal_current_packet"], fns["present_reply_state"])
+    return _COMPILED or None
+
+
+def _compile(names: tuple[str, ...], signatures: dict) -> dict | None:
+    """crane_io.sim.jit.compile_functions for this module (the bus layer does not import the simulator):
+    `names` compiled with njit(cache=True), calling each other compiled, and `signatures` compiled now."""
+    try:
+        import numba
+    except ImportError:
+        return None
+    jit = numba.njit(cache=True)
+    ns = dict(globals())
+    for name in names:
+        f = ns[name]
+        g = types.FunctionType(f.__code__, ns, name, f.__defaults__)
+        g.__qualname__ = "cycle_kernel." + name
+        ns[name] = jit(g)
+    for name, sigs in signatures.items():
+        for sig in sigs:
+            ns[name].compile(sig)
+    return {name: ns[name] for name in names}
