@@ -72,13 +72,13 @@ _RECORD_KERNEL = None
 
 
 def _record_kernel():
-    """record_numbers compiled (crane_io.sim.jit; or loaded from numba's cache) for float64 arrays only: an
+    """record_numbers compiled (crane_io.jit; or loaded from numba's cache) for float64 arrays only: an
     argument of another kind raises TypeError (it is never compiled lazily) and the numpy path takes it.
     None without numba."""
     global _RECORD_KERNEL
     if _RECORD_KERNEL is None:
         try:
-            from crane_io.sim.jit import compile_functions
+            from crane_io.jit import compile_functions
 
             fns = compile_functions(globals(), ("record_numbers",), _RECORD_SIGNATURES,
                                     qualname_prefix="bilateral_loop.")

@@ -4,7 +4,7 @@ observers (pseudo-derivative, DOB, RFOB) and the bilateral law (`step`) or the p
 
 Every line is the operation of collect/controller.py's numpy path for one joint, in the same order
 (`(g J) w`, `a y + (1 - a) (applied + g J w)`, `(tau_dis - gravity) - D w`, `((-tau_p + tau_f) +
-tau_dis) bil`, ...), compiled with numba through crane_io.sim.jit (`cache=True`, no `fastmath`, so no
+tau_dis) bil`, ...), compiled with numba through crane_io.jit (`cache=True`, no `fastmath`, so no
 reassociation and no fused multiply-add: the same IEEE results bit for bit, which
 tests/test_controller_kernel.py asserts against the numpy path on random inputs). `error_model="numpy"`:
 a division by zero gives inf or NaN as numpy's does, not an exception.
@@ -184,7 +184,7 @@ def hold(ql, qf, grav_l, grav_f, gidx, s, c, dt, ref_ql, ref_dql, ref_qf, ref_dq
 
 
 _F, _F2, _I = "float64[::1]", "float64[:, ::1]", "int64[::1]"
-# the argument types the controller calls them with (compiled up front, crane_io.sim.jit)
+# the argument types the controller calls them with (compiled up front, crane_io.jit)
 SIGNATURES = {
     "step": (f"int64({_F}, {_F}, {_F}, {_F}, {_I}, {_F2}, {_F2}, float64, float64, boolean, {_F2})",),
     "hold": (f"int64({_F}, {_F}, {_F}, {_F}, {_I}, {_F2}, {_F2}, float64, {_F}, {_F}, {_F}, {_F}, boolean, "
@@ -196,11 +196,11 @@ SIGNATURES = {
 
 def compiled():
     """(step, hold, control) compiled with numba, or None without numba: compiled, or loaded from numba's
-    cache, by the first call of a process (crane_io.sim.jit), and then closed to any other argument types
+    cache, by the first call of a process (crane_io.jit), and then closed to any other argument types
     (a call with others is a TypeError, never a compilation at run time)."""
     global _COMPILED
     if _COMPILED is None:
-        from crane_io.sim.jit import compile_functions
+        from crane_io.jit import compile_functions
 
         names = ("_prepare", "_observe", "_deadband", "step", "_outside", "control", "hold")
         fns = compile_functions(globals(), names, SIGNATURES, error_model="numpy")

@@ -92,11 +92,11 @@ _HAND_COMPILED = None
 
 
 def _hand_compiled():
-    """_hand_kernel compiled (or loaded from numba's cache) by crane_io.sim.jit, closed to other argument
+    """_hand_kernel compiled (or loaded from numba's cache) by crane_io.jit, closed to other argument
     types, as its native entry (collect/controller_kernel.py `direct`); None without numba."""
     global _HAND_COMPILED
     if _HAND_COMPILED is None:
-        from crane_io.sim.jit import compile_functions
+        from crane_io.jit import compile_functions
 
         fns = compile_functions(globals(), ("_hand_kernel",), _HAND_SIGNATURES)
         if fns is None:

@@ -14,14 +14,12 @@ on its fast path (the expected length and header, no stuffed FF FF FD FD, every 
 CRC right, the servos in request order) and converts the Present Current, Velocity and Position of each
 servo as `DynamixelBus._state_from_reply` does (integers to float, then scaled).
 
-Compiled when a bus switches torque on (as crane_io.sim.jit.compile_functions does: explicit signatures,
+Compiled when a bus switches torque on (as crane_io.jit.compile_functions does: explicit signatures,
 numba's cache), never lazily at a first packet; without numba `compiled()` is None and the bus keeps its
 Python path.
 """
 
 from __future__ import annotations
-
-import types
 
 import numpy as np
 
@@ -138,28 +136,12 @@ def compiled():
     global _COMPILED
     if _COMPILED is None:
         try:
-            fns = _compile(("_crc", "_u", "goal_current_packet", "present_reply_state"), SIGNATURES)
+            from crane_io.jit import compile_functions
+
+            fns = compile_functions(globals(), ("_crc", "_u", "goal_current_packet", "present_reply_state"),
+                                    SIGNATURES, qualname_prefix="cycle_kernel.")
         except Exception:  # noqa: BLE001 - a broken numba install: the Python path, as without numba
             fns = None
         _COMPILED = False if fns is None else (fns["goal_current_packet"], fns["present_reply_state"])
     return _COMPILED or None
 
-
-def _compile(names: tuple[str, ...], signatures: dict) -> dict | None:
-    """crane_io.sim.jit.compile_functions for this module (the bus layer does not import the simulator):
-    `names` compiled with njit(cache=True), calling each other compiled, and `signatures` compiled now."""
-    try:
-        import numba
-    except ImportError:
-        return None
-    jit = numba.njit(cache=True)
-    ns = dict(globals())
-    for name in names:
-        f = ns[name]
-        g = types.FunctionType(f.__code__, ns, name, f.__defaults__)
-        g.__qualname__ = "cycle_kernel." + name
-        ns[name] = jit(g)
-    for name, sigs in signatures.items():
-        for sig in sigs:
-            ns[name].compile(sig)
-    return {name: ns[name] for name in names}

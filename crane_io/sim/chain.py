@@ -121,7 +121,7 @@ class SimulatedChain:
         if fast is None:
             fast = os.environ.get("CRANE_CHAIN_FAST", "1") != "0"
         # the compiled functions, loaded (or compiled) now, not at the first packet a host waits on
-        # (crane_io.sim.jit); None without numba, and then no fast path
+        # (crane_io.jit); None without numba, and then no fast path
         self._fast_fns = chain_kernel.compiled() if fast and self._fast_layout() else None
         # the lockstep cycle's usual packets handled whole (crane_io.sim.lockstep_kernel; see feed)
         self._lockstep_fns = lockstep_kernel.compiled() if self._fast_fns is not None else None

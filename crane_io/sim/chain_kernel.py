@@ -197,7 +197,7 @@ def reading(q, dq, tau, hq, hdq, hcur, bi, held, kt, n, p, raw, flips, signs, ve
 
 
 # the argument types the simulated chain and ArmPlant.read_arrays call them with (compiled up front,
-# crane_io.sim.jit)
+# crane_io.jit)
 _F, _I = "float64[::1]", "int64[::1]"
 SIGNATURES = {
     "sensors_into": (f"(uint8[:, ::1], {_F}, {_F}, {_F}, {_I}, {_I}, int64, int64, int64, int64, int64)",),
@@ -210,10 +210,10 @@ SIGNATURES = {
 
 def compiled():
     """(sensors_into, commands, fast_status, reading) compiled with numba, or None without numba. The
-    first call of a process compiles them, or loads them from numba's cache (crane_io.sim.jit)."""
+    first call of a process compiles them, or loads them from numba's cache (crane_io.jit)."""
     global _COMPILED
     if _COMPILED is None:
-        from crane_io.sim.jit import compile_functions
+        from crane_io.jit import compile_functions
 
         fns = compile_functions(globals(), ("_quantise", "_put", "_get_u", "_get_s", "_crc_byte",
                                             "sensors_into", "commands", "fast_status", "reading"), SIGNATURES)

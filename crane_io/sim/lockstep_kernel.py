@@ -269,10 +269,10 @@ SIGNATURES = {
 
 def compiled():
     """(sync_write_goal, sense, fast_sync_read, sync_write_read) compiled with numba, or None without numba.
-    The first call of a process compiles them, or loads them from numba's cache (crane_io.sim.jit)."""
+    The first call of a process compiles them, or loads them from numba's cache (crane_io.jit)."""
     global _COMPILED
     if _COMPILED is None:
-        from crane_io.sim.jit import compile_functions
+        from crane_io.jit import compile_functions
 
         # the plant kernel's step_arm as plant_kernel compiled it (its own cache entry: a fresh checkout
         # compiles the dynamics once); the chain kernel's small functions compiled anew, under their own names

@@ -103,7 +103,7 @@ _NAMES = ("draw",)
 
 
 def namespace() -> dict | None:
-    """This module's functions with the numba pieces they call (for crane_io.sim.jit.compile_functions), or
+    """This module's functions with the numba pieces they call (for crane_io.jit.compile_functions), or
     None without numba."""
     try:
         from numba.np.random.distributions import random_standard_normal
@@ -125,7 +125,7 @@ def compiled():
     """The compiled `draw`, or None without numba."""
     global _COMPILED
     if _COMPILED is None:
-        from crane_io.sim.jit import compile_functions
+        from crane_io.jit import compile_functions
 
         ns = namespace()
         fns = None if ns is None else compile_functions(ns, _NAMES, SIGNATURES,

@@ -419,7 +419,7 @@ def step_arm(q, dq, hq, hdq, cmds, pd, ext, hext, h, n_sub, dt, hmat, geo, arm, 
 
 
 _F, _F2 = "float64[::1]", "float64[:, ::1]"
-# the argument types ArmPlant calls step_arm with (compiled up front, crane_io.sim.jit)
+# the argument types ArmPlant calls step_arm with (compiled up front, crane_io.jit)
 SIGNATURES = {
     "step_arm": (f"({_F}, {_F}, {_F}, {_F}, {_F2}, {_F2}, {_F}, {_F}, float64, int64, float64, {_F}, {_F2}, "
                  f"{_F}, {_F2}, {_F2}, {_F}, {_F2})",),
@@ -428,10 +428,10 @@ SIGNATURES = {
 
 def compiled():
     """The numba-compiled (`step_arm`, `step`, `dynamics`), or None when numba is not installed. The first
-    call of a process compiles step_arm or loads it from numba's cache (crane_io.sim.jit)."""
+    call of a process compiles step_arm or loads it from numba's cache (crane_io.jit)."""
     global _COMPILED
     if _COMPILED is None:
-        from crane_io.sim.jit import compile_functions
+        from crane_io.jit import compile_functions
 
         names = ("_kinematics", "_rnea", "_crba", "dynamics", "_kinetic", "_solve", "_integrate", "step",
                  "step_arm")

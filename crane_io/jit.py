@@ -1,12 +1,14 @@
-"""Compiling the simulator's kernels (crane_io.sim.plant_kernel, crane_io.sim.chain_kernel) with numba.
+"""Compiling the project's numba kernels (the simulator's plant, chain, lockstep and noise kernels, the bus's
+cycle kernel, the controller's and the loop's), one rule for all.
 
 `compile_functions(namespace, names, signatures)` compiles the named plain-Python functions of a module
 with `njit(cache=True)` (no `fastmath`: the same IEEE operations as the Python source), so that they call
 each other compiled, and compiles the `signatures` given (name -> argument types, numba's string form)
-at once: loaded from numba's cache or compiled right then, in the thread that builds the simulator. A
-kernel compiled lazily instead would be compiled at its first call, which for a simulator serving a
-pseudo-terminal is while a host waits for a reply: on a fresh checkout that is several seconds, and the
-host rightly declares the servos silent. Returns None when numba is not installed.
+at once: loaded from numba's cache or compiled right then, in the thread that builds the simulator (or
+switches a bus's torque on). A kernel compiled lazily instead would be compiled at its first call,
+which for a simulator serving a pseudo-terminal is while a host waits for a reply: on a fresh checkout
+that is several seconds, and the host rightly declares the servos silent.
+Returns None when numba is not installed.
 """
 
 from __future__ import annotations
