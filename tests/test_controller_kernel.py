@@ -19,6 +19,7 @@ from collect.config import _build, load_config  # noqa: E402
 from collect.controller import ArmSignals, BilateralController  # noqa: E402
 from collect.runner import RunOptions, run_arm, run_session  # noqa: E402
 from crane_io.errors import ConfigError  # noqa: E402
+from tests.loop_reference import control_reference  # noqa: E402
 
 DT = 0.002
 
@@ -210,18 +211,6 @@ def test_the_mass_matrix_diagonal_is_the_mass_matrix_s():
             dyn.mass_matrix_diagonal(bad)
 
 
-def _control_reference(ctl, safety, leader, follower, dt):
-    """What the bilateral loop did before `control`: step, both clamps, applied, both checks."""
-    cmd = ctl.step(leader, follower, dt)
-    tau_l = safety.limit_torque(leader.q, cmd.leader_tau, leader.dq_servo)
-    tau_f = safety.limit_torque(follower.q, cmd.follower_tau, follower.dq_servo)
-    ctl.applied(tau_l, tau_f)
-    breach = safety.check("leader", leader.q, leader.dq_servo)
-    if breach is None:
-        breach = safety.check("follower", follower.q, follower.dq_servo)
-    return cmd, tau_l, tau_f, breach
-
-
 @pytest.mark.parametrize("joints", [None, "all"])
 @pytest.mark.parametrize("compiled", [True, False])
 def test_control_is_step_clamps_applied_and_checks(joints, compiled):
@@ -254,7 +243,7 @@ def test_control_is_step_clamps_applied_and_checks(joints, compiled):
         if k % 13 == 0:
             dqf = None
         a, b = ArmSignals(ql, dql), ArmSignals(qf, dqf)
-        want = _control_reference(ref, safety, a, b, DT)
+        want = control_reference(ref, safety, a, b, DT)
         got = new.control(a, b, DT, safety)
         _compare(ref, new, want[0], got[0], k)
         _same(want[1], got[1], (k, "tau_l"))

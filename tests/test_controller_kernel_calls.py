@@ -16,6 +16,7 @@ from collect.controller import ArmSignals, BilateralController, Commands  # noqa
 from collect.runner import run_arm  # noqa: E402
 from collect.safety import SafetyMonitor  # noqa: E402
 from crane_io.errors import ConfigError  # noqa: E402
+from tests.loop_reference import control_reference  # noqa: E402
 
 DT = 0.002
 FIELDS = ("leader_tau", "follower_tau", "leader_current", "follower_current")
@@ -28,18 +29,6 @@ def _config(joints=None, **safety):
     values = cfg.values
     values["safety"].update(safety)
     return _build(values, "the test")
-
-
-def _reference(ctl, safety, leader, follower):
-    """step, both clamps, applied, both checks (what control() stands for)."""
-    cmd = ctl.step(leader, follower, DT)
-    tau_l = safety.limit_torque(leader.q, cmd.leader_tau, leader.dq_servo)
-    tau_f = safety.limit_torque(follower.q, cmd.follower_tau, follower.dq_servo)
-    ctl.applied(tau_l, tau_f)
-    breach = safety.check("leader", leader.q, leader.dq_servo)
-    if breach is None:
-        breach = safety.check("follower", follower.q, follower.dq_servo)
-    return cmd, tau_l, tau_f, breach
 
 
 @pytest.mark.parametrize("joints", [None, "all"])
@@ -60,7 +49,7 @@ def test_control_uses_the_limits_of_the_monitor_it_is_given_each_call(joints):
         ql = q0 + 0.2 * np.sin(0.02 * k + np.arange(8))
         qf = ql + rng.normal(0, 0.02, 8)
         a, b = ArmSignals(ql, rng.normal(0, 0.5, 8)), ArmSignals(qf, rng.normal(0, 0.5, 8))
-        want = _reference(ref, safety, a, b)
+        want = control_reference(ref, safety, a, b, DT)
         got = new.control(a, b, DT, safety)
         for x, y in ((want[1], got[1]), (want[2], got[2])):
             assert x.tobytes() == y.tobytes(), k
@@ -97,7 +86,7 @@ def test_the_compiled_control_commands_read_as_the_numpy_ones(joints):
     for k in range(200):
         ql, qf = q0 + rng.normal(0, 0.05, 8), q0 + rng.normal(0, 0.05, 8)
         a, b = ArmSignals(ql, rng.normal(0, 0.5, 8)), ArmSignals(qf, rng.normal(0, 0.5, 8))
-        want = _reference(ref, safety, a, b)[0]
+        want = control_reference(ref, safety, a, b, DT)[0]
         got = new.control(a, b, DT, safety)[0]
         assert isinstance(got, Commands)
         assert [f.name for f in dataclasses.fields(got)] == list(FIELDS)

@@ -10,6 +10,7 @@ import pytest
 from collect.config import load_config
 from collect.operator import SimulatedOperator
 from crane_io.sim.arm_plant import ArmPlant
+from tests.loop_reference import count_advances
 
 _STATE = ("_seg_t0", "_seg_T", "_seg_a", "_seg_b", "_on", "_phase_end")
 
@@ -53,17 +54,7 @@ def test_the_cached_contact_schedule_gives_the_every_cycle_bits_phases_and_draws
 
 def test_every_advance_of_the_cached_contact_schedule_changes_it(tmp_path):
     (op,), q = _operators(tmp_path, "contact-wall", 6, 1)
-    calls, idle = [], []
-    advance = op._advance_contact
-
-    def counted(t):
-        before = _state(op)
-        advance(t)
-        calls.append(t)
-        if _state(op) == before:
-            idle.append(t)
-
-    op._advance_contact = counted
+    calls, idle = count_advances(op, "_advance_contact", _state)
     for k in range(6000):
         op.torque(k * 0.002, q, np.zeros(8))
     assert len(calls) > 8

@@ -10,6 +10,7 @@ import pytest
 from collect.config import load_config
 from collect.operator import SimulatedOperator
 from collect.runner import run_arm
+from tests.loop_reference import count_advances
 
 _STATE = ("_seg_t0", "_seg_T", "_seg_a", "_seg_b", "_on", "_phase_end")
 
@@ -35,17 +36,7 @@ def test_every_advance_of_the_cached_schedule_changes_it(joints):
     """While a joint pauses (its move over, its pause not) torque() does not advance the schedule: each
     advance it makes after the first cycle's starts a move, a pause or a moving phase."""
     (op,), q = _operators(joints, 7, 1)
-    calls, idle = [], []
-    advance = op._advance
-
-    def counted(t):
-        before = _state(op)
-        advance(t)
-        calls.append(t)
-        if _state(op) == before:
-            idle.append(t)
-
-    op._advance = counted
+    calls, idle = count_advances(op, "_advance", _state)
     paused = 0
     for k in range(5000):  # 10 s: every joint pauses now and then
         op.torque(k * 0.002, q, np.zeros(8))
