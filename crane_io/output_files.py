@@ -1,0 +1,222 @@
+"""The one way the toolkit writes a file a user asked for: checked against the command's inputs, never
+over an existing file without `force`, and written atomically.
+
+    out = check_output(path, inputs=[session], force=force, what="report")
+    with atomic_path(out) as tmp:          # a temporary file in the target's folder
+        write_something(tmp)               # an exception (or Ctrl+C) leaves the target as it was
+    write_text_atomic(out, text)           # the same for a string
+    with atomic_directory(model_dir, force=force) as tmp_dir: ...   # a model directory
+
+Rules (the same for every command):
+- an output that is the same file as any input (links and `..` resolved, hard links by inode) is refused,
+  as is an output inside an input directory's tree or an input directory inside the output's;
+- an existing output is replaced only with `force`; two outputs of one command are never one file;
+- the data go to a temporary file next to the target (same filesystem), are flushed to disk and renamed
+  into place, so an interrupted or failed write never leaves half a file where a good one was;
+- a write that fails says so in one sentence: a full disk raises DiskFullError (exit 3), any other
+  failure OutputPathError (exit 2); the temporary file is removed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+import shutil
+import tempfile
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+from crane_io.errors import CraneError
+
+_FULL = (errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC))
+
+
+class OutputPathError(CraneError):
+    """An output path that must not be written: an input of the command, an existing file without
+    `force`, a folder that does not exist, a read-only or forbidden place."""
+
+
+class DiskFullError(CraneError):
+    """The disk (or quota) holding an output is full; nothing half-written was left behind."""
+
+    exit_code = 3
+
+
+def is_disk_full(exc: BaseException) -> bool:
+    """True for an OSError (or an h5py error built on one) that says the disk or the quota is full."""
+    seen = 0
+    while exc is not None and seen < 8:
+        if isinstance(exc, OSError) and exc.errno in _FULL:
+            return True
+        text = str(exc)
+        if "No space left on device" in text or "Disk quota exceeded" in text:
+            return True
+        exc = exc.__cause__ or exc.__context__
+        seen += 1
+    return False
+
+
+def write_error(exc: BaseException, path, what: str = "output") -> CraneError:
+    """One sentence for a failed write of `path` (DiskFullError for a full disk)."""
+    if is_disk_full(exc):
+        return DiskFullError(f"the disk holding {path} is full: the {what} was not written (nothing "
+                             "half-written was left); free some space or write elsewhere")
+    reason = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
+    return OutputPathError(f"cannot write the {what} {path}: {reason}")
+
+
+def _resolved(path) -> Path:
+    return Path(os.path.realpath(os.path.abspath(os.fspath(path))))
+
+
+def same_file(a, b) -> bool:
+    """True when the two paths name one file or folder: links resolved, hard links compared by inode."""
+    ra, rb = _resolved(a), _resolved(b)
+    if ra == rb:
+        return True
+    try:
+        return os.path.samefile(ra, rb)
+    except OSError:
+        return False
+
+
+def _inside(child: Path, parent: Path) -> bool:
+    try:
+        child.relative_to(parent)
+    except ValueError:
+        return False
+    return True
+
+
+def check_output(path, *, inputs: Iterable = (), force: bool = False, what: str = "output",
+                 others: Iterable = (), directory: bool = False) -> Path:
+    """The output path, checked (OutputPathError otherwise): not empty, not one of `inputs` (files or
+    folders, compared with links resolved), not inside an input folder nor holding one, not one of the
+    command's `others` outputs, its folder exists, and it does not exist unless `force` (then it must
+    be of the kind written: a file, or a folder when `directory`)."""
+    raw = os.fspath(path) if path is not None else ""
+    if not str(raw).strip():
+        raise OutputPathError(f"the {what} path is empty")
+    if "\x00" in str(raw):
+        raise OutputPathError(f"the {what} path {raw!r} contains a NUL character")
+    out = Path(raw)
+    real = _resolved(out)
+    for inp in inputs:
+        if inp is None:
+            continue
+        rin = _resolved(inp)
+        if same_file(out, inp):
+            raise OutputPathError(f"the {what} {out} is the same file as the input {inp}; "
+                                  "write it elsewhere (an output never replaces an input)")
+        if Path(inp).is_dir() and _inside(real, rin):
+            raise OutputPathError(f"the {what} {out} lies inside the input {inp}; write it elsewhere")
+        if directory and _inside(rin, real):
+            raise OutputPathError(f"the {what} {out} holds the input {inp}; write it elsewhere")
+    for other in others:
+        if other is not None and same_file(out, other):
+            raise OutputPathError(f"the {what} {out} is also another output of this command; give "
+                                  "each output its own path")
+    parent = real.parent
+    if not parent.is_dir():
+        raise OutputPathError(f"the folder of the {what} {out} does not exist")
+    if os.path.lexists(out):
+        if not force:
+            raise OutputPathError(f"the {what} {out} exists; pass `force` to replace it")
+        if directory and not out.is_dir():
+            raise OutputPathError(f"the {what} {out} exists and is not a folder")
+        if not directory and out.is_dir():
+            raise OutputPathError(f"the {what} {out} is a folder, not a file")
+    return out
+
+
+def _fsync_dir(folder: Path) -> None:
+    with contextlib.suppress(OSError):
+        fd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+@contextlib.contextmanager
+def atomic_path(path, what: str = "output") -> Iterator[Path]:
+    """Yield a temporary path in the target's folder; on a clean exit it is flushed and renamed onto
+    `path` (which then holds the whole new file), on any exception it is removed and `path` is left
+    as it was. OSErrors become one sentence (DiskFullError for a full disk)."""
+    target = Path(path)
+    folder = target.parent if str(target.parent) else Path(".")
+    try:
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=folder)
+        os.close(fd)
+    except OSError as exc:
+        raise write_error(exc, target, what) from None
+    tmp = Path(tmp_name)
+    try:
+        yield tmp
+        with open(tmp, "rb+") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, target)
+        _fsync_dir(folder)
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        if isinstance(exc, OSError):
+            raise write_error(exc, target, what) from None
+        if not isinstance(exc, CraneError) and is_disk_full(exc):
+            raise write_error(exc, target, what) from None
+        raise
+
+
+def write_bytes_atomic(path, data: bytes, what: str = "output") -> Path:
+    with atomic_path(path, what) as tmp:
+        tmp.write_bytes(data)
+    return Path(path)
+
+
+def write_text_atomic(path, text: str, what: str = "output", encoding: str = "utf-8") -> Path:
+    return write_bytes_atomic(path, text.encode(encoding), what)
+
+
+@contextlib.contextmanager
+def atomic_directory(path, what: str = "output folder") -> Iterator[Path]:
+    """Yield a new temporary folder beside `path`; on a clean exit it replaces `path` (an existing
+    folder there is moved aside first and removed after the new one is in place), on any exception it
+    is removed and `path` is left as it was."""
+    target = Path(path)
+    folder = target.parent if str(target.parent) else Path(".")
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".part", dir=folder))
+    except OSError as exc:
+        raise write_error(exc, target, what) from None
+    old: Path | None = None
+    try:
+        yield tmp
+        for f in tmp.rglob("*"):
+            if f.is_file():
+                with open(f, "rb+") as fh:
+                    os.fsync(fh.fileno())
+        if os.path.lexists(target):
+            old = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=folder))
+            os.rmdir(old)
+            os.replace(target, old)
+        os.replace(tmp, target)
+        _fsync_dir(folder)
+    except BaseException as exc:
+        if old is not None and not os.path.lexists(target):
+            with contextlib.suppress(OSError):
+                os.replace(old, target)
+            old = None
+        shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(exc, OSError):
+            raise write_error(exc, target, what) from None
+        if not isinstance(exc, CraneError) and is_disk_full(exc):
+            raise write_error(exc, target, what) from None
+        raise
+    finally:
+        if old is not None:
+            if old.is_dir() and not old.is_symlink():
+                shutil.rmtree(old, ignore_errors=True)
+            else:
+                with contextlib.suppress(OSError):
+                    old.unlink()
