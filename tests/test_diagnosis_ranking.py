@@ -1,4 +1,4 @@
-"""The ranking of `crane-train diagnose` must not mislead (issue 12, second half).
+"""The ranking of `crane-train diagnose` must not mislead.
 
 Each test fails without its fix:
 - a shape parameter between the points of its grid (a spring relaxed at -1.2 rad; the grid has -1.25
