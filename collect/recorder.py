@@ -46,6 +46,7 @@ closed. A recorder holds an advisory lock while it writes (collect/session_lock.
 
 from __future__ import annotations
 
+import contextlib
 import operator
 import time
 import zlib
@@ -56,8 +57,11 @@ import h5py
 import numpy as np
 
 from crane_io import session_format as sf
-from crane_io.errors import SessionCloseError, SessionFileError
+from crane_io.errors import CraneError, SessionCloseError, SessionFileError
+from crane_io.output_files import DiskFullError, is_disk_full
 from crane_io.session_format import EVENT_DTYPE, FILTERS, FORMAT, FORMAT_VERSION  # noqa: F401 - re-exported
+
+from .session_detach import detach
 
 # end-of-run attributes written by close(), created with placeholders before the SWMR switch
 SUMMARY_KEYS = sf.TIMING_SUMMARY_ATTRS
@@ -97,6 +101,7 @@ class SessionRecorder:
                  compact_above: float = sf.COMPACT_ABOVE, deferred_writes: bool = False,
                  clock=time.monotonic):
         self.path = Path(path)
+        self._lock = None
         if self.path.exists():
             if not force:
                 raise SessionFileError(f"{self.path} already exists; pass `force` to overwrite it")
@@ -107,7 +112,39 @@ class SessionRecorder:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._f = h5py.File(self.path, "w", libver="latest")
         except OSError as exc:
+            with contextlib.suppress(OSError):
+                self.path.unlink(missing_ok=True)
+            if is_disk_full(exc):
+                raise self._not_created() from None
             raise SessionFileError(f"cannot create session file {self.path} ({exc})") from None
+        self.failed: CraneError | None = None  # the write failure that stopped the recording (file detached)
+        self.closed = False
+        try:
+            self._create(joint_names, rate_hz, source, attrs, arms, flush_interval_s, max_unsaved_s, lockstep,
+                         chunk_rows, end_attrs, compact_above, deferred_writes, clock)
+        except BaseException as exc:
+            self._abandon_new_file()
+            if is_disk_full(exc):
+                raise self._not_created() from None
+            raise
+
+    def _not_created(self) -> DiskFullError:
+        return DiskFullError(f"the disk holding {self.path} is full: the session file could not be created, "
+                             "nothing was recorded and no file was left; free some space or record elsewhere")
+
+    def _abandon_new_file(self) -> None:
+        """A file whose creation failed: let HDF5 go of it without writing to it again, then remove it."""
+        detach(self._f)
+        with contextlib.suppress(Exception):
+            self._f.close()
+        if self._lock is not None:
+            self._lock.release()
+        self.closed = True
+        with contextlib.suppress(OSError):
+            self.path.unlink(missing_ok=True)
+
+    def _create(self, joint_names, rate_hz, source, attrs, arms, flush_interval_s, max_unsaved_s, lockstep,
+                chunk_rows, end_attrs, compact_above, deferred_writes, clock) -> None:
         self.joint_names = [str(n) for n in joint_names]
         J = len(self.joint_names)
         self.rate_hz = float(rate_hz)
@@ -121,14 +158,13 @@ class SessionRecorder:
         self._n = 0  # rows in the file
         self._k = 0  # rows in the buffer
         self._oldest = 0.0  # wall-clock time the oldest buffered row was appended
+        self._saved = 0  # rows every dataset holds in the file (flushed)
         self.waste_bytes = 0  # bytes of chunks written and then superseded (never reused under SWMR)
         self.compacted = False
-        self.closed = False
         # deferred writes (a paced loop): [(key, n0, n1, rows, partial)], one dataset each
         self.deferred_writes = bool(deferred_writes)
         self._pending: list[tuple] = []
         self._write_cost = _FIRST_WRITE_COST_S  # s: the learned cost of one dataset's write
-        self._lock = None
         f = self._f
         # the required attributes (sf.REQUIRED_ROOT), then `complete`
         f.attrs[sf.FORMAT_ATTR] = FORMAT
@@ -275,18 +311,24 @@ class SessionRecorder:
         """Do deferred writes: all of them when `deadline` is None, otherwise while the next one's
         learned cost still ends before `deadline` (a time of `clock`, default the recorder's clock);
         at least nothing, at most everything. Returns the number of steps left."""
+        if self.failed is not None:
+            raise self.failed
         clock = clock or self._clock
         pending = self._pending
-        while pending:
-            if deadline is not None and clock() + self._write_cost > deadline:
-                break
-            t0 = clock()
-            key = pending[0][0]
-            self._write_rows(*pending.pop(0))
-            self._ds[key].id.flush()  # H5Dflush: this dataset's chunk and index reach the file now
-            took = clock() - t0
-            # a slow step raises the estimate at once; capped, so one stall cannot stop the writes
-            self._write_cost = min(max(took, self._write_cost * _COST_DECAY), _MAX_WRITE_COST_S)
+        try:
+            while pending:
+                if deadline is not None and clock() + self._write_cost > deadline:
+                    break
+                t0 = clock()
+                key, _n0, n1 = pending[0][:3]
+                self._write_rows(*pending.pop(0))
+                self._ds[key].id.flush()  # H5Dflush: this dataset's chunk and index reach the file now
+                self._saved = pending[0][1] if pending else n1
+                took = clock() - t0
+                # a slow step raises the estimate at once; capped, so one stall cannot stop the writes
+                self._write_cost = min(max(took, self._write_cost * _COST_DECAY), _MAX_WRITE_COST_S)
+        except (OSError, RuntimeError) as exc:
+            raise self._write_failed(exc) from None
         return self.pending_writes
 
     def _write_all_pending(self) -> None:
@@ -305,7 +347,9 @@ class SessionRecorder:
                 ds.id.set_extent((n1,) + row_shape)
                 ds.id.write_direct_chunk((n0,) + (0,) * len(row_shape), chunk_bytes(rows))
                 return
-            except Exception:  # noqa: BLE001 - HDF5 refused a chunk: it writes them itself from now on
+            except Exception as exc:  # noqa: BLE001 - HDF5 refused a chunk: it writes them itself from now on
+                if is_disk_full(exc):
+                    raise
                 self._direct = False
         if partial:  # the chunk on disk is superseded by the one written now
             self.waste_bytes += _chunk_size(ds, n0 - partial)
@@ -320,24 +364,55 @@ class SessionRecorder:
 
     def flush(self) -> None:
         """Write the deferred and the buffered rows now (whole chunks where they fall on chunk
-        boundaries), and flush the file."""
+        boundaries), and flush the file. A failed write stops the recording (`_write_failed`)."""
+        if self.failed is not None:
+            raise self.failed
         self._write_all_pending()
-        k = self._k
-        if k:
-            n0, n1 = self._n, self._n + k
-            partial = n0 % self.chunk_rows
-            for key in self._ds:
-                self._write_rows(key, n0, n1, self._buf[key][:k], partial)
-            self._clear_rows(k)
-            self._n = n1
-            self._k = 0
-        self._f.flush()
+        try:
+            k = self._k
+            if k:
+                n0, n1 = self._n, self._n + k
+                partial = n0 % self.chunk_rows
+                for key in self._ds:
+                    self._write_rows(key, n0, n1, self._buf[key][:k], partial)
+                self._clear_rows(k)
+                self._n = n1
+                self._k = 0
+            self._f.flush()
+        except (OSError, RuntimeError) as exc:
+            raise self._write_failed(exc) from None
+        self._saved = self._n
 
     def event(self, t: float, kind: str, message: str, joint: str = "") -> None:
-        n = self._events.shape[0]
-        self._events.resize(n + 1, axis=0)
-        self._events[n] = event_row(t, kind, message, joint)
-        self._events.flush()
+        """Record an event at once. After a failed write (`failed`) events are dropped: the recording
+        has stopped and its failure was raised already."""
+        if self.failed is not None:
+            return
+        try:
+            n = self._events.shape[0]
+            self._events.resize(n + 1, axis=0)
+            self._events[n] = event_row(t, kind, message, joint)
+            self._events.flush()
+        except (OSError, RuntimeError) as exc:
+            raise self._write_failed(exc) from None
+
+    def _write_failed(self, exc: BaseException) -> CraneError:
+        """A write to the file failed (a full disk, an I/O error): the recording stops here. The file is
+        let go of without HDF5 writing to it again (collect/session_detach.py), so it stays as the last
+        successful write left it: every chunk written before, in SWMR-write state, for `crane-collect
+        recover`. Returns the one-sentence error (DiskFullError for a full disk), kept in `failed`."""
+        if self.failed is None:
+            detach(self._f)
+            seconds = self._saved / self.rate_hz
+            kept = (f"{seconds:.1f} s were recorded, and the file keeps every chunk written before; "
+                    f"`crane-collect recover {self.path} -o FILE`, with FILE on another disk, makes it an "
+                    "ordinary file")
+            if is_disk_full(exc):
+                self.failed = DiskFullError(f"the disk holding {self.path} is full: {kept}")
+            else:
+                reason = " ".join(str(exc).split())[:200] or type(exc).__name__
+                self.failed = SessionFileError(f"writing {self.path} failed ({reason}): {kept}")
+        return self.failed
 
     # ---- the end ------------------------------------------------------------------------------------
     def close(self, *, complete: bool = True, attrs: dict | None = None,
@@ -345,30 +420,30 @@ class SessionRecorder:
         """Write what is buffered, the end-of-run attributes (`attrs` at the root, `group_attrs`
         {"timing": {...}}) and, if `complete`, `complete = True`; then close the file. No second open:
         readers may keep the file open meanwhile. Raises SessionCloseError (one sentence) if any of
-        it could not be written; the rows already written stay in the file."""
+        it could not be written; the rows already written stay in the file. A write that fails for the
+        disk (full, I/O error) raises `failed` instead, once: after it the file is only let go of."""
         if self.closed:
             return
         self.closed = True
+        reported = self.failed  # a failure raised already is not raised again
         failed: list[str] = []
         lost = ""
         try:
             try:
                 self.flush()
+            except CraneError:
+                pass  # `failed`: raised below
             except Exception as exc:  # noqa: BLE001 - reported below, the rest must still run
                 lost = f"the last {self._k} rows could not be written ({exc}); "
                 failed.append("rows")
-            values = {"/": dict(attrs or {})}
-            for group, items in (group_attrs or {}).items():
-                values.setdefault(group.strip("/") or "/", {}).update(items)
-            for group, items in values.items():
-                for key, value in items.items():
-                    try:
-                        _set_end_attr(self._f if group == "/" else self._f[group], key, value)
-                    except Exception:  # noqa: BLE001 - named in the sentence below
-                        failed.append(f"{group.rstrip('/')}/{key}".lstrip("/") if group != "/" else key)
-            if complete and not failed:
-                self._f.attrs.modify(sf.COMPLETE_ATTR, True)
-                self._f.flush()
+            if self.failed is None:
+                self._end_attrs(attrs, group_attrs, failed)
+                if complete and not failed:
+                    self._f.attrs.modify(sf.COMPLETE_ATTR, True)
+                try:  # everything written now, so that closing has nothing left to write
+                    self._f.flush()
+                except (OSError, RuntimeError) as exc:
+                    self._write_failed(exc)
         finally:
             closed = True
             try:
@@ -377,6 +452,10 @@ class SessionRecorder:
                 closed = False
             if self._lock is not None:
                 self._lock.release()
+        if self.failed is not None:
+            if reported is None:
+                raise self.failed
+            return
         if not closed:
             raise SessionCloseError(f"session file {self.path} could not be closed; {lost}the rows written "
                                     f"before are kept: run `crane-collect recover {self.path}` to make it "
@@ -387,6 +466,18 @@ class SessionRecorder:
                                     f"attributes ({names}) could not be written, so it stays "
                                     f"complete = False; its {self._n} rows are kept")
         self._compact()
+
+    def _end_attrs(self, attrs: dict | None, group_attrs: dict | None, failed: list[str]) -> None:
+        """The end-of-run attributes written in place; the names of those that could not be, in `failed`."""
+        values = {"/": dict(attrs or {})}
+        for group, items in (group_attrs or {}).items():
+            values.setdefault(group.strip("/") or "/", {}).update(items)
+        for group, items in values.items():
+            for key, value in items.items():
+                try:
+                    _set_end_attr(self._f if group == "/" else self._f[group], key, value)
+                except Exception:  # noqa: BLE001 - named in the sentence below
+                    failed.append(f"{group.rstrip('/')}/{key}".lstrip("/") if group != "/" else key)
 
     def _compact(self) -> None:
         """Rewrite the closed file compactly if superseded chunks waste more than `compact_above` of it.
