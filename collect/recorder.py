@@ -62,23 +62,12 @@ from crane_io.output_files import DiskFullError, is_disk_full
 from crane_io.session_format import EVENT_DTYPE, FILTERS, FORMAT, FORMAT_VERSION  # noqa: F401 - re-exported
 
 from .session_detach import detach
+from .session_values import attr_value, event_row, placeholder, read_events, set_end_attr  # noqa: F401
 
 # end-of-run attributes written by close(), created with placeholders before the SWMR switch
 SUMMARY_KEYS = sf.TIMING_SUMMARY_ATTRS
 DEFAULT_END_ATTRS = {"/": {sf.END_REASON_ATTR: str, sf.RATE_ACHIEVED_ATTR: float},
                      sf.TIMING: {**dict.fromkeys(SUMMARY_KEYS, float), sf.TIMING_LOCKSTEP: bool}}
-
-
-def _enc(text: str, size: int) -> bytes:
-    raw = str(text).encode("utf-8")[:size]
-    return raw.decode("utf-8", "ignore").encode("utf-8")
-
-
-def event_row(t: float, kind: str, message: str, joint: str = "") -> np.void:
-    """One record of `/events` (strings cut to their fixed widths on a UTF-8 character boundary)."""
-    w = sf.EVENT_WIDTHS
-    return np.array([(float(t), _enc(kind, w["kind"]), _enc(joint, w["joint"]), _enc(message, w["message"]))],
-                    dtype=EVENT_DTYPE)[0]
 
 
 class SessionRecorder:
@@ -174,7 +163,7 @@ class SessionRecorder:
         f.attrs[sf.SOURCE_ATTR] = str(source)
         f.attrs[sf.COMPLETE_ATTR] = False
         for key, value in (attrs or {}).items():
-            f.attrs[key] = _attr(value)
+            f.attrs[key] = attr_value(value)
         self._ds: dict[str, h5py.Dataset] = {}
         members = []  # (key, group, name, dtype, row shape) in the order the datasets are created
         for arm in arms:
@@ -196,7 +185,7 @@ class SessionRecorder:
             obj = f if group in ("/", "") else f.require_group(group)
             for key, kind in keys.items():
                 if key not in obj.attrs:
-                    obj.attrs[key] = _placeholder(kind)
+                    obj.attrs[key] = placeholder(kind)
         f.swmr_mode = True
         f.flush()
         from .session_lock import WriterLock
@@ -400,18 +389,27 @@ class SessionRecorder:
         """A write to the file failed (a full disk, an I/O error): the recording stops here. The file is
         let go of without HDF5 writing to it again (collect/session_detach.py), so it stays as the last
         successful write left it: every chunk written before, in SWMR-write state, for `crane-collect
-        recover`. Returns the one-sentence error (DiskFullError for a full disk), kept in `failed`."""
-        if self.failed is None:
-            detach(self._f)
-            seconds = self._saved / self.rate_hz
-            kept = (f"{seconds:.1f} s were recorded, and the file keeps every chunk written before; "
-                    f"`crane-collect recover {self.path} -o FILE`, with FILE on another disk, makes it an "
-                    "ordinary file")
-            if is_disk_full(exc):
-                self.failed = DiskFullError(f"the disk holding {self.path} is full: {kept}")
-            else:
-                reason = " ".join(str(exc).split())[:200] or type(exc).__name__
-                self.failed = SessionFileError(f"writing {self.path} failed ({reason}): {kept}")
+        recover`; a file without a recorded row is removed. Returns the one-sentence error (DiskFullError
+        for a full disk), kept in `failed`."""
+        if self.failed is not None:
+            return self.failed
+        detach(self._f)
+        full = is_disk_full(exc)
+        if full:
+            what = f"the disk holding {self.path} is full"
+        else:
+            what = f"writing {self.path} failed ({' '.join(str(exc).split())[:200] or type(exc).__name__})"
+        if self._saved:
+            self.failed = (DiskFullError if full else SessionFileError)(
+                f"{what}: {self._saved / self.rate_hz:.1f} s were recorded, and the file keeps every chunk "
+                f"written before; `crane-collect recover {self.path} -o FILE`, with FILE on another disk, "
+                "makes it an ordinary file")
+        else:  # nothing recorded yet: nothing worth keeping either
+            with contextlib.suppress(OSError):
+                self.path.unlink()
+            self.failed = (DiskFullError if full else SessionFileError)(
+                f"{what} before the first rows were recorded: no file was left; free some space or record "
+                "elsewhere")
         return self.failed
 
     # ---- the end ------------------------------------------------------------------------------------
@@ -475,7 +473,7 @@ class SessionRecorder:
         for group, items in values.items():
             for key, value in items.items():
                 try:
-                    _set_end_attr(self._f if group == "/" else self._f[group], key, value)
+                    set_end_attr(self._f if group == "/" else self._f[group], key, value)
                 except Exception:  # noqa: BLE001 - named in the sentence below
                     failed.append(f"{group.rstrip('/')}/{key}".lstrip("/") if group != "/" else key)
 
@@ -598,57 +596,3 @@ def _chunk_size(ds: h5py.Dataset, row: int) -> int:
     except (OSError, ValueError, AttributeError):
         return 0
     return int(info.size or 0) if info.byte_offset is not None else 0
-
-
-def _placeholder(kind):
-    if kind is bool:
-        return False
-    if kind is int:
-        return np.int64(-1)
-    if kind is str:
-        return ""
-    return np.nan
-
-
-def _fits(dtype: np.dtype, value) -> bool:
-    """Can `value` be written into an existing scalar attribute of `dtype` without changing its type?"""
-    if h5py.check_string_dtype(dtype) is not None:
-        return isinstance(value, str)
-    if isinstance(value, (bool, np.bool_)):
-        return dtype.kind == "b"
-    if isinstance(value, (int, np.integer)):
-        return dtype.kind in "iuf"
-    if isinstance(value, (float, np.floating)):
-        return dtype.kind == "f"
-    return False
-
-
-def _set_end_attr(obj, key: str, value) -> None:
-    value = _attr(value)
-    if key in obj.attrs:
-        current = obj.attrs.get_id(key)
-        if current.shape == () and _fits(current.dtype, value):
-            obj.attrs.modify(key, value)  # in place: allowed while the file is in SWMR mode
-            return
-    obj.attrs[key] = value
-
-
-def _attr(value):
-    if isinstance(value, str):
-        return value
-    if isinstance(value, (list, tuple)) and value and all(isinstance(v, str) for v in value):
-        return np.array(value, dtype=h5py.string_dtype())
-    if isinstance(value, dict):
-        raise TypeError("dict attributes are not supported; flatten them")
-    return value
-
-
-def read_events(f: h5py.File) -> list[dict]:
-    """The events of an open session as dicts with str fields (helper for tests and tools)."""
-    if sf.EVENTS not in f:
-        return []
-    out = []
-    for rec in f[sf.EVENTS][()]:
-        out.append({"t": float(rec["t"]), "kind": rec["kind"].decode(), "joint": rec["joint"].decode(),
-                    "message": rec["message"].decode()})
-    return out

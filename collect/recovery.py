@@ -40,9 +40,9 @@ from crane_io.errors import NotRecoverableError, SessionFileError
 from crane_io.h5check import bad_checksum_rows
 from crane_io.session_format import EVENT_DTYPE, FORMAT
 
-from .recorder import event_row
 from .session_copy import read_rows, row_datasets, write_copy
 from .session_lock import is_being_written
+from .session_values import event_row
 
 BACKUP_SUFFIX = ".crashed"
 

@@ -97,7 +97,9 @@ def _digest(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-@pytest.mark.parametrize("fault,chunks", [("dataset", 2), ("mid-chunk", 4), ("file-flush", 6)])
+@pytest.mark.parametrize("fault,chunks",
+                         [("dataset", 2), ("mid-chunk", 4), ("file-flush", 6), ("file-flush", 8)],
+                         ids=["dataset", "mid-chunk", "file-flush", "at-close"])
 def test_a_full_disk_while_recording_stops_cleanly_and_the_file_is_recoverable(tmp_path, cfg, monkeypatch,
                                                                                 fault, chunks):
     out = tmp_path / "s.h5"
@@ -138,18 +140,37 @@ def test_a_full_disk_when_the_session_file_is_made_leaves_no_file_and_torque_off
     assert not out.exists() and list(tmp_path.iterdir()) == [tmp_path / "test.toml"]
 
 
-def test_after_a_failed_write_events_are_dropped_and_close_raises_nothing_new(tmp_path, monkeypatch):
-    rec = SessionRecorder(tmp_path / "s.h5", joint_names=["joint1"], rate_hz=100, source="sim", lockstep=True)
+def test_a_full_disk_before_the_first_chunk_leaves_no_file_and_close_raises_nothing_new(tmp_path,
+                                                                                         monkeypatch):
+    p = tmp_path / "s.h5"
+    rec = SessionRecorder(p, joint_names=["joint1"], rate_hz=100, source="sim", lockstep=True)
     rec.event(0.0, "start", "aligned")
     _fail_dataset_write(monkeypatch, 0)
-    with pytest.raises(DiskFullError):
+    with pytest.raises(DiskFullError, match="before the first rows were recorded: no file was left"):
         for k in range(60):
             rec.append({"follower/t": k / 100, "leader/t": k / 100})
-    rec.event(0.6, "end", "dropped")
+    rec.event(0.6, "end", "dropped")  # after the stop events are dropped
     rec.close(attrs={"end_reason": "duration"})
-    assert rec.closed and isinstance(rec.failed, DiskFullError)
+    assert rec.closed and isinstance(rec.failed, DiskFullError) and not p.exists()
     with pytest.raises(DiskFullError):
         rec.flush()
+
+
+def test_a_full_disk_in_a_deferred_write_stops_the_recording_and_keeps_the_chunks_before(tmp_path,
+                                                                                        monkeypatch):
+    """The paced loop's deferred writes (one dataset per step): a full disk there is the same clean stop."""
+    p = tmp_path / "s.h5"
+    rec = SessionRecorder(p, joint_names=["joint1"], rate_hz=100, source="hardware", deferred_writes=True,
+                          clock=lambda: 0.0)
+    _fail_dataset_write(monkeypatch, 2 * DATASETS + 5)
+    with pytest.raises(DiskFullError, match=r"is full: 1\.0 s were recorded"):
+        for k in range(400):
+            rec.append({"follower/t": k / 100, "leader/t": k / 100})
+            rec.write_pending(None)
+    rec.close()
+    monkeypatch.undo()
+    r = recover_session(p, tmp_path / "out.h5")
+    assert r.rows == 100
 
 
 REAL_DISK = """
