@@ -47,7 +47,7 @@ def cfg(tmp_path):
     return p
 
 
-def _run(tmp_path, cfg, monkeypatch):
+def _run(tmp_path, cfg, monkeypatch, **options):
     """run_session raising DiskFullError: (the error, the simulated arms)."""
     seen = {}
     make = runner.make_sim_arms
@@ -57,8 +57,8 @@ def _run(tmp_path, cfg, monkeypatch):
         return seen["sims"]
 
     monkeypatch.setattr(runner, "make_sim_arms", make_sim_arms)
-    opts = RunOptions(output=tmp_path / "s.h5", sim=True, plant="simple", duration=4.0, config=cfg, seed=5,
-                      status=False)
+    opts = RunOptions(**{**dict(output=tmp_path / "s.h5", sim=True, plant="simple", duration=4.0, config=cfg,
+                                seed=5, status=False), **options})
     with pytest.raises(DiskFullError) as err:
         run_session(opts)
     return err.value, seen["sims"]
@@ -154,6 +154,17 @@ def test_a_full_disk_before_the_first_chunk_leaves_no_file_and_close_raises_noth
     assert rec.closed and isinstance(rec.failed, DiskFullError) and not p.exists()
     with pytest.raises(DiskFullError):
         rec.flush()
+
+
+def test_a_full_disk_under_the_truth_trace_stops_the_run_and_removes_the_trace(tmp_path, cfg, monkeypatch):
+    trace = tmp_path / "truth.h5"
+    _fail_file_flush(monkeypatch, trace.resolve(), 1)  # its second block (rows 1000..1999)
+    err, sims = _run(tmp_path, cfg, monkeypatch, truth_trace=trace, plant="crane-x7")
+    assert err.exit_code == 3 and str(err).startswith(f"the disk holding {trace} is full: the truth trace")
+    assert torque_off_everywhere(sims) and not trace.exists()
+    monkeypatch.undo()
+    with h5py.File(tmp_path / "s.h5", "r") as f:  # the session itself was closed properly
+        assert f.attrs["end_reason"] == "error" and f["follower/t"].shape[0] >= 1000
 
 
 def test_a_full_disk_in_a_deferred_write_stops_the_recording_and_keeps_the_chunks_before(tmp_path,
