@@ -38,9 +38,11 @@ import numpy as np
 from crane_io import session_format as sf
 from crane_io.errors import NotRecoverableError, SessionFileError
 from crane_io.h5check import bad_checksum_rows
+from crane_io.output_files import DiskFullError, is_disk_full
 from crane_io.session_format import EVENT_DTYPE, FORMAT
 
 from .session_copy import read_rows, row_datasets, write_copy
+from .session_detach import written_file
 from .session_lock import is_being_written
 from .session_values import event_row
 
@@ -232,7 +234,11 @@ def recover_session(path, output=None) -> Recovery:
                 backup.unlink(missing_ok=True)
             raise
         staged = None
-    except OSError as exc:
+    except (OSError, RuntimeError) as exc:
+        if is_disk_full(exc):
+            raise DiskFullError(f"the disk holding {dest} is full: the recovered file was not written and "
+                                f"{path} was left as it was; free some space or give -o a file on another "
+                                "disk") from None
         raise SessionFileError(f"could not recover {path} ({exc}); the file was left as it was") from None
     finally:
         if staged is not None:
@@ -244,7 +250,7 @@ def _finish_copy(staged: Path, path: Path, r: Recovery, damaged_file: bool) -> f
     """Add the `recovered` event to the fresh copy and check that it opens as an ordinary file."""
     n = r.rows
     t_path = sf.arm_path(sf.REQUIRED_ARM, sf.T)
-    with h5py.File(staged, "r+") as f:
+    with written_file(staged, "r+") as f:
         t = f[t_path][max(0, n - 1):n] if t_path in f else np.zeros(0)
         t_end = float(t[-1]) if t.size and np.isfinite(t[-1]) else 0.0
         t0 = float(f[t_path][0]) if n and t_path in f else 0.0

@@ -22,6 +22,8 @@ import numpy as np
 
 from crane_io.h5check import damaged_dataset
 
+from .session_detach import written_file
+
 BLOCK_BYTES = 8 << 20  # rows are copied in blocks of about this size (whole chunks)
 
 
@@ -100,7 +102,7 @@ def write_copy(src: h5py.File, dest, *, rows: int | None = None, attrs: dict | N
     fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=".tmp", dir=dest.parent)
     os.close(fd)
     try:
-        with h5py.File(tmp, "w") as out:
+        with written_file(tmp, "w") as out:
             def visit(name, obj):
                 if isinstance(obj, h5py.Group):
                     g = out.require_group(name)

@@ -73,3 +73,20 @@ def _copy_bytes(src: int, dst: int) -> None:
         except (OSError, MemoryError):
             return
         offset += len(data)
+
+
+@contextlib.contextmanager
+def written_file(path, mode: str = "w", **kwargs):
+    """`h5py.File(path, mode)` for writing, closed safely: flushed before it is closed, so a full disk
+    shows up as an exception there, and after any exception inside the block (or in that flush) let go
+    of with `detach` before closing, so that HDF5 never retries its writes on the failed file."""
+    f = h5py.File(path, mode, **kwargs)
+    try:
+        yield f
+        f.flush()
+    except BaseException:
+        detach(f)
+        with contextlib.suppress(Exception):
+            f.close()
+        raise
+    f.close()

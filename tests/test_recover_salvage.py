@@ -17,6 +17,7 @@ from collect.recorder import SessionRecorder, read_events
 from collect.recovery import recover_session
 from collect.session_detach import detach
 from crane_io.errors import NotRecoverableError
+from crane_io.output_files import DiskFullError
 from crane_io.session_format import EVENT_CHUNK_ROWS
 
 NAMES = [f"joint{i}" for i in range(1, 8)] + ["gripper"]
@@ -104,3 +105,27 @@ def test_a_crashed_session_without_damage_recovers_as_before(tmp_path):
     p = _record(tmp_path / "s.h5", rows=237)
     r = recover_session(p, tmp_path / "out.h5")
     assert (r.rows, r.rows_dropped, r.damaged, r.cut, r.damage_summary()) == (237, 0, [], {}, "")
+
+
+@pytest.mark.parametrize("flush", [1, 2], ids=["copy", "recovered-event"])
+def test_recovering_onto_a_full_disk_is_one_sentence_and_leaves_nothing(tmp_path, monkeypatch, flush):
+    p = _record(tmp_path / "s.h5", rows=300)
+    before = _digest(p)
+    out_dir = tmp_path / "full"
+    out_dir.mkdir()
+    original, calls = h5py.File.flush, [0]
+
+    def flush_on_a_full_disk(self):
+        if Path(self.filename).parent == out_dir:
+            calls[0] += 1
+            if calls[0] == flush:
+                raise RuntimeError("Unable to synchronously flush file (file write failed: errno = 28, "
+                                   "error message = 'No space left on device')")
+        return original(self)
+
+    monkeypatch.setattr(h5py.File, "flush", flush_on_a_full_disk)
+    with pytest.raises(DiskFullError) as err:
+        recover_session(p, out_dir / "out.h5")
+    msg = str(err.value)
+    assert err.value.exit_code == 3 and msg.startswith(f"the disk holding {out_dir / 'out.h5'} is full")
+    assert list(out_dir.iterdir()) == [] and _digest(p) == before
