@@ -491,7 +491,7 @@ class SessionRecorder:
         try:
             with h5py.File(self.path, "r") as src:
                 write_copy(src, self.path, source_path=self.path)
-        except (OSError, SessionFileError):
+        except (OSError, RuntimeError, SessionFileError):  # a full disk too: the file stays as it is
             return
         self.compacted = True
 

@@ -231,3 +231,27 @@ def test_a_real_full_file_system_stops_the_recording_without_a_crash(tmp_path):
     assert rows > 0 and rows % CHUNK == 0
     with h5py.File(out, "r") as f:
         assert f["follower/t"].shape == (rows,) and f["follower/t"][-1] == (rows - 1) / 500
+
+
+def test_a_full_disk_while_compacting_keeps_the_closed_file_as_it_is(tmp_path, monkeypatch):
+    p = tmp_path / "s.h5"
+    clock = [0.0]
+    rec = SessionRecorder(p, joint_names=["joint1"], rate_hz=100, source="hardware", compact_above=0.0,
+                          clock=lambda: clock[0])
+    for k in range(120):  # a wall-clock flush every 0.9 s rewrites a partly filled chunk
+        rec.append({"follower/t": k / 100, "leader/t": k / 100})
+        clock[0] += 0.1
+    assert rec.waste_bytes > 0
+    original = h5py.File.flush
+
+    def flush(self):  # the compact copy's flush (another file in the same folder) finds the disk full
+        if Path(self.filename) != p:
+            raise RuntimeError(HDF5_FULL)
+        return original(self)
+
+    monkeypatch.setattr(h5py.File, "flush", flush)
+    rec.close(attrs={"end_reason": "duration"})
+    monkeypatch.undo()
+    assert not rec.compacted and sorted(tmp_path.iterdir()) == [p]
+    with h5py.File(p, "r") as f:
+        assert f.attrs["complete"] and f["follower/t"].shape == (120,)
