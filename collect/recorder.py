@@ -42,6 +42,12 @@ Close never reopens the file (a live reader would make a second open fail): the 
 written into the attributes created before the SWMR switch, `complete = True` last, then the file is
 closed. A recorder holds an advisory lock while it writes (collect/session_lock.py) so that
 `crane-collect recover` can tell a live recording from a crashed one.
+
+A write that fails (a full disk, an I/O error) stops the recording: the recorder raises one sentence
+(DiskFullError, exit 3, for a full disk) and from then on HDF5 never writes to the file again
+(collect/session_detach.py: HDF5 retrying, or closing half way, crashed the process), so the file keeps
+every chunk written before, in the state of a crashed recording, for `crane-collect recover -o`; events
+after the stop are dropped and `close()` only lets go of the file. A file without a saved row is removed.
 """
 
 from __future__ import annotations
