@@ -36,15 +36,15 @@ def detach(f: h5py.File) -> bool:
         return False
     try:
         copy = _private_file()
-    except OSError:
+    except Exception:  # noqa: BLE001 - never raises: it runs while another failure is being handled
         return False
     try:
         _copy_bytes(fd, copy)
         os.dup2(copy, fd)
-    except OSError:
-        os.close(copy)
+    except Exception:  # noqa: BLE001
         return False
-    os.close(copy)
+    finally:
+        os.close(copy)
     return True
 
 
@@ -64,7 +64,7 @@ def _copy_bytes(src: int, dst: int) -> None:
     while True:
         try:
             data = os.pread(src, _BLOCK, offset)
-        except OSError:
+        except (OSError, MemoryError):
             return
         if not data:
             return

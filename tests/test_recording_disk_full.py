@@ -255,3 +255,25 @@ def test_a_full_disk_while_compacting_keeps_the_closed_file_as_it_is(tmp_path, m
     assert not rec.compacted and sorted(tmp_path.iterdir()) == [p]
     with h5py.File(p, "r") as f:
         assert f.attrs["complete"] and f["follower/t"].shape == (120,)
+
+
+def test_a_detached_file_is_never_written_again_and_closes_cleanly(tmp_path):
+    from collect.session_detach import detach
+
+    p = tmp_path / "a.h5"
+    f = h5py.File(p, "w", libver="latest")
+    ds = f.create_dataset("x", shape=(0,), maxshape=(None,), chunks=(10,), dtype="f8")
+    f.swmr_mode = True
+    ds.resize(10, axis=0)
+    ds[:] = 1.0
+    f.flush()
+    before = _digest(p)
+    assert detach(f)
+    ds.resize(100, axis=0)
+    ds[10:] = 2.0
+    f.flush()
+    assert ds[95] == 2.0  # HDF5 goes on in memory
+    f.close()
+    assert _digest(p) == before
+    with h5py.File(p, "r", libver="latest", swmr=True) as g:
+        assert g["x"].shape == (10,) and g["x"][9] == 1.0
