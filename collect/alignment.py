@@ -25,6 +25,7 @@ from .pacing import CycleTimer
 from .safety import SafetyMonitor
 
 SETTLE_S = 0.3  # s of holding the target after the move
+READING, WRITING = "reading the arms while aligning", "writing to the arms while aligning"
 # A simulated arm that cannot be held still during the alignment is almost always a plant TOML without
 # the damping every real joint has: with no viscous friction or rotor inertia on the bilateral joints the
 # default gains make the arm oscillate into the velocity guard.
@@ -41,11 +42,14 @@ class StartRefused(HardwareError):
     """The arms could not be brought into agreement safely."""
 
 
-def _states(results):
-    """The two states of a read_both / write result, or its first error raised."""
-    for _value, exc, _ in results:
+def checked(results, what: str) -> list:
+    """The two values of a read_both / write result of (leader, follower); a failed transfer is a safety
+    stop (SafetyStop naming `what` was being done, e.g. "reading the arms while aligning"): the caller's
+    clean-up stops both arms, as after any other breach."""
+    for name, (_value, exc, _) in zip(ARMS, results):
         if exc is not None:
-            raise exc
+            reason = str(exc).rstrip(".") or type(exc).__name__
+            raise SafetyStop(f"safety stop {what}: the {name} arm failed ({reason})") from exc
     return [value for value, _, _ in results]
 
 
@@ -74,7 +78,7 @@ def align(pair: ArmPair, ctl: BilateralController, safety: SafetyMonitor, config
           arm: ArmDescription, *, simulated: bool, lockstep: bool, say: Callable[[str], None],
           paced: bool | None = None, between_cycles: Callable[[], None] | None = None) -> str:
     """Bring both arms to their start pose; returns the sentence for the session's start event.
-    Raises StartRefused, SafetyStop (a breach while aligning) or the first bus error.
+    Raises StartRefused, or SafetyStop for a breach or a failed transfer (read or write) while aligning.
 
     lockstep: the (simulated) arms advance one control period per goal sync write, so a cycle (goal
     current + goal position) is two periods of their time and the controller's dt is exactly that.
@@ -85,7 +89,7 @@ def align(pair: ArmPair, ctl: BilateralController, safety: SafetyMonitor, config
     s = config.safety
     kt = np.array([j.torque_constant for j in arm.joints])
     bil = np.array([n in arm.bilateral_joints for n in arm.joint_names])
-    first_l, first_f = _states(pair.read_both())
+    first_l, first_f = checked(pair.read_both(), READING)
     q_l0, q_f0 = first_l.position, first_f.position
     target_l = _targets(q_l0, q_f0, config, arm, simulated)
     target_f = target_l.copy()
@@ -111,7 +115,7 @@ def align(pair: ArmPair, ctl: BilateralController, safety: SafetyMonitor, config
             sj, ds = np.array(1.0), 0.0
         ref_l = (q_l0 + (target_l - q_l0) * float(sj), (target_l - q_l0) * ds)
         ref_f = (q_f0 + (target_f - q_f0) * float(sj), (target_f - q_f0) * ds)
-        sl, sf = _states(pair.read_both())
+        sl, sf = checked(pair.read_both(), READING)
         for name, st in zip(ARMS, (sl, sf)):
             b = safety.check(name, st.position, st.velocity)
             if b is not None:
@@ -125,14 +129,14 @@ def align(pair: ArmPair, ctl: BilateralController, safety: SafetyMonitor, config
         ctl.applied(tau_l, tau_f)
         # Goal current first: it is what the current-mode joints act on, so it leaves right after the
         # read; the held joints' goal positions follow.
-        _states(pair.write_currents(tau_l / kt, tau_f / kt))
+        checked(pair.write_currents(tau_l / kt, tau_f / kt), WRITING)
         if held:
-            _states(pair.write_positions(ref_l[0], ref_f[0]))
+            checked(pair.write_positions(ref_l[0], ref_f[0]), WRITING)
         if between_cycles is not None:
             between_cycles()
         timer.wait()
         t += dt
-    final = pair.read_both()
-    ql, qf = final[0][0].position, final[1][0].position
+    final_l, final_f = checked(pair.read_both(), READING)
+    ql, qf = final_l.position, final_f.position
     gap = float(np.abs(ql - qf)[bil].max())
     return f"arms aligned in {t:.1f} s; largest leader-follower difference {np.degrees(gap):.2f} deg"

@@ -42,10 +42,17 @@ Close never reopens the file (a live reader would make a second open fail): the 
 written into the attributes created before the SWMR switch, `complete = True` last, then the file is
 closed. A recorder holds an advisory lock while it writes (collect/session_lock.py) so that
 `crane-collect recover` can tell a live recording from a crashed one.
+
+A write that fails (a full disk, an I/O error) stops the recording: the recorder raises one sentence
+(DiskFullError, exit 3, for a full disk) and from then on HDF5 never writes to the file again
+(collect/session_detach.py: HDF5 retrying, or closing half way, crashed the process), so the file keeps
+every chunk written before, in the state of a crashed recording, for `crane-collect recover -o`; events
+after the stop are dropped and `close()` only lets go of the file. A file without a saved row is removed.
 """
 
 from __future__ import annotations
 
+import contextlib
 import operator
 import time
 import zlib
@@ -56,25 +63,17 @@ import h5py
 import numpy as np
 
 from crane_io import session_format as sf
-from crane_io.errors import SessionCloseError, SessionFileError
+from crane_io.errors import CraneError, SessionCloseError, SessionFileError
+from crane_io.output_files import DiskFullError, is_disk_full
 from crane_io.session_format import EVENT_DTYPE, FILTERS, FORMAT, FORMAT_VERSION  # noqa: F401 - re-exported
+
+from .session_detach import detach
+from .session_values import attr_value, event_row, placeholder, read_events, set_end_attr  # noqa: F401
 
 # end-of-run attributes written by close(), created with placeholders before the SWMR switch
 SUMMARY_KEYS = sf.TIMING_SUMMARY_ATTRS
 DEFAULT_END_ATTRS = {"/": {sf.END_REASON_ATTR: str, sf.RATE_ACHIEVED_ATTR: float},
                      sf.TIMING: {**dict.fromkeys(SUMMARY_KEYS, float), sf.TIMING_LOCKSTEP: bool}}
-
-
-def _enc(text: str, size: int) -> bytes:
-    raw = str(text).encode("utf-8")[:size]
-    return raw.decode("utf-8", "ignore").encode("utf-8")
-
-
-def event_row(t: float, kind: str, message: str, joint: str = "") -> np.void:
-    """One record of `/events` (strings cut to their fixed widths on a UTF-8 character boundary)."""
-    w = sf.EVENT_WIDTHS
-    return np.array([(float(t), _enc(kind, w["kind"]), _enc(joint, w["joint"]), _enc(message, w["message"]))],
-                    dtype=EVENT_DTYPE)[0]
 
 
 class SessionRecorder:
@@ -97,6 +96,7 @@ class SessionRecorder:
                  compact_above: float = sf.COMPACT_ABOVE, deferred_writes: bool = False,
                  clock=time.monotonic):
         self.path = Path(path)
+        self._lock = None
         if self.path.exists():
             if not force:
                 raise SessionFileError(f"{self.path} already exists; pass `force` to overwrite it")
@@ -107,7 +107,39 @@ class SessionRecorder:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._f = h5py.File(self.path, "w", libver="latest")
         except OSError as exc:
+            with contextlib.suppress(OSError):
+                self.path.unlink(missing_ok=True)
+            if is_disk_full(exc):
+                raise self._not_created() from None
             raise SessionFileError(f"cannot create session file {self.path} ({exc})") from None
+        self.failed: CraneError | None = None  # the write failure that stopped the recording (file detached)
+        self.closed = False
+        try:
+            self._create(joint_names, rate_hz, source, attrs, arms, flush_interval_s, max_unsaved_s, lockstep,
+                         chunk_rows, end_attrs, compact_above, deferred_writes, clock)
+        except BaseException as exc:
+            self._abandon_new_file()
+            if is_disk_full(exc):
+                raise self._not_created() from None
+            raise
+
+    def _not_created(self) -> DiskFullError:
+        return DiskFullError(f"the disk holding {self.path} is full: the session file could not be created, "
+                             "nothing was recorded and no file was left; free some space or record elsewhere")
+
+    def _abandon_new_file(self) -> None:
+        """A file whose creation failed: let HDF5 go of it without writing to it again, then remove it."""
+        detach(self._f)
+        with contextlib.suppress(Exception):
+            self._f.close()
+        if self._lock is not None:
+            self._lock.release()
+        self.closed = True
+        with contextlib.suppress(OSError):
+            self.path.unlink(missing_ok=True)
+
+    def _create(self, joint_names, rate_hz, source, attrs, arms, flush_interval_s, max_unsaved_s, lockstep,
+                chunk_rows, end_attrs, compact_above, deferred_writes, clock) -> None:
         self.joint_names = [str(n) for n in joint_names]
         J = len(self.joint_names)
         self.rate_hz = float(rate_hz)
@@ -121,14 +153,13 @@ class SessionRecorder:
         self._n = 0  # rows in the file
         self._k = 0  # rows in the buffer
         self._oldest = 0.0  # wall-clock time the oldest buffered row was appended
+        self._saved = 0  # rows every dataset holds in the file (flushed)
         self.waste_bytes = 0  # bytes of chunks written and then superseded (never reused under SWMR)
         self.compacted = False
-        self.closed = False
         # deferred writes (a paced loop): [(key, n0, n1, rows, partial)], one dataset each
         self.deferred_writes = bool(deferred_writes)
         self._pending: list[tuple] = []
         self._write_cost = _FIRST_WRITE_COST_S  # s: the learned cost of one dataset's write
-        self._lock = None
         f = self._f
         # the required attributes (sf.REQUIRED_ROOT), then `complete`
         f.attrs[sf.FORMAT_ATTR] = FORMAT
@@ -138,7 +169,7 @@ class SessionRecorder:
         f.attrs[sf.SOURCE_ATTR] = str(source)
         f.attrs[sf.COMPLETE_ATTR] = False
         for key, value in (attrs or {}).items():
-            f.attrs[key] = _attr(value)
+            f.attrs[key] = attr_value(value)
         self._ds: dict[str, h5py.Dataset] = {}
         members = []  # (key, group, name, dtype, row shape) in the order the datasets are created
         for arm in arms:
@@ -160,7 +191,7 @@ class SessionRecorder:
             obj = f if group in ("/", "") else f.require_group(group)
             for key, kind in keys.items():
                 if key not in obj.attrs:
-                    obj.attrs[key] = _placeholder(kind)
+                    obj.attrs[key] = placeholder(kind)
         f.swmr_mode = True
         f.flush()
         from .session_lock import WriterLock
@@ -275,18 +306,24 @@ class SessionRecorder:
         """Do deferred writes: all of them when `deadline` is None, otherwise while the next one's
         learned cost still ends before `deadline` (a time of `clock`, default the recorder's clock);
         at least nothing, at most everything. Returns the number of steps left."""
+        if self.failed is not None:
+            raise self.failed
         clock = clock or self._clock
         pending = self._pending
-        while pending:
-            if deadline is not None and clock() + self._write_cost > deadline:
-                break
-            t0 = clock()
-            key = pending[0][0]
-            self._write_rows(*pending.pop(0))
-            self._ds[key].id.flush()  # H5Dflush: this dataset's chunk and index reach the file now
-            took = clock() - t0
-            # a slow step raises the estimate at once; capped, so one stall cannot stop the writes
-            self._write_cost = min(max(took, self._write_cost * _COST_DECAY), _MAX_WRITE_COST_S)
+        try:
+            while pending:
+                if deadline is not None and clock() + self._write_cost > deadline:
+                    break
+                t0 = clock()
+                key, _n0, n1 = pending[0][:3]
+                self._write_rows(*pending.pop(0))
+                self._ds[key].id.flush()  # H5Dflush: this dataset's chunk and index reach the file now
+                self._saved = pending[0][1] if pending else n1
+                took = clock() - t0
+                # a slow step raises the estimate at once; capped, so one stall cannot stop the writes
+                self._write_cost = min(max(took, self._write_cost * _COST_DECAY), _MAX_WRITE_COST_S)
+        except (OSError, RuntimeError) as exc:
+            raise self._write_failed(exc) from None
         return self.pending_writes
 
     def _write_all_pending(self) -> None:
@@ -305,7 +342,9 @@ class SessionRecorder:
                 ds.id.set_extent((n1,) + row_shape)
                 ds.id.write_direct_chunk((n0,) + (0,) * len(row_shape), chunk_bytes(rows))
                 return
-            except Exception:  # noqa: BLE001 - HDF5 refused a chunk: it writes them itself from now on
+            except Exception as exc:  # noqa: BLE001 - HDF5 refused a chunk: it writes them itself from now on
+                if is_disk_full(exc):
+                    raise
                 self._direct = False
         if partial:  # the chunk on disk is superseded by the one written now
             self.waste_bytes += _chunk_size(ds, n0 - partial)
@@ -320,24 +359,64 @@ class SessionRecorder:
 
     def flush(self) -> None:
         """Write the deferred and the buffered rows now (whole chunks where they fall on chunk
-        boundaries), and flush the file."""
+        boundaries), and flush the file. A failed write stops the recording (`_write_failed`)."""
+        if self.failed is not None:
+            raise self.failed
         self._write_all_pending()
-        k = self._k
-        if k:
-            n0, n1 = self._n, self._n + k
-            partial = n0 % self.chunk_rows
-            for key in self._ds:
-                self._write_rows(key, n0, n1, self._buf[key][:k], partial)
-            self._clear_rows(k)
-            self._n = n1
-            self._k = 0
-        self._f.flush()
+        try:
+            k = self._k
+            if k:
+                n0, n1 = self._n, self._n + k
+                partial = n0 % self.chunk_rows
+                for key in self._ds:
+                    self._write_rows(key, n0, n1, self._buf[key][:k], partial)
+                self._clear_rows(k)
+                self._n = n1
+                self._k = 0
+            self._f.flush()
+        except (OSError, RuntimeError) as exc:
+            raise self._write_failed(exc) from None
+        self._saved = self._n
 
     def event(self, t: float, kind: str, message: str, joint: str = "") -> None:
-        n = self._events.shape[0]
-        self._events.resize(n + 1, axis=0)
-        self._events[n] = event_row(t, kind, message, joint)
-        self._events.flush()
+        """Record an event at once. After a failed write (`failed`) events are dropped: the recording
+        has stopped and its failure was raised already."""
+        if self.failed is not None:
+            return
+        try:
+            n = self._events.shape[0]
+            self._events.resize(n + 1, axis=0)
+            self._events[n] = event_row(t, kind, message, joint)
+            self._events.flush()
+        except (OSError, RuntimeError) as exc:
+            raise self._write_failed(exc) from None
+
+    def _write_failed(self, exc: BaseException) -> CraneError:
+        """A write to the file failed (a full disk, an I/O error): the recording stops here. The file is
+        let go of without HDF5 writing to it again (collect/session_detach.py), so it stays as the last
+        successful write left it: every chunk written before, in SWMR-write state, for `crane-collect
+        recover`; a file without a recorded row is removed. Returns the one-sentence error (DiskFullError
+        for a full disk), kept in `failed`."""
+        if self.failed is not None:
+            return self.failed
+        detach(self._f)
+        full = is_disk_full(exc)
+        if full:
+            what = f"the disk holding {self.path} is full"
+        else:
+            what = f"writing {self.path} failed ({' '.join(str(exc).split())[:200] or type(exc).__name__})"
+        if self._saved:
+            self.failed = (DiskFullError if full else SessionFileError)(
+                f"{what}: {self._saved / self.rate_hz:.1f} s were recorded, and the file keeps every chunk "
+                f"written before; `crane-collect recover {self.path} -o FILE`, with FILE on another disk, "
+                "makes it an ordinary file")
+        else:  # nothing recorded yet: nothing worth keeping either
+            with contextlib.suppress(OSError):
+                self.path.unlink()
+            self.failed = (DiskFullError if full else SessionFileError)(
+                f"{what} before the first rows were recorded: no file was left; free some space or record "
+                "elsewhere")
+        return self.failed
 
     # ---- the end ------------------------------------------------------------------------------------
     def close(self, *, complete: bool = True, attrs: dict | None = None,
@@ -345,30 +424,30 @@ class SessionRecorder:
         """Write what is buffered, the end-of-run attributes (`attrs` at the root, `group_attrs`
         {"timing": {...}}) and, if `complete`, `complete = True`; then close the file. No second open:
         readers may keep the file open meanwhile. Raises SessionCloseError (one sentence) if any of
-        it could not be written; the rows already written stay in the file."""
+        it could not be written; the rows already written stay in the file. A write that fails for the
+        disk (full, I/O error) raises `failed` instead, once: after it the file is only let go of."""
         if self.closed:
             return
         self.closed = True
+        reported = self.failed  # a failure raised already is not raised again
         failed: list[str] = []
         lost = ""
         try:
             try:
                 self.flush()
+            except CraneError:
+                pass  # `failed`: raised below
             except Exception as exc:  # noqa: BLE001 - reported below, the rest must still run
                 lost = f"the last {self._k} rows could not be written ({exc}); "
                 failed.append("rows")
-            values = {"/": dict(attrs or {})}
-            for group, items in (group_attrs or {}).items():
-                values.setdefault(group.strip("/") or "/", {}).update(items)
-            for group, items in values.items():
-                for key, value in items.items():
-                    try:
-                        _set_end_attr(self._f if group == "/" else self._f[group], key, value)
-                    except Exception:  # noqa: BLE001 - named in the sentence below
-                        failed.append(f"{group.rstrip('/')}/{key}".lstrip("/") if group != "/" else key)
-            if complete and not failed:
-                self._f.attrs.modify(sf.COMPLETE_ATTR, True)
-                self._f.flush()
+            if self.failed is None:
+                self._end_attrs(attrs, group_attrs, failed)
+                if complete and not failed:
+                    self._f.attrs.modify(sf.COMPLETE_ATTR, True)
+                try:  # everything written now, so that closing has nothing left to write
+                    self._f.flush()
+                except (OSError, RuntimeError) as exc:
+                    self._write_failed(exc)
         finally:
             closed = True
             try:
@@ -377,6 +456,10 @@ class SessionRecorder:
                 closed = False
             if self._lock is not None:
                 self._lock.release()
+        if self.failed is not None:
+            if reported is None:
+                raise self.failed
+            return
         if not closed:
             raise SessionCloseError(f"session file {self.path} could not be closed; {lost}the rows written "
                                     f"before are kept: run `crane-collect recover {self.path}` to make it "
@@ -387,6 +470,18 @@ class SessionRecorder:
                                     f"attributes ({names}) could not be written, so it stays "
                                     f"complete = False; its {self._n} rows are kept")
         self._compact()
+
+    def _end_attrs(self, attrs: dict | None, group_attrs: dict | None, failed: list[str]) -> None:
+        """The end-of-run attributes written in place; the names of those that could not be, in `failed`."""
+        values = {"/": dict(attrs or {})}
+        for group, items in (group_attrs or {}).items():
+            values.setdefault(group.strip("/") or "/", {}).update(items)
+        for group, items in values.items():
+            for key, value in items.items():
+                try:
+                    set_end_attr(self._f if group == "/" else self._f[group], key, value)
+                except Exception:  # noqa: BLE001 - named in the sentence below
+                    failed.append(f"{group.rstrip('/')}/{key}".lstrip("/") if group != "/" else key)
 
     def _compact(self) -> None:
         """Rewrite the closed file compactly if superseded chunks waste more than `compact_above` of it.
@@ -402,7 +497,7 @@ class SessionRecorder:
         try:
             with h5py.File(self.path, "r") as src:
                 write_copy(src, self.path, source_path=self.path)
-        except (OSError, SessionFileError):
+        except (OSError, RuntimeError, SessionFileError):  # a full disk too: the file stays as it is
             return
         self.compacted = True
 
@@ -507,57 +602,3 @@ def _chunk_size(ds: h5py.Dataset, row: int) -> int:
     except (OSError, ValueError, AttributeError):
         return 0
     return int(info.size or 0) if info.byte_offset is not None else 0
-
-
-def _placeholder(kind):
-    if kind is bool:
-        return False
-    if kind is int:
-        return np.int64(-1)
-    if kind is str:
-        return ""
-    return np.nan
-
-
-def _fits(dtype: np.dtype, value) -> bool:
-    """Can `value` be written into an existing scalar attribute of `dtype` without changing its type?"""
-    if h5py.check_string_dtype(dtype) is not None:
-        return isinstance(value, str)
-    if isinstance(value, (bool, np.bool_)):
-        return dtype.kind == "b"
-    if isinstance(value, (int, np.integer)):
-        return dtype.kind in "iuf"
-    if isinstance(value, (float, np.floating)):
-        return dtype.kind == "f"
-    return False
-
-
-def _set_end_attr(obj, key: str, value) -> None:
-    value = _attr(value)
-    if key in obj.attrs:
-        current = obj.attrs.get_id(key)
-        if current.shape == () and _fits(current.dtype, value):
-            obj.attrs.modify(key, value)  # in place: allowed while the file is in SWMR mode
-            return
-    obj.attrs[key] = value
-
-
-def _attr(value):
-    if isinstance(value, str):
-        return value
-    if isinstance(value, (list, tuple)) and value and all(isinstance(v, str) for v in value):
-        return np.array(value, dtype=h5py.string_dtype())
-    if isinstance(value, dict):
-        raise TypeError("dict attributes are not supported; flatten them")
-    return value
-
-
-def read_events(f: h5py.File) -> list[dict]:
-    """The events of an open session as dicts with str fields (helper for tests and tools)."""
-    if sf.EVENTS not in f:
-        return []
-    out = []
-    for rec in f[sf.EVENTS][()]:
-        out.append({"t": float(rec["t"]), "kind": rec["kind"].decode(), "joint": rec["joint"].decode(),
-                    "message": rec["message"].decode()})
-    return out

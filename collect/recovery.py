@@ -12,6 +12,12 @@ crash can leave one dataset a flush ahead of another, or rows whose time was nev
 crash came while it was being closed) and a `recovered` event. A `/timing` summary that the run never
 wrote (its placeholders) is left out, as are root attributes still holding a NaN placeholder.
 
+Damaged data are salvaged, not refused: every stored chunk's fletcher32 checksum is checked first
+(crane_io/h5check.py). The rows of a per-cycle chunk that fails it are left out of every per-cycle
+dataset (their rows are one cycle each, so they stay aligned) and every other row is kept; a dataset
+with rows of its own (`/events`) is cut at its first damaged row. `Recovery.damage_summary()` names
+the rows lost and why. An ordinary (closed) session file with damaged chunks is recovered the same way.
+
 In place (the default) the original is kept beside the result as `SESSION.h5.crashed` (a hard link
 made before the recovered copy is renamed over the session's name, so the name always holds one
 whole file); with `output` the input is only read. Any failure leaves the input untouched and no
@@ -23,7 +29,7 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import h5py
@@ -31,11 +37,14 @@ import numpy as np
 
 from crane_io import session_format as sf
 from crane_io.errors import NotRecoverableError, SessionFileError
+from crane_io.h5check import bad_checksum_rows
+from crane_io.output_files import DiskFullError, is_disk_full
 from crane_io.session_format import EVENT_DTYPE, FORMAT
 
-from .recorder import event_row
 from .session_copy import read_rows, row_datasets, write_copy
+from .session_detach import written_file
 from .session_lock import is_being_written
+from .session_values import event_row
 
 BACKUP_SUFFIX = ".crashed"
 
@@ -49,6 +58,24 @@ class Recovery:
     rows_dropped: int  # rows some dataset held beyond the common complete length
     duration_s: float  # follower time span of the kept rows
     end_reason: str
+    damaged: list = field(default_factory=list)  # (dataset, first, last row) of per-cycle chunks dropped
+    rows_damaged: int = 0  # rows left out of every per-cycle dataset because a chunk failed its checksum
+    cut: dict = field(default_factory=dict)  # other dataset ("/events") -> its first damaged row
+
+    def damage_summary(self) -> str:
+        """One sentence on the rows lost to damaged chunks ("" when none): which rows of which dataset
+        failed their checksum, and how many rows were kept."""
+        if not self.damaged and not self.cut:
+            return ""
+        parts = [f"rows {a}..{b} of {name} failed their checksum" for name, a, b in self.damaged[:6]]
+        if len(self.damaged) > 6:
+            parts.append(f"{len(self.damaged) - 6} more damaged chunks")
+        parts += [f"row {row} of {name} failed its checksum, so {name} was cut there"
+                  for name, row in self.cut.items()]
+        kept = self.rows + self.rows_damaged
+        tail = (f"; those rows were left out of every dataset, keeping {self.rows} of {kept} rows"
+                if self.damaged else "")
+        return "; ".join(parts) + tail
 
 
 def _check_source(path: Path) -> None:
@@ -63,22 +90,58 @@ def _check_source(path: Path) -> None:
                                   "properly when that run ends, so there is nothing to recover")
 
 
-def _refuse_ordinary(path: Path) -> None:
-    """A file that opens with a plain read needs no recovery: say what it is."""
+def _refuse_ordinary(path: Path) -> bool:
+    """A file that opens with a plain read needs no recovery (say what it is) unless some of its chunks
+    fail their checksum: True for such a damaged ordinary file, False for a crashed one."""
     try:
         f = h5py.File(str(path), "r")
     except OSError as exc:
         if "already open for write" in str(exc) or "consistency flags" in str(exc):
-            return  # the crashed state recovery is for
+            return False  # the crashed state recovery is for
         raise NotRecoverableError(f"{path} cannot be read as HDF5 ({exc})") from None
     with f:
         fmt = _text(f.attrs.get(sf.FORMAT_ATTR))
         if fmt != FORMAT:
             raise NotRecoverableError(f"{path} is not a crane-session file (format {fmt!r}), so there is "
                                       "nothing to recover")
+        if any(_damage(f).values()):
+            return True
         state = "complete" if bool(f.attrs.get(sf.COMPLETE_ATTR, False)) else "closed but incomplete"
-        raise NotRecoverableError(f"{path} is an ordinary session file already ({state}); only a session "
-                                  "whose recording crashed needs recovering")
+        raise NotRecoverableError(f"{path} is an ordinary session file already ({state}) and every chunk "
+                                  "passes its checksum; only a session whose recording crashed or whose "
+                                  "data are damaged needs recovering")
+
+
+def _damage(f: h5py.File) -> dict[str, list[tuple[int, int]]]:
+    """Dataset name -> (first, last) rows of its stored chunks that fail their fletcher32 checksum (only
+    rows inside the dataset's extent), for every dataset with rows."""
+    out: dict[str, list[tuple[int, int]]] = {}
+
+    def visit(name, obj):
+        if isinstance(obj, h5py.Dataset) and obj.ndim >= 1:
+            try:
+                spans = bad_checksum_rows(obj)
+            except (OSError, ValueError, AttributeError):
+                spans = []
+            out["/" + name] = sorted((a, b) for a, b in spans if a <= b)
+
+    f.visititems(visit)
+    return out
+
+
+def _kept_spans(n: int, damage: dict, per_cycle: list[str]) -> tuple[list[tuple[int, int]], list, int]:
+    """The rows 0..n that no per-cycle dataset has in a damaged chunk, as spans [(start, stop)]; the
+    damaged chunks among them [(dataset, first, last)]; the rows left out for them."""
+    bad = np.zeros(n, dtype=bool)
+    damaged = []
+    for name in per_cycle:
+        for a, b in damage.get(name, []):
+            if a < n:
+                bad[a:min(b + 1, n)] = True
+                damaged.append((name, a, min(b, n - 1)))
+    edges = np.flatnonzero(np.diff(np.concatenate(([True], bad, [True])).astype(np.int8)))
+    spans = [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2])]
+    return spans, sorted(damaged, key=lambda d: (d[1], d[0])), int(bad.sum())
 
 
 def _text(value) -> str | None:
@@ -87,8 +150,9 @@ def _text(value) -> str | None:
     return None if value is None else str(value)
 
 
-def _complete_rows(f: h5py.File, path) -> tuple[int, int]:
-    """(rows every per-cycle dataset holds completely, rows of the longest dataset)."""
+def _complete_rows(f: h5py.File, path, damage: dict) -> tuple[int, int]:
+    """(rows every per-cycle dataset holds completely, rows of the longest dataset). Rows in damaged
+    chunks (`damage`) count as written here; they are left out separately."""
     data = row_datasets(f)
     if not data:
         return 0, 0
@@ -98,7 +162,9 @@ def _complete_rows(f: h5py.File, path) -> tuple[int, int]:
     times = (sf.T, sf.CYCLE_START)
     for d in data:
         if d.ndim == 1 and d.dtype.kind == "f" and d.name.rsplit("/", 1)[-1] in times and n:
-            values = read_rows(d, 0, n, path)
+            values = np.zeros(n)
+            for a, b in _kept_spans(n, damage, [d.name])[0]:
+                values[a:b] = read_rows(d, a, b, path)
             finite = np.flatnonzero(np.isfinite(values))
             if finite.size:
                 n = min(n, int(finite[-1]) + 1)
@@ -132,9 +198,10 @@ def recover_session(path, output=None) -> Recovery:
             raise NotRecoverableError(f"{dest} already exists; give -o a new file name")
         if not dest.parent.is_dir():
             raise NotRecoverableError(f"cannot write {dest}: folder {dest.parent} does not exist")
-    _refuse_ordinary(path)
+    damaged_file = _refuse_ordinary(path)
     try:
-        src = h5py.File(str(path), "r", libver="latest", swmr=True)
+        src = (h5py.File(str(path), "r") if damaged_file
+               else h5py.File(str(path), "r", libver="latest", swmr=True))
     except (OSError, ValueError) as exc:
         raise NotRecoverableError(f"{path} cannot be opened even as a crashed recording ({exc})") from None
     staged = None
@@ -146,12 +213,18 @@ def recover_session(path, output=None) -> Recovery:
                                           "is nothing to recover")
             written = _text(src.attrs.get(sf.END_REASON_ATTR)) or ""
             end_reason = written or "crashed"
-            n, longest = _complete_rows(src, path)
+            damage = _damage(src)
+            n, longest = _complete_rows(src, path, damage)
+            spans, damaged, lost = _kept_spans(n, damage, [d.name for d in row_datasets(src)])
+            cut = {name: spans_[0][0] for name, spans_ in damage.items()
+                   if spans_ and "/" not in name.lstrip("/")}
             fd, staged = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=".recovered", dir=dest.parent)
             os.close(fd)
             write_copy(src, staged, rows=n, attrs={sf.COMPLETE_ATTR: False, sf.END_REASON_ATTR: end_reason},
-                       drop_attrs=_drops(src, bool(written)), source_path=path)
-        duration = _finish_copy(Path(staged), path, n, longest)
+                       drop_attrs=_drops(src, bool(written)), source_path=path, keep=spans if lost else None,
+                       cut=cut)
+        result = Recovery(path, dest, backup, n - lost, longest - n, 0.0, end_reason, damaged, lost, cut)
+        result.duration_s = _finish_copy(Path(staged), path, result, damaged_file)
         if in_place:
             _keep_original(path, backup)
         try:
@@ -161,25 +234,32 @@ def recover_session(path, output=None) -> Recovery:
                 backup.unlink(missing_ok=True)
             raise
         staged = None
-    except OSError as exc:
+    except (OSError, RuntimeError) as exc:
+        if is_disk_full(exc):
+            raise DiskFullError(f"the disk holding {dest} is full: the recovered file was not written and "
+                                f"{path} was left as it was; free some space or give -o a file on another "
+                                "disk") from None
         raise SessionFileError(f"could not recover {path} ({exc}); the file was left as it was") from None
     finally:
         if staged is not None:
             Path(staged).unlink(missing_ok=True)
-    return Recovery(path, dest, backup, n, longest - n, duration, end_reason)
+    return result
 
 
-def _finish_copy(staged: Path, path: Path, n: int, longest: int) -> float:
+def _finish_copy(staged: Path, path: Path, r: Recovery, damaged_file: bool) -> float:
     """Add the `recovered` event to the fresh copy and check that it opens as an ordinary file."""
+    n = r.rows
     t_path = sf.arm_path(sf.REQUIRED_ARM, sf.T)
-    with h5py.File(staged, "r+") as f:
+    with written_file(staged, "r+") as f:
         t = f[t_path][max(0, n - 1):n] if t_path in f else np.zeros(0)
         t_end = float(t[-1]) if t.size and np.isfinite(t[-1]) else 0.0
         t0 = float(f[t_path][0]) if n and t_path in f else 0.0
         if sf.EVENTS in f and f[sf.EVENTS].dtype == EVENT_DTYPE:
             ev = f[sf.EVENTS]
-            msg = (f"recovered by crane-collect recover after a crash: {n} rows kept"
-                   + (f", {longest - n} incomplete rows left out" if longest > n else ""))
+            why = "from a file with damaged chunks" if damaged_file else "after a crash"
+            msg = (f"recovered by crane-collect recover {why}: {n} rows kept"
+                   + (f", {r.rows_dropped} incomplete rows left out" if r.rows_dropped else "")
+                   + (f"; {r.damage_summary()}" if r.damaged or r.cut else ""))
             ev.resize(ev.shape[0] + 1, axis=0)
             ev[-1] = event_row(t_end, "recovered", msg)
     with h5py.File(staged, "r") as f:

@@ -47,7 +47,7 @@ from crane_io import session_format as fmt
 from crane_io.description import ArmDescription, default_arm
 from crane_io.shutdown import StopRequest, handle_termination
 
-from .alignment import SafetyStop, StartRefused
+from .alignment import SafetyStop, StartRefused, checked
 from .arm_calibration import calibration_offsets, calibration_sentence, resolve_calibrations
 from .arm_pair import ARMS
 from .bilateral_loop import BilateralLoop, RunContext
@@ -230,8 +230,8 @@ class BilateralRun:
         opts, config, arm, loop = self.options, self.config, self.arm, self.loop
         if self.sims:
             loop.operator = make_operator(opts.seed, config, arm, self.sims)
-            states = loop.pair.read_both()
-            loop.operator.start(states[ARMS.index(loop.hand_arm)][0].position, 0.0)
+            states = checked(loop.pair.read_both(), "reading the arms before recording")
+            loop.operator.start(states[ARMS.index(loop.hand_arm)].position, 0.0)
         loop.recorder = make_recorder(self.output, config, arm, self.hw, simulated=opts.sim,
                                       lockstep=not loop.paced, seed=opts.seed, hand_on=opts.hand_on,
                                       force=opts.force, models=loop.models, calibrations=self.calibrations)

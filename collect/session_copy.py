@@ -22,6 +22,8 @@ import numpy as np
 
 from crane_io.h5check import damaged_dataset
 
+from .session_detach import written_file
+
 BLOCK_BYTES = 8 << 20  # rows are copied in blocks of about this size (whole chunks)
 
 
@@ -66,7 +68,10 @@ def _create_like(group: h5py.Group, name: str, ds: h5py.Dataset, rows: int) -> h
     return group.create_dataset(name, shape=shape, **kw)
 
 
-def _copy_dataset(src: h5py.Dataset, group: h5py.Group, name: str, rows: int, path) -> None:
+def _copy_dataset(src: h5py.Dataset, group: h5py.Group, name: str, rows: int, path, spans=None) -> None:
+    """Copy rows 0..rows of `src`, or (`spans`: [(start, stop)]) those rows only, one after the other."""
+    if spans is not None:
+        rows = sum(b - a for a, b in spans)
     dst = _create_like(group, name, src, rows)
     _copy_attrs(src, dst)
     if src.ndim == 0:
@@ -75,15 +80,21 @@ def _copy_dataset(src: h5py.Dataset, group: h5py.Group, name: str, rows: int, pa
     chunk_rows = src.chunks[0] if src.chunks else 1
     row_bytes = max(1, src.dtype.itemsize * int(np.prod(src.shape[1:], dtype=np.int64)))
     step = max(chunk_rows, BLOCK_BYTES // row_bytes // chunk_rows * chunk_rows)
-    for a in range(0, rows, step):
-        b = min(rows, a + step)
-        dst[a:b] = read_rows(src, a, b, path)
+    out = 0
+    for start, stop in [(0, rows)] if spans is None else spans:
+        for a in range(start, stop, step):
+            b = min(stop, a + step)
+            dst[out:out + b - a] = read_rows(src, a, b, path)
+            out += b - a
 
 
 def write_copy(src: h5py.File, dest, *, rows: int | None = None, attrs: dict | None = None,
-               drop_attrs: dict[str, set] | None = None, source_path=None) -> None:
+               drop_attrs: dict[str, set] | None = None, source_path=None, keep: list | None = None,
+               cut: dict[str, int] | None = None) -> None:
     """Copy the open file `src` to `dest` (replaced atomically). `rows`: cut every per-cycle dataset
-    (`row_datasets`) to this length; `attrs`: root attributes to set in the copy; `drop_attrs`: group
+    (`row_datasets`) to this length; `keep`: copy only these rows of every per-cycle dataset, spans
+    [(start, stop)] in order (rows left out close up); `cut`: dataset name ("/events") -> rows kept of
+    a dataset that is not per-cycle; `attrs`: root attributes to set in the copy; `drop_attrs`: group
     path ("/" for the root) -> attribute names left out."""
     dest = Path(dest)
     path = source_path or src.filename
@@ -91,7 +102,7 @@ def write_copy(src: h5py.File, dest, *, rows: int | None = None, attrs: dict | N
     fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=".tmp", dir=dest.parent)
     os.close(fd)
     try:
-        with h5py.File(tmp, "w") as out:
+        with written_file(tmp, "w") as out:
             def visit(name, obj):
                 if isinstance(obj, h5py.Group):
                     g = out.require_group(name)
@@ -99,9 +110,12 @@ def write_copy(src: h5py.File, dest, *, rows: int | None = None, attrs: dict | N
                 elif isinstance(obj, h5py.Dataset):
                     parent = out.require_group(name.rpartition("/")[0] or "/")
                     n = obj.shape[0] if obj.ndim else 0
-                    if rows is not None and "/" in name and obj.ndim >= 1:
+                    per_cycle = "/" in name and obj.ndim >= 1
+                    if rows is not None and per_cycle:
                         n = min(n, rows)
-                    _copy_dataset(obj, parent, name.rpartition("/")[2], n, path)
+                    if not per_cycle and obj.ndim and "/" + name in (cut or {}):
+                        n = min(n, cut["/" + name])
+                    _copy_dataset(obj, parent, name.rpartition("/")[2], n, path, keep if per_cycle else None)
 
             _copy_attrs(src, out, drop.get("/", ()))
             src.visititems(visit)

@@ -26,8 +26,11 @@ import numpy as np
 
 from crane_io import session_format as sf
 from crane_io.errors import ConfigError
+from crane_io.output_files import write_error
 from crane_io.session_format import TRUTH_TRACE_FORMAT as FORMAT
 from crane_io.session_format import TRUTH_TRACE_VERSION as FORMAT_VERSION
+
+from .session_detach import detach
 
 # the datasets, in the order they are created and appended
 _NAMES = (sf.TRUTH_TRACE_T, sf.TRUTH_TRACE_TAU_EXT, sf.TRUTH_TRACE_LEADER_TAU_EXT, sf.TRUTH_TRACE_IN_CONTACT)
@@ -78,6 +81,7 @@ class TruthTraceWriter:
         self._rows: list[tuple] = []
         self.rows = 0
         self.closed = False
+        self.failed = None  # the write failure that stopped the trace (CraneError)
 
     def append(self, t: float, tau_ext: np.ndarray, leader_tau_ext: np.ndarray, in_contact: bool) -> None:
         self._rows.append((float(t), np.array(tau_ext, dtype=float), np.array(leader_tau_ext, dtype=float),
@@ -86,24 +90,39 @@ class TruthTraceWriter:
             self._flush()
 
     def _flush(self) -> None:
-        if not self._rows:
-            return
-        t, fe, le, c = zip(*self._rows)
-        n0, n = self.rows, len(t)
-        for name, values in zip(_NAMES, (t, fe, le, c)):
-            ds = self._sets[name]
-            ds.resize(n0 + n, axis=0)
-            ds[n0:] = np.array(values)
-        self.rows += n
-        self._rows = []
-        self._f.flush()
+        if self.failed is not None:
+            raise self.failed
+        try:
+            if self._rows:
+                t, fe, le, c = zip(*self._rows)
+                n0, n = self.rows, len(t)
+                for name, values in zip(_NAMES, (t, fe, le, c)):
+                    ds = self._sets[name]
+                    ds.resize(n0 + n, axis=0)
+                    ds[n0:] = np.array(values)
+                self.rows += n
+                self._rows = []
+            self._f.flush()
+        except (OSError, RuntimeError) as exc:
+            # a failed write (a full disk): HDF5 must not touch the file again (a close that fails half
+            # way crashes the process later); the incomplete trace is removed
+            detach(self._f)
+            self.path.unlink(missing_ok=True)
+            self.failed = write_error(exc, self.path, "truth trace")
+            raise self.failed from None
 
     def close(self) -> None:
         if self.closed:
             return
         self.closed = True
         try:
-            self._flush()
-            self._f.attrs[sf.COMPLETE_ATTR] = True
+            if self.failed is None:
+                self._flush()
+                self._f.attrs[sf.COMPLETE_ATTR] = True
+                self._flush()
         finally:
-            self._f.close()
+            try:
+                self._f.close()
+            except Exception:  # noqa: BLE001 - a detached file: its failure was raised already
+                if self.failed is None:
+                    raise

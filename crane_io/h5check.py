@@ -78,7 +78,9 @@ def damaged_dataset(path, ds: h5py.Dataset, exc: Exception) -> SessionDamagedErr
         spans = ", ".join(f"{a}-{b}" for a, b in bad[:3])
         spans += f" and {len(bad) - 3} more chunks" if len(bad) > 3 else ""
         what = f"fails its fletcher32 checksum in rows {spans}"
+        salvage = f", or `crane-collect recover {path} -o NEW.h5` to keep every row that passes its checksum"
     else:
         what = f"cannot be read ({exc})"
+        salvage = ""
     return SessionDamagedError(f"{path}: dataset {ds.name} {what}, so the file is damaged (a disk or copy "
-                               "error); use another copy of the session")
+                               f"error); use another copy of the session{salvage}")

@@ -19,7 +19,7 @@ from click.testing import CliRunner
 from collect.cli import main
 from collect.recorder import SessionRecorder, read_events
 from collect.session_lock import SUPPORTED as LOCKS_SUPPORTED
-from crane_io.errors import SessionFileError
+from crane_io.output_files import DiskFullError
 from train.data.session import read_session
 
 ROOT = Path(__file__).parents[1]
@@ -190,7 +190,7 @@ def test_a_failure_midway_leaves_the_input_as_it_was(tmp_path, monkeypatch):
         return original(*args, **kwargs)
 
     monkeypatch.setattr(session_copy, "_copy_dataset", failing)
-    with pytest.raises(SessionFileError, match="left as it was"):
+    with pytest.raises(DiskFullError, match="is full: the recovered file was not written and .* as it was"):
         from collect.recovery import recover_session
 
         recover_session(p)

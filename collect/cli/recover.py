@@ -21,12 +21,16 @@ def recover(session, output):
     Such a file still holds every row flushed before the crash (all but at most the last second) but
     only SWMR-aware readers open it. The recovered file opens with any HDF5 tool, keeps every complete
     row (all datasets cut to the same length), and says complete = False and end_reason = "crashed".
-    A file that is complete, not a crane-session, or still being written is refused."""
+    Rows in a chunk that fails its checksum are left out (and named); every other row is kept, so a
+    closed session with damaged chunks is recovered too. A file that is complete and undamaged, not a
+    crane-session, or still being written is refused."""
     from ..recovery import recover_session
 
     r = recover_session(session, output)
     dropped = f", {r.rows_dropped} incomplete rows left out" if r.rows_dropped else ""
     click.echo(f"{r.output}: recovered {r.rows} rows ({r.duration_s:.1f} s){dropped}; "
                f"complete = False, end_reason = {r.end_reason!r}")
+    if r.damage_summary():
+        click.echo(f"Damaged data: {r.damage_summary()}.")
     if r.backup is not None:
         click.echo(f"The original is kept as {r.backup}; delete it once the recovered file reads well.")
