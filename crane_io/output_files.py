@@ -90,11 +90,12 @@ def _inside(child: Path, parent: Path) -> bool:
 
 
 def check_output(path, *, inputs: Iterable = (), force: bool = False, what: str = "output",
-                 others: Iterable = (), directory: bool = False) -> Path:
+                 others: Iterable = (), directory: bool = False, make_folders: bool = False) -> Path:
     """The output path, checked (OutputPathError otherwise): not empty, not one of `inputs` (files or
     folders, compared with links resolved), not inside an input folder nor holding one, not one of the
-    command's `others` outputs, its folder exists, and it does not exist unless `force` (then it must
-    be of the kind written: a file, or a folder when `directory`)."""
+    command's `others` outputs, its folder exists (with `make_folders`: or can be made, the writer
+    making it) and is writable, and it does not exist unless `force` (then it must be of the kind
+    written: a file, or a folder when `directory`). Nothing is created."""
     raw = os.fspath(path) if path is not None else ""
     if not str(raw).strip():
         raise OutputPathError(f"the {what} path is empty")
@@ -117,9 +118,7 @@ def check_output(path, *, inputs: Iterable = (), force: bool = False, what: str 
         if other is not None and same_file(out, other):
             raise OutputPathError(f"the {what} {out} is also another output of this command; give "
                                   "each output its own path")
-    parent = real.parent
-    if not parent.is_dir():
-        raise OutputPathError(f"the folder of the {what} {out} does not exist")
+    _check_folder(out, real.parent, what, make_folders)
     if os.path.lexists(out):
         if not force:
             raise OutputPathError(f"the {what} {out} exists; pass `force` to replace it")
@@ -128,6 +127,42 @@ def check_output(path, *, inputs: Iterable = (), force: bool = False, what: str 
         if not directory and out.is_dir():
             raise OutputPathError(f"the {what} {out} is a folder, not a file")
     return out
+
+
+def _check_folder(out: Path, parent: Path, what: str, make_folders: bool) -> None:
+    """The output's folder exists (or, with `make_folders`, its nearest existing ancestor is a folder)
+    and can be written to."""
+    existing = parent
+    while not os.path.lexists(existing) and existing != existing.parent:
+        existing = existing.parent
+    if os.path.lexists(existing) and not existing.is_dir():
+        raise OutputPathError(f"cannot write {out}: {existing} is a file, not a folder")
+    if existing != parent and not make_folders:
+        raise OutputPathError(f"cannot write the {what} {out}: the folder {parent} does not exist")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise OutputPathError(f"cannot write the {what} {out}: the folder {existing} is not writable "
+                              "(read-only or forbidden)")
+
+
+def _mode(target: Path, full: int) -> int:
+    """The permissions a new output gets: those of the file it replaces, else `full` less the umask."""
+    try:
+        return os.stat(target).st_mode & 0o7777
+    except OSError:
+        return full & ~_umask()
+
+
+def _umask() -> int:
+    """The process's umask, read without changing it where Linux shows it (os.umask sets it for every
+    thread meanwhile)."""
+    with contextlib.suppress(OSError, ValueError):
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    umask = os.umask(0o022)
+    os.umask(umask)
+    return umask
 
 
 def _fsync_dir(folder: Path) -> None:
@@ -147,7 +182,10 @@ def atomic_path(path, what: str = "output") -> Iterator[Path]:
     target = Path(path)
     folder = target.parent if str(target.parent) else Path(".")
     try:
-        fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=folder)
+        folder.mkdir(parents=True, exist_ok=True)  # missing folders that check_output allowed
+        # the target's suffix kept last: writers that infer the format from it (savefig, np.savez) work
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=f".part{target.suffix}",
+                                        dir=folder)
         os.close(fd)
     except OSError as exc:
         raise write_error(exc, target, what) from None
@@ -156,6 +194,7 @@ def atomic_path(path, what: str = "output") -> Iterator[Path]:
         yield tmp
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
+        os.chmod(tmp, _mode(target, 0o666))  # mkstemp's file is private
         os.replace(tmp, target)
         _fsync_dir(folder)
     except BaseException as exc:
@@ -186,6 +225,7 @@ def atomic_directory(path, what: str = "output folder") -> Iterator[Path]:
     target = Path(path)
     folder = target.parent if str(target.parent) else Path(".")
     try:
+        folder.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".part", dir=folder))
     except OSError as exc:
         raise write_error(exc, target, what) from None
@@ -196,6 +236,7 @@ def atomic_directory(path, what: str = "output folder") -> Iterator[Path]:
             if f.is_file():
                 with open(f, "rb+") as fh:
                     os.fsync(fh.fileno())
+        os.chmod(tmp, _mode(target, 0o777))  # mkdtemp's folder is private
         if os.path.lexists(target):
             old = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=folder))
             os.rmdir(old)
