@@ -102,6 +102,25 @@ def check_output(path, *, inputs: Iterable = (), force: bool = False, what: str 
     if "\x00" in str(raw):
         raise OutputPathError(f"the {what} path {raw!r} contains a NUL character")
     out = Path(raw)
+    check_distinct(out, inputs=inputs, others=others, what=what, directory=directory)
+    # the folder the new file is renamed into (the link's own, when the output is a link)
+    _check_folder(out, Path(os.path.abspath(out)).parent, what, make_folders)
+    if os.path.lexists(out):
+        if not force:
+            raise OutputPathError(f"the {what} {out} already exists; pass `force` to replace it")
+        if directory and not out.is_dir():
+            raise OutputPathError(f"the {what} {out} exists and is not a folder")
+        if not directory and out.is_dir():
+            raise OutputPathError(f"the {what} {out} is a folder, not a file")
+    return out
+
+
+def check_distinct(path, *, inputs: Iterable = (), others: Iterable = (), what: str = "output",
+                   directory: bool = False) -> Path:
+    """The part of check_output that compares paths (OutputPathError otherwise): `path` is none of
+    `inputs`, not inside an input folder, does not hold an input when it is a folder (`directory`), and
+    is none of the command's `others` outputs; links and `..` resolved, hard links by inode."""
+    out = Path(path)
     real = _resolved(out)
     for inp in inputs:
         if inp is None:
@@ -118,14 +137,6 @@ def check_output(path, *, inputs: Iterable = (), force: bool = False, what: str 
         if other is not None and same_file(out, other):
             raise OutputPathError(f"the {what} {out} is also another output of this command; give "
                                   "each output its own path")
-    _check_folder(out, real.parent, what, make_folders)
-    if os.path.lexists(out):
-        if not force:
-            raise OutputPathError(f"the {what} {out} exists; pass `force` to replace it")
-        if directory and not out.is_dir():
-            raise OutputPathError(f"the {what} {out} exists and is not a folder")
-        if not directory and out.is_dir():
-            raise OutputPathError(f"the {what} {out} is a folder, not a file")
     return out
 
 
