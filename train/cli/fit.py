@@ -49,7 +49,7 @@ def _fit_and_save(sessions, method: str, out_dir, train_size: int | None = None,
 @click.argument("sessions", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--model", "method", required=True, type=click.Choice(list(METHOD_NAMES)),
               help="Method to train.")
-@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(),
               help="Model directory to write (made if missing). It is written whole or not at all; an "
                    "existing one is replaced whole, only with --force and only if it holds a model "
                    "(or nothing).")

@@ -17,7 +17,7 @@ from .options import data_options, force_option, parse_sizes
 
 @click.command()
 @click.argument("sessions", nargs=-1, required=True, type=click.Path(dir_okay=False))
-@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(),
               help="Directory for results.json, results.csv and the figures (made if missing). It may "
                    "exist and hold other files; each of these four is refused if it exists (unless "
                    "--force) and written whole or not at all.")
