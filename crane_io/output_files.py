@@ -57,6 +57,24 @@ def is_disk_full(exc: BaseException) -> bool:
     return False
 
 
+class _HiddenDiskFull(OSError):
+    """A writer's own error (torch's "file write failed", a RuntimeError) raised while its disk had no
+    space left: the full disk it was."""
+
+    def __init__(self, cause: BaseException):
+        super().__init__(errno.ENOSPC, f"No space left on device ({cause})")
+
+
+def _no_space_left(folder: Path) -> bool:
+    """True when the file system holding `folder` has (almost) no space left for this user: a writer
+    that hides the errno (torch, rerun) failed for it."""
+    try:
+        st = os.statvfs(folder)
+    except OSError:
+        return False
+    return st.f_bavail * st.f_frsize < 64 * 1024 or (st.f_files > 0 and st.f_favail == 0)
+
+
 def write_error(exc: BaseException, path, what: str = "output") -> CraneError:
     """One sentence for a failed write of `path` (DiskFullError for a full disk)."""
     if is_disk_full(exc):
@@ -213,8 +231,8 @@ def atomic_path(path, what: str = "output") -> Iterator[Path]:
             tmp.unlink()
         if isinstance(exc, OSError):
             raise write_error(exc, target, what) from None
-        if not isinstance(exc, CraneError) and is_disk_full(exc):
-            raise write_error(exc, target, what) from None
+        if not isinstance(exc, CraneError) and (is_disk_full(exc) or _no_space_left(folder)):
+            raise write_error(_HiddenDiskFull(exc), target, what) from None
         raise
 
 
@@ -262,8 +280,8 @@ def atomic_directory(path, what: str = "output folder") -> Iterator[Path]:
         shutil.rmtree(tmp, ignore_errors=True)
         if isinstance(exc, OSError):
             raise write_error(exc, target, what) from None
-        if not isinstance(exc, CraneError) and is_disk_full(exc):
-            raise write_error(exc, target, what) from None
+        if not isinstance(exc, CraneError) and (is_disk_full(exc) or _no_space_left(folder)):
+            raise write_error(_HiddenDiskFull(exc), target, what) from None
         raise
     finally:
         if old is not None:

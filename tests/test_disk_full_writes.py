@@ -71,12 +71,13 @@ def _writers(lab: Path, out: Path) -> dict:
         "sweep -o": (["sweep", session, "-o", out / "sweep", "--sizes", "50", "--trials", "2", "--methods",
                       "rigid-body", "--scale-to-data", "--no-progress"], "sweep"),
         "export": (["export", out / "m"], "m"),
+        "view --view-save": (["view", session, "--view-save", out / "v.rrd", "--every", "50"], "v.rrd"),
     }
 
 
 def _old_outputs(lab: Path, folder: Path) -> None:
     """What each command finds at its output: a previous version it is told (--force) to replace."""
-    for name in ("r.html", "d.json", "c.png", "i.h5"):
+    for name in ("r.html", "d.json", "c.png", "i.h5", "v.rrd"):
         (folder / name).write_bytes(b"the previous " + name.encode())
     shutil.copytree(lab / "model", folder / "m")
     (folder / "sweep").mkdir()
@@ -84,9 +85,11 @@ def _old_outputs(lab: Path, folder: Path) -> None:
 
 
 @pytest.mark.parametrize("command", ["report", "diagnose --json-out", "compare -o", "import -o", "fit -o",
-                                     "sweep -o", "export"])
+                                     "sweep -o", "export", "view --view-save"])
 def test_a_full_disk_stops_every_train_writer_in_one_sentence_and_keeps_the_old_output(
         lab, tmp_path, monkeypatch, command):
+    if command == "view --view-save":
+        pytest.importorskip("rerun")
     _old_outputs(lab, tmp_path)
     before = _files(tmp_path)
     args, _ = _writers(lab, tmp_path)[command]
@@ -108,6 +111,28 @@ def test_a_full_disk_while_the_network_is_saved_keeps_the_old_model(lab, tmp_pat
                              "--no-progress", "-o", out, "--force"])
     _stopped(r)
     assert _files(tmp_path) == before and sorted(p.name for p in tmp_path.iterdir()) == ["m"]
+
+
+def test_a_writer_that_hides_the_full_disk_behind_its_own_error_is_still_a_full_disk(lab, tmp_path,
+                                                                                     monkeypatch):
+    import torch
+
+    def torch_full(*args, **kwargs):
+        raise RuntimeError("PytorchStreamWriter failed writing file data/0: file write failed")
+
+    real_statvfs = os.statvfs
+
+    def no_space(path):
+        st = real_statvfs(path)
+        return os.statvfs_result((st.f_bsize, st.f_frsize, st.f_blocks, 0, 0, st.f_files, st.f_ffree,
+                                  st.f_favail, st.f_flag, st.f_namemax))
+
+    monkeypatch.setattr(torch, "save", torch_full)
+    monkeypatch.setattr(os, "statvfs", no_space)
+    r = _invoke(train_main, ["fit", lab / "s.h5", "--model", "mlp-mse", "--epochs", "1", "--scale-to-data",
+                             "--no-progress", "-o", tmp_path / "m"])
+    _stopped(r)
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_full_disk_inside_the_writers_own_calls(lab, tmp_path, monkeypatch):
