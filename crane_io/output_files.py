@@ -5,7 +5,8 @@ over an existing file without `force`, and written atomically.
     with atomic_path(out) as tmp:          # a temporary file in the target's folder
         write_something(tmp)               # an exception (or Ctrl+C) leaves the target as it was
     write_text_atomic(out, text)           # the same for a string
-    with atomic_directory(model_dir, force=force) as tmp_dir: ...   # a model directory
+    check_output(model_dir, inputs=[session], force=force, directory=True)
+    with atomic_directory(model_dir) as tmp_dir: ...   # a model directory, replaced whole
 
 Rules (the same for every command):
 - an output that is the same file as any input (links and `..` resolved, hard links by inode) is refused,
@@ -15,6 +16,12 @@ Rules (the same for every command):
   into place, so an interrupted or failed write never leaves half a file where a good one was;
 - a write that fails says so in one sentence: a full disk raises DiskFullError (exit 3), any other
   failure OutputPathError (exit 2); the temporary file is removed.
+
+Where: every command checks each of its outputs against all of its inputs (and its other outputs) before
+any work: the command line itself, or the library function that takes the output path from its caller
+and knows the inputs (train.make_report, train.api.FitResult.save, train.data.importer.import_session,
+collect.run_options.check_run_outputs for `crane-collect run`). The library's writers only write, each
+through atomic_path or atomic_directory (missing folders are made there when `make_folders` allowed them).
 """
 
 from __future__ import annotations
@@ -231,7 +238,8 @@ def atomic_path(path, what: str = "output") -> Iterator[Path]:
             tmp.unlink()
         if isinstance(exc, OSError):
             raise write_error(exc, target, what) from None
-        if not isinstance(exc, CraneError) and (is_disk_full(exc) or _no_space_left(folder)):
+        if isinstance(exc, Exception) and not isinstance(exc, CraneError) and (
+                is_disk_full(exc) or _no_space_left(folder)):
             raise write_error(_HiddenDiskFull(exc), target, what) from None
         raise
 
@@ -280,7 +288,8 @@ def atomic_directory(path, what: str = "output folder") -> Iterator[Path]:
         shutil.rmtree(tmp, ignore_errors=True)
         if isinstance(exc, OSError):
             raise write_error(exc, target, what) from None
-        if not isinstance(exc, CraneError) and (is_disk_full(exc) or _no_space_left(folder)):
+        if isinstance(exc, Exception) and not isinstance(exc, CraneError) and (
+                is_disk_full(exc) or _no_space_left(folder)):
             raise write_error(_HiddenDiskFull(exc), target, what) from None
         raise
     finally:
