@@ -234,6 +234,18 @@ def test_calibrate_at_the_end_of_its_input_writes_nothing(arm, tmp_path):
     assert stored.read_bytes() != before
 
 
+def test_calibrate_replaces_an_existing_output_only_with_force(arm, tmp_path):
+    out = tmp_path / "c.toml"
+    out.write_text("the previous calibration")
+    args = ["calibrate", "--port", arm, "--arm", "a", "--no-range", "--output", out]
+    r = _invoke(collect_main, args, input="\n")
+    _stopped(r, 2, "already exists")
+    assert out.read_text() == "the previous calibration"
+    r = _invoke(collect_main, [*args, "--force"], input="\n")
+    assert r.exit_code == 0, r.output
+    assert "[joints.joint1]" in out.read_text()
+
+
 def test_a_full_disk_while_calibrating_keeps_the_old_file(arm, tmp_path, monkeypatch):
     out = tmp_path / "c.toml"
     out.write_text("the previous calibration")

@@ -90,13 +90,15 @@ def _train_commands(lab: Path, out: Path) -> dict:
     }
 
 
-@pytest.mark.parametrize("how", LINKS)
-@pytest.mark.parametrize("command", ["report", "diagnose --json-out", "diagnose --write-effect-file",
-                                     "compare -o", "fit -o", "import -o", "view --view-save"])
+TRAIN_CASES = [(command, how) for command in ["report", "diagnose --json-out", "diagnose --write-effect-file",
+                                              "compare -o", "fit -o", "import -o", "view --view-save"]
+               for how in LINKS
+               if (command, how) != ("compare -o", "same")]  # a plot is .png: a session through a link
+
+
+@pytest.mark.parametrize("command, how", TRAIN_CASES)
 def test_a_train_output_that_is_an_input_is_refused_even_with_force(lab, tmp_path, command, how):
     suffix = {"compare -o": ".png", "diagnose --write-effect-file": ".py"}.get(command)
-    if how == "same" and command == "compare -o":
-        pytest.skip("a session named like a plot: the symbolic and hard links cover it")
     _, target = _train_commands(lab, tmp_path)[command]
     out = _alias(target, how, tmp_path, suffix)
     args, _ = _train_commands(lab, out)[command]
@@ -282,6 +284,29 @@ def test_recover_output_needs_force_and_compare_refuses_a_plot_that_is_no_image(
     assert out.read_bytes() == b"old"
     _refused(_invoke(train_main, ["compare", lab / "model", "-o", tmp_path / "c.txt"]), "not .txt")
     assert not (tmp_path / "c.txt").exists()
+
+
+def test_an_existing_effect_file_is_refused_without_force_before_any_work(lab, tmp_path):
+    out = tmp_path / "found.py"
+    out.write_text("# mine")
+    r = _invoke(train_main, ["diagnose", lab / "model", lab / "s.h5", "--write-effect-file", out])
+    _refused(r, "already exists", "--force")
+    assert out.read_text() == "# mine"
+
+
+def test_recover_replaces_an_existing_output_only_with_force(tmp_path):
+    from tests.test_recover import _crashed
+
+    crashed = _crashed(tmp_path / "s.h5")
+    before = crashed.read_bytes()
+    out = tmp_path / "r.h5"
+    out.write_bytes(b"old")
+    _refused(_invoke(collect_main, ["recover", crashed, "-o", out]), "already exists", "--force")
+    assert out.read_bytes() == b"old"
+    r = _invoke(collect_main, ["recover", crashed, "-o", out, "--force"])
+    assert r.exit_code == 0, r.output
+    assert out.read_bytes()[:8] == b"\x89HDF\r\n\x1a\n" and crashed.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.h5", "s.h5"]
 
 
 def test_calibrate_output_needs_force(tmp_path):
