@@ -61,8 +61,8 @@ def run_inputs(opts: RunOptions) -> list:
     inputs = [opts.config, opts.model, opts.leader_model, opts.leader_calibration, opts.follower_calibration]
     if opts.plant is not None and Path(opts.plant).exists():  # a TOML path, not a preset's name
         inputs.append(opts.plant)
-    if not opts.sim:
-        inputs += [opts.leader_port, opts.follower_port]
+    if not opts.sim:  # a port is a device file (a folder given as one is refused when it is opened)
+        inputs += [p for p in (opts.leader_port, opts.follower_port) if p and not Path(p).is_dir()]
         if opts.calibrate:
             inputs.append(config_dir())
     return [p for p in inputs if p is not None and str(p) != ""]
