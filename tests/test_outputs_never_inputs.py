@@ -315,3 +315,24 @@ def test_calibrate_output_needs_force(tmp_path):
     r = _invoke(collect_main, ["calibrate", "--port", tmp_path / "no-port", "--arm", "a", "--output", out])
     _refused(r, "already exists", "--force")
     assert out.read_text() == "old"
+
+
+def test_the_python_front_door_checks_its_outputs_too(lab, tmp_path):
+    import train
+    from crane_io.output_files import OutputPathError
+    from train.data.importer import ImportUnits, import_session, parse_map
+
+    before = _digest([lab])
+    with pytest.raises(OutputPathError, match="same file as the input"):
+        train.make_report(lab / "model", lab / "s.h5", _alias(lab / "s.h5", "symlink", tmp_path))
+    with pytest.raises(OutputPathError, match="same file as the input"):
+        import_session(lab / "log.csv", lab / "log.csv", parse_map(["t=time", "joint1.q=q1,joint1.tau=tau1"]),
+                       ImportUnits(), force=True)
+    fitted = train.fit(lab / "s.h5", "rigid-body", scale_to_data=True)
+    fitted.save(tmp_path / "m")
+    with pytest.raises(OutputPathError, match="already exists"):
+        fitted.save(tmp_path / "m")
+    assert fitted.save(tmp_path / "m", force=True) == tmp_path / "m"
+    with pytest.raises(OutputPathError, match="holds the input"):
+        fitted.save(lab, force=True)
+    assert _digest([lab]) == before
