@@ -3,9 +3,10 @@
     result = run_session(RunOptions(output="session.h5", sim=True, duration=60))
 
 The options are plain values, checked before anything starts (collect/startup.py `check_options`,
-`check_ports`, `check_output`); the run (collect/runner.py `BilateralRun`) hands each part of the
-collector only the values it needs. A sentence about an option names it by its field name in
-backquotes (`duration`); crane-collect shows its flag instead (crane_io.cli_support.cli_errors).
+`check_ports`, `check_output`; `check_run_outputs` here: no output is an input or another output); the
+run (collect/runner.py `BilateralRun`) hands each part of the collector only the values it needs. A
+sentence about an option names it by its field name in backquotes (`duration`); crane-collect shows its
+flag instead (crane_io.cli_support.cli_errors).
 """
 
 from __future__ import annotations
@@ -50,6 +51,40 @@ class RunOptions:
     calibrate: bool = True  # hardware: use each adapter's stored calibration (False: none)
     # test hook: called every bilateral cycle with (cycle index, RunContext) before the bus reads
     on_cycle: Callable[[int, RunContext], None] | None = None
+
+
+def run_inputs(opts: RunOptions) -> list:
+    """Every file or folder a run reads: the configuration, a plant TOML, the models, the calibration
+    files (given, or the stored ones' folder on hardware) and, on hardware, the two ports."""
+    from crane_io.dynamixel.calibration import config_dir
+
+    inputs = [opts.config, opts.model, opts.leader_model, opts.leader_calibration, opts.follower_calibration]
+    if opts.plant is not None and Path(opts.plant).exists():  # a TOML path, not a preset's name
+        inputs.append(opts.plant)
+    if not opts.sim:  # a port is a device file (a folder given as one is refused when it is opened)
+        inputs += [p for p in (opts.leader_port, opts.follower_port) if p and not Path(p).is_dir()]
+        if opts.calibrate:
+            inputs.append(config_dir())
+    return [p for p in inputs if p is not None and str(p) != ""]
+
+
+def check_run_outputs(opts: RunOptions) -> None:
+    """Before any hardware is touched: the session file, the truth file, the truth trace and the live
+    view's file are each checked against every input of the run and against each other, links
+    resolved (crane_io.output_files); an existing truth, trace or view file is replaced only with
+    `force`. The session file's existence and folder are collect/startup.py `check_output`'s."""
+    from crane_io.output_files import check_distinct, check_output
+
+    outputs = [(opts.output, "session file"), (opts.truth, "truth file"), (opts.truth_trace, "truth trace"),
+               (opts.view_save, "rerun file")]
+    given = [(k, path, what) for k, (path, what) in enumerate(outputs) if path is not None and str(path)]
+    inputs = run_inputs(opts)
+    for k, path, what in given:
+        others = [p for i, p, _ in given if i != k]
+        if k == 0:
+            check_distinct(path, inputs=inputs, others=others, what=what)
+        else:
+            check_output(path, inputs=inputs, force=opts.force, what=what, others=others)
 
 
 @dataclass

@@ -54,7 +54,7 @@ from .bilateral_loop import BilateralLoop, RunContext
 from .config import Config, load_config
 from .loop_models import load_reaction_models, observer_sentence
 from .realtime import enter_realtime
-from .run_options import RunOptions, RunResult
+from .run_options import RunOptions, RunResult, check_run_outputs
 from .sim_arms import make_operator, make_sim_arms, write_truth
 from .startup import check_options, check_output, check_ports, make_recorder, open_buses
 from .status import print_summary
@@ -123,6 +123,7 @@ class BilateralRun:
         self.config = config
         self.arm = run_arm(config)
         self.output = Path(opts.output)
+        check_run_outputs(opts)  # no output is an input or another output
         check_output(self.output, opts.force)
         check_ports(opts.sim, opts.leader_port, opts.follower_port)
         self.stop: StopRequest | None = None  # while entered: what the stop signals said

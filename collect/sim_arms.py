@@ -103,13 +103,15 @@ def write_truth(sims: dict, path: str | Path) -> Path:
 
 
 def write_plant_truth(plant, path: str | Path) -> Path:
-    """Write `plant`'s truth to `path` (see write_truth)."""
+    """Write `plant`'s truth to `path` (see write_truth), whole or not at all (crane_io.output_files: a
+    full disk is one sentence); the path is checked by the command (never an input, `force`)."""
+    from crane_io.output_files import atomic_path
+
     if not hasattr(plant, "write_truth"):
         raise ConfigError("`truth` needs an arm plant (a preset or TOML file), not `plant` simple")
-    try:
-        return plant.write_truth(path)
-    except OSError as exc:
-        raise ConfigError(f"cannot write the truth file {path}: {exc.strerror or exc}") from None
+    with atomic_path(path, "truth file") as tmp:
+        plant.write_truth(tmp)
+    return Path(path)
 
 
 def make_operator(seed: int, config: Config, arm: ArmDescription, sims: dict):

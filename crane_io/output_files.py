@@ -5,7 +5,8 @@ over an existing file without `force`, and written atomically.
     with atomic_path(out) as tmp:          # a temporary file in the target's folder
         write_something(tmp)               # an exception (or Ctrl+C) leaves the target as it was
     write_text_atomic(out, text)           # the same for a string
-    with atomic_directory(model_dir, force=force) as tmp_dir: ...   # a model directory
+    check_output(model_dir, inputs=[session], force=force, directory=True)
+    with atomic_directory(model_dir) as tmp_dir: ...   # a model directory, replaced whole
 
 Rules (the same for every command):
 - an output that is the same file as any input (links and `..` resolved, hard links by inode) is refused,
@@ -15,6 +16,12 @@ Rules (the same for every command):
   into place, so an interrupted or failed write never leaves half a file where a good one was;
 - a write that fails says so in one sentence: a full disk raises DiskFullError (exit 3), any other
   failure OutputPathError (exit 2); the temporary file is removed.
+
+Where: every command checks each of its outputs against all of its inputs (and its other outputs) before
+any work: the command line itself, or the library function that takes the output path from its caller
+and knows the inputs (train.make_report, train.api.FitResult.save, train.data.importer.import_session,
+collect.run_options.check_run_outputs for `crane-collect run`). The library's writers only write, each
+through atomic_path or atomic_directory (missing folders are made there when `make_folders` allowed them).
 """
 
 from __future__ import annotations
@@ -57,6 +64,24 @@ def is_disk_full(exc: BaseException) -> bool:
     return False
 
 
+class _HiddenDiskFull(OSError):
+    """A writer's own error (torch's "file write failed", a RuntimeError) raised while its disk had no
+    space left: the full disk it was."""
+
+    def __init__(self, cause: BaseException):
+        super().__init__(errno.ENOSPC, f"No space left on device ({cause})")
+
+
+def _no_space_left(folder: Path) -> bool:
+    """True when the file system holding `folder` has (almost) no space left for this user: a writer
+    that hides the errno (torch, rerun) failed for it."""
+    try:
+        st = os.statvfs(folder)
+    except OSError:
+        return False
+    return st.f_bavail * st.f_frsize < 64 * 1024 or (st.f_files > 0 and st.f_favail == 0)
+
+
 def write_error(exc: BaseException, path, what: str = "output") -> CraneError:
     """One sentence for a failed write of `path` (DiskFullError for a full disk)."""
     if is_disk_full(exc):
@@ -90,17 +115,37 @@ def _inside(child: Path, parent: Path) -> bool:
 
 
 def check_output(path, *, inputs: Iterable = (), force: bool = False, what: str = "output",
-                 others: Iterable = (), directory: bool = False) -> Path:
+                 others: Iterable = (), directory: bool = False, make_folders: bool = False) -> Path:
     """The output path, checked (OutputPathError otherwise): not empty, not one of `inputs` (files or
     folders, compared with links resolved), not inside an input folder nor holding one, not one of the
-    command's `others` outputs, its folder exists, and it does not exist unless `force` (then it must
-    be of the kind written: a file, or a folder when `directory`)."""
+    command's `others` outputs, its folder exists (with `make_folders`: or can be made, the writer
+    making it) and is writable, and it does not exist unless `force` (then it must be of the kind
+    written: a file, or a folder when `directory`). Nothing is created."""
     raw = os.fspath(path) if path is not None else ""
     if not str(raw).strip():
         raise OutputPathError(f"the {what} path is empty")
     if "\x00" in str(raw):
         raise OutputPathError(f"the {what} path {raw!r} contains a NUL character")
     out = Path(raw)
+    check_distinct(out, inputs=inputs, others=others, what=what, directory=directory)
+    # the folder the new file is renamed into (the link's own, when the output is a link)
+    _check_folder(out, Path(os.path.abspath(out)).parent, what, make_folders)
+    if os.path.lexists(out):
+        if not force:
+            raise OutputPathError(f"the {what} {out} already exists; pass `force` to replace it")
+        if directory and not out.is_dir():
+            raise OutputPathError(f"the {what} {out} exists and is not a folder")
+        if not directory and out.is_dir():
+            raise OutputPathError(f"the {what} {out} is a folder, not a file")
+    return out
+
+
+def check_distinct(path, *, inputs: Iterable = (), others: Iterable = (), what: str = "output",
+                   directory: bool = False) -> Path:
+    """The part of check_output that compares paths (OutputPathError otherwise): `path` is none of
+    `inputs`, not inside an input folder, does not hold an input when it is a folder (`directory`), and
+    is none of the command's `others` outputs; links and `..` resolved, hard links by inode."""
+    out = Path(path)
     real = _resolved(out)
     for inp in inputs:
         if inp is None:
@@ -117,17 +162,43 @@ def check_output(path, *, inputs: Iterable = (), force: bool = False, what: str 
         if other is not None and same_file(out, other):
             raise OutputPathError(f"the {what} {out} is also another output of this command; give "
                                   "each output its own path")
-    parent = real.parent
-    if not parent.is_dir():
-        raise OutputPathError(f"the folder of the {what} {out} does not exist")
-    if os.path.lexists(out):
-        if not force:
-            raise OutputPathError(f"the {what} {out} exists; pass `force` to replace it")
-        if directory and not out.is_dir():
-            raise OutputPathError(f"the {what} {out} exists and is not a folder")
-        if not directory and out.is_dir():
-            raise OutputPathError(f"the {what} {out} is a folder, not a file")
     return out
+
+
+def _check_folder(out: Path, parent: Path, what: str, make_folders: bool) -> None:
+    """The output's folder exists (or, with `make_folders`, its nearest existing ancestor is a folder)
+    and can be written to."""
+    existing = parent
+    while not os.path.lexists(existing) and existing != existing.parent:
+        existing = existing.parent
+    if os.path.lexists(existing) and not existing.is_dir():
+        raise OutputPathError(f"cannot write {out}: {existing} is a file, not a folder")
+    if existing != parent and not make_folders:
+        raise OutputPathError(f"cannot write the {what} {out}: the folder {parent} does not exist")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise OutputPathError(f"cannot write the {what} {out}: the folder {existing} is not writable "
+                              "(read-only or forbidden)")
+
+
+def _mode(target: Path, full: int) -> int:
+    """The permissions a new output gets: those of the file it replaces, else `full` less the umask."""
+    try:
+        return os.stat(target).st_mode & 0o7777
+    except OSError:
+        return full & ~_umask()
+
+
+def _umask() -> int:
+    """The process's umask, read without changing it where Linux shows it (os.umask sets it for every
+    thread meanwhile)."""
+    with contextlib.suppress(OSError, ValueError):
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    umask = os.umask(0o022)
+    os.umask(umask)
+    return umask
 
 
 def _fsync_dir(folder: Path) -> None:
@@ -147,7 +218,10 @@ def atomic_path(path, what: str = "output") -> Iterator[Path]:
     target = Path(path)
     folder = target.parent if str(target.parent) else Path(".")
     try:
-        fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=folder)
+        folder.mkdir(parents=True, exist_ok=True)  # missing folders that check_output allowed
+        # the target's suffix kept last: writers that infer the format from it (savefig, np.savez) work
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=f".part{target.suffix}",
+                                        dir=folder)
         os.close(fd)
     except OSError as exc:
         raise write_error(exc, target, what) from None
@@ -156,6 +230,7 @@ def atomic_path(path, what: str = "output") -> Iterator[Path]:
         yield tmp
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
+        os.chmod(tmp, _mode(target, 0o666))  # mkstemp's file is private
         os.replace(tmp, target)
         _fsync_dir(folder)
     except BaseException as exc:
@@ -163,8 +238,9 @@ def atomic_path(path, what: str = "output") -> Iterator[Path]:
             tmp.unlink()
         if isinstance(exc, OSError):
             raise write_error(exc, target, what) from None
-        if not isinstance(exc, CraneError) and is_disk_full(exc):
-            raise write_error(exc, target, what) from None
+        if isinstance(exc, Exception) and not isinstance(exc, CraneError) and (
+                is_disk_full(exc) or _no_space_left(folder)):
+            raise write_error(_HiddenDiskFull(exc), target, what) from None
         raise
 
 
@@ -186,6 +262,7 @@ def atomic_directory(path, what: str = "output folder") -> Iterator[Path]:
     target = Path(path)
     folder = target.parent if str(target.parent) else Path(".")
     try:
+        folder.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".part", dir=folder))
     except OSError as exc:
         raise write_error(exc, target, what) from None
@@ -196,6 +273,7 @@ def atomic_directory(path, what: str = "output folder") -> Iterator[Path]:
             if f.is_file():
                 with open(f, "rb+") as fh:
                     os.fsync(fh.fileno())
+        os.chmod(tmp, _mode(target, 0o777))  # mkdtemp's folder is private
         if os.path.lexists(target):
             old = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=folder))
             os.rmdir(old)
@@ -210,8 +288,9 @@ def atomic_directory(path, what: str = "output folder") -> Iterator[Path]:
         shutil.rmtree(tmp, ignore_errors=True)
         if isinstance(exc, OSError):
             raise write_error(exc, target, what) from None
-        if not isinstance(exc, CraneError) and is_disk_full(exc):
-            raise write_error(exc, target, what) from None
+        if isinstance(exc, Exception) and not isinstance(exc, CraneError) and (
+                is_disk_full(exc) or _no_space_left(folder)):
+            raise write_error(_HiddenDiskFull(exc), target, what) from None
         raise
     finally:
         if old is not None:

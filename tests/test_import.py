@@ -160,7 +160,7 @@ def test_refusals_in_one_sentence_leave_input_and_output_alone(session, tmp_path
     _refused(_invoke(csv, "-o", out, *maps), "exists", "--force")
     assert "`force`" not in _invoke(csv, "-o", out, *maps).output
     assert out.read_bytes() == stamp
-    _refused(_invoke(csv, "-o", csv, *maps, "--force"), "is the input")
+    _refused(_invoke(csv, "-o", csv, *maps, "--force"), "same file as the input")
     assert csv.read_bytes() == before
     assert _invoke(csv, "-o", out, *maps, "--force", "--source", "again").exit_code == 0
     assert read_session(out).source == "again"

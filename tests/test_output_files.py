@@ -89,3 +89,39 @@ def test_atomic_directory_replaces_a_folder_whole_or_not_at_all(tmp_path):
         (tmp / "model.json").write_text("new")
     assert (target / "model.json").read_text() == "new"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m"]
+
+
+def test_missing_folders_are_allowed_only_when_the_writer_makes_them(tmp_path):
+    out = tmp_path / "a" / "b" / "r.html"
+    with pytest.raises(OutputPathError, match="does not exist"):
+        check_output(out)
+    assert check_output(out, make_folders=True) == out and not (tmp_path / "a").exists()
+    write_text_atomic(out, "page")
+    assert out.read_text() == "page"
+    (tmp_path / "notes").write_text("a file")
+    with pytest.raises(OutputPathError, match="notes is a file, not a folder"):
+        check_output(tmp_path / "notes" / "x" / "r.html", make_folders=True)
+
+
+def test_a_new_output_gets_the_usual_permissions_and_a_replaced_one_keeps_its_own(tmp_path):
+    umask = os.umask(0o022)
+    try:
+        fresh = write_text_atomic(tmp_path / "new.txt", "x")
+        assert fresh.stat().st_mode & 0o777 == 0o644  # not the temporary file's private 0o600
+        old = tmp_path / "old.txt"
+        old.write_text("x")
+        old.chmod(0o640)
+        write_text_atomic(old, "y")
+        assert old.stat().st_mode & 0o777 == 0o640
+        with atomic_directory(tmp_path / "m") as tmp:
+            (tmp / "f").write_text("z")
+        assert (tmp_path / "m").stat().st_mode & 0o777 == 0o755
+    finally:
+        os.umask(umask)
+
+
+def test_the_temporary_file_keeps_the_targets_suffix_for_writers_that_read_it(tmp_path):
+    with atomic_path(tmp_path / "plot.png") as tmp:
+        assert tmp.suffix == ".png" and tmp.parent == tmp_path and tmp.name.startswith(".plot.png.")
+        tmp.write_bytes(b"png")
+    assert (tmp_path / "plot.png").read_bytes() == b"png"

@@ -96,11 +96,33 @@ class FitResult:
     dataset: Dataset = field(repr=False)
     splits: Splits = field(repr=False)
 
-    def save(self, out_dir: PathLike) -> Path:
-        """Write the model (and fit_metrics.json) to `out_dir`; returns its path."""
-        path = self.model.save(out_dir)
-        (path / "fit_metrics.json").write_text(json.dumps(self.metrics, indent=2))
+    def save(self, out_dir: PathLike, *, force: bool = False) -> Path:
+        """Write the model (and fit_metrics.json) to `out_dir`, whole or not at all; returns its path.
+        An existing model folder is replaced only with `force` (check_model_output)."""
+        from crane_io.output_files import atomic_directory
+
+        inputs = [*self.metrics.get("sources", ()), *self.model.options.get("effect_files", ())]
+        path = check_model_output(out_dir, inputs, force)
+        with atomic_directory(path, "model folder") as tmp:
+            self.model.save(tmp)
+            (tmp / "fit_metrics.json").write_text(json.dumps(self.metrics, indent=2))
         return path
+
+
+def check_model_output(out_dir: PathLike, inputs: Sequence[PathLike] = (), force: bool = False) -> Path:
+    """The model folder `out_dir`, checked before any work (crane_io.output_files.check_output): not one
+    of `inputs` nor holding one, its missing folders made when it is written; an existing one is replaced
+    whole, so only with `force` and only when it is a model folder (it holds model.json) or empty."""
+    from crane_io.output_files import OutputPathError, check_output
+
+    from .models.base import MODEL_JSON
+
+    path = check_output(out_dir, inputs=inputs, force=force, what="model folder", directory=True,
+                        make_folders=True)
+    if path.is_dir() and any(path.iterdir()) and not (path / MODEL_JSON).is_file():
+        raise OutputPathError(f"the model folder {path} exists and holds no model ({MODEL_JSON}); it would "
+                              "be replaced whole, so write the model elsewhere")
+    return path
 
 
 def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = (),
@@ -254,17 +276,19 @@ def compare_models(model_dirs: Sequence[PathLike], sessions: Sessions | None = N
 
 
 def make_report(model_dir: PathLike, sessions: Sessions, output: PathLike, *, seed: int | None = None,
-                diagnosis: bool = True, discover: bool = False) -> Path:
+                diagnosis: bool = True, discover: bool = False, force: bool = False) -> Path:
     """Write the self-contained HTML page of the model's error on the held-out part of `sessions` (with
     the diagnosis sentences unless `diagnosis=False`, and with `discover` the terms discovery finds in
-    the residual, each against it); `seed`: the split seed (default: the model's)."""
+    the residual, each against it); `seed`: the split seed (default: the model's). The output is checked
+    first (never an input; an existing file replaced only with `force`) and written atomically."""
+    from crane_io.output_files import check_output
+
     from .evaluation.heldout import evaluation_data
     from .evaluation.report import report_html, write_report
-    from .settings import writable_output
 
-    writable_output(output, "file")
-    model = load_model(model_dir)
     paths = _paths(sessions)
+    check_output(output, inputs=[model_dir, *paths], force=force, what="report", make_folders=True)
+    model = load_model(model_dir)
     ds, _, held = evaluation_data(model, paths, seed=seed, model_dir=model_dir)
     diag = found = None
     if diagnosis or discover:

@@ -77,11 +77,21 @@ def replay_session(path: Path | str, *, save: Path | str | None = None, every: i
 
     import_rerun()  # before the session is read: without rerun nothing else is worth doing
     rep = read_replay(path, every)
-    view = SessionView(rep.joint_names, rep.bilateral_joints, save=save, spawn=save is None,
-                       recording_name=Path(path).name, arms=rep.arms)
-    view.open()
-    try:
-        view.log_columns(rep.t, rep.data)
-    finally:
-        view.close()
+
+    def show(target) -> None:
+        view = SessionView(rep.joint_names, rep.bilateral_joints, save=target, spawn=target is None,
+                           recording_name=Path(path).name, arms=rep.arms)
+        view.open()
+        try:
+            view.log_columns(rep.t, rep.data)
+        finally:
+            view.close()
+
+    if save is None:
+        show(None)
+    else:  # the .rrd file whole or not at all (crane_io.output_files; a full disk is one sentence)
+        from crane_io.output_files import atomic_path
+
+        with atomic_path(save, "rerun file") as tmp:
+            show(tmp)
     return rep

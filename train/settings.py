@@ -97,19 +97,3 @@ def parse_effect(text: str) -> tuple[str, str | None, dict | None]:
                 raise ConfigError(f"`effects` {text!r}: {key.strip()} must be a number, "
                                   f"got {value!r}") from None
     return name, joint, shape or None
-
-
-def writable_output(path: Path | str, kind: str) -> Path:
-    """Check, before any work, that the output `path` (kind "dir" or "file") can be written; nothing is
-    created. A path under a file, an existing one of the other kind or a read-only place -> ConfigError."""
-    path = Path(path)
-    if path.exists() and path.is_dir() != (kind == "dir"):
-        what = "a folder" if path.is_dir() else "a file"
-        raise ConfigError(f"cannot write {path}: it is {what} already")
-    existing = next(p for p in [path.parent if kind == "file" else path, *path.parents]
-                    if p.exists() or p == Path(p.anchor or "."))
-    if existing.exists() and not existing.is_dir():
-        raise ConfigError(f"cannot write {path}: {existing} is a file, not a folder")
-    if not os.access(existing if existing.exists() else Path("."), os.W_OK):
-        raise ConfigError(f"cannot write {path}: the folder {existing} is not writable")
-    return path

@@ -9,7 +9,8 @@ from crane_io.cli_support import cli_errors, plant_presets
 
 @click.command("run")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
-              help="Session file to write (HDF5, format crane-session). Never overwritten without --force.")
+              help="Session file to write (HDF5, format crane-session). Never overwritten without --force, "
+                   "never one of the run's inputs or other outputs (checked before anything starts).")
 @click.option("--sim", is_flag=True,
               help="Drive two simulated arms and a simulated operator instead of hardware.")
 @click.option("--plant", default=None, metavar="PRESET_OR_TOML",
@@ -18,7 +19,8 @@ from crane_io.cli_support import cli_errors, plant_presets
                    f"or 'simple'. Only with --sim. Presets: {', '.join(plant_presets())}.")
 @click.option("--truth", "truth", type=click.Path(dir_okay=False), default=None, metavar="JSON",
               help="With --sim and an arm plant: also write the follower plant's truth (effects, "
-                   "parameters, seed) to this JSON file, overwriting it. Never stored in the session.")
+                   "parameters, seed) to this JSON file (not overwritten without --force). Never stored in "
+                   "the session.")
 @click.option("--truth-trace", "truth_trace", type=click.Path(dir_okay=False), default=None, metavar="H5",
               help="With --sim: also write the plants' true external torques (contact on the follower, the "
                    "hand on the leader) for every recorded row to this HDF5 file, for crane-train fidelity. "
@@ -65,14 +67,15 @@ from crane_io.cli_support import cli_errors, plant_presets
               help="The same for the follower.")
 @click.option("--no-calibration", is_flag=True,
               help="Use the angles as the servos read them, not the adapters' stored calibrations.")
-@click.option("--force", is_flag=True, help="Overwrite the output file if it exists.")
+@click.option("--force", is_flag=True,
+              help="Overwrite the output files that exist (-o, --truth, --truth-trace, --view-save).")
 @click.option("--quiet", is_flag=True, help="No live status line and no summary.")
 @click.option("--view", is_flag=True,
               help="Live view in rerun (optional extra: pip install 'crane-x7[view]'): both arms' angles, "
                    "torques, tau_dis/tau_res, tracking error, loop period and the arms in 3D.")
 @click.option("--view-save", "view_save", type=click.Path(dir_okay=False), default=None, metavar="FILE.rrd",
               help="Write the live view to this rerun file instead of spawning a viewer (implies --view; "
-                   "open it later with `rerun FILE.rrd`).")
+                   "open it later with `rerun FILE.rrd`); not overwritten without --force.")
 @click.option("--view-every", "view_every", type=click.IntRange(min=1), default=10, show_default=True,
               metavar="N", help="The view samples every N-th control cycle (50 samples a second at 500 Hz).")
 @cli_errors

@@ -10,6 +10,7 @@ Every served link is announced in the user's runtime directory (crane_io.dynamix
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import threading
@@ -100,11 +101,13 @@ def slip_summary(chain) -> str:
               help="Return Delay Time register of every servo (2 us/LSB). Default: factory 250.")
 @click.option("--truth", "truth", type=click.Path(dir_okay=False), default=None, metavar="JSON",
               help="Also write the arm plant's hidden truth (effects, parameters, seed; --pair: the "
-                   "follower's) to this file. Nothing else ever records it.")
+                   "follower's) to this file (not overwritten without --force). Nothing else ever records "
+                   "it.")
+@click.option("--force", is_flag=True, help="Overwrite the --truth file if it exists.")
 @cli_errors
 def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_s, config_path,
               encoder_offsets, joints, plant, clock, period_s, seed, no_fast_sync_read, return_delay,
-              truth):
+              truth, force):
     """Serve a simulated CRANE-X7 (or, with --pair, a leader and a follower with a simulated hand) on
     pseudo-terminals until Ctrl+C or SIGTERM."""
     if not period_s > 0:
@@ -123,6 +126,12 @@ def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_
                                 ("--task", task), ("--config", config_path)) if v is not None]
         if extra:
             raise ConfigError(f"{extra[0]} goes with --pair")
+    if truth is not None:  # never an input nor a link, an existing file only with --force
+        from crane_io.output_files import check_output
+
+        plant_file = [plant] if plant is not None and os.path.exists(plant) else []
+        check_output(truth, inputs=[config_path, *plant_file], force=force, what="truth file",
+                     others=[link, leader_link, follower_link])
     from ..config import load_config
     from ..runner import run_arm
     from ..sim_lab import parse_offsets

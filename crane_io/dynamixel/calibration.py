@@ -157,14 +157,9 @@ def save_calibration(cal: Calibration, path: str | os.PathLike | None = None) ->
             "(crane_io/dynamixel/calibration.py)\n"
             + dump_toml({"arm": {"name": cal.name, "key": cal.key, "created": cal.created},
                          "joints": joints}))
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    except OSError as exc:
-        raise CalibrationError(f"cannot write the calibration {path}: {exc.strerror or exc}") from None
-    return path
+    from crane_io.output_files import write_text_atomic  # a full disk: DiskFullError, nothing half-written
+
+    return write_text_atomic(path, text, "calibration")
 
 
 @dataclass

@@ -9,6 +9,17 @@ import click
 
 from crane_io.cli_support import cli_errors
 
+from .options import force_option
+
+
+def _default_sessions(model_dir) -> list[str]:
+    """The sessions the first model was trained on (what compare evaluates on without --session)."""
+    from ..evaluation.heldout import fit_record
+
+    record = fit_record(model_dir)
+    sources = record.get("sources") if isinstance(record, dict) else None
+    return [s for s in sources if isinstance(s, str)] if isinstance(sources, list) else []
+
 
 @click.command()
 @click.argument("model_dirs", nargs=-1, required=True, type=click.Path(file_okay=False))
@@ -17,18 +28,24 @@ from crane_io.cli_support import cli_errors
                    "sessions).")
 @click.option("--json", "as_json", is_flag=True, help="Print the comparison as JSON.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
-              help="Write the bar chart of the error per joint (one bar per model, log axis) to this PNG.")
+              help="Write the bar chart of the error per joint (one bar per model, log axis) to this PNG "
+                   "(.pdf, .svg: that format).")
 @click.option("--metric", type=click.Choice(["mse", "rmse", "nmse"]), default="mse", show_default=True,
               help="The metric of the printed table and of the plot.")
+@force_option("the plot")
 @cli_errors
-def compare(model_dirs, sessions, as_json, output, metric):
+def compare(model_dirs, sessions, as_json, output, metric, force):
     """Compare MODEL_DIR(s), in the given order, on the same held-out samples."""
+    from crane_io.output_files import check_output
+
     from ..evaluation.compare import compare_models, notes_text, plot, table_text
+    from ..evaluation.plots import plot_format
     from ..progress import show_progress
-    from ..settings import writable_output
 
     if output:
-        writable_output(output, "file")
+        plot_format(output)
+        check_output(output, inputs=[*model_dirs, *(sessions or _default_sessions(model_dirs[0]))],
+                     force=force, what="plot", make_folders=True)
     result = compare_models(list(model_dirs), list(sessions), progress=show_progress(not as_json))
     if output:
         plot(result, output, metric)

@@ -14,7 +14,6 @@ basis of physical terms; --write-effect-file writes what is significant as an ef
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import click
 
@@ -22,6 +21,7 @@ from crane_io.cli_support import cli_errors
 from crane_io.errors import ConfigError
 
 from ..diagnosis.defaults import DEFAULT_FOLDS, DEFAULT_MIN_REDUCTION
+from .options import force_option
 
 
 def _params_text(params: dict) -> str:
@@ -52,16 +52,19 @@ def _params_text(params: dict) -> str:
 @click.option("--write-effect-file", "effect_out", type=click.Path(dir_okay=False), default=None,
               help="Write the significant discovered terms as an effect file PATH.py for "
                    "`fit --effect-file` (implies --discover).")
+@force_option("the --json-out and --write-effect-file files")
 @cli_errors
 def diagnose(model_dir, sessions, as_json, json_out, folds, min_reduction, top, effect_files, discover,
-             discover_all, effect_out):
+             discover_all, effect_out, force):
     """Rank the library's effects by how much of MODEL_DIR's error on SESSION(s) each one removes."""
+    from crane_io.output_files import check_output, write_text_atomic
+
     if effect_out and not str(effect_out).endswith(".py"):
         raise ConfigError(f"--write-effect-file must name a Python file (.py), got {effect_out}")
-    if json_out is not None:
-        from ..settings import writable_output
-
-        writable_output(json_out, "file")
+    inputs = [model_dir, *sessions, *effect_files]
+    for out, what, other in ((json_out, "JSON file", effect_out), (effect_out, "effect file", json_out)):
+        if out is not None:
+            check_output(out, inputs=inputs, force=force, what=what, others=[other], make_folders=True)
 
     from ..api import diagnosis_inputs
     from ..diagnosis.diagnose import diagnose as run_diagnosis
@@ -91,8 +94,7 @@ def diagnose(model_dir, sessions, as_json, json_out, folds, min_reduction, top, 
                        effect_file=None if written is None else str(written[0]))
         text = json.dumps(doc, indent=2)
         if json_out is not None:
-            Path(json_out).parent.mkdir(parents=True, exist_ok=True)
-            Path(json_out).write_text(text + "\n")
+            write_text_atomic(json_out, text + "\n", "JSON file")
         if as_json:
             click.echo(text)
             return

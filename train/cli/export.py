@@ -10,13 +10,15 @@ from pathlib import Path
 
 import click
 
-from crane_io.cli_support import cli_errors
+from crane_io.cli_support import cli_errors, command_flags, with_flags
 from crane_io.errors import CraneError
 
 
-def export_model(directory) -> dict:
-    """Write `directory`/loop_model.npz for the saved model there; {path, sha256, method, joints, usable}."""
-    from crane_io.physics.loop_model import LoopModel, LoopModelError
+def export_model(directory, force: bool = False) -> dict:
+    """Write `directory`/loop_model.npz for the saved model there (an existing one replaced only with
+    `force`); {path, sha256, method, joints, usable}."""
+    from crane_io.output_files import check_output
+    from crane_io.physics.loop_model import EXPORT_FILE, LoopModel, LoopModelError
 
     from ..models.base import ModelFileError
     from ..models.loop_export import write_loop_export
@@ -26,6 +28,9 @@ def export_model(directory) -> dict:
     if not directory.is_dir():
         raise ModelFileError(f"model directory {directory} does not exist")
     model = load_model(directory)
+    # the model's own files are its inputs; only loop_model.npz is written
+    inputs = [p for p in directory.rglob("*") if p.name != EXPORT_FILE]
+    check_output(directory / EXPORT_FILE, inputs=inputs, force=force, what="loop export")
     path, sha = write_loop_export(model, directory)
     try:
         LoopModel.load(directory)
@@ -38,20 +43,23 @@ def export_model(directory) -> dict:
 
 @click.command()
 @click.argument("model_dirs", nargs=-1, required=True, type=click.Path(file_okay=False))
+@click.option("--force", is_flag=True,
+              help="Replace a directory's existing loop_model.npz (without it such a directory is refused).")
 @cli_errors
-def export(model_dirs):
+def export(model_dirs, force):
     """Write loop_model.npz (the control loop's copy of the weights) into each saved model directory."""
-    failed = False
+    failed = 0
     for d in model_dirs:
         try:
-            doc = export_model(d)
+            doc = export_model(d, force)
         except CraneError as exc:
-            click.echo(f"Error: {exc}", err=True)
-            failed = True
+            click.echo(f"Error: {with_flags(str(exc), command_flags(click.get_current_context()))}",
+                       err=True)
+            failed = max(failed, exc.exit_code)  # a full disk (3) outranks a refused directory (2)
             continue
         click.echo(f"{doc['path']}: {doc['method']} on {', '.join(doc['joints'])}, "
                    f"sha256 {doc['sha256'][:16]}")
         if doc["refusal"]:
             click.echo(f"  note: the control loop will still refuse it: {doc['refusal']}", err=True)
     if failed:
-        raise SystemExit(CraneError.exit_code)
+        raise SystemExit(failed)

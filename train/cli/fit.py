@@ -10,22 +10,23 @@ from crane_io.cli_support import cli_errors
 
 from ..models.method_names import METHOD_NAMES
 from ..progress import show_progress
-from ..settings import parse_effect, writable_output
-from .options import arm_option, data_options, hand_on_hint
+from ..settings import parse_effect
+from .options import arm_option, data_options, force_option, hand_on_hint
 
 
 def _fit_and_save(sessions, method: str, out_dir, train_size: int | None = None, seed: int = 0,
               effects=(), effect_files=(), joints=None, alpha=None, zero_phase=False,
               scale_to_data=False, epochs: int | None = None, progress: bool = True,
-              config_path=None, arm: str | None = None, eval_set: str | None = None) -> dict:
+              config_path=None, arm: str | None = None, eval_set: str | None = None,
+              force: bool = False) -> dict:
     """train.api.fit on `arm`'s data of the sessions, saved to out_dir (with fit_metrics.json); returns the
     metrics document. The output is checked before any work; a session whose arm the operator's hand moved
     is refused (train.data.session.HandOnArmError) before anything is written."""
     from tqdm import tqdm
 
-    from ..api import fit
+    from ..api import check_model_output, fit
 
-    writable_output(out_dir, "dir")
+    check_model_output(out_dir, [*sessions, *effect_files, config_path], force)
     bar = None
     if progress and (method.startswith("mlp-") or method == "hybrid"):
         bar = tqdm(desc=method, unit="epoch", leave=False)
@@ -40,7 +41,7 @@ def _fit_and_save(sessions, method: str, out_dir, train_size: int | None = None,
                  eval_set=eval_set)
     if bar is not None:
         bar.close()
-    result.save(out_dir)
+    result.save(out_dir, force=force)
     return result.metrics
 
 
@@ -48,8 +49,10 @@ def _fit_and_save(sessions, method: str, out_dir, train_size: int | None = None,
 @click.argument("sessions", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--model", "method", required=True, type=click.Choice(list(METHOD_NAMES)),
               help="Method to train.")
-@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
-              help="Model directory to write.")
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(),
+              help="Model directory to write (made if missing). It is written whole or not at all; an "
+                   "existing one is replaced whole, only with --force and only if it holds a model "
+                   "(or nothing).")
 @click.option("--train-size", type=int, default=None, help="Training samples drawn from the pool [all 6000].")
 @click.option("--seed", default=0, show_default=True, type=int, help="Seed of splits, draws and weights.")
 @click.option("--effect", "effects", multiple=True, metavar="NAME[:joint=JOINT,shape=VALUE]",
@@ -63,9 +66,10 @@ def _fit_and_save(sessions, method: str, out_dir, train_size: int | None = None,
 @data_options
 @click.option("--no-progress", is_flag=True,
               help="No progress bar (there is none anyway when stderr is not a terminal).")
+@force_option("the model directory")
 @cli_errors
 def fit(sessions, method, out_dir, train_size, seed, effects, effect_files, epochs, arm, config_path, joints,
-        alpha, zero_phase, scale_to_data, eval_set, no_progress):
+        alpha, zero_phase, scale_to_data, eval_set, no_progress, force):
     """Train one model on session files (the follower's data, or the leader's with --arm leader) and
     save it."""
     from ..data.session import HandOnArmError
@@ -73,7 +77,7 @@ def fit(sessions, method, out_dir, train_size, seed, effects, effect_files, epoc
     try:
         doc = _fit_and_save(sessions, method, out_dir, train_size, seed, [parse_effect(e) for e in effects],
                         effect_files, joints, alpha, zero_phase, scale_to_data, epochs,
-                        show_progress(not no_progress), config_path, arm, eval_set)
+                        show_progress(not no_progress), config_path, arm, eval_set, force)
     except HandOnArmError as exc:
         raise HandOnArmError(hand_on_hint(exc), exc.path, exc.arm) from None
     click.echo(f"{method} on the {doc['arm']}: trained on {doc['train_samples']} samples "

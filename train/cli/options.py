@@ -29,6 +29,14 @@ def data_options(func):
     return func
 
 
+def force_option(what: str):
+    """--force: replace the command's existing output(s); `what` says which, for the help."""
+    return click.option("--force", is_flag=True,
+                        help=f"Replace {what} if it exists (without it an existing output is refused). An "
+                             "output is never one of the command's inputs, and is written whole or not "
+                             "at all.")
+
+
 def arm_option(func):
     """--arm leader|follower: which arm's data a model is fitted on."""
     return click.option("--arm", type=click.Choice(["leader", "follower"]), default=None,

@@ -8,12 +8,14 @@ import click
 
 from crane_io.cli_support import cli_errors
 
+from .options import force_option
+
 
 @click.command()
 @click.argument("model_dir", type=click.Path(file_okay=False))
 @click.argument("sessions", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
-              help="The HTML file to write.")
+              help="The HTML file to write (never one of the inputs; made whole or not at all).")
 @click.option("--diagnosis/--no-diagnosis", default=True, show_default=True,
               help="Add the diagnosis sentences (which effect is missing) to the page.")
 @click.option("--discover", is_flag=True,
@@ -21,13 +23,17 @@ from crane_io.cli_support import cli_errors
                    "plotted against it.")
 @click.option("--seed", type=int, default=None,
               help="Split seed (default: the one the model was trained with).")
+@force_option("the HTML file")
 @cli_errors
-def report(model_dir, sessions, output, diagnosis, discover, seed):
+def report(model_dir, sessions, output, diagnosis, discover, seed, force):
     """Write an HTML report of MODEL_DIR's error on the held-out part of SESSION(s)."""
-    from ..api import make_report
-    from ..settings import writable_output
+    from crane_io.output_files import check_output
 
-    writable_output(output, "file")
+    from ..api import make_report
+
+    # checked before the line below (make_report checks it again before its work)
+    check_output(output, inputs=[model_dir, *sessions], force=force, what="report", make_folders=True)
     click.echo(f"Evaluating {model_dir} on the held-out part of {', '.join(sessions)} ...", err=True)
-    path = make_report(model_dir, list(sessions), output, seed=seed, diagnosis=diagnosis, discover=discover)
+    path = make_report(model_dir, list(sessions), output, seed=seed, diagnosis=diagnosis, discover=discover,
+                       force=force)
     click.echo(f"Wrote {path} ({path.stat().st_size / 1e3:.0f} kB); open it in a browser (works offline).")

@@ -11,14 +11,16 @@ from crane_io.errors import ConfigError
 
 from ..models.method_names import SWEEP_METHODS
 from ..progress import progress_lines, show_progress
-from ..settings import load_config, load_dataset, writable_output
-from .options import data_options, parse_sizes
+from ..settings import load_config, load_dataset
+from .options import data_options, force_option, parse_sizes
 
 
 @click.command()
 @click.argument("sessions", nargs=-1, required=True, type=click.Path(dir_okay=False))
-@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
-              help="Directory for results.json, results.csv and the figures.")
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(),
+              help="Directory for results.json, results.csv and the figures (made if missing). It may "
+                   "exist and hold other files; each of these four is refused if it exists (unless "
+                   "--force) and written whole or not at all.")
 @click.option("--sizes", default="300:3000:300", show_default=True,
               help="Training-set sizes: START:STOP:STEP (STOP included) or a comma list.")
 @click.option("--trials", default=10, show_default=True, type=int, help="Random draws per size.")
@@ -30,20 +32,26 @@ from .options import data_options, parse_sizes
 @data_options
 @click.option("--no-progress", is_flag=True,
               help="No progress bars on a terminal, no progress lines (at most one every 10 s) in a log.")
+@force_option("results.json, results.csv and the figures in the directory")
 @cli_errors
 def sweep(sessions, out_dir, sizes, trials, methods, seed, epochs, batch_size, config_path, joints, alpha,
-          zero_phase, scale_to_data, eval_set, no_progress):
+          zero_phase, scale_to_data, eval_set, no_progress, force):
     """Test MSE against the number of training samples for each method (mean and 95 % CI)."""
+    from crane_io.output_files import check_output
+
     from ..evaluation.sweep import (  # torch, scipy: for the work, not --help
         format_table,
+        result_paths,
         run_sweep,
         write_results,
     )
 
     size_list = parse_sizes(sizes)
-    writable_output(out_dir, "dir")
     method_list = [m.strip() for m in methods.split(",") if m.strip()]
     cfg = load_config(config_path)
+    for path in result_paths(out_dir).values():  # before any work
+        check_output(path, inputs=[*sessions, config_path], force=force, what="sweep result",
+                     make_folders=True)
     settings = cfg["mlp"]
     if epochs is not None:
         settings = replace(settings, epochs=epochs)

@@ -31,9 +31,7 @@ from __future__ import annotations
 import csv
 import io
 import json
-import os
 import re
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -44,6 +42,7 @@ from crane_io import session_format as sf
 from crane_io.description import default_arm
 from crane_io.dynamixel.units import AMPERE_PER_CURRENT_LSB, POSITION_CENTER, RAD_PER_PULSE
 from crane_io.errors import CraneError
+from crane_io.output_files import atomic_path, check_output
 
 from .session import MIN_SAMPLES as MIN_ROWS  # what crane-train reads
 
@@ -302,40 +301,29 @@ def convert(columns: dict[str, np.ndarray], spec: ImportMap, units: ImportUnits 
 
 def write_session(out: Path | str, s: ImportedSession, *, source: str = "import", attrs: dict | None = None,
                   force: bool = False) -> Path:
-    """Write the contract's required part (plus `current` where mapped) to `out`, through a temporary file
-    in the same folder renamed into place."""
+    """Write the contract's required part (plus `current` where mapped) to `out` (an existing file only
+    with `force`), through a temporary file in the same folder renamed into place
+    (crane_io.output_files: a full disk is one sentence)."""
     import h5py
 
-    out = Path(out)
-    if out.exists() and not force:
-        raise ImportMapError(f"{out} exists; give `force` to overwrite it")
-    if out.is_dir():
-        raise ImportMapError(f"{out} is a directory")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
-    os.close(fd)
-    try:
-        with h5py.File(tmp, "w") as f:
-            f.attrs[sf.FORMAT_ATTR] = sf.FORMAT
-            f.attrs[sf.VERSION_ATTR] = sf.FORMAT_VERSION
-            f.attrs[sf.RATE_ATTR] = float(s.rate_hz)
-            f.attrs[sf.JOINT_NAMES_ATTR] = np.array(list(s.joint_names), dtype=h5py.string_dtype())
-            f.attrs[sf.SOURCE_ATTR] = str(source)
-            f.attrs[sf.COMPLETE_ATTR] = True
-            f.attrs[sf.TAU_SOURCE_ATTR] = np.array(list(s.tau_source), dtype=h5py.string_dtype())
-            f.attrs[sf.TORQUE_CONSTANTS_ATTR] = s.torque_constants
-            for k, v in (attrs or {}).items():
-                f.attrs[k] = v
-            g = f.create_group(sf.REQUIRED_ARM)
-            for name, data in ((sf.T, s.t), (sf.Q, s.q), (sf.TAU, s.tau)):
-                g.create_dataset(name, data=data, **sf.FILTERS)
-            if s.current is not None:
-                current: np.ndarray = s.current.astype(sf.ARM_MEMBER[sf.CURRENT].dtype)
-                g.create_dataset(sf.CURRENT, data=current, **sf.FILTERS)
-        os.replace(tmp, out)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    out = check_output(out, force=force, what="session file", make_folders=True)
+    with atomic_path(out, "session file") as tmp, h5py.File(tmp, "w") as f:
+        f.attrs[sf.FORMAT_ATTR] = sf.FORMAT
+        f.attrs[sf.VERSION_ATTR] = sf.FORMAT_VERSION
+        f.attrs[sf.RATE_ATTR] = float(s.rate_hz)
+        f.attrs[sf.JOINT_NAMES_ATTR] = np.array(list(s.joint_names), dtype=h5py.string_dtype())
+        f.attrs[sf.SOURCE_ATTR] = str(source)
+        f.attrs[sf.COMPLETE_ATTR] = True
+        f.attrs[sf.TAU_SOURCE_ATTR] = np.array(list(s.tau_source), dtype=h5py.string_dtype())
+        f.attrs[sf.TORQUE_CONSTANTS_ATTR] = s.torque_constants
+        for k, v in (attrs or {}).items():
+            f.attrs[k] = v
+        g = f.create_group(sf.REQUIRED_ARM)
+        for name, data in ((sf.T, s.t), (sf.Q, s.q), (sf.TAU, s.tau)):
+            g.create_dataset(name, data=data, **sf.FILTERS)
+        if s.current is not None:
+            current: np.ndarray = s.current.astype(sf.ARM_MEMBER[sf.CURRENT].dtype)
+            g.create_dataset(sf.CURRENT, data=current, **sf.FILTERS)
     return out
 
 
@@ -344,11 +332,9 @@ def import_session(input_path: Path | str, out: Path | str, spec: ImportMap,
                    torque_constants: dict[str, float] | None = None, rate_hz: float | None = None,
                    source: str = "import", force: bool = False) -> ImportedSession:
     """Read `input_path` (CSV or NPZ), convert by `spec` and `units`, write the session `out`."""
-    input_path, out = Path(input_path), Path(out)
-    if out.exists() and input_path.exists() and out.resolve() == input_path.resolve():
-        raise ImportMapError(f"the output {out} is the input; name another file")
-    if out.exists() and not force:  # before the (possibly long) read
-        raise ImportMapError(f"{out} exists; give `force` to overwrite it")
+    input_path = Path(input_path)
+    # before the (possibly long) read: never the input, an existing file only with `force`
+    out = check_output(out, inputs=[input_path], force=force, what="session file", make_folders=True)
     columns = read_columns(input_path, list(dict.fromkeys(spec.columns())))
     s = convert(columns, spec, units, torque_constants, rate_hz, source_name=str(input_path))
     imported_from, import_map, import_units, offset = (a.name for a in sf.IMPORT_ROOT)

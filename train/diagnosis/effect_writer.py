@@ -106,10 +106,8 @@ def write_effect_file(path: Path | str, discovery: Discovery, model_dir: Path | 
     path = Path(path)
     if path.suffix != ".py":
         raise ConfigError(f"the effect file must end in .py, got {path}")
-    text = effect_source(discovery, model_dir, sessions)
-    try:
-        path.write_text(text, encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"cannot write {path}: {exc.strerror or exc}") from None
+    from crane_io.output_files import write_text_atomic  # whole or not at all; a full disk: one sentence
+
+    write_text_atomic(path, effect_source(discovery, model_dir, sessions), "effect file")
     return path, [(effect_name(d.joint), d.joint, d.on_top_of) for d in discovery.discovered
                   if d.significant and d.terms]

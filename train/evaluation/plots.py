@@ -37,6 +37,36 @@ LABELS = {"rigid-body": "Newton-Euler (RLS)", "mlp-mse": "FF-NN, MSE", "mlp-mask
 MAX_PANELS_PER_ROW = 4  # more joints than this wrap onto further rows (7 joints: 4 + 3)
 
 
+# the image formats a plot may be written in, by the output's suffix (no suffix: PNG)
+PLOT_FORMATS = ("png", "pdf", "svg")
+
+
+def plot_format(path: Path | str) -> str:
+    """The image format of the plot file `path` from its suffix; ConfigError for another suffix."""
+    from crane_io.errors import ConfigError
+
+    suffix = Path(path).suffix.lower().lstrip(".")
+    if not suffix:
+        return "png"
+    if suffix not in PLOT_FORMATS:
+        raise ConfigError(f"a plot is written as {', '.join('.' + f for f in PLOT_FORMATS)}, not "
+                          f".{suffix}: name the file {Path(path).stem}.png")
+    return suffix
+
+
+def save_figure(fig, path: Path | str, **kwargs) -> Path:
+    """Write `fig` to `path` atomically (crane_io.output_files) in the format its suffix names, and close
+    it."""
+    from crane_io.output_files import atomic_path
+
+    try:
+        with atomic_path(path, "plot") as tmp:
+            fig.savefig(tmp, format=plot_format(path), **kwargs)
+    finally:
+        plt.close(fig)
+    return Path(path)
+
+
 def _panels(n: int, width: float, height: float):
     """(fig, axes list of n, first-column axes): one panel per joint, at most MAX_PANELS_PER_ROW a row
     (one row of n for the paper's three joints, as before); the unused panels of the last row hidden."""
@@ -76,9 +106,7 @@ def plot_mse_vs_samples(results: dict, path: Path | str) -> Path:
     axes[0].legend(fontsize=8)
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return Path(path)
+    return save_figure(fig, path, dpi=120)
 
 
 def _shade(ax, t, still):
@@ -113,9 +141,7 @@ def plot_window(window: dict, joints: Sequence[str], path: Path | str, title: st
     axes[0].legend(fontsize=8)
     fig.suptitle(title or "measured and predicted torque (grey: dead zone)")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return Path(path)
+    return save_figure(fig, path, dpi=120)
 
 
 METRIC_AXIS = {"mse": "test MSE [(N m)$^2$]", "rmse": "test RMSE [N m]", "nmse": "test normalised MSE"}
@@ -212,9 +238,4 @@ def comparison_figure(c: Comparison, metric: str = "mse") -> Figure:
 
 def plot_comparison(c: Comparison, path: Path | str, metric: str = "mse") -> Path:
     """Write comparison_figure(c, metric) to the PNG `path`."""
-    fig = comparison_figure(c, metric)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    return save_figure(comparison_figure(c, metric), path, dpi=110, bbox_inches="tight")

@@ -335,7 +335,7 @@ def report_html(model: Model, model_dir: Path | str | None, held: HeldOut,
 
 
 def write_report(path: Path | str, page: str) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(page, encoding="utf-8")
-    return path
+    """Write the page to `path` atomically (crane_io.output_files; a full disk is one sentence)."""
+    from crane_io.output_files import write_text_atomic
+
+    return write_text_atomic(path, page, "report")

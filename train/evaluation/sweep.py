@@ -16,6 +16,7 @@ per-trial RMSE) and normalised MSE (MSE / variance of the test torque).
 from __future__ import annotations
 
 import csv
+import io
 import json
 import time
 import warnings
@@ -334,26 +335,37 @@ def format_table(result: SweepResult | dict) -> str:
     return "\n".join(lines)
 
 
+# the files `write_results` writes in the output folder
+RESULT_FILES = {"json": "results.json", "csv": "results.csv", "mse_plot": "mse_vs_samples.png",
+                "window_plot": "window_torque.png"}
+
+
+def result_paths(out_dir: Path | str) -> dict:
+    """The paths of the files `write_results` writes in `out_dir` (RESULT_FILES)."""
+    return {key: Path(out_dir) / name for key, name in RESULT_FILES.items()}
+
+
 def write_results(result: SweepResult, out_dir: Path | str) -> dict:
-    """results.json, results.csv, mse_vs_samples.png and window_torque.png in out_dir; returns the paths."""
+    """results.json, results.csv, mse_vs_samples.png and window_torque.png in out_dir (made if missing),
+    each written atomically (crane_io.output_files); returns the paths."""
+    from crane_io.output_files import write_text_atomic
+
     from .plots import plot_mse_vs_samples, plot_window
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     doc = result.to_json()
-    paths = {"json": out / "results.json", "csv": out / "results.csv",
-             "mse_plot": out / "mse_vs_samples.png", "window_plot": out / "window_torque.png"}
-    paths["json"].write_text(json.dumps(doc, indent=1))
-    with open(paths["csv"], "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["method", "size", "joint", "mse_mean", "mse_ci95", "rmse_mean_nm", "nmse_mean",
-                    "train_rows_mean", "trials"])
-        for method, r in doc["methods"].items():
-            for s, size in enumerate(r["sizes"]):
-                for j, joint in enumerate(doc["joints"]):
-                    w.writerow([method, size, joint, r["mse_mean"][s][j], r["mse_ci95"][s][j],
-                                r["rmse_mean"][s][j], r["nmse_mean"][s][j], r["train_rows_mean"][s],
-                                doc["trials"]])
+    paths = result_paths(out_dir)
+    write_text_atomic(paths["json"], json.dumps(doc, indent=1), "sweep results")
+    rows = io.StringIO(newline="")
+    w = csv.writer(rows)
+    w.writerow(["method", "size", "joint", "mse_mean", "mse_ci95", "rmse_mean_nm", "nmse_mean",
+                "train_rows_mean", "trials"])
+    for method, r in doc["methods"].items():
+        for s, size in enumerate(r["sizes"]):
+            for j, joint in enumerate(doc["joints"]):
+                w.writerow([method, size, joint, r["mse_mean"][s][j], r["mse_ci95"][s][j],
+                            r["rmse_mean"][s][j], r["nmse_mean"][s][j], r["train_rows_mean"][s],
+                            doc["trials"]])
+    write_text_atomic(paths["csv"], rows.getvalue(), "sweep results")
     plot_mse_vs_samples(doc, paths["mse_plot"])
     largest = f"{result.window['size']} samples"
     if doc["sizes_scaled"]:

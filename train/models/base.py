@@ -97,8 +97,16 @@ class Model(abc.ABC):
         return None
 
     def save(self, directory: Path | str) -> Path:
+        """Write the model to `directory`, whole or not at all: into a new folder beside it that then
+        replaces it (crane_io.output_files.atomic_directory; a full disk is one sentence)."""
+        from crane_io.output_files import atomic_directory
+
         directory = Path(directory)
-        directory.mkdir(parents=True, exist_ok=True)
+        with atomic_directory(directory, "model folder") as tmp:
+            self._save_into(tmp)
+        return directory
+
+    def _save_into(self, directory: Path) -> None:
         doc = {"format": "crane-model", "format_version": 1, "method": self.method,
                "joint_names": list(self.joint_names), "preprocessing": self.preprocessing,
                "units": dict(SI_UNITS), "options": self.options, "state": self._state()}
@@ -110,7 +118,6 @@ class Model(abc.ABC):
             _, sha = write_loop_export(self, directory)
             doc["loop_export"] = {"file": EXPORT_FILE, "sha256": sha}
             (directory / MODEL_JSON).write_text(json.dumps(doc, indent=2, default=_jsonable))
-        return directory
 
 
 def predict_on(model: Model, ds: Dataset) -> np.ndarray:

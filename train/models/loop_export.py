@@ -12,7 +12,6 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import os
 import zipfile
 from pathlib import Path
 from typing import TYPE_CHECKING, cast
@@ -20,6 +19,7 @@ from typing import TYPE_CHECKING, cast
 import numpy as np
 
 from crane_io.errors import CraneError
+from crane_io.output_files import write_bytes_atomic
 from crane_io.physics.loop_model import EXPORT_FILE, EXPORT_FORMAT_VERSION, SI_UNITS, sources_sha256
 
 if TYPE_CHECKING:
@@ -128,12 +128,5 @@ def write_loop_export(model: Model, directory: Path | str) -> tuple[Path, str]:
     directory = Path(directory)
     arrays = export_arrays(model, directory)
     raw = npz_bytes(arrays)
-    path = directory / EXPORT_FILE
-    tmp = directory / f".{EXPORT_FILE}.{os.getpid()}.tmp"
-    try:
-        tmp.write_bytes(raw)
-        os.replace(tmp, path)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise LoopExportError(f"cannot write {path}: {exc.strerror or exc}") from None
+    path = write_bytes_atomic(directory / EXPORT_FILE, raw, "loop export")
     return path, hashlib.sha256(raw).hexdigest()
