@@ -22,6 +22,7 @@ import numpy as np
 from crane_io import session_format as sf
 from crane_io.description import ArmDescription
 from crane_io.errors import ConfigError, CraneError, SessionFileError
+from crane_io.toml_config import check_seed, expect
 
 from .arm_pair import ARMS
 from .config import Config
@@ -63,6 +64,14 @@ def check_options(opts: RunOptions, period_s: float) -> None:
         raise ConfigError("`task` only applies to `sim` (it sets what the simulated operator does)")
     if opts.hand_on not in ARMS:
         raise ConfigError(f"the operator's hand is on the leader or the follower, not {opts.hand_on!r}")
+    check_seed(opts.seed)
+    expect(isinstance(opts.view_every, int) and opts.view_every >= 1, "`view_every`",
+           "an integer of at least 1", opts.view_every)
+    if not opts.calibrate:
+        named = [n for n in ("leader_calibration", "follower_calibration") if getattr(opts, n) is not None]
+        if named:
+            raise ConfigError(f"`{named[0]}` names a calibration file but `no_calibration` asks for none; "
+                              "give one or the other")
 
 
 def check_ports(sim: bool, leader_port: str | None, follower_port: str | None) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import importlib
 import importlib.util
+import math
 import os
 import re
 import sys
@@ -12,6 +13,7 @@ import sys
 import click
 
 from crane_io.errors import CraneError
+from crane_io.toml_config import SEED_MAX
 
 
 def one_blas_thread() -> None:
@@ -85,3 +87,94 @@ def cli_errors(func):
             sys.exit(exc.exit_code)
 
     return wrapper
+
+
+def shown(value) -> str:
+    """`value` as text safe to print on a terminal: control characters (escape codes, newlines) are shown
+    as Python escapes (\\x1b, \\n), everything else as it is."""
+    text = str(value)
+    if all(c.isprintable() for c in text):
+        return text
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
+class OptionValueError(click.BadParameter):
+    """A bad option value, said in one line ("Error: --rate must be between 100 and 2000 Hz, got 50")
+    without click's usage lines; exit 2."""
+
+    def show(self, file=None) -> None:
+        click.echo(f"Error: {self.message}", file=file, err=file is None)
+
+
+def _flag(param) -> str:
+    if param is None:
+        return "the value"
+    opts = [o for o in getattr(param, "opts", ()) if o.startswith("--")] or list(getattr(param, "opts", ()))
+    return max(opts, key=len) if opts else (param.name or "the value").upper()
+
+
+class Number(click.ParamType):
+    """A finite number (`kind` float or int) within a documented range, for every numeric option of both
+    command lines: NaN, infinities and out-of-range values are one sentence naming the option and its
+    range, exit 2.
+
+        type=Number(float, 100, 2000, unit="Hz")      # --rate must be between 100 and 2000 Hz, got 50
+        type=Number(float, 0, low_open=True, what="a positive number of seconds")
+        type=Number(int, 0, 2**32 - 1)                 # a seed
+    """
+
+    def __init__(self, kind=float, low=None, high=None, *, unit: str = "", low_open: bool = False,
+                 what: str | None = None):
+        self.kind, self.low, self.high, self.unit, self.low_open = kind, low, high, unit, low_open
+        self.name = "integer" if kind is int else "number"
+        self.what = what or self.describe()
+
+    def describe(self) -> str:
+        unit = f" {self.unit}" if self.unit else ""
+        low, high = (None if v is None else f"{v:g}" if isinstance(v, float) else str(v)
+                     for v in (self.low, self.high))
+        a = "an integer" if self.kind is int else "a number"
+        if low is not None and high is not None:
+            return (a + " " if self.kind is int else "") + f"between {low} and {high}{unit}"
+        if low is not None:
+            return f"{a} {'greater than' if self.low_open else 'of at least'} {low}{unit}"
+        if high is not None:
+            return f"{a} of at most {high}{unit}"
+        return "an integer" if self.kind is int else "a finite number"
+
+    def convert(self, value, param, ctx):
+        try:
+            if isinstance(value, bool):
+                raise ValueError
+            number = self.kind(value if isinstance(value, (int, float)) else str(value).strip())
+        except (TypeError, ValueError, OverflowError):
+            number = None
+        ok = number is not None and math.isfinite(number)
+        if ok and self.low is not None:
+            ok = number > self.low if self.low_open else number >= self.low
+        if ok and self.high is not None:
+            ok = number <= self.high
+        if not ok:
+            raise OptionValueError(f"{_flag(param)} must be {self.what}, got {shown(value)}", ctx, param)
+        return number
+
+
+SEED = Number(int, 0, SEED_MAX)  # every --seed
+
+
+class Checked(click.ParamType):
+    """An option checked by a library function, named "module:function" (imported when the option is
+    used, so --help stays fast): it returns the value to use or raises CraneError, whose sentence becomes
+    the option's one-line error (its backquoted parameter name shown as the flag), exit 2."""
+
+    name = "text"
+
+    def __init__(self, check: str):
+        self.check = check
+
+    def convert(self, value, param, ctx):
+        module, _, attr = self.check.partition(":")
+        try:
+            return getattr(importlib.import_module(module), attr)(value)
+        except CraneError as exc:
+            raise OptionValueError(with_flags(str(exc), command_flags(ctx)), ctx, param) from None

@@ -77,6 +77,16 @@ def is_number(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
+SEED_MAX = 2**32 - 1  # seeds are 0 .. 2**32 - 1: what every random generator of the toolkit takes
+
+
+def check_seed(seed, subject: str = "`seed`") -> int:
+    """`seed` as an int if it is an integer in 0 .. SEED_MAX, else ConfigError naming `subject`."""
+    expect(isinstance(seed, int) and not isinstance(seed, bool) and 0 <= seed <= SEED_MAX, subject,
+           f"an integer between 0 and {SEED_MAX}", seed)
+    return int(seed)
+
+
 def check_keys(table: dict, known, where: str, prefix: str = "") -> None:
     """ConfigError for the first key of `table` (in sorted order) that is not in `known`: "unknown key
     '<prefix><key>' in <where>", the closest known key when one is close, and the known keys."""

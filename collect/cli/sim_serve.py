@@ -16,8 +16,10 @@ import threading
 
 import click
 
-from crane_io.cli_support import cli_errors, plant_presets
+from crane_io.cli_support import SEED, Number, cli_errors, plant_presets
 from crane_io.errors import ConfigError, HardwareError
+
+from ..config import MAX_RATE_HZ, MIN_RATE_HZ
 
 
 def status_line(chain) -> str:
@@ -66,7 +68,8 @@ def slip_summary(chain) -> str:
 @click.option("--task", type=click.Choice(["free", "contact"]), default=None,
               help="With --pair: the hand's task (default: the --config file's [operator] task, 'free'); "
                    "'contact' presses the follower against its plant's objects (e.g. --plant contact-wall).")
-@click.option("--hand-delay", "hand_delay_s", type=click.FloatRange(0, 60), default=1.0, show_default=True,
+@click.option("--hand-delay", "hand_delay_s", type=Number(float, 0, 60, unit="s"), default=1.0,
+              show_default=True,
               metavar="S", help="With --pair: seconds of the arm's time between its bilateral joints coming "
                                 "alive (torque on, current mode) and the hand taking hold.")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None, metavar="TOML",
@@ -90,13 +93,14 @@ def slip_summary(chain) -> str:
                    "Current sync write: the arms wait for the controller, so a busy machine slows the run "
                    "instead of letting the arms fall between late commands. Default: wall for one arm, "
                    "lockstep for --pair.")
-@click.option("--period", "period_s", type=float, default=0.002, show_default=True,
-              help="Lockstep control period in seconds.")
-@click.option("--seed", type=int, default=0, show_default=True,
+@click.option("--period", "period_s", type=Number(float, 1 / MAX_RATE_HZ, 1 / MIN_RATE_HZ, unit="s"),
+              default=0.002, show_default=True,
+              help="Lockstep control period in seconds, 0.0005..0.01 (the rates `crane-collect run` takes).")
+@click.option("--seed", type=SEED, default=0, show_default=True,
               help="Seed of the plant's sensor noise (--pair: leader 2 SEED, follower 2 SEED + 1, the hand "
                    "SEED).")
 @click.option("--no-fast-sync-read", is_flag=True, help="Servos ignore Fast Sync Read (old firmware).")
-@click.option("--return-delay", type=click.IntRange(0, 254), default=None,
+@click.option("--return-delay", type=Number(int, 0, 254), default=None,
               help="Return Delay Time register of every servo (2 us/LSB). Default: factory 250.")
 @click.option("--truth", "truth", type=click.Path(dir_okay=False), default=None, metavar="JSON",
               help="Also write the arm plant's hidden truth (effects, parameters, seed; --pair: the "

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import click
 
+from crane_io.cli_support import Number
 from crane_io.errors import ConfigError
 
 
@@ -19,7 +20,7 @@ def data_options(func):
                              "instead of stopping with an error.")(func)
     func = click.option("--zero-phase", is_flag=True,
                         help="Filter forward and backward (no delay), not the paper's causal filters.")(func)
-    func = click.option("--alpha", default=None, type=float,
+    func = click.option("--alpha", default=None, type=Number(float, 0),
                         help="Dead-zone threshold: a joint moves when |dq| > alpha * std(dq) [0.1].")(func)
     func = click.option("--joints", default=None,
                         help="Comma-separated learning joints, or 'all' (every arm joint the sessions "

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import click
 
-from crane_io.cli_support import cli_errors
+from crane_io.cli_support import SEED, cli_errors
 
 
 @click.command()
@@ -19,7 +19,7 @@ from crane_io.cli_support import cli_errors
 @click.option("--discover", is_flag=True,
               help="Add the terms discovery finds in the residual (crane-train diagnose --discover), each "
                    "plotted against it.")
-@click.option("--seed", type=int, default=None,
+@click.option("--seed", type=SEED, default=None,
               help="Split seed (default: the one the model was trained with).")
 @cli_errors
 def report(model_dir, sessions, output, diagnosis, discover, seed):
