@@ -115,10 +115,11 @@ def check_output(output: Path, force: bool) -> None:
 
 
 def open_buses(arm: ArmDescription, config: Config, ports: dict, out, *, simulated: bool = False,
-               checkpoint=None) -> tuple[dict, dict]:
+               checkpoint=None, torque_going_on=None) -> tuple[dict, dict]:
     """Both buses open, every servo checked and configured, torque on: (buses, {"infos", "warnings"}).
     `simulated`: the ports are dxlsim:// arms (no latency timers to check). `checkpoint()` is called
-    between the steps (it raises to abandon the start-up: a stop request)."""
+    between the steps (it raises to abandon the start-up: a stop request); `torque_going_on()` right
+    before the first servo's torque is switched on."""
     checkpoint = checkpoint or (lambda: None)
     from crane_io.dynamixel.bus import DynamixelBus
     from crane_io.dynamixel.ports import port_warnings
@@ -143,6 +144,8 @@ def open_buses(arm: ArmDescription, config: Config, ports: dict, out, *, simulat
             checkpoint()
             buses[name].configure(watchdog_s=config.safety.watchdog_s)
         checkpoint()
+        if torque_going_on is not None:
+            torque_going_on()
         for name in ARMS:
             buses[name].torque_on()
     except BaseException:

@@ -26,11 +26,61 @@ def one_blas_thread() -> None:
 
 class LazyGroup(click.Group):
     """A click group whose subcommands live in their own modules and are imported only when used,
-    so `--help` and every command start fast. `commands` maps a command name to (module, attribute)."""
+    so `--help` and every command start fast. `commands` maps a command name to (module, attribute).
 
-    def __init__(self, *args, commands: dict[str, tuple[str, str]], **kwargs):
+    A stop signal that ends a command by raising (Ctrl+C: KeyboardInterrupt; crane_io.shutdown's
+    Terminated) is one line on stderr, "<prog>: interrupted while <what the program was doing>[; <note>]"
+    (crane_io.shutdown.set_activity says what), and the exit status 128 + the signal number (130 for
+    Ctrl+C), instead of click's "Aborted!" and 1. `interrupt_note`: what the line adds ("no torque was
+    on"). `prompt_exit`: the commands whose start-up ends within a moment of a stop signal even inside C
+    code (crane_io.shutdown.arm_prompt_exit, until the command disarms it, e.g. before torque goes on)."""
+
+    def __init__(self, *args, commands: dict[str, tuple[str, str]], interrupt_note: str | None = None,
+                 prompt_exit: tuple[str, ...] = (), **kwargs):
         super().__init__(*args, **kwargs)
         self.lazy_commands = dict(commands)
+        self.interrupt_note = interrupt_note
+        self.prompt_exit = tuple(prompt_exit)
+
+    def invoke(self, ctx):
+        from crane_io import shutdown
+
+        try:
+            return super().invoke(ctx)
+        except KeyboardInterrupt as exc:
+            shutdown.disarm_prompt_exit()
+            _ignore_further_stop_signals()
+            line, code = shutdown.interrupted_line(exc, self.interrupt_note)
+            try:
+                sys.stderr.write(f"\n{ctx.find_root().info_name}: {line}\n")
+                sys.stderr.flush()
+                sys.stdout.flush()
+            except (OSError, ValueError):
+                pass
+            if ctx.invoked_subcommand in self.prompt_exit:
+                # everything was closed on the way here; the interpreter's own teardown (numba, LLVM)
+                # can take a second on a busy machine, and the person asked to stop now
+                os._exit(code)
+            sys.exit(code)
+        finally:
+            shutdown.disarm_prompt_exit()
+
+    def main(self, *args, **kwargs):
+        from crane_io.shutdown import restore_interrupt, set_activity
+
+        restore_interrupt()
+        if self.prompt_exit:
+            set_activity("starting up")
+        return super().main(*args, **kwargs)
+
+    def resolve_command(self, ctx, args):
+        name, cmd, rest = super().resolve_command(ctx, args)
+        if name in self.prompt_exit:
+            from crane_io.shutdown import arm_prompt_exit, set_activity
+
+            set_activity("loading the toolkit's modules")
+            arm_prompt_exit(ctx.find_root().info_name, self.interrupt_note)
+        return name, cmd, rest
 
     def list_commands(self, ctx):
         return sorted(n for n, (mod, _) in self.lazy_commands.items() if importlib.util.find_spec(mod))
@@ -40,6 +90,17 @@ class LazyGroup(click.Group):
             return None
         module, attr = self.lazy_commands[name]
         return getattr(importlib.import_module(module), attr)
+
+
+def _ignore_further_stop_signals() -> None:
+    """While the program says why it ends: a second Ctrl+C must not print a traceback over it."""
+    import signal
+    import threading
+
+    if threading.current_thread() is threading.main_thread():
+        for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+            if hasattr(signal, name):
+                signal.signal(getattr(signal, name), signal.SIG_IGN)
 
 
 def plant_presets() -> list[str]:

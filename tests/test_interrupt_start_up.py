@@ -1,0 +1,56 @@
+"""Ctrl+C during start-up (imports, the simulated arms' kernels being compiled, before any torque is on)
+ends `crane-collect run` at once with one line saying what it interrupted and exit 130; `crane-train`
+ends with one line and 130 too. The latencies are printed (pytest -s), never asserted beyond a generous
+bound: the machine may be busy."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+BIN = Path(sys.executable).parent
+
+
+def _interrupt(args, delay, env=None, bound_s=20.0):
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    time.sleep(delay)
+    t0 = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    try:
+        out, err = proc.communicate(timeout=bound_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        pytest.fail(f"still running {bound_s} s after Ctrl+C (sent {delay} s after the start)")
+    latency = time.monotonic() - t0
+    print(f"{Path(args[0]).name}: Ctrl+C {delay} s after the start, ended {latency:.2f} s later")
+    return proc.returncode, err.decode(), out.decode()
+
+
+@pytest.mark.parametrize("delay", [0.8, 1.6, 2.4])
+def test_ctrl_c_while_the_kernels_compile_ends_the_run_with_one_line(tmp_path, delay):
+    # a numba cache of its own, empty: the kernels are compiled from scratch, which takes many seconds,
+    # so the signal surely lands before torque could be on
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    code, err, out = _interrupt([str(BIN / "crane-collect"), "run", "--sim", "--duration", "5",
+                                 "-o", str(tmp_path / "s.h5")], delay, env)
+    assert code == 130, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("crane-collect: interrupted while ")
+    assert lines[0].endswith("; no torque was on")
+    assert "Traceback" not in err and out == ""
+    assert not (tmp_path / "s.h5").exists()
+
+
+def test_ctrl_c_in_crane_train_is_one_line_and_130(tmp_path):
+    session = tmp_path / "s.h5"
+    session.write_bytes(b"")  # never read: the signal comes while the command starts
+    code, err, _ = _interrupt([str(BIN / "crane-train"), "fit", str(session), "--model", "mlp-masked",
+                               "-o", str(tmp_path / "m")], 0.8)
+    assert (code, err.strip()) == (130, "crane-train: interrupted") or code == 2, err
+    assert "Traceback" not in err
