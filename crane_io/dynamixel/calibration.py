@@ -38,7 +38,7 @@ import numpy as np
 
 from crane_io.description import default_arm
 from crane_io.errors import ConfigError
-from crane_io.toml_config import dump_toml, is_number, read_toml
+from crane_io.toml_config import check_keys, dump_toml, is_number, read_toml
 
 CONFIG_ENV = "CRANE_X7_CONFIG_DIR"
 MAX_OFFSET_RAD = math.radians(20.0)  # more than this at a mark: the joint was not at its mark
@@ -127,10 +127,15 @@ def _read_text(path: Path) -> str:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
     except OSError as exc:
         raise CalibrationError(f"cannot read the calibration {path}: {exc.strerror or exc}") from None
-    with os.fdopen(fd, "rb") as f:
+    try:
         if not stat.S_ISREG(os.fstat(fd).st_mode):
-            raise CalibrationError(f"cannot read the calibration {path}: it is not a regular file")
-        data = f.read(MAX_FILE_BYTES + 1)
+            what = "a folder" if path.is_dir() else "not a regular file"
+            raise CalibrationError(f"cannot read the calibration {path}: it is {what}")
+        data = os.read(fd, MAX_FILE_BYTES + 1)
+    except OSError as exc:
+        raise CalibrationError(f"cannot read the calibration {path}: {exc.strerror or exc}") from None
+    finally:
+        os.close(fd)
     if len(data) > MAX_FILE_BYTES:
         raise CalibrationError(f"cannot read the calibration {path}: larger than {MAX_FILE_BYTES} bytes, "
                                "not a calibration")
@@ -165,6 +170,10 @@ def load_calibration(path: str | os.PathLike) -> Calibration:
         data = read_toml(text=_read_text(path), what="the calibration", where=str(path))
     except CalibrationError:
         raise
+    except ConfigError as exc:
+        raise CalibrationError(str(exc)) from None
+    try:
+        check_keys(data, ("arm", "joints"), f"the calibration {path}")
     except ConfigError as exc:
         raise CalibrationError(str(exc)) from None
     table = data.get("joints")

@@ -155,16 +155,17 @@ def _read_entry(path: Path) -> tuple[bool, SimLink | None]:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0))
     except OSError:
         return False, None
-    with os.fdopen(fd, "rb") as f:
+    try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
             return False, None
         if st.st_size > MAX_ENTRY_BYTES:
             return True, None
-        try:
-            return True, parse_entry(json.loads(f.read(MAX_ENTRY_BYTES)))
-        except (OSError, ValueError, RecursionError):
-            return True, None
+        return True, parse_entry(json.loads(os.read(fd, MAX_ENTRY_BYTES)))
+    except (OSError, ValueError, RecursionError):
+        return True, None
+    finally:
+        os.close(fd)
 
 
 def live_links(*, clean: bool = True) -> list[SimLink]:
