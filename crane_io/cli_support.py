@@ -136,7 +136,7 @@ def with_flags(message: str, flags: dict[str, str]) -> str:
 
 def cli_errors(func):
     """Decorator for click commands: CraneError -> 'Error: <sentence>' on stderr and its exit code, the
-    options the sentence names (`name`) shown as this command's flags."""
+    options the sentence names (`name`) shown as this command's flags, control characters escaped."""
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
@@ -144,7 +144,7 @@ def cli_errors(func):
             return func(*args, **kwargs)
         except CraneError as exc:
             message = with_flags(str(exc), command_flags(click.get_current_context(silent=True)))
-            click.echo(f"Error: {message}", err=True)
+            click.echo(f"Error: {shown(message)}", err=True)  # a name with escape codes stays one line
             sys.exit(exc.exit_code)
 
     return wrapper
@@ -221,21 +221,3 @@ class Number(click.ParamType):
 
 
 SEED = Number(int, 0, SEED_MAX)  # every --seed
-
-
-class Checked(click.ParamType):
-    """An option checked by a library function, named "module:function" (imported when the option is
-    used, so --help stays fast): it returns the value to use or raises CraneError, whose sentence becomes
-    the option's one-line error (its backquoted parameter name shown as the flag), exit 2."""
-
-    name = "text"
-
-    def __init__(self, check: str):
-        self.check = check
-
-    def convert(self, value, param, ctx):
-        module, _, attr = self.check.partition(":")
-        try:
-            return getattr(importlib.import_module(module), attr)(value)
-        except CraneError as exc:
-            raise OptionValueError(with_flags(str(exc), command_flags(ctx)), ctx, param) from None

@@ -296,3 +296,10 @@ def test_damaged_train_configurations_are_one_sentence(tmp_path, data):
     path.write_bytes(data)
     _loads_or_one_sentence(load_train_config, path, data)
 
+
+
+def test_an_error_naming_a_file_with_escape_codes_prints_them_escaped(tmp_path):
+    r = CliRunner().invoke(collect_main, ["run", "--sim", "--plant", "simple", "--duration", "1",
+                                          "-o", str(tmp_path / "s.h5"), "--config", "\x1b[2J\nc.toml"])
+    _one_line(r, "\\x1b[2J\\nc.toml does not exist")
+    assert "\x1b" not in r.output
