@@ -51,10 +51,11 @@ class LazyGroup(click.Group):
             shutdown.disarm_prompt_exit()
             _ignore_further_stop_signals()
             line, code = shutdown.interrupted_line(exc, self.interrupt_note)
-            try:
-                sys.stderr.write(f"\n{ctx.find_root().info_name}: {line}\n")
-                sys.stderr.flush()
+            try:  # on a terminal on a line of its own (after the echoed ^C); in a pipe exactly one line
                 sys.stdout.flush()
+                tty = sys.stderr.isatty()
+                sys.stderr.write(f"{chr(10) if tty else ''}{ctx.find_root().info_name}: {line}\n")
+                sys.stderr.flush()
             except (OSError, ValueError):
                 pass
             if ctx.invoked_subcommand in self.prompt_exit:

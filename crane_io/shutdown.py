@@ -120,9 +120,11 @@ class StopRequest:
 
 
 def _write_stderr(text: str) -> None:
-    # os.write, not print: a signal handler may run while the main thread is inside print() itself
+    # os.write, not print: a signal handler may run while the main thread is inside print() itself. On a
+    # terminal the line starts on a line of its own (after the echoed ^C or a status line); in a pipe or a
+    # log it is exactly one line.
     try:
-        os.write(2, ("\n" + text + "\n").encode())
+        os.write(2, (("\n" if os.isatty(2) else "") + text + "\n").encode())
     except OSError:
         pass
 
