@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
+import operator
 import sys
 import types
 import typing
@@ -81,10 +82,15 @@ SEED_MAX = 2**32 - 1  # seeds are 0 .. 2**32 - 1: what every random generator of
 
 
 def check_seed(seed, subject: str = "`seed`") -> int:
-    """`seed` as an int if it is an integer in 0 .. SEED_MAX, else ConfigError naming `subject`."""
-    expect(isinstance(seed, int) and not isinstance(seed, bool) and 0 <= seed <= SEED_MAX, subject,
-           f"an integer between 0 and {SEED_MAX}", seed)
-    return int(seed)
+    """`seed` as an int if it is an integer (numpy's too, not a bool) in 0 .. SEED_MAX, else ConfigError
+    naming `subject`."""
+    try:
+        value = None if isinstance(seed, bool) else operator.index(seed)
+    except TypeError:
+        value = None
+    expect(value is not None and 0 <= value <= SEED_MAX, subject, f"an integer between 0 and {SEED_MAX}",
+           seed)
+    return value
 
 
 def check_keys(table: dict, known, where: str, prefix: str = "") -> None:

@@ -303,3 +303,13 @@ def test_an_error_naming_a_file_with_escape_codes_prints_them_escaped(tmp_path):
                                           "-o", str(tmp_path / "s.h5"), "--config", "\x1b[2J\nc.toml"])
     _one_line(r, "\\x1b[2J\\nc.toml does not exist")
     assert "\x1b" not in r.output
+
+
+def test_a_run_with_a_seed_out_of_range_is_refused_before_any_file_from_python_too(tmp_path):
+    from collect.runner import RunOptions, run_session
+
+    for seed in (-1, 2**64, 1.5):
+        with pytest.raises(ConfigError, match="`seed` must be an integer between 0 and 4294967295"):
+            run_session(RunOptions(output=tmp_path / "s.h5", sim=True, plant="simple", duration=0.1,
+                                   seed=seed, status=False))
+        assert os.listdir(tmp_path) == []

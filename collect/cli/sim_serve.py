@@ -160,10 +160,15 @@ def _write_truth(plant, truth_path) -> None:
 def _announce(server, arm: str, plant: str, clock: str, hand: bool):
     import os
 
-    from crane_io.dynamixel.link_registry import SimLink, announce
+    from crane_io.cli_support import shown
+    from crane_io.dynamixel.link_registry import SimLink, announce, registry_problem
 
-    return announce(SimLink(link=os.path.abspath(server.link), pty=server.slave_path, arm=arm, plant=plant,
-                            clock=clock, hand=hand, pid=os.getpid()))
+    entry = announce(SimLink(link=os.path.abspath(server.link), pty=server.slave_path, arm=arm, plant=plant,
+                             clock=clock, hand=hand, pid=os.getpid()))
+    problem = registry_problem() if entry is None else None
+    if problem is not None:  # serving goes on; `crane-collect ports` will not list the link
+        click.echo(f"Warning: {shown(problem)}; the link is not announced", err=True)
+    return entry
 
 
 def _wait(stop: threading.Event, errors, status) -> None:
