@@ -313,3 +313,18 @@ def test_a_run_with_a_seed_out_of_range_is_refused_before_any_file_from_python_t
             run_session(RunOptions(output=tmp_path / "s.h5", sim=True, plant="simple", duration=0.1,
                                    seed=seed, status=False))
         assert os.listdir(tmp_path) == []
+
+
+def test_effect_shapes_and_sweep_sizes_are_finite_and_bounded():
+    from train.cli.options import parse_sizes
+    from train.settings import parse_effect
+
+    assert parse_effect("stribeck:joint=joint2,stribeck_velocity=0.05")[2] == {"stribeck_velocity": 0.05}
+    for value in ("nan", "inf", "x"):
+        bad = f"stribeck:stribeck_velocity={value}"
+        with pytest.raises(ConfigError, match="must be a finite number"):
+            parse_effect(bad)
+    assert parse_sizes("300:900:300") == [300, 600, 900]
+    for bad in ("1:100000000000:1", "1:5000:1", "1,2,1000000000", "0:10:1"):
+        with pytest.raises(ConfigError, match="is not START:STOP:STEP"):
+            parse_sizes(bad)

@@ -5,6 +5,7 @@ both call these; nothing here knows a command-line flag."""
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -122,8 +123,10 @@ def parse_effect(text: str) -> tuple[str, str | None, dict | None]:
             try:
                 shape[key.strip()] = float(value)
             except ValueError:
-                raise ConfigError(f"`effects` {text!r}: {key.strip()} must be a number, "
-                                  f"got {value!r}") from None
+                shape[key.strip()] = math.nan
+            if not math.isfinite(shape[key.strip()]):
+                raise ConfigError(f"`effects` {text!r}: {key.strip()} must be a finite number, "
+                                  f"got {value!r}")
     return name, joint, shape or None
 
 
