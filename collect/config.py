@@ -358,6 +358,9 @@ def _build(values: dict, where: str) -> Config:
         start={k: _angle(where, f"operator.start_deg.{k}", k, v) for k, v in o["start_deg"].items()},
         **_operator_task(o, where),
     )
+    slowest = min(vel.values(), default=math.inf)
+    _need(safety.homing_speed <= slowest, where, "safety.homing_speed",
+          f"at most the smallest safety.velocity_limit ({slowest:g} rad/s)", safety.homing_speed)
     _need(operator.min_move_s <= operator.max_move_s, where, "operator.min_move_s",
           "at most operator.max_move_s", operator.min_move_s)
 

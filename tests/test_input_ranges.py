@@ -126,6 +126,7 @@ def test_the_dither_frequency_is_checked_only_with_the_dither_on(tmp_path):
     ("[operator.start_deg]\njoint2 = -100.0\n", "'operator.start_deg.joint2'"),
     ("[loop]\nspin_s = 1.0\n", "c.toml must be at most one control period"),
     ("[loop]\nstatus_hz = 1e9\n", "'loop.status_hz'"),
+    ("[safety]\nhoming_speed = 1e6\n", "at most the smallest safety.velocity_limit (2 rad/s)"),
 ])
 def test_configuration_numbers_outside_their_ranges_are_refused(tmp_path, text, words):
     p = tmp_path / "c.toml"
