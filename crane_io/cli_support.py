@@ -58,7 +58,7 @@ class LazyGroup(click.Group):
                 sys.stderr.flush()
             except (OSError, ValueError):
                 pass
-            if ctx.invoked_subcommand in self.prompt_exit:
+            if ctx.invoked_subcommand in self.prompt_exit and shutdown.is_program(ctx.find_root().info_name):
                 # everything was closed on the way here; the interpreter's own teardown (numba, LLVM)
                 # can take a second on a busy machine, and the person asked to stop now
                 os._exit(code)

@@ -154,11 +154,16 @@ def interrupt_until_main(prog: str, note: str | None = None) -> None:
         _write_stderr(f"{prog}: {interrupted_line(KeyboardInterrupt(), note)[0]}")
         os._exit(128 + signum)
 
-    if os.path.basename(sys.argv[0] if sys.argv else "") != prog:
+    if not is_program(prog):
         return
     if threading.current_thread() is threading.main_thread() and \
             signal.getsignal(signal.SIGINT) is signal.default_int_handler:
         signal.signal(signal.SIGINT, handler)
+
+
+def is_program(prog: str) -> bool:
+    """This process is the command `prog` itself (its entry script), not one that imported it (a test)."""
+    return os.path.basename(sys.argv[0] if sys.argv else "") == prog
 
 
 def restore_interrupt() -> None:
@@ -282,9 +287,10 @@ def _stop_numbers() -> set[int]:
 def arm_prompt_exit(prog: str, note: str | None = None, grace_s: float = 0.5) -> bool:
     """Until `disarm_prompt_exit()`, a stop signal not taken by the main thread within `grace_s` ends the
     program from a watcher thread (see above), printing "<prog>: interrupted while ...[; note]". For a
-    command line's start-up only (nothing to clean up yet). False (nothing armed) outside the main thread
-    or where no wakeup descriptor can be set."""
-    if threading.current_thread() is not threading.main_thread():
+    command line's start-up only (nothing to clean up yet). False (nothing armed) outside the main thread,
+    in a process that is not the program `prog` itself (a test invoking the command line), or where no
+    wakeup descriptor can be set."""
+    if threading.current_thread() is not threading.main_thread() or not is_program(prog):
         return False
     with _prompt_lock:
         if _prompt["fd"] is None:

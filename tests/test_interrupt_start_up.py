@@ -54,3 +54,34 @@ def test_ctrl_c_in_crane_train_is_one_line_and_130(tmp_path):
                                "-o", str(tmp_path / "m")], 0.8)
     assert (code, err) == (130, "crane-train: interrupted\n") or code == 2, err
     assert "Traceback" not in err
+
+
+SWALLOWING = """
+import sys, time
+sys.argv[0] = "crane-collect"
+from crane_io import shutdown
+shutdown.set_activity("compiling the control kernels")
+assert shutdown.arm_prompt_exit("crane-collect", "no torque was on")
+print("armed", flush=True)
+while True:  # a start-up step that swallows every exception, as a broad except in a library would
+    try:
+        time.sleep(0.01)
+    except BaseException:
+        pass
+"""
+
+
+def test_a_swallowed_ctrl_c_still_ends_the_start_up_from_the_watcher():
+    proc = subprocess.Popen([sys.executable, "-c", SWALLOWING], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    assert proc.stdout.readline() == "armed\n"
+    t0 = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    try:
+        _, err = proc.communicate(timeout=20)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        pytest.fail("the watcher did not end the program")
+    print(f"swallowed Ctrl+C: ended {time.monotonic() - t0:.2f} s later")
+    assert proc.returncode == 130
+    assert err == "crane-collect: interrupted while compiling the control kernels; no torque was on\n"
