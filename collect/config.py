@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
+from crane_io.description import default_arm
 from crane_io.errors import ConfigError
 from crane_io.toml_config import dump_toml, expect, merge_defaults, read_toml
 
@@ -35,6 +36,9 @@ MODEL_FILTERS = ("training", "observer")  # controller.model_filters (docs/colle
 # the friction dither needs at least this many control cycles per period (4: a square wave's two levels
 # are each held for two cycles; a sine is sampled at its peaks and zero crossings)
 DITHER_MIN_CYCLES = 4
+MAX_STATUS_HZ = 50.0  # the live status line is for a person: faster refreshes only cost the loop time
+# joint -> (lower, upper) rad: [held] and [operator.start_deg] angles must lie within them
+_JOINT_LIMITS = {j.name: (j.lower, j.upper) for j in default_arm().joints}
 
 
 @dataclass(frozen=True)
@@ -184,7 +188,9 @@ def parse_joints(spec: str | list | tuple, where: str = "`joints`") -> tuple[str
     if isinstance(spec, str):
         text = spec.strip()
         names = [n.strip() for n in text.split(",")] if text else []
-        names = [m for n in names if n for m in (ARM_JOINTS if n.lower() == "all" else (n,))]
+        if "" in names:
+            raise ConfigError(f"{where} {spec!r} has an empty item; separate joint names by single commas")
+        names = [m for n in names for m in (ARM_JOINTS if n.lower() == "all" else (n,))]
     elif isinstance(spec, (list, tuple)):
         names = [m for n in spec for m in (ARM_JOINTS if isinstance(n, str) and n.lower() == "all" else (n,))]
     else:
@@ -237,6 +243,14 @@ def _finite(where, key, value):
     return value
 
 
+def _angle(where, key, joint, value_deg) -> float:
+    """A joint angle given in degrees, within the joint's limits (crane_io.description): rad."""
+    lower, upper = _JOINT_LIMITS[joint]
+    _need(math.isfinite(value_deg) and lower <= value_deg * DEG <= upper, where, key,
+          f"an angle within {joint}'s limits, {lower / DEG:g} to {upper / DEG:g} deg", value_deg)
+    return value_deg * DEG
+
+
 def _build(values: dict, where: str) -> Config:
     lp = values["loop"]
     loop = LoopConfig(
@@ -247,6 +261,10 @@ def _build(values: dict, where: str) -> Config:
     )
     _need(MIN_RATE_HZ <= loop.rate_hz <= MAX_RATE_HZ, where, "loop.rate_hz",
           f"between {MIN_RATE_HZ:g} and {MAX_RATE_HZ:g} Hz", loop.rate_hz)
+    _need(loop.spin_s <= loop.period_s, where, "loop.spin_s", f"at most one control period "
+          f"({loop.period_s:g} s)", loop.spin_s)
+    _need(loop.status_hz <= MAX_STATUS_HZ, where, "loop.status_hz", f"at most {MAX_STATUS_HZ:g} Hz",
+          loop.status_hz)
 
     c = values["controller"]
     _need(c["gravity_model"] in GRAVITY_MODELS, where, "controller.gravity_model",
@@ -285,18 +303,18 @@ def _build(values: dict, where: str) -> Config:
           "one of " + ", ".join(MODEL_FILTERS), c["model_filters"])
     _need(c["dither_wave"] in DITHER_WAVES, where, "controller.dither_wave",
           "one of " + ", ".join(DITHER_WAVES), c["dither_wave"])
-    _need(controller.dither_frequency * DITHER_MIN_CYCLES <= loop.rate_hz, where,
-          "controller.dither_frequency", f"at most loop.rate_hz / {DITHER_MIN_CYCLES} "
-          f"({loop.rate_hz / DITHER_MIN_CYCLES:g} Hz)", controller.dither_frequency)
+    # the frequency matters only with the dither on: with it off (the default) every rate 100..2000 Hz runs
+    _need(controller.dither_amplitude == 0 or controller.dither_frequency * DITHER_MIN_CYCLES <= loop.rate_hz,
+          where, "controller.dither_frequency", f"at most loop.rate_hz / {DITHER_MIN_CYCLES} "
+          f"({loop.rate_hz / DITHER_MIN_CYCLES:g} Hz) with the dither on (dither_amplitude > 0)",
+          controller.dither_frequency)
     _need(c["inertia_model"] in INERTIA_MODELS, where, "controller.inertia_model",
           "one of " + ", ".join(INERTIA_MODELS), c["inertia_model"])
     _need(c["inertia_update_cycles"] >= 1, where, "controller.inertia_update_cycles", "at least 1",
           c["inertia_update_cycles"])
 
-    held = {}
-    for key, value in values["held"].items():
-        _need(math.isfinite(value), where, f"held.{key}", "a finite angle", value)
-        held[key[: -len("_deg")]] = value * DEG
+    held = {k[: -len("_deg")]: _angle(where, f"held.{k}", k[: -len("_deg")], v)
+            for k, v in values["held"].items()}
 
     s = values["safety"]
     vel = {}
@@ -337,9 +355,12 @@ def _build(values: dict, where: str) -> Config:
         stiffness=_pos(where, "operator.stiffness", o["stiffness"]),
         damping=_nonneg(where, "operator.damping", o["damping"]),
         max_torque=_pos(where, "operator.max_torque", o["max_torque"]),
-        start={k: _finite(where, f"operator.start_deg.{k}", v) * DEG for k, v in o["start_deg"].items()},
+        start={k: _angle(where, f"operator.start_deg.{k}", k, v) for k, v in o["start_deg"].items()},
         **_operator_task(o, where),
     )
+    slowest = min(vel.values(), default=math.inf)
+    _need(safety.homing_speed <= slowest, where, "safety.homing_speed",
+          f"at most the smallest safety.velocity_limit ({slowest:g} rad/s)", safety.homing_speed)
     _need(operator.min_move_s <= operator.max_move_s, where, "operator.min_move_s",
           "at most operator.max_move_s", operator.min_move_s)
 

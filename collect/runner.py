@@ -45,7 +45,7 @@ import numpy as np
 
 from crane_io import session_format as fmt
 from crane_io.description import ArmDescription, default_arm
-from crane_io.shutdown import StopRequest, handle_termination
+from crane_io.shutdown import StopRequest, disarm_prompt_exit, handle_termination, set_activity
 
 from .alignment import SafetyStop, StartRefused, checked
 from .arm_calibration import calibration_offsets, calibration_sentence, resolve_calibrations
@@ -87,8 +87,10 @@ def run_session(opts: RunOptions) -> RunResult:
         if run.stop is None:  # the signal came while the stop handling was being set up: nothing started
             raise
         # A further signal landed in __exit__ before its clean-up shielded itself: the clean-up starts
-        # again (it runs each step once) and the run's outcome is raised as it would have been.
-        run.__exit__(type(exc), exc, exc.__traceback__)
+        # again (it runs each step once) and the run's outcome is raised as it would have been. Before
+        # any torque was on, the signal itself is raised on: the start-up was cut short.
+        if not run.__exit__(type(exc), exc, exc.__traceback__):
+            raise
     return run.result
 
 
@@ -112,6 +114,7 @@ class BilateralRun:
     def __init__(self, options: RunOptions):
         self.options = opts = options
         self.out = opts.stream if opts.stream is not None else sys.stderr
+        set_activity("loading the configuration")
         config = load_config(opts.config)
         if opts.rate is not None:
             config = config.with_rate(opts.rate)
@@ -139,15 +142,15 @@ class BilateralRun:
         self.result: RunResult | None = None
         self.clean_up_error: Exception | None = None
         self.closed = False
+        self.torque_was_on = False  # set right before the first servo's torque goes on
         self.wall0 = time.perf_counter()
 
     # -- entering and leaving ---------------------------------------------------------------------------
     def __enter__(self) -> BilateralRun:
         try:
+            # Until torque goes on a stop signal raises at once (start-up ends within a moment, whatever
+            # it was doing); from then on the first one is taken at the next checkpoint (_torque_going_on).
             stop = self._signals.enter_context(handle_termination(_STOP_SIGNALS, notice=STOP_NOTICE))
-            # The first stop signal never raises: it is taken at the next checkpoint (between the
-            # start-up's steps, before every read of both arms).
-            self._signals.enter_context(stop.deferred())
         except BaseException:
             self._signals.close()
             raise
@@ -167,6 +170,8 @@ class BilateralRun:
             raise self.clean_up_error
         if self.loop is not None and self.loop.breach is not None:
             raise SafetyStop(f"safety stop: {self.loop.breach.message} (session saved in {self.output})")
+        if not self.torque_was_on:
+            return False  # a stop signal ended the start-up: raised on (the command line says what it cut)
         return True  # a stop signal ended the run: both arms are stopped and the file is closed
 
     def _clean_up(self) -> None:
@@ -189,17 +194,22 @@ class BilateralRun:
         servos' Bus Watchdog."""
         opts, config, arm, stop = self.options, self.config, self.arm, self.stop
         if opts.sim:
+            set_activity("building the simulated arms (loading or compiling their kernels)")
             self.sims = make_sim_arms(opts.plant, opts.seed, config, arm)
             ports = {name: self.sims[name].url for name in ARMS}
         else:
             ports = {"leader": opts.leader_port, "follower": opts.follower_port}
         files = {"leader": opts.leader_calibration, "follower": opts.follower_calibration}
+        set_activity("reading the calibrations")
         self.calibrations = resolve_calibrations(ports, files, lookup=opts.calibrate and not opts.sim)
         stop.check()
         if opts.truth is not None:  # its own file, asked for; before any torque is on
+            set_activity("writing the truth file")
             write_truth(self.sims, opts.truth)
         # learned models in the observers (the dynamics model: ~0.4 s), loaded and checked here
+        set_activity("loading the learned models")
         models = load_reaction_models({"leader": opts.leader_model, "follower": opts.model}, arm)
+        set_activity("compiling the control kernels")
         loop = BilateralLoop(config, arm, self.sims, self.out, stop, models=models, hand_on=opts.hand_on,
                              realtime=opts.realtime, status=opts.status, on_cycle=opts.on_cycle)
         self.loop = loop
@@ -208,10 +218,12 @@ class BilateralRun:
         loop.pair.offsets = calibration_offsets(self.calibrations, arm.joint_names)
         stop.check()
         if loop.paced:  # before any torque is on: freezing the collector and locking memory take ~0.3 s
+            set_activity("entering real-time scheduling")
             loop.realtime = enter_realtime(config.realtime)
             stop.check()
+        set_activity("opening the ports and configuring the servos")
         self.buses, self.hw = open_buses(arm, config, ports, self.out, simulated=opts.sim,
-                                         checkpoint=stop.check)
+                                         checkpoint=stop.check, torque_going_on=self._torque_going_on)
         loop.attach(self.buses)
         if loop.realtime is not None:  # said once the arms answered (a missing port stays one line)
             loop.status.say(loop.realtime.sentence())
@@ -286,6 +298,13 @@ class BilateralRun:
         self.closed = True
 
     # -- helpers ----------------------------------------------------------------------------------------
+    def _torque_going_on(self) -> None:
+        """From the first torque on, a stop is taken between two steps (the safe stop then runs)."""
+        disarm_prompt_exit()  # from here the clean-up must run: no end from outside the main thread
+        self.torque_was_on = True
+        set_activity(None)
+        self._signals.enter_context(self.stop.deferred())
+
     def _reason(self) -> str:
         if self.end_reason is not None:
             return self.end_reason
@@ -307,7 +326,7 @@ class BilateralRun:
         loop, output, out = self.loop, self.output, self.out
         wall = time.perf_counter() - self.wall0
         if loop is None or loop.recorder is None:  # ended before recording started: no session file
-            if loop is not None and end_reason in ("interrupted", "terminated"):
+            if loop is not None and end_reason in ("interrupted", "terminated") and self.torque_was_on:
                 loop.status.say(f"{end_reason} before recording started; no session file was written")
             return RunResult(output, 0, 0.0, wall, end_reason, None, {})
         summary = loop.timer.summary() if loop.timer.t0 is not None else {}

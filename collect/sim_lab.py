@@ -21,6 +21,7 @@ lets go at once; the next engagement starts a new sequence of moves from whereve
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -134,7 +135,10 @@ def parse_offsets(specs, arm: ArmDescription, arms=ARMS) -> dict:
         try:
             rad = float(value)
         except ValueError:
-            raise ConfigError(f"`encoder_offsets` {spec!r}: {value!r} is not a number of radians") from None
+            rad = math.nan
+        if not (math.isfinite(rad) and abs(rad) <= math.pi):
+            raise ConfigError(f"`encoder_offsets` {spec!r}: {value!r} is not a number of radians "
+                              "between -pi and pi")
         out.setdefault(who, np.zeros(len(arm.joint_names)))[arm.joint_names.index(joint)] = rad
     return out
 

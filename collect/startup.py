@@ -22,6 +22,7 @@ import numpy as np
 from crane_io import session_format as sf
 from crane_io.description import ArmDescription
 from crane_io.errors import ConfigError, CraneError, SessionFileError
+from crane_io.toml_config import check_seed, expect
 
 from .arm_pair import ARMS
 from .config import Config
@@ -63,6 +64,14 @@ def check_options(opts: RunOptions, period_s: float) -> None:
         raise ConfigError("`task` only applies to `sim` (it sets what the simulated operator does)")
     if opts.hand_on not in ARMS:
         raise ConfigError(f"the operator's hand is on the leader or the follower, not {opts.hand_on!r}")
+    check_seed(opts.seed)
+    expect(isinstance(opts.view_every, int) and opts.view_every >= 1, "`view_every`",
+           "an integer of at least 1", opts.view_every)
+    if not opts.calibrate:
+        named = [n for n in ("leader_calibration", "follower_calibration") if getattr(opts, n) is not None]
+        if named:
+            raise ConfigError(f"`{named[0]}` names a calibration file but `no_calibration` asks for none; "
+                              "give one or the other")
 
 
 def check_ports(sim: bool, leader_port: str | None, follower_port: str | None) -> None:
@@ -106,10 +115,11 @@ def check_output(output: Path, force: bool) -> None:
 
 
 def open_buses(arm: ArmDescription, config: Config, ports: dict, out, *, simulated: bool = False,
-               checkpoint=None) -> tuple[dict, dict]:
+               checkpoint=None, torque_going_on=None) -> tuple[dict, dict]:
     """Both buses open, every servo checked and configured, torque on: (buses, {"infos", "warnings"}).
     `simulated`: the ports are dxlsim:// arms (no latency timers to check). `checkpoint()` is called
-    between the steps (it raises to abandon the start-up: a stop request)."""
+    between the steps (it raises to abandon the start-up: a stop request); `torque_going_on()` right
+    before the first servo's torque is switched on."""
     checkpoint = checkpoint or (lambda: None)
     from crane_io.dynamixel.bus import DynamixelBus
     from crane_io.dynamixel.ports import port_warnings
@@ -134,6 +144,8 @@ def open_buses(arm: ArmDescription, config: Config, ports: dict, out, *, simulat
             checkpoint()
             buses[name].configure(watchdog_s=config.safety.watchdog_s)
         checkpoint()
+        if torque_going_on is not None:
+            torque_going_on()
         for name in ARMS:
             buses[name].torque_on()
     except BaseException:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import importlib
 import importlib.util
+import math
 import os
 import re
 import sys
@@ -12,6 +13,7 @@ import sys
 import click
 
 from crane_io.errors import CraneError
+from crane_io.toml_config import SEED_MAX
 
 
 def one_blas_thread() -> None:
@@ -24,11 +26,62 @@ def one_blas_thread() -> None:
 
 class LazyGroup(click.Group):
     """A click group whose subcommands live in their own modules and are imported only when used,
-    so `--help` and every command start fast. `commands` maps a command name to (module, attribute)."""
+    so `--help` and every command start fast. `commands` maps a command name to (module, attribute).
 
-    def __init__(self, *args, commands: dict[str, tuple[str, str]], **kwargs):
+    A stop signal that ends a command by raising (Ctrl+C: KeyboardInterrupt; crane_io.shutdown's
+    Terminated) is one line on stderr, "<prog>: interrupted while <what the program was doing>[; <note>]"
+    (crane_io.shutdown.set_activity says what), and the exit status 128 + the signal number (130 for
+    Ctrl+C), instead of click's "Aborted!" and 1. `interrupt_note`: what the line adds ("no torque was
+    on"). `prompt_exit`: the commands whose start-up ends within a moment of a stop signal even inside C
+    code (crane_io.shutdown.arm_prompt_exit, until the command disarms it, e.g. before torque goes on)."""
+
+    def __init__(self, *args, commands: dict[str, tuple[str, str]], interrupt_note: str | None = None,
+                 prompt_exit: tuple[str, ...] = (), **kwargs):
         super().__init__(*args, **kwargs)
         self.lazy_commands = dict(commands)
+        self.interrupt_note = interrupt_note
+        self.prompt_exit = tuple(prompt_exit)
+
+    def invoke(self, ctx):
+        from crane_io import shutdown
+
+        try:
+            return super().invoke(ctx)
+        except KeyboardInterrupt as exc:
+            shutdown.disarm_prompt_exit()
+            _ignore_further_stop_signals()
+            line, code = shutdown.interrupted_line(exc, self.interrupt_note)
+            try:  # on a terminal on a line of its own (after the echoed ^C); in a pipe exactly one line
+                sys.stdout.flush()
+                tty = sys.stderr.isatty()
+                sys.stderr.write(f"{chr(10) if tty else ''}{ctx.find_root().info_name}: {line}\n")
+                sys.stderr.flush()
+            except (OSError, ValueError):
+                pass
+            if ctx.invoked_subcommand in self.prompt_exit and shutdown.is_program(ctx.find_root().info_name):
+                # everything was closed on the way here; the interpreter's own teardown (numba, LLVM)
+                # can take a second on a busy machine, and the person asked to stop now
+                os._exit(code)
+            sys.exit(code)
+        finally:
+            shutdown.disarm_prompt_exit()
+
+    def main(self, *args, **kwargs):
+        from crane_io.shutdown import restore_interrupt, set_activity
+
+        restore_interrupt()
+        if self.prompt_exit:
+            set_activity("starting up")
+        return super().main(*args, **kwargs)
+
+    def resolve_command(self, ctx, args):
+        name, cmd, rest = super().resolve_command(ctx, args)
+        if name in self.prompt_exit:
+            from crane_io.shutdown import arm_prompt_exit, set_activity
+
+            set_activity("loading the toolkit's modules")
+            arm_prompt_exit(ctx.find_root().info_name, self.interrupt_note)
+        return name, cmd, rest
 
     def list_commands(self, ctx):
         return sorted(n for n, (mod, _) in self.lazy_commands.items() if importlib.util.find_spec(mod))
@@ -38,6 +91,17 @@ class LazyGroup(click.Group):
             return None
         module, attr = self.lazy_commands[name]
         return getattr(importlib.import_module(module), attr)
+
+
+def _ignore_further_stop_signals() -> None:
+    """While the program says why it ends: a second Ctrl+C must not print a traceback over it."""
+    import signal
+    import threading
+
+    if threading.current_thread() is threading.main_thread():
+        for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+            if hasattr(signal, name):
+                signal.signal(getattr(signal, name), signal.SIG_IGN)
 
 
 def plant_presets() -> list[str]:
@@ -73,7 +137,7 @@ def with_flags(message: str, flags: dict[str, str]) -> str:
 
 def cli_errors(func):
     """Decorator for click commands: CraneError -> 'Error: <sentence>' on stderr and its exit code, the
-    options the sentence names (`name`) shown as this command's flags."""
+    options the sentence names (`name`) shown as this command's flags, control characters escaped."""
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
@@ -81,7 +145,80 @@ def cli_errors(func):
             return func(*args, **kwargs)
         except CraneError as exc:
             message = with_flags(str(exc), command_flags(click.get_current_context(silent=True)))
-            click.echo(f"Error: {message}", err=True)
+            click.echo(f"Error: {shown(message)}", err=True)  # a name with escape codes stays one line
             sys.exit(exc.exit_code)
 
     return wrapper
+
+
+def shown(value) -> str:
+    """`value` as text safe to print on a terminal: control characters (escape codes, newlines) are shown
+    as Python escapes (\\x1b, \\n), everything else as it is."""
+    text = str(value)
+    if all(c.isprintable() for c in text):
+        return text
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
+class OptionValueError(click.BadParameter):
+    """A bad option value, said in one line ("Error: --rate must be between 100 and 2000 Hz, got 50")
+    without click's usage lines; exit 2."""
+
+    def show(self, file=None) -> None:
+        click.echo(f"Error: {self.message}", file=file, err=file is None)
+
+
+def _flag(param) -> str:
+    if param is None:
+        return "the value"
+    opts = [o for o in getattr(param, "opts", ()) if o.startswith("--")] or list(getattr(param, "opts", ()))
+    return max(opts, key=len) if opts else (param.name or "the value").upper()
+
+
+class Number(click.ParamType):
+    """A finite number (`kind` float or int) within a documented range, for every numeric option of both
+    command lines: NaN, infinities and out-of-range values are one sentence naming the option and its
+    range, exit 2.
+
+        type=Number(float, 100, 2000, unit="Hz")      # --rate must be between 100 and 2000 Hz, got 50
+        type=Number(float, 0, low_open=True, what="a positive number of seconds")
+        type=Number(int, 0, 2**32 - 1)                 # a seed
+    """
+
+    def __init__(self, kind=float, low=None, high=None, *, unit: str = "", low_open: bool = False,
+                 what: str | None = None):
+        self.kind, self.low, self.high, self.unit, self.low_open = kind, low, high, unit, low_open
+        self.name = "integer" if kind is int else "number"
+        self.what = what or self.describe()
+
+    def describe(self) -> str:
+        unit = f" {self.unit}" if self.unit else ""
+        low, high = (None if v is None else f"{v:g}" if isinstance(v, float) else str(v)
+                     for v in (self.low, self.high))
+        a = "an integer" if self.kind is int else "a number"
+        if low is not None and high is not None:
+            return (a + " " if self.kind is int else "") + f"between {low} and {high}{unit}"
+        if low is not None:
+            return f"{a} {'greater than' if self.low_open else 'of at least'} {low}{unit}"
+        if high is not None:
+            return f"{a} of at most {high}{unit}"
+        return "an integer" if self.kind is int else "a finite number"
+
+    def convert(self, value, param, ctx):
+        try:
+            if isinstance(value, bool):
+                raise ValueError
+            number = self.kind(value if isinstance(value, (int, float)) else str(value).strip())
+        except (TypeError, ValueError, OverflowError):
+            number = None
+        ok = number is not None and math.isfinite(number)
+        if ok and self.low is not None:
+            ok = number > self.low if self.low_open else number >= self.low
+        if ok and self.high is not None:
+            ok = number <= self.high
+        if not ok:
+            raise OptionValueError(f"{_flag(param)} must be {self.what}, got {shown(value)}", ctx, param)
+        return number
+
+
+SEED = Number(int, 0, SEED_MAX)  # every --seed

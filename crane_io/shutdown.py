@@ -29,6 +29,7 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
+import sys
 import threading
 
 DEFAULT_NOTICE = "a stop is in progress (goal current 0, torque off, files closed); please wait"
@@ -119,14 +120,68 @@ class StopRequest:
 
 
 def _write_stderr(text: str) -> None:
-    # os.write, not print: a signal handler may run while the main thread is inside print() itself
+    # os.write, not print: a signal handler may run while the main thread is inside print() itself. On a
+    # terminal the line starts on a line of its own (after the echoed ^C or a status line); in a pipe or a
+    # log it is exactly one line.
     try:
-        os.write(2, ("\n" + text + "\n").encode())
+        os.write(2, (("\n" if os.isatty(2) else "") + text + "\n").encode())
     except OSError:
         pass
 
 
 _active: list[StopRequest] = []
+_activity: list[str | None] = [None]
+
+
+def set_activity(phrase: str | None) -> None:
+    """Say what the program is doing now ("compiling the control kernels"), for the line a command prints
+    when a stop signal ends it there (`interrupted_line`); None: nothing worth naming."""
+    _activity[0] = phrase
+
+
+def current_activity() -> str | None:
+    """The phrase of the latest `set_activity`."""
+    return _activity[0]
+
+
+def interrupt_until_main(prog: str, note: str | None = None) -> None:
+    """For a command line's first lines, before its imports: a Ctrl+C ends the program at once with the
+    line of `interrupted_line` ("starting up") and 130, not a traceback from inside an import. The
+    command's group puts Python's own handler back when it starts (`restore_interrupt`). Only in the
+    program `prog` itself (its entry script), never in a process that merely imports the command line."""
+    def handler(signum, frame):
+        set_activity(current_activity() or "starting up")
+        _write_stderr(f"{prog}: {interrupted_line(KeyboardInterrupt(), note)[0]}")
+        os._exit(128 + signum)
+
+    if not is_program(prog):
+        return
+    if threading.current_thread() is threading.main_thread() and \
+            signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        signal.signal(signal.SIGINT, handler)
+
+
+def is_program(prog: str) -> bool:
+    """This process is the command `prog` itself (its entry script), not one that imported it (a test)."""
+    return os.path.basename(sys.argv[0] if sys.argv else "") == prog
+
+
+def restore_interrupt() -> None:
+    """Ctrl+C raises KeyboardInterrupt again (Python's own handler), after `interrupt_until_main`."""
+    if threading.current_thread() is threading.main_thread() and \
+            getattr(signal.getsignal(signal.SIGINT), "__qualname__", "").startswith("interrupt_until_main"):
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def interrupted_line(exc: BaseException, note: str | None = None) -> tuple[str, int]:
+    """(the one line that says what a stop signal interrupted, the exit status 128 + signal number) for a
+    KeyboardInterrupt `exc` (Terminated says which signal; a plain KeyboardInterrupt is SIGINT):
+    "interrupted while compiling the control kernels; no torque was on", 130."""
+    signum = getattr(exc, "signum", None) or signal.SIGINT
+    word = "interrupted" if signum == signal.SIGINT else f"stopped by {signal.Signals(signum).name}"
+    doing = current_activity()
+    line = word + (f" while {doing}" if doing else "") + (f"; {note}" if note else "")
+    return line, 128 + int(signum)
 
 
 def current() -> StopRequest | None:
@@ -159,6 +214,8 @@ def handle_termination(signals=None, *, notice: str | None = DEFAULT_NOTICE):
     signals = _default_signals() if signals is None else tuple(signals)
     previous = {}
     _active.append(req)
+    _previous_unraisable.append(sys.unraisablehook)
+    sys.unraisablehook = _unraisable
     try:
         for sig in signals:
             previous[sig] = signal.signal(sig, req._on_signal)
@@ -167,3 +224,96 @@ def handle_termination(signals=None, *, notice: str | None = DEFAULT_NOTICE):
         for sig, handler in previous.items():
             signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
         _active.remove(req)
+        sys.unraisablehook = _previous_unraisable.pop()
+
+
+# ---- a prompt end for a start-up stuck in C code ------------------------------------------------------
+# Python runs a signal's handler only between two bytecodes of the main thread: inside a long C call (an
+# LLVM compile of a numba kernel, a slow import) a Ctrl+C waits for that call to return, which on a busy
+# machine can be seconds. While armed (a command's start-up, before any torque is on), a watcher thread
+# woken by the signal itself (signal.set_wakeup_fd) ends the program `grace_s` after a stop signal that
+# the main thread has not turned into its exit by then: the same one line, the same exit status.
+
+_prompt: dict = {"armed": False, "prog": "", "note": None, "grace_s": 0.5, "fd": None, "previous": -1}
+_prompt_lock = threading.Lock()
+
+
+def _watch(read_fd: int) -> None:
+    while True:
+        try:
+            data = os.read(read_fd, 64)
+        except InterruptedError:
+            continue
+        except OSError:
+            return
+        stops = [b for b in data if b in _stop_numbers()]
+        if not stops or not _prompt["armed"]:
+            continue
+        threading.Event().wait(_prompt["grace_s"])
+        with _prompt_lock:
+            if _prompt["armed"]:  # else the main thread took it (or torque went on meanwhile)
+                _exit_now(stops[0])
+
+
+def _exit_now(signum: int) -> None:
+    """The armed prompt exit: the line and the exit status, at once."""
+    exc = Terminated(signum) if signum != signal.SIGINT else KeyboardInterrupt()
+    line, code = interrupted_line(exc, _prompt["note"])
+    _write_stderr(f"{_prompt['prog']}: {line}")
+    os._exit(code)
+
+
+def _unraisable(args) -> None:
+    """sys.unraisablehook inside handle_termination(): a stop signal's exception raised where Python can
+    only print it and throw it away (a weakref or garbage-collection callback, a ctypes callback such as
+    numba's compiler calls) is not printed, since the request stays recorded and is taken at the next
+    checkpoint; with the prompt exit armed it ends the program right here. Anything else goes to the
+    previous hook."""
+    req = current()
+    if isinstance(args.exc_value, KeyboardInterrupt) and req is not None and req.requested:
+        if _prompt["armed"]:
+            _exit_now(req.signum)
+        return
+    _previous_unraisable[-1](args)
+
+
+_previous_unraisable: list = []
+
+
+def _stop_numbers() -> set[int]:
+    return {int(getattr(signal, n)) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n)}
+
+
+def arm_prompt_exit(prog: str, note: str | None = None, grace_s: float = 0.5) -> bool:
+    """Until `disarm_prompt_exit()`, a stop signal not taken by the main thread within `grace_s` ends the
+    program from a watcher thread (see above), printing "<prog>: interrupted while ...[; note]". For a
+    command line's start-up only (nothing to clean up yet). False (nothing armed) outside the main thread,
+    in a process that is not the program `prog` itself (a test invoking the command line), or where no
+    wakeup descriptor can be set."""
+    if threading.current_thread() is not threading.main_thread() or not is_program(prog):
+        return False
+    with _prompt_lock:
+        if _prompt["fd"] is None:
+            read_fd, write_fd = os.pipe()
+            os.set_blocking(write_fd, False)
+            _prompt["fd"] = write_fd
+            threading.Thread(target=_watch, args=(read_fd,), name="stop-watcher", daemon=True).start()
+        try:
+            _prompt["previous"] = signal.set_wakeup_fd(_prompt["fd"], warn_on_full_buffer=False)
+        except (ValueError, OSError):
+            return False
+        _prompt.update(armed=True, prog=prog, note=note, grace_s=grace_s)
+    return True
+
+
+def disarm_prompt_exit() -> None:
+    """Stop signals are the main thread's alone again (torque is about to go on, or the command ends)."""
+    with _prompt_lock:
+        if not _prompt["armed"]:
+            return
+        _prompt["armed"] = False
+        if threading.current_thread() is threading.main_thread():
+            try:
+                signal.set_wakeup_fd(_prompt["previous"])
+            except (ValueError, OSError):
+                pass

@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
+import operator
 import sys
 import types
 import typing
@@ -75,6 +76,21 @@ def expect(ok: bool, subject: str, what: str, value) -> None:
 def is_number(value) -> bool:
     """An int or a float (not a bool), finite."""
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+SEED_MAX = 2**32 - 1  # seeds are 0 .. 2**32 - 1: what every random generator of the toolkit takes
+
+
+def check_seed(seed, subject: str = "`seed`") -> int:
+    """`seed` as an int if it is an integer (numpy's too, not a bool) in 0 .. SEED_MAX, else ConfigError
+    naming `subject`."""
+    try:
+        value = None if isinstance(seed, bool) else operator.index(seed)
+    except TypeError:
+        value = None
+    expect(value is not None and 0 <= value <= SEED_MAX, subject, f"an integer between 0 and {SEED_MAX}",
+           seed)
+    return value
 
 
 def check_keys(table: dict, known, where: str, prefix: str = "") -> None:

@@ -5,13 +5,14 @@ both call these; nothing here knows a command-line flag."""
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from crane_io.errors import ConfigError
-from crane_io.toml_config import from_table, read_toml
+from crane_io.toml_config import expect, from_table, read_toml
 
 if TYPE_CHECKING:
     from .data.dataset import Dataset
@@ -44,7 +45,35 @@ def load_config(path: Path | str | None = None) -> dict:
                 raise ConfigError(f"{p}: unknown section [{section}] (known: {', '.join(sections)})")
             data[section] = {**data.get(section, {}), **values}
             out[section] = from_table(sections[section], data[section], str(p), f"[{section}]")
+            _check_ranges(out[section], section, str(p))
     return out
+
+
+# section -> setting -> (lowest, highest, lowest excluded): the documented range of each number
+# (train/config/train.toml); None: no bound on that side. Types and finiteness are from_table's.
+RANGES = {
+    "preprocess": {"cutoff_rad_s": (0, None, True), "pseudo_diff_rad_s": (0, None, True),
+                   "downsample_hz": (0, None, True), "alpha": (0, None, False), "settle_s": (0, None, False),
+                   "split_gap_s": (0, None, True)},
+    "splits": {"n_pool": (1, None, False), "n_val": (1, None, False), "n_test": (1, None, False),
+               "window_s": (0, None, True), "block_s": (0, None, True), "gap_s": (0, None, False)},
+    "mlp": {"hidden": (1, 100_000, False), "lr": (0, 10, True), "epochs": (1, 1_000_000, False),
+            "batch_size": (1, None, False), "eps": (0, 1, True)},
+}
+
+
+def _check_ranges(settings, section: str, where: str) -> None:
+    """ConfigError naming the first setting of `section` outside its range (RANGES)."""
+    for name, (low, high, low_open) in RANGES.get(section, {}).items():
+        value = getattr(settings, name)
+        ok = (value > low if low_open else value >= low) and (high is None or value <= high)
+        if not ok:
+            above = f"greater than {low}" if low_open else f"at least {low}"
+            expect(False, f"{where}: [{section}] {name}", above + (f" and at most {high}" if high else ""),
+                   value)
+    if section == "mlp":
+        betas = settings.betas
+        expect(all(0 <= b < 1 for b in betas), f"{where}: [mlp] betas", "two numbers in [0, 1)", list(betas))
 
 
 def load_dataset(sessions: str | os.PathLike | Sequence[str | os.PathLike],
@@ -94,6 +123,8 @@ def parse_effect(text: str) -> tuple[str, str | None, dict | None]:
             try:
                 shape[key.strip()] = float(value)
             except ValueError:
-                raise ConfigError(f"`effects` {text!r}: {key.strip()} must be a number, "
-                                  f"got {value!r}") from None
+                shape[key.strip()] = math.nan
+            if not math.isfinite(shape[key.strip()]):
+                raise ConfigError(f"`effects` {text!r}: {key.strip()} must be a finite number, "
+                                  f"got {value!r}")
     return name, joint, shape or None

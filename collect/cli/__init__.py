@@ -4,9 +4,13 @@ with one sentence on stderr and a non-zero exit."""
 
 from __future__ import annotations
 
-import click
+from crane_io.shutdown import interrupt_until_main
 
-from crane_io.cli_support import LazyGroup, one_blas_thread
+interrupt_until_main("crane-collect", "no torque was on")  # a Ctrl+C among the imports: one line, 130
+
+import click  # noqa: E402
+
+from crane_io.cli_support import LazyGroup, one_blas_thread  # noqa: E402
 
 one_blas_thread()  # before numpy is imported (the subcommands import it)
 
@@ -21,7 +25,8 @@ COMMANDS = {
 }
 
 
-@click.group(cls=LazyGroup, commands=COMMANDS)
+@click.group(cls=LazyGroup, commands=COMMANDS, interrupt_note="no torque was on",
+             prompt_exit=("run",))
 @click.version_option(package_name="crane-x7")
 def main():
     """Drive a leader and a follower CRANE-X7 (or two simulated ones) and record sessions."""

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import click
 
-from crane_io.cli_support import cli_errors, plant_presets
+from crane_io.cli_support import SEED, Number, cli_errors, plant_presets
+
+from ..config import MAX_RATE_HZ, MIN_RATE_HZ
 
 
 @click.command("run")
@@ -47,11 +49,12 @@ from crane_io.cli_support import cli_errors, plant_presets
               metavar="MODEL_DIR",
               help="The same for the leader's observer: a model fitted on leader data (crane-train fit "
                    "--arm leader).")
-@click.option("--seed", type=int, default=0, show_default=True,
+@click.option("--seed", type=SEED, default=0, show_default=True,
               help="Seed of the simulated operator and plants (--sim).")
-@click.option("--duration", type=float, default=None, metavar="S",
+@click.option("--duration", type=Number(float, 0, low_open=True, what="a positive number of seconds"),
+              default=None, metavar="S",
               help="Seconds of bilateral control to record (default: until Ctrl+C).")
-@click.option("--rate", type=float, default=None, metavar="HZ",
+@click.option("--rate", type=Number(float, MIN_RATE_HZ, MAX_RATE_HZ, unit="Hz"), default=None, metavar="HZ",
               help="Control rate, 100..2000 Hz (default: loop.rate_hz of the configuration, 500).")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None, metavar="TOML",
               help="Configuration overriding collect/config/bilateral.toml.")
@@ -76,7 +79,7 @@ from crane_io.cli_support import cli_errors, plant_presets
 @click.option("--view-save", "view_save", type=click.Path(dir_okay=False), default=None, metavar="FILE.rrd",
               help="Write the live view to this rerun file instead of spawning a viewer (implies --view; "
                    "open it later with `rerun FILE.rrd`); not overwritten without --force.")
-@click.option("--view-every", "view_every", type=click.IntRange(min=1), default=10, show_default=True,
+@click.option("--view-every", "view_every", type=Number(int, 1), default=10, show_default=True,
               metavar="N", help="The view samples every N-th control cycle (50 samples a second at 500 Hz).")
 @cli_errors
 def run(output, sim, plant, truth, truth_trace, task, joints, hand_on, model_dir, leader_model_dir,

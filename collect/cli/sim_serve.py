@@ -17,8 +17,10 @@ import threading
 
 import click
 
-from crane_io.cli_support import cli_errors, plant_presets
+from crane_io.cli_support import SEED, Number, cli_errors, plant_presets
 from crane_io.errors import ConfigError, HardwareError
+
+from ..config import MAX_RATE_HZ, MIN_RATE_HZ
 
 
 def status_line(chain) -> str:
@@ -67,7 +69,8 @@ def slip_summary(chain) -> str:
 @click.option("--task", type=click.Choice(["free", "contact"]), default=None,
               help="With --pair: the hand's task (default: the --config file's [operator] task, 'free'); "
                    "'contact' presses the follower against its plant's objects (e.g. --plant contact-wall).")
-@click.option("--hand-delay", "hand_delay_s", type=click.FloatRange(0, 60), default=1.0, show_default=True,
+@click.option("--hand-delay", "hand_delay_s", type=Number(float, 0, 60, unit="s"), default=1.0,
+              show_default=True,
               metavar="S", help="With --pair: seconds of the arm's time between its bilateral joints coming "
                                 "alive (torque on, current mode) and the hand taking hold.")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None, metavar="TOML",
@@ -91,13 +94,14 @@ def slip_summary(chain) -> str:
                    "Current sync write: the arms wait for the controller, so a busy machine slows the run "
                    "instead of letting the arms fall between late commands. Default: wall for one arm, "
                    "lockstep for --pair.")
-@click.option("--period", "period_s", type=float, default=0.002, show_default=True,
-              help="Lockstep control period in seconds.")
-@click.option("--seed", type=int, default=0, show_default=True,
+@click.option("--period", "period_s", type=Number(float, 1 / MAX_RATE_HZ, 1 / MIN_RATE_HZ, unit="s"),
+              default=0.002, show_default=True,
+              help="Lockstep control period in seconds, 0.0005..0.01 (the rates `crane-collect run` takes).")
+@click.option("--seed", type=SEED, default=0, show_default=True,
               help="Seed of the plant's sensor noise (--pair: leader 2 SEED, follower 2 SEED + 1, the hand "
                    "SEED).")
 @click.option("--no-fast-sync-read", is_flag=True, help="Servos ignore Fast Sync Read (old firmware).")
-@click.option("--return-delay", type=click.IntRange(0, 254), default=None,
+@click.option("--return-delay", type=Number(int, 0, 254), default=None,
               help="Return Delay Time register of every servo (2 us/LSB). Default: factory 250.")
 @click.option("--truth", "truth", type=click.Path(dir_okay=False), default=None, metavar="JSON",
               help="Also write the arm plant's hidden truth (effects, parameters, seed; --pair: the "
@@ -165,10 +169,15 @@ def _write_truth(plant, truth_path) -> None:
 def _announce(server, arm: str, plant: str, clock: str, hand: bool):
     import os
 
-    from crane_io.dynamixel.link_registry import SimLink, announce
+    from crane_io.cli_support import shown
+    from crane_io.dynamixel.link_registry import SimLink, announce, registry_problem
 
-    return announce(SimLink(link=os.path.abspath(server.link), pty=server.slave_path, arm=arm, plant=plant,
-                            clock=clock, hand=hand, pid=os.getpid()))
+    entry = announce(SimLink(link=os.path.abspath(server.link), pty=server.slave_path, arm=arm, plant=plant,
+                             clock=clock, hand=hand, pid=os.getpid()))
+    problem = registry_problem() if entry is None else None
+    if problem is not None:  # serving goes on; `crane-collect ports` will not list the link
+        click.echo(f"Warning: {shown(problem)}; the link is not announced", err=True)
+    return entry
 
 
 def _wait(stop: threading.Event, errors, status) -> None:

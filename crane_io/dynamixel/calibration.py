@@ -29,17 +29,23 @@ from __future__ import annotations
 import math
 import os
 import re
+import stat
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from crane_io.description import default_arm
 from crane_io.errors import ConfigError
-from crane_io.toml_config import dump_toml, read_toml
+from crane_io.toml_config import check_keys, dump_toml, is_number, read_toml
 
 CONFIG_ENV = "CRANE_X7_CONFIG_DIR"
 MAX_OFFSET_RAD = math.radians(20.0)  # more than this at a mark: the joint was not at its mark
+MAX_RANGE_RAD = 2 * math.pi  # a joint's recorded range lies within one turn either way of its zero
+MAX_FILE_BYTES = 1 << 20  # a calibration is a few hundred bytes: a larger file is something else
+ARM_NAME = re.compile(r"[A-Za-z0-9_.() -]{1,64}")  # what an arm may be called (check_arm_name)
+KEY = re.compile(r"[A-Za-z0-9._-]{1,64}")  # an adapter's key (adapter_key makes it so)
 
 
 class CalibrationError(ConfigError):
@@ -115,34 +121,115 @@ def find_calibration(port: str, comports=None) -> Calibration | None:
     return load_calibration(path) if path.exists() else None
 
 
+def _read_text(path: Path) -> str:
+    """The file's text, read without blocking (a FIFO or a device is refused, not waited on)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    except OSError as exc:
+        raise CalibrationError(f"cannot read the calibration {path}: {exc.strerror or exc}") from None
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            what = "a folder" if path.is_dir() else "not a regular file"
+            raise CalibrationError(f"cannot read the calibration {path}: it is {what}")
+        data = os.read(fd, MAX_FILE_BYTES + 1)
+    except OSError as exc:
+        raise CalibrationError(f"cannot read the calibration {path}: {exc.strerror or exc}") from None
+    finally:
+        os.close(fd)
+    if len(data) > MAX_FILE_BYTES:
+        raise CalibrationError(f"cannot read the calibration {path}: larger than {MAX_FILE_BYTES} bytes, "
+                               "not a calibration")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise CalibrationError(f"cannot read the calibration {path}: not UTF-8 text") from None
+
+
+def check_arm_name(name) -> str:
+    """`name` if it can name an arm (ARM_NAME: 1 to 64 letters, digits, spaces or . _ - ( ), not only
+    spaces): it is stored in TOML files and shown on terminals. CalibrationError otherwise."""
+    if not (isinstance(name, str) and ARM_NAME.fullmatch(name) and name.strip()):
+        raise CalibrationError("an arm name must be 1 to 64 letters, digits, spaces or . _ - ( ), "
+                               f"got {name!r}")
+    return name
+
+
+def _number(value, subject: str, path: Path) -> float:
+    if not is_number(value):
+        raise CalibrationError(f"the calibration {path}: {subject} must be a finite number, got {value!r}")
+    return float(value)
+
+
 def load_calibration(path: str | os.PathLike) -> Calibration:
-    """Read a calibration file; CalibrationError (one sentence) when it is unreadable or wrong."""
+    """Read a calibration file; CalibrationError (one sentence) when it is unreadable or wrong: not a
+    regular UTF-8 TOML file, no [arm] table with a name and a key, a joint the arm does not have, an
+    offset that is not a finite number within MAX_OFFSET_RAD, a range that is not two finite numbers
+    with min_rad <= max_rad."""
     path = Path(path)
     try:
-        data = read_toml(text=path.read_text(encoding="utf-8"), what="the calibration", where=str(path))
-    except (OSError, UnicodeDecodeError) as exc:
-        why = "not UTF-8 text" if isinstance(exc, UnicodeDecodeError) else exc.strerror or exc
-        raise CalibrationError(f"cannot read the calibration {path}: {why}") from None
+        data = read_toml(text=_read_text(path), what="the calibration", where=str(path))
+    except CalibrationError:
+        raise
     except ConfigError as exc:
         raise CalibrationError(str(exc)) from None
-    head = data.get("arm", {})
+    try:
+        check_keys(data, ("arm", "joints"), f"the calibration {path}")
+    except ConfigError as exc:
+        raise CalibrationError(str(exc)) from None
+    table = data.get("joints")
+    if table is not None and not isinstance(table, dict):
+        raise CalibrationError(f"the calibration {path}: [joints] must be a table of [joints.NAME] tables")
     joints = {}
-    for name, entry in (data.get("joints") or {}).items():
-        try:
-            offset = float(entry["offset_rad"])
-            lo = None if entry.get("min_rad") is None else float(entry["min_rad"])
-            hi = None if entry.get("max_rad") is None else float(entry["max_rad"])
-        except (KeyError, TypeError, ValueError):
+    known = default_arm().joint_names
+    for name, entry in (table or {}).items():
+        if name not in known:
+            raise CalibrationError(f"the calibration {path} names unknown joint {name!r} "
+                                   f"(joints: {', '.join(known)})")
+        if not isinstance(entry, dict) or "offset_rad" not in entry:
             raise CalibrationError(f"the calibration {path}: joint {name} needs a number offset_rad "
-                                   "(and numbers for min_rad/max_rad if given)") from None
-        if not math.isfinite(offset) or abs(offset) > MAX_OFFSET_RAD:
+                                   "(and numbers for min_rad/max_rad if given)")
+        unknown = sorted(set(entry) - {"offset_rad", "min_rad", "max_rad"})
+        if unknown:
+            raise CalibrationError(f"the calibration {path}: unknown key {unknown[0]!r} in joint {name} "
+                                   "(known: offset_rad, min_rad, max_rad)")
+        offset = _number(entry["offset_rad"], f"joint {name}'s offset_rad", path)
+        if abs(offset) > MAX_OFFSET_RAD:
             raise CalibrationError(f"the calibration {path}: joint {name}'s offset {offset} rad is not "
                                    f"within ±{math.degrees(MAX_OFFSET_RAD):.0f} deg; calibrate the arm again")
+        lo, hi = entry.get("min_rad"), entry.get("max_rad")
+        if (lo is None) != (hi is None):
+            raise CalibrationError(f"the calibration {path}: joint {name} needs both min_rad and max_rad, "
+                                   "or neither")
+        if lo is not None:
+            lo = _number(lo, f"joint {name}'s min_rad", path)
+            hi = _number(hi, f"joint {name}'s max_rad", path)
+            if not (-MAX_RANGE_RAD <= lo <= hi <= MAX_RANGE_RAD):
+                raise CalibrationError(f"the calibration {path}: joint {name}'s range {lo:g} .. {hi:g} rad "
+                                       f"must have min_rad <= max_rad, both within ±{MAX_RANGE_RAD:.4g} rad")
         joints[name] = JointCalibration(offset, lo, hi)
     if not joints:
         raise CalibrationError(f"the calibration {path} names no joint")
-    return Calibration(name=str(head.get("name", "")), key=str(head.get("key", path.stem)), joints=joints,
-                       created=str(head.get("created", "")), path=str(path))
+    head = data.get("arm")
+    if not isinstance(head, dict):
+        raise CalibrationError(f"the calibration {path} has no [arm] table (name, key, created); "
+                               "calibrate the arm again or add one")
+    for key in ("name", "key", "created"):
+        if key in head and not isinstance(head[key], str):
+            raise CalibrationError(f"the calibration {path}: [arm] {key} must be text, got {head[key]!r}")
+    unknown = sorted(set(head) - {"name", "key", "created"})
+    if unknown:
+        raise CalibrationError(f"the calibration {path}: unknown key {unknown[0]!r} in [arm] "
+                               "(known: name, key, created)")
+    name = head.get("name", "")
+    try:
+        check_arm_name(name)
+    except CalibrationError as exc:
+        raise CalibrationError(f"the calibration {path}: [arm] name: {exc}") from None
+    key = head.get("key", path.stem)
+    if not KEY.fullmatch(key):
+        raise CalibrationError(f"the calibration {path}: [arm] key must be 1 to 64 letters, digits or . _ -, "
+                               f"got {key!r}")
+    return Calibration(name=name, key=key, joints=joints, created=head.get("created", ""), path=str(path))
 
 
 def save_calibration(cal: Calibration, path: str | os.PathLike | None = None) -> Path:
@@ -199,7 +286,8 @@ def build_calibration(name: str, key: str, joint_names, offsets: np.ndarray,
                       ranges: RangeRecorder | None = None,
                       min_span_rad: float = math.radians(5.0)) -> Calibration:
     """A Calibration from the offsets and (optionally) the ranges seen; a joint that moved less than
-    `min_span_rad` gets no range."""
+    `min_span_rad` gets no range. A `name` check_arm_name refuses is CalibrationError."""
+    check_arm_name(name)
     joints = {}
     for i, n in enumerate(joint_names):
         lo = hi = None

@@ -59,7 +59,7 @@ from typing import Literal
 
 from crane_io.description import default_arm
 from crane_io.errors import ConfigError
-from crane_io.toml_config import check_keys, expect, from_table, is_number, read_toml
+from crane_io.toml_config import check_keys, check_seed, expect, from_table, is_number, read_toml
 
 BILATERAL_JOINTS = ("joint1", "joint2", "joint4")  # the paper's joints: the default integrated set
 # the joints a plant can integrate (the gripper is always a held servo)
@@ -252,6 +252,15 @@ def _float_table(data, key: str, where: str, joints=None) -> dict[str, float]:
     return {name: float(value) for name, value in table.items()}
 
 
+def _within_limits(angles: dict[str, float], key: str, where: str) -> None:
+    """ConfigError for the first angle (rad) outside its joint's limits (crane_io.description)."""
+    arm = default_arm()
+    for name, value in angles.items():
+        j = arm.joint(name)
+        expect(j.lower <= value <= j.upper, f"{where}: [{key}] {name}",
+               f"within the joint's limits, {j.lower:.4g} to {j.upper:.4g} rad", value)
+
+
 def _dataclass_table(cls, data, key: str, where: str):
     obj = from_table(cls, data.get(key), where, f"[{key}]")
     numbers = [f.name for f in fields(cls) if not isinstance(getattr(obj, f.name), bool)]
@@ -308,7 +317,7 @@ def load_plant_config(preset_or_path: str | Path = "crane-x7") -> PlantConfig:
     cfg.name = str(data.get("name", Path(str(preset_or_path)).stem))
     cfg.description = str(data.get("description", ""))
     seed, substep = data.get("seed", 0), data.get("substep_s", cfg.substep_s)
-    expect(isinstance(seed, int) and not isinstance(seed, bool), f"{where}: seed", "an integer", seed)
+    check_seed(seed, f"{where}: seed")
     expect(is_number(substep), f"{where}: substep_s", "a number", substep)
     cfg.seed, cfg.substep_s = seed, float(substep)
     cfg.joints = check_joints(data.get("joints", list(BILATERAL_JOINTS)), where)
@@ -329,6 +338,8 @@ def load_plant_config(preset_or_path: str | Path = "crane-x7") -> PlantConfig:
     # an integrated joint is free: its [locked] entry (e.g. inherited from a base preset) is not used
     cfg.locked = {n: v for n, v in _float_table(data, "locked", where).items() if n not in cfg.joints}
     cfg.initial = _float_table(data, "initial", where)
+    _within_limits(cfg.locked, "locked", where)
+    _within_limits(cfg.initial, "initial", where)
     cfg.sensor = _dataclass_table(SensorConfig, data, "sensor", where)
     cfg.overload = _dataclass_table(OverloadConfig, data, "overload", where)
     cfg.limits = _dataclass_table(LimitsConfig, data, "limits", where)

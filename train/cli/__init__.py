@@ -5,9 +5,13 @@ them into one click group. Bad input ends with one sentence on stderr and a non-
 
 from __future__ import annotations
 
-import click
+from crane_io.shutdown import interrupt_until_main
 
-from crane_io.cli_support import LazyGroup, one_blas_thread
+interrupt_until_main("crane-train")  # a Ctrl+C among the imports: one line, 130
+
+import click  # noqa: E402
+
+from crane_io.cli_support import LazyGroup, one_blas_thread  # noqa: E402
 
 one_blas_thread()  # before numpy is imported (the subcommands import it)
 

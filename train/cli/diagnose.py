@@ -17,7 +17,7 @@ import json
 
 import click
 
-from crane_io.cli_support import cli_errors
+from crane_io.cli_support import Number, cli_errors
 from crane_io.errors import ConfigError
 
 from ..diagnosis.defaults import DEFAULT_FOLDS, DEFAULT_MIN_REDUCTION
@@ -38,7 +38,7 @@ def _params_text(params: dict) -> str:
 @click.option("--folds", default=DEFAULT_FOLDS, show_default=True, type=click.IntRange(2, 50),
               help="Cross-validation folds (contiguous time blocks).")
 @click.option("--min-reduction", default=DEFAULT_MIN_REDUCTION, show_default=True,
-              type=click.FloatRange(0, 1),
+              type=Number(float, 0, 1),
               help="Smallest fraction of the held-out error a candidate must remove to count as significant.")
 @click.option("--top", default=3, show_default=True, type=click.IntRange(1, 100),
               help="Candidates shown per joint in the text output.")

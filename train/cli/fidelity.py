@@ -8,7 +8,7 @@ import json
 
 import click
 
-from crane_io.cli_support import cli_errors
+from crane_io.cli_support import Number, cli_errors
 
 
 @click.command()
@@ -16,9 +16,9 @@ from crane_io.cli_support import cli_errors
 @click.option("--truth-trace", type=click.Path(dir_okay=False), default=None,
               help="The simulated plants' true external torques (crane-collect run --sim --truth-trace); "
                    "without it every sample counts as free motion.")
-@click.option("--settle", "settle_s", type=click.FloatRange(min=0), default=1.0, show_default=True,
+@click.option("--settle", "settle_s", type=Number(float, 0, unit="s"), default=1.0, show_default=True,
               help="Seconds dropped at the start (the controllers settling).")
-@click.option("--contact-guard", "guard_s", type=click.FloatRange(min=0), default=0.3, show_default=True,
+@click.option("--contact-guard", "guard_s", type=Number(float, 0, unit="s"), default=0.3, show_default=True,
               help="Seconds around every contact sample that do not count as free motion.")
 @click.option("--json", "as_json", is_flag=True, help="Print the metrics as JSON.")
 @cli_errors

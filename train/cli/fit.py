@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import click
 
-from crane_io.cli_support import cli_errors
+from crane_io.cli_support import SEED, Number, cli_errors
 
 from ..models.method_names import METHOD_NAMES
 from ..progress import show_progress
@@ -53,14 +53,15 @@ def _fit_and_save(sessions, method: str, out_dir, train_size: int | None = None,
               help="Model directory to write (made if missing). It is written whole or not at all; an "
                    "existing one is replaced whole, only with --force and only if it holds a model "
                    "(or nothing).")
-@click.option("--train-size", type=int, default=None, help="Training samples drawn from the pool [all 6000].")
-@click.option("--seed", default=0, show_default=True, type=int, help="Seed of splits, draws and weights.")
+@click.option("--train-size", type=Number(int, 1), default=None,
+              help="Training samples drawn from the pool [all 6000].")
+@click.option("--seed", default=0, show_default=True, type=SEED, help="Seed of splits, draws and weights.")
 @click.option("--effect", "effects", multiple=True, metavar="NAME[:joint=JOINT,shape=VALUE]",
               help="Add a physical effect's columns (rigid-body, hybrid); repeatable. Without joint= a "
                    "joint effect goes on every learning joint.")
 @click.option("--effect-file", "effect_files", multiple=True, type=click.Path(dir_okay=False, exists=True),
               help="Python file defining extra effects (see crane_io.physics.effects).")
-@click.option("--epochs", type=click.IntRange(min=1), default=None,
+@click.option("--epochs", type=Number(int, 1), default=None,
               help="Epochs of the network (mlp-mse, mlp-masked, hybrid) [100].")
 @arm_option
 @data_options

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import click
 
-from crane_io.cli_support import cli_errors
+from crane_io.cli_support import Number, cli_errors
 
 
 def _torque_constants(items) -> dict[str, float]:
@@ -40,7 +40,7 @@ def _torque_constants(items) -> dict[str, float]:
 @click.option("--torque-constant", "torque_constant", multiple=True, metavar="JOINT=NM_PER_A",
               help="Torque constant for a current column (default: the arm description's, 2.20 N m/A; "
                    "3.60 on joint2).")
-@click.option("--rate", type=float, default=None, metavar="HZ",
+@click.option("--rate", type=Number(float, 0, low_open=True, unit="Hz"), default=None, metavar="HZ",
               help="Nominal sample rate to record (default: from the median time step).")
 @click.option("--source", default="import", show_default=True,
               help="The session's source attribute: a word naming the rig.")

@@ -6,7 +6,7 @@ import json
 
 import click
 
-from crane_io.cli_support import cli_errors
+from crane_io.cli_support import Number, cli_errors
 
 
 def session_info(paths, joints=None, alpha: float = 0.1, arm: str = "follower") -> dict:
@@ -41,7 +41,8 @@ def _splits_need(ds) -> dict:
 @click.argument("sessions", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--joints", default="joint1,joint2,joint4", show_default=True,
               help="Comma-separated learning joints, or 'all' (every arm joint recorded).")
-@click.option("--alpha", default=0.1, show_default=True, type=float, help="Dead-zone threshold factor.")
+@click.option("--alpha", default=0.1, show_default=True, type=Number(float, 0),
+              help="Dead-zone threshold factor.")
 @click.option("--arm", type=click.Choice(["leader", "follower"]), default="follower", show_default=True,
               help="The arm whose data to describe.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import click
 
+from crane_io.cli_support import Number
 from crane_io.errors import ConfigError
 
 
@@ -19,7 +20,7 @@ def data_options(func):
                              "instead of stopping with an error.")(func)
     func = click.option("--zero-phase", is_flag=True,
                         help="Filter forward and backward (no delay), not the paper's causal filters.")(func)
-    func = click.option("--alpha", default=None, type=float,
+    func = click.option("--alpha", default=None, type=Number(float, 0),
                         help="Dead-zone threshold: a joint moves when |dq| > alpha * std(dq) [0.1].")(func)
     func = click.option("--joints", default=None,
                         help="Comma-separated learning joints, or 'all' (every arm joint the sessions "
@@ -51,18 +52,25 @@ def hand_on_hint(exc) -> str:
             f"{other}, the {exc.arm} moving on its own)")
 
 
+MAX_SIZES = 1000  # training sizes in one sweep
+MAX_SIZE = 10**8  # samples in one training set
+
+
 def parse_sizes(text: str) -> list[int]:
-    """'300:3000:300' (start:stop:step, stop included) or '300,600,1200'."""
+    """'300:3000:300' (start:stop:step, stop included) or '300,600,1200': at most MAX_SIZES sizes, each
+    1 .. MAX_SIZE."""
     try:
         if ":" in text:
             parts = [int(p) for p in text.split(":")]
             if len(parts) != 3 or parts[2] <= 0 or parts[0] <= 0 or parts[1] < parts[0]:
                 raise ValueError
+            if parts[1] > MAX_SIZE or (parts[1] - parts[0]) // parts[2] >= MAX_SIZES:
+                raise ValueError
             return list(range(parts[0], parts[1] + 1, parts[2]))
         sizes = [int(p) for p in text.split(",") if p.strip()]
-        if not sizes or min(sizes) <= 0:
+        if not sizes or min(sizes) <= 0 or max(sizes) > MAX_SIZE or len(sizes) > MAX_SIZES:
             raise ValueError
         return sizes
     except ValueError:
         raise ConfigError(f"--sizes {text!r} is not START:STOP:STEP or a comma list of positive "
-                          f"integers") from None
+                          f"integers (at most {MAX_SIZES} sizes of at most {MAX_SIZE})") from None

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import click
 
-from crane_io.cli_support import cli_errors
+from crane_io.cli_support import SEED, cli_errors
 
 from .options import force_option
 
@@ -21,7 +21,7 @@ from .options import force_option
 @click.option("--discover", is_flag=True,
               help="Add the terms discovery finds in the residual (crane-train diagnose --discover), each "
                    "plotted against it.")
-@click.option("--seed", type=int, default=None,
+@click.option("--seed", type=SEED, default=None,
               help="Split seed (default: the one the model was trained with).")
 @force_option("the HTML file")
 @cli_errors

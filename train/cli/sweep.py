@@ -6,7 +6,7 @@ from dataclasses import replace
 
 import click
 
-from crane_io.cli_support import cli_errors
+from crane_io.cli_support import SEED, Number, cli_errors
 from crane_io.errors import ConfigError
 
 from ..models.method_names import SWEEP_METHODS
@@ -23,12 +23,12 @@ from .options import data_options, force_option, parse_sizes
                    "--force) and written whole or not at all.")
 @click.option("--sizes", default="300:3000:300", show_default=True,
               help="Training-set sizes: START:STOP:STEP (STOP included) or a comma list.")
-@click.option("--trials", default=10, show_default=True, type=int, help="Random draws per size.")
+@click.option("--trials", default=10, show_default=True, type=Number(int, 1), help="Random draws per size.")
 @click.option("--methods", default=",".join(SWEEP_METHODS), show_default=True,
               help="Comma-separated methods to compare.")
-@click.option("--seed", default=0, show_default=True, type=int, help="Seed of splits, draws and weights.")
-@click.option("--epochs", default=None, type=int, help="MLP training epochs [100].")
-@click.option("--batch-size", default=None, type=int, help="MLP minibatch size [32].")
+@click.option("--seed", default=0, show_default=True, type=SEED, help="Seed of splits, draws and weights.")
+@click.option("--epochs", default=None, type=Number(int, 1), help="MLP training epochs [100].")
+@click.option("--batch-size", default=None, type=Number(int, 1), help="MLP minibatch size [32].")
 @data_options
 @click.option("--no-progress", is_flag=True,
               help="No progress bars on a terminal, no progress lines (at most one every 10 s) in a log.")

@@ -1,0 +1,85 @@
+"""Ctrl+C during start-up (imports, the simulated arms' kernels being compiled, before any torque is on)
+ends `crane-collect run` at once with one line saying what it interrupted and exit 130; `crane-train`
+ends with one line and 130 too. The latencies are printed (pytest -s), never asserted beyond a generous
+bound: the machine may be busy."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+BIN = Path(sys.executable).parent
+
+
+def _interrupt(args, delay, env=None, bound_s=20.0):
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    time.sleep(delay)
+    t0 = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    try:
+        out, err = proc.communicate(timeout=bound_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        pytest.fail(f"still running {bound_s} s after Ctrl+C (sent {delay} s after the start)")
+    latency = time.monotonic() - t0
+    print(f"{Path(args[0]).name}: Ctrl+C {delay} s after the start, ended {latency:.2f} s later")
+    return proc.returncode, err.decode(), out.decode()
+
+
+@pytest.mark.parametrize("delay", [0.8, 1.6, 2.4])
+def test_ctrl_c_while_the_kernels_compile_ends_the_run_with_one_line(tmp_path, delay):
+    # a numba cache of its own, empty: the kernels are compiled from scratch, which takes many seconds,
+    # so the signal surely lands before torque could be on
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    code, err, out = _interrupt([str(BIN / "crane-collect"), "run", "--sim", "--duration", "5",
+                                 "-o", str(tmp_path / "s.h5")], delay, env)
+    assert code == 130, err
+    lines = err.splitlines()
+    assert len(lines) == 1, err  # stderr is a pipe here: exactly one line
+    assert lines[0].startswith("crane-collect: interrupted while ")
+    assert lines[0].endswith("; no torque was on")
+    assert "Traceback" not in err and out == ""
+    assert not (tmp_path / "s.h5").exists()
+
+
+def test_ctrl_c_in_crane_train_is_one_line_and_130(tmp_path):
+    session = tmp_path / "s.h5"
+    session.write_bytes(b"")  # never read: the signal comes while the command starts
+    code, err, _ = _interrupt([str(BIN / "crane-train"), "fit", str(session), "--model", "mlp-masked",
+                               "-o", str(tmp_path / "m")], 0.8)
+    assert (code, err) == (130, "crane-train: interrupted\n") or code == 2, err
+    assert "Traceback" not in err
+
+
+SWALLOWING = """
+import signal, sys, time
+sys.argv[0] = "crane-collect"
+from crane_io import shutdown
+shutdown.set_activity("compiling the control kernels")
+assert shutdown.arm_prompt_exit("crane-collect", "no torque was on")
+signal.signal(signal.SIGINT, lambda signum, frame: None)  # taken, then lost (a broad except)
+print("armed", flush=True)
+while True:
+    time.sleep(0.05)
+"""
+
+
+def test_a_swallowed_ctrl_c_still_ends_the_start_up_from_the_watcher():
+    proc = subprocess.Popen([sys.executable, "-c", SWALLOWING], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    assert proc.stdout.readline() == "armed\n"
+    t0 = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    try:
+        _, err = proc.communicate(timeout=20)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        pytest.fail("the watcher did not end the program")
+    print(f"swallowed Ctrl+C: ended {time.monotonic() - t0:.2f} s later")
+    assert proc.returncode == 130
+    assert err == "crane-collect: interrupted while compiling the control kernels; no torque was on\n"
