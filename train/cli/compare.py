@@ -18,10 +18,13 @@ from crane_io.cli_support import cli_errors
 @click.option("--json", "as_json", is_flag=True, help="Print the comparison as JSON.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
               help="Write the bar chart of the error per joint (one bar per model, log axis) to this PNG.")
+@click.option("--effect-file", "effect_files", multiple=True, type=click.Path(dir_okay=False),
+              help="A Python file defining a user effect a model needs (repeatable); it runs only if its "
+                   "SHA-256 is the one the model records. Loading a model never runs code by itself.")
 @click.option("--metric", type=click.Choice(["mse", "rmse", "nmse"]), default="mse", show_default=True,
               help="The metric of the printed table and of the plot.")
 @cli_errors
-def compare(model_dirs, sessions, as_json, output, metric):
+def compare(model_dirs, sessions, as_json, output, metric, effect_files):
     """Compare MODEL_DIR(s), in the given order, on the same held-out samples."""
     from ..evaluation.compare import compare_models, notes_text, plot, table_text
     from ..progress import show_progress
@@ -29,6 +32,9 @@ def compare(model_dirs, sessions, as_json, output, metric):
 
     if output:
         writable_output(output, "file")
+    from crane_io.physics.effects.spec import offer_effect_files
+
+    offer_effect_files(effect_files)
     result = compare_models(list(model_dirs), list(sessions), progress=show_progress(not as_json))
     if output:
         plot(result, output, metric)

@@ -14,8 +14,11 @@ from crane_io.cli_support import cli_errors
 from crane_io.errors import CraneError
 
 
-def export_model(directory) -> dict:
-    """Write `directory`/loop_model.npz for the saved model there; {path, sha256, method, joints, usable}."""
+def export_model(directory, effect_files=()) -> dict:
+    """Write `directory`/loop_model.npz for the saved model there; {path, sha256, method, joints, usable}.
+    `effect_files`: Python files defining user effects the model needs (run only with the recorded
+    SHA-256); loading the model runs no code by itself."""
+    from crane_io.physics.effects.spec import offer_effect_files
     from crane_io.physics.loop_model import LoopModel, LoopModelError
 
     from ..models.base import ModelFileError
@@ -25,6 +28,7 @@ def export_model(directory) -> dict:
     directory = Path(directory)
     if not directory.is_dir():
         raise ModelFileError(f"model directory {directory} does not exist")
+    offer_effect_files(effect_files)
     model = load_model(directory)
     path, sha = write_loop_export(model, directory)
     try:
@@ -38,13 +42,16 @@ def export_model(directory) -> dict:
 
 @click.command()
 @click.argument("model_dirs", nargs=-1, required=True, type=click.Path(file_okay=False))
+@click.option("--effect-file", "effect_files", multiple=True, type=click.Path(dir_okay=False),
+              help="A Python file defining a user effect a model needs (repeatable); it runs only if its "
+                   "SHA-256 is the one the model records.")
 @cli_errors
-def export(model_dirs):
+def export(model_dirs, effect_files):
     """Write loop_model.npz (the control loop's copy of the weights) into each saved model directory."""
     failed = False
     for d in model_dirs:
         try:
-            doc = export_model(d)
+            doc = export_model(d, effect_files)
         except CraneError as exc:
             click.echo(f"Error: {exc}", err=True)
             failed = True
