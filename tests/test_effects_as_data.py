@@ -24,7 +24,7 @@ from click.testing import CliRunner
 
 from collect.cli import main as collect_main
 from crane_io.errors import ConfigError
-from crane_io.physics.effects import load_effect_file, spec
+from crane_io.physics.effects import effect_names, load_effect_file, spec
 from crane_io.physics.loop_model import EXPORT_FILE
 from crane_io.sim.plant_config import load_plant_config
 from tests.fitting import fit_model
@@ -298,3 +298,37 @@ def test_two_discovered_effects_of_one_name_are_never_mistaken_for_one(fitted, t
     rows = [json.loads(r.output)["models"][0] for r in alone]
     assert json.loads(both.output)["models"] == rows
     assert rows[0] != rows[1]
+
+
+def test_an_effect_file_that_exits_is_a_one_sentence_error_and_fit_writes_no_model(fitted, tmp_path, fresh):
+    session, _ = fitted
+    quitter = tmp_path / "quits.py"
+    quitter.write_text("import sys\nsys.exit(0)\n")
+    out = tmp_path / "m"
+    r = CliRunner().invoke(main, ["fit", str(session), "--model", "rigid-body", "--scale-to-data",
+                                  "--effect-file", str(quitter), "-o", str(out)])
+    assert r.exit_code == 2 and r.output.startswith("Error: ") and "quits.py" in r.output, r.output
+    assert r.output.count("\n") == 1 and not out.exists()
+
+
+def test_a_plant_names_effects_defined_as_data_in_its_effect_spec_files(tmp_path, fresh):
+    from crane_io.sim.arm_plant import ArmPlant
+
+    f = tmp_path / "mine.json"
+    f.write_text(json.dumps(spec.spec_file_document([_same_name_spec([["dq", 1], ["sin", 1, [1]]], 0.1)])))
+    plant = tmp_path / "p.toml"
+    plant.write_text('base = "baseline"\neffect_specs = ["mine.json"]\n'
+                     '[hidden]\neffect = "discovered-joint2"\njoint = "joint2"\np = 0.3\n')
+    config = load_plant_config(plant)
+    assert config.hidden.values == {"p": 0.3}
+    assert config.hidden.definition["terms"][0]["term"] == "dq2·sin(q2)"
+    effect = config.hidden.build()
+    q, dq, ddq = _data(n=5)
+    expected = 0.3 * dq[:, 1] * np.sin(q[:, 1])
+    np.testing.assert_allclose(effect.torque(q, dq, ddq, 1, {"p": 0.3})[:, 1], expected)
+    one = effect.torque(q[:1], dq[:1], ddq[:1], 1, {"p": 0.3})[0, 1]  # the plant's one-sample path
+    assert one == pytest.approx(expected[0], rel=1e-12)
+    assert "discovered-joint2" not in effect_names()  # the plant's own: the library is untouched
+    ArmPlant(config, seed=0, kernel=False)  # builds the effect from its definition
+    r = CliRunner().invoke(main, ["effects", "--effect-file", str(f), "--json"])
+    assert r.exit_code == 0 and "discovered-joint2" in r.output, r.output
