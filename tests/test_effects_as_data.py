@@ -332,3 +332,14 @@ def test_a_plant_names_effects_defined_as_data_in_its_effect_spec_files(tmp_path
     ArmPlant(config, seed=0, kernel=False)  # builds the effect from its definition
     r = CliRunner().invoke(main, ["effects", "--effect-file", str(f), "--json"])
     assert r.exit_code == 0 and "discovered-joint2" in r.output, r.output
+
+
+def test_the_documented_effect_spec_file_computes_what_the_documented_python_effect_does(fresh):
+    from crane_io.physics.effects import get_effect
+
+    examples = Path(__file__).parents[1] / "docs" / "examples"
+    assert load_effect_file(examples / "cable_drag.json") == ["cable-drag-data"]
+    load_effect_file(examples / "cable_drag.py")
+    q, dq, ddq = _data()
+    np.testing.assert_array_equal(get_effect("cable-drag-data").torque(q, dq, ddq, 0),
+                                  get_effect("cable-drag").torque(q, dq, ddq, 0))
