@@ -21,6 +21,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from collect.cli import main as collect_main
 from crane_io.errors import ConfigError
@@ -343,3 +345,30 @@ def test_the_documented_effect_spec_file_computes_what_the_documented_python_eff
     q, dq, ddq = _data()
     np.testing.assert_array_equal(get_effect("cable-drag-data").torque(q, dq, ddq, 0),
                                   get_effect("cable-drag").torque(q, dq, ddq, 0))
+
+
+_JSON = st.recursive(st.none() | st.booleans() | st.integers(-5, 70) | st.floats() | st.text(max_size=8),
+                     lambda c: st.lists(c, max_size=4) | st.dictionaries(st.text(max_size=6), c, max_size=4),
+                     max_leaves=12)
+_OPS = st.sampled_from(["1", "q", "dq", "ddq", "sign", "tanh", "abs", "pow", "sin", "cos", "library", "exec"])
+
+
+@settings(max_examples=150, deadline=None)
+@given(kind=st.sampled_from(["terms", "library", "user", "other"]),
+       joints=_JSON | st.just(["joint1", "joint2"]),
+       factors=st.lists(st.lists(_OPS | _JSON, min_size=1, max_size=4), max_size=3) | _JSON,
+       extra=st.dictionaries(st.sampled_from(["name", "version", "joint", "value", "sha256", "file",
+                                              "friction"]), _JSON, max_size=3))
+def test_any_damaged_effect_spec_is_one_sentence_or_a_working_effect(kind, joints, factors, extra):
+    raw = {"kind": kind, "name": "fuzz", "version": 1, "joints": joints,
+           "terms": [{"parameter": "p", "factors": factors, "value": extra.pop("value", 0.1)}], **extra}
+    try:
+        doc = spec.check_spec(raw)
+    except ConfigError as exc:
+        assert "\n" not in str(exc)
+        return
+    assert spec.identity(doc) == spec.identity(json.loads(spec.canonical_json(doc)))
+    if doc["kind"] == "terms":
+        n = len(doc["joints"])
+        cols = spec.rebuild(doc).columns(*(np.full((2, n), 0.3) for _ in range(3)), 0)
+        assert cols.shape == (2, n, 1)

@@ -35,6 +35,7 @@ if TYPE_CHECKING:
 SIGNALS = ("q", "dq", "ddq")
 POWERS = (2, 3)
 MAX_HARMONIC = 64
+MAX_FACTORS = 8
 _SUPER = {2: "²", 3: "³"}
 # built-in effects a term may use as a column of one joint (payload and torque-constant-error read the
 # arm's dynamics; backlash's plant-only parameters do not enter its columns)
@@ -75,7 +76,8 @@ def _column(k, n_joints: int, what: str) -> int:
 def check_factor(f, n_joints: int) -> list:
     """The factor as canonical plain data (lists, floats); ConfigError for anything outside the grammar."""
     if not isinstance(f, (list, tuple)) or not f or not isinstance(f[0], str):
-        raise ConfigError(f"a term factor must be a list starting with its function's name, got {f!r}")
+        raise ConfigError(f"a term factor must be a list starting with its function's name, got "
+                          f"{str(f)[:80]}")
     op, args = f[0], list(f[1:])
     what = f"the factor {op!r}"
     if op == "1" and not args:
@@ -108,14 +110,14 @@ def check_factor(f, n_joints: int) -> list:
                                   f"(its shape parameters: {', '.join(sorted(known)) or 'none'})")
             shape[key] = float(v)
         return [op, args[0], k, args[2], shape]
-    raise ConfigError(f"{f!r} is not a factor of the basis grammar (1, q, dq, ddq, sign, tanh, abs, pow, "
-                      f"sin, cos, library, each with its arguments)")
+    raise ConfigError(f"{str(f)[:80]} is not a factor of the basis grammar (1, q, dq, ddq, sign, tanh, abs, "
+                      f"pow, sin, cos, library, each with its arguments)")
 
 
 def check_term(factors, n_joints: int) -> list:
     """A term (a non-empty list of factors) as canonical plain data; ConfigError when outside the grammar."""
-    if not isinstance(factors, (list, tuple)) or not factors:
-        raise ConfigError(f"a term must be a non-empty list of factors, got {factors!r}")
+    if not isinstance(factors, (list, tuple)) or not 0 < len(factors) <= MAX_FACTORS:
+        raise ConfigError(f"a term must be a list of 1 to {MAX_FACTORS} factors, got {str(factors)[:80]}")
     return [check_factor(f, n_joints) for f in factors]
 
 
