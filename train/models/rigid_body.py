@@ -145,7 +145,11 @@ class RigidBodyModel(Model):
         return self._table
 
     def effect_by_name(self, name: str):
-        return self.effect_table()[name]
+        table = self.effect_table()
+        if not isinstance(name, str) or name not in table:
+            raise ModelFileError(f"the model uses the effect {name!r} but records no spec of it; fit it "
+                                 f"again")
+        return table[name]
 
     # ---- regressor -------------------------------------------------------------------------------
     @property
@@ -425,3 +429,6 @@ class RigidBodyModel(Model):
         self._dyn = None
         self._table = None
         self.effect_table(f"the model in {directory}")  # an effect it cannot rebuild: refused now
+        for term in self.terms if isinstance(self.terms, list) else ():
+            if isinstance(term, dict):
+                self.effect_by_name(term.get("name"))
