@@ -321,6 +321,7 @@ def _defined_effects(data: dict, where: str) -> dict[str, dict]:
     from crane_io.physics.effects.spec import read_spec_file
 
     files = data.get("effect_files") or []
+    files = files if isinstance(files, list) else [files]
     if files:
         raise ConfigError(f"{where}: effect_files names Python files ({', '.join(map(str, files))}), which "
                           f"loading a plant never runs; write the effects as data in an effect-spec file and "

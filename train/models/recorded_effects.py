@@ -50,7 +50,7 @@ def refuse_effect_files(files) -> None:
     never runs the code it names."""
     from .base import ModelFileError
 
-    files = [str(f) for f in files or ()]
+    files = [str(f) for f in (files if isinstance(files, (list, tuple)) else [files])] if files else []
     if files:
         raise ModelFileError(f"the model names the Python effect files {', '.join(files)}, which loading a "
                              f"model never runs; fit it again (with --effect-file) so that it records its "
