@@ -23,7 +23,11 @@ Standard errors: sqrt(diag(s^2 P)) with s^2 the residual variance (RSS / (rows -
 Effects: `effects=[(name, joint_name or None, shape dict or None), ...]`. A joint-scope effect with
 joint None is added once per learning joint. An effect with shape parameters (e.g. a Stribeck
 velocity) and no shape given tries every value of its grid and keeps the one with the lowest validation
-MSE (effects are tuned one after another, in the order given).
+MSE (effects are tuned one after another, in the order given). The model records every effect it uses
+as data (option `effect_specs`, crane_io/physics/effects/spec.py: a library effect by name and version, a
+discovered one as its terms, a user's Python effect by file and SHA-256) and rebuilds its effects from
+those specs only, never by name from the library, so loading it runs no code and an effect of the same
+name elsewhere is never mistaken for its own.
 
 Context joints (the other arm joints' recorded angles enter the kinematics, option `context`, default
 True): a Dataset carries the filtered q, dq, ddq of the session's other arm joints (joint1..joint7, not
