@@ -21,13 +21,17 @@ from crane_io.cli_support import cli_errors
                    "plotted against it.")
 @click.option("--seed", type=int, default=None,
               help="Split seed (default: the one the model was trained with).")
+@click.option("--effect-file", "effect_files", multiple=True, type=click.Path(dir_okay=False),
+              help="A Python file defining a user effect the model needs (repeatable); it runs only if its "
+                   "SHA-256 is the one the model records.")
 @cli_errors
-def report(model_dir, sessions, output, diagnosis, discover, seed):
+def report(model_dir, sessions, output, diagnosis, discover, seed, effect_files):
     """Write an HTML report of MODEL_DIR's error on the held-out part of SESSION(s)."""
     from ..api import make_report
     from ..settings import writable_output
 
     writable_output(output, "file")
     click.echo(f"Evaluating {model_dir} on the held-out part of {', '.join(sessions)} ...", err=True)
-    path = make_report(model_dir, list(sessions), output, seed=seed, diagnosis=diagnosis, discover=discover)
+    path = make_report(model_dir, list(sessions), output, seed=seed, diagnosis=diagnosis, discover=discover,
+                       effect_files=effect_files)
     click.echo(f"Wrote {path} ({path.stat().st_size / 1e3:.0f} kB); open it in a browser (works offline).")
