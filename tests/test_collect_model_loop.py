@@ -237,8 +237,12 @@ def test_absurd_predictions_fall_back_to_the_nominal_observer(models, runs, tmp_
     # a constant torque of 1000 N m on every joint (an offset term added to the fitted model): every
     # prediction is beyond the joints' maximum motor torque (a model with non-finite parameters is
     # refused at load, and a scaled one gives in-range values at some poses)
+    from train.models.recorded_effects import specs_for
+
     absurd = load_model(models["follower"])
     j = len(absurd.joint_names)
+    absurd.options["effect_specs"] = list(absurd.options["effect_specs"]) + specs_for(["offset"])
+    absurd._table = None  # rebuilt from the specs, the offset's included
     absurd.terms = list(absurd.terms) + [{"name": "offset", "joint": i, "shape": None} for i in range(j)]
     absurd.names = list(absurd.names) + [f"offset {n}" for n in absurd.joint_names]
     absurd.theta = np.concatenate([absurd.theta, np.full(j, 1000.0)])

@@ -1,9 +1,10 @@
 """Discover the missing term (`crane-train diagnose --discover`, train/diagnosis/discovery.py, issue 12).
 
 Four effects whose form the effects library lacks are planted, each hidden on a stated joint of the
-baseline plant (tests/fakes/planted-*.toml, effects in tests/fakes/planted_effects.py): a friction whose
-level changes with the angle (joint2), joint2's velocity dragging joint4 (a coupling), a drag growing
-with the square of the velocity (joint4) and a damping that changes with the angle (joint1). For each:
+baseline plant (tests/fakes/planted-*.toml, effects as data in tests/fakes/planted_effects.json): a
+friction whose level changes with the angle (joint2), joint2's velocity dragging joint4 (a coupling), a
+drag growing with the square of the velocity (joint4) and a damping that changes with the angle (joint1).
+For each:
 a 60 s simulated session (tests/planted.py), the baseline rigid-body model with the plant's [known]
 effects, then `diagnose --discover --json --write-effect-file`: the joint gets a significant expression
 of the right structure and no other joint gets one, and refitting with the written effect file cuts
@@ -115,7 +116,7 @@ def _discover(base, session, *extra):
 def test_discovery_finds_the_planted_term_and_its_effect_file_halves_the_error(preset, planted, tmp_path):
     session, base, known = planted(preset)
     joint, right_structure = CASES[preset]
-    out = tmp_path / "discovered.py"
+    out = tmp_path / "discovered.json"
     doc = _discover(base, session, "--write-effect-file", str(out))
     found = {d["joint"]: d for d in doc["discovered"]}
     entry = found[joint]
@@ -128,10 +129,11 @@ def test_discovery_finds_the_planted_term_and_its_effect_file_halves_the_error(p
         if other != joint:
             assert not d["significant"], d
     assert doc["effect_file"] == str(out)
-    text = out.read_text()
-    assert f'name = {f"discovered-{joint}"!r}' in text and entry["expression"] in text
-    for t in entry["terms"]:
-        assert f"Param({t['parameter']!r}" in text  # every term is a named parameter
+    written = json.loads(out.read_text())  # effects as data
+    (spec,) = written["effects"]
+    assert spec["name"] == f"discovered-{joint}" and entry["expression"] in spec["description"]
+    assert [t["parameter"] for t in spec["terms"]] == [t["parameter"] for t in entry["terms"]]
+    assert [t["value"] for t in spec["terms"]] == [t["coefficient"] for t in entry["terms"]]
     effects = known + [(f"discovered-{joint}", joint, None)]
     if entry["on_top_of"]:
         effects.append((entry["on_top_of"], joint, None))
@@ -146,7 +148,7 @@ def test_discovery_finds_the_planted_term_and_its_effect_file_halves_the_error(p
 
 def test_nothing_hidden_gives_no_significant_discovery(planted, tmp_path):
     session, base, _ = planted("baseline")
-    out = tmp_path / "nothing.py"
+    out = tmp_path / "nothing.json"
     doc = _discover(base, session, "--write-effect-file", str(out), "--discover-all")
     assert [d["joint"] for d in doc["discovered"]] == doc["joints"]
     assert not any(d["significant"] for d in doc["discovered"]), doc["discovery"]["summary"]
@@ -156,7 +158,7 @@ def test_nothing_hidden_gives_no_significant_discovery(planted, tmp_path):
     assert "No significant discovery on any joint" in r.output and "Discovery:" in r.output
     r = CliRunner().invoke(main, ["diagnose", str(base), str(session), "--write-effect-file",
                                   str(tmp_path / "terms.txt")])  # refused before any work
-    assert r.exit_code != 0 and "Error: " in r.output and ".py" in r.output and "Traceback" not in r.output
+    assert r.exit_code != 0 and "Error: " in r.output and ".json" in r.output and "Traceback" not in r.output
 
 
 def test_a_library_effect_is_named_by_the_ranking_and_discovery_agrees(planted):
@@ -211,7 +213,7 @@ def test_residual_discovery_on_synthetic_data_and_quiet_on_noise():
     # other over joint2's range)
     from train.diagnosis.discovery_basis import Term, evaluate
 
-    fit = sum(t.coefficient * evaluate(Term(t.term, t.code, t.unit, t.family, frozenset()), q, dq, ddq)
+    fit = sum(t.coefficient * evaluate(Term(t.term, t.expr, t.unit, t.family, frozenset()), q, dq, ddq)
               for t in d.terms)
     truth = planted[:, 1] - noise[:, 1]
     rows = ds.moving[:, 1]
@@ -223,12 +225,13 @@ def test_residual_discovery_on_synthetic_data_and_quiet_on_noise():
 
     page = discovery_section(loud)  # the report page's section: sentences, terms, the fit's figure
     assert page.count("<img") == 1 and "data:image/png;base64," in page and "https://" not in page
-    # the effect file's header names the flag that found the terms
-    from train.diagnosis.effect_writer import effect_source
+    # the effect-spec file records the flag that found the terms
+    from train.diagnosis.effect_writer import effect_document
 
-    assert "m.h5 --discover`" in effect_source(loud, "m", ["m.h5"])
+    assert effect_document(loud, "m", ["m.h5"])["found_by"] == {
+        "command": "crane-train diagnose", "model": "m", "sessions": ["m.h5"], "flag": "--discover"}
     every = discover(Residual(planted), ds, every_joint=True)
-    assert "m.h5 --discover-all`" in effect_source(every, "m", ["m.h5"])
+    assert effect_document(every, "m", ["m.h5"])["found_by"]["flag"] == "--discover-all"
 
 
 

@@ -11,6 +11,7 @@ no torch).
 
 from __future__ import annotations
 
+import hashlib
 import json
 import re
 import shutil
@@ -107,28 +108,85 @@ def test_rigid_body_in_another_joint_order_with_locked_joints_and_payload_effect
     _assert_equal_predictions(d, joints)
 
 
-def test_a_user_effect_file_is_loaded_and_a_missing_one_refused(tmp_path):
-    effect_file = tmp_path / "my_effects.py"
-    effect_file.write_text(textwrap.dedent('''
-        from crane_io.physics.effects import Effect, Param
-        from crane_io.physics.effects.base import joint_columns
+USER_EFFECT = textwrap.dedent('''
+    from pathlib import Path
 
-        class CubicDrag(Effect):
-            name = "loop-test-cubic-drag"
-            title = "cubic drag"; description = "d"; signature = "s {joint}"
-            params = (Param("c3", "N m s^3/rad^3", 0.01, "cubic coefficient"),)
+    from crane_io.physics.effects import Effect, Param
+    from crane_io.physics.effects.base import joint_columns
 
-            def _columns(self, q, dq, ddq, joint, shape):
-                return joint_columns(len(q), q.shape[1], joint, dq[:, joint] ** 3)
-    '''))
-    d = _fit_save("rigid-body", tmp_path / "m", effects=[["loop-test-cubic-drag", "joint2", None]],
-                  effect_files=[str(effect_file)])
+    with open(Path(__file__).with_suffix(".ran"), "a") as f:  # a trace of every time this file runs
+        f.write("ran\\n")
+
+    class CubicDrag(Effect):
+        name = "loop-test-cubic-drag"
+        title = "cubic drag"; description = "d"; signature = "s {joint}"
+        params = (Param("c3", "N m s^3/rad^3", 0.01, "cubic coefficient"),)
+
+        def _columns(self, q, dq, ddq, joint, shape):
+            return joint_columns(len(q), q.shape[1], joint, dq[:, joint] ** 3)
+''')
+
+
+@pytest.fixture
+def fresh_process(monkeypatch):
+    """As in a new process: no user effect file has run, none is named."""
+    from crane_io.physics.effects import spec
+
+    def reset():
+        monkeypatch.setattr(spec, "_RUN", {})
+        monkeypatch.setattr(spec, "_OFFERED", {})
+    monkeypatch.setattr(spec, "_SOURCE", dict(spec._SOURCE))
+    return reset
+
+
+def test_a_user_python_effect_runs_in_the_loop_only_from_the_named_file_with_its_recorded_sha256(
+        tmp_path, fresh_process):
+    from crane_io.physics.effects import load_effect_file
+    from crane_io.physics.effects.spec import offer_effect_files
+
+    effect_file, ran = tmp_path / "my_effects.py", tmp_path / "my_effects.ran"
+    effect_file.write_text(USER_EFFECT)
+    fresh_process()
+    load_effect_file(effect_file)  # named to define the effect (fit): it runs
+    d = _fit_save("rigid-body", tmp_path / "m", effects=[["loop-test-cubic-drag", "joint2", None]])
     loop = _assert_equal_predictions(d)
     assert loop.effects == ["loop-test-cubic-drag:joint2"]
     assert loop.paths[0].generic_terms  # a user effect goes through its columns
-    effect_file.unlink()
-    with pytest.raises(LoopModelError, match=re.escape(str(d)) + ".*my_effects.py.*cannot be found"):
+    spec = json.loads(str(np.load(d / EXPORT_FILE)["rigid_effect_specs"]))
+    assert spec[0]["kind"] == "user" and spec[0]["file"] == str(effect_file.resolve())
+    fresh_process()
+    ran.unlink()
+    with pytest.raises(LoopModelError, match=re.escape(str(d)) + ".*my_effects.py.*runs no user code"):
         LoopModel.load(d)
+    assert not ran.exists()
+    offer_effect_files([effect_file])  # named, same bytes: it runs once, and the loop uses it
+    assert LoopModel.load(d).effects == ["loop-test-cubic-drag:joint2"] and ran.read_text() == "ran\n"
+    fresh_process()
+    ran.unlink()
+    effect_file.write_text(USER_EFFECT + "\n# edited\n")
+    offer_effect_files([effect_file])  # named, but changed: refused before it runs
+    with pytest.raises(LoopModelError, match=re.escape(str(d)) + ".*my_effects.py.*changed since"):
+        LoopModel.load(d)
+    assert not ran.exists()
+
+
+def test_an_export_that_lists_python_effect_files_is_refused_without_running_them(copy, tmp_path):
+    marker = tmp_path / "ran"
+    evil = tmp_path / "evil.py"
+    evil.write_text(f"open({str(marker)!r}, 'w').write('x')\n")
+    d = copy("rigid-body")
+    with np.load(d / EXPORT_FILE) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays.pop("rigid_effect_specs")
+    arrays["rigid_effect_files"] = np.array([str(evil)])
+    raw = npz_bytes(arrays)
+    (d / EXPORT_FILE).write_bytes(raw)
+    doc = json.loads((d / "model.json").read_text())
+    doc["loop_export"]["sha256"] = hashlib.sha256(raw).hexdigest()
+    (d / "model.json").write_text(json.dumps(doc))
+    with pytest.raises(LoopModelError, match=re.escape(str(d)) + ".*evil.py.*never runs"):
+        LoopModel.load(d)
+    assert not marker.exists()
 
 
 def test_arm_is_read_from_model_json(copy):

@@ -13,6 +13,7 @@ import pytest
 
 from crane_io.errors import ConfigError
 from crane_io.physics.dynamics import ArmDynamics
+from crane_io.physics.effects import load_effect_file
 from crane_io.sim.arm_plant import ArmPlant
 from crane_io.sim.plant_api import ActuatorCommand
 from crane_io.sim.plant_config import ARM_JOINTS, BILATERAL_JOINTS, load_plant_config, presets
@@ -83,17 +84,18 @@ _REFERENCE = {
 def _reference_config(tmp_path, key: str):
     effects = tmp_path / "user_effects.py"
     effects.write_text(_USER_EFFECTS)
+    load_effect_file(effects)  # a plant file never runs code: the user's effects are defined in code
     extra = {
         "backlash+torque-constant-error":
             'base = "baseline"\n[[effects]]\neffect = "torque-constant-error"\njoint = "joint4"\n'
             'scale_error = 0.1\n[hidden]\neffect = "backlash"\njoint = "joint2"\nwidth = 0.0044\n'
             'motor_inertia = 0.01\n',
         "user friction effect+joint wall":
-            f'base = "crane-x7"\neffect_files = ["{effects}"]\n[hidden]\n'
+            'base = "crane-x7"\n[hidden]\n'
             'effect = "joints-test-soft-friction"\njoint = "joint4"\nlevel = 0.04\n[[environment]]\n'
             'kind = "joint-wall"\njoint = "joint4"\nangle = -0.2\nside = "above"\n',
         "user effect+payload+asymmetric Coulomb+spring":
-            f'base = "hidden-spring"\neffect_files = ["{effects}"]\n[[effects]]\n'
+            'base = "hidden-spring"\n[[effects]]\n'
             'effect = "joints-test-quad-drag"\njoint = "joint1"\ndrag = 0.05\n[[effects]]\n'
             'effect = "payload"\nmass = 0.2\n[[effects]]\neffect = "coulomb-asym"\njoint = "joint2"\n'
             'coulomb_pos = 0.2\ncoulomb_neg = 0.1\n',

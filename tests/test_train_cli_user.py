@@ -50,8 +50,10 @@ CABLE_DRAG = (Path(__file__).parents[1] / "docs" / "examples" / "cable_drag.py")
     'name = "cable-drag"', 'name = "cable-drag-user-test"')
 
 
-def test_a_model_with_a_user_effect_file_given_relative_loads_from_any_directory(session, tmp_path,
-                                                                                 monkeypatch):
+def test_a_model_with_a_user_effect_file_given_relative_loads_only_with_that_file_named(session, tmp_path,
+                                                                                       monkeypatch):
+    from crane_io.physics.effects import spec
+
     work = tmp_path / "work"
     work.mkdir()
     (work / "my_effects.py").write_text(CABLE_DRAG)
@@ -60,12 +62,13 @@ def test_a_model_with_a_user_effect_file_given_relative_loads_from_any_directory
                  "--effect", "cable-drag-user-test:joint=joint1", "-o", "models/drag")
     assert result.exit_code == 0, result.output
     monkeypatch.chdir(tmp_path)  # elsewhere, as a later session in another terminal would be
+    monkeypatch.setattr(spec, "_RUN", {})  # as in a new process: the file has not run there
+    monkeypatch.setattr(spec, "_OFFERED", {})
     result = run("compare", "work/models/drag", "--session", session)
+    assert result.exit_code == 2 and result.output.startswith("Error: ") and result.output.count("\n") == 1
+    assert "my_effects.py" in result.output and "--effect-file" in result.output
+    result = run("compare", "work/models/drag", "--session", session, "--effect-file", "work/my_effects.py")
     assert result.exit_code == 0, result.output
-    (work / "my_effects.py").unlink()
-    result = run("compare", "work/models/drag", "--session", session)
-    assert result.exit_code == 2 and result.output.startswith("Error: ")
-    assert "my_effects.py" in result.output and "fit the model again" in result.output
 
 
 def test_compare_from_another_directory_prints_each_models_notes(session, tmp_path, monkeypatch):

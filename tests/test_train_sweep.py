@@ -152,7 +152,8 @@ def test_config_file_overrides_defaults_and_bad_config_is_one_sentence(session, 
 
 def test_fit_with_a_custom_effect_from_the_users_file(session, tmp_path, monkeypatch):
     """`fit --effect-file mine.py --effect NAME:joint=...`: the user's effect becomes a fitted column, and
-    the saved model re-loads the file by itself (a fresh process knows nothing of the effect)."""
+    the saved model records the file with its SHA-256: it loads without the effect in the library (in
+    another process only with the file named again, tests/test_effects_as_data.py)."""
     import crane_io.physics.effects as fx
 
     monkeypatch.setattr(fx, "_REGISTRY", dict(fx._REGISTRY))  # the user effect leaves with the test
@@ -172,9 +173,10 @@ def test_fit_with_a_custom_effect_from_the_users_file(session, tmp_path, monkeyp
                                        "--scale-to-data", "--no-progress"])
     assert result.exit_code == 0, result.output
     monkeypatch.setattr(fx, "_REGISTRY", {k: v for k, v in fx._REGISTRY.items() if k != "drag-test"})
-    model = load_model(out)  # loads mine.py again
+    model = load_model(out)  # the effect from the file that ran for this fit, by its SHA-256
     assert [(v["effect"], v["joint"]) for v in model.effect_values()] == [("drag-test", "joint2")]
-    assert "drag-test" in fx._REGISTRY
+    spec = json.loads((out / "model.json").read_text())["options"]["effect_specs"][0]
+    assert spec["kind"] == "user" and spec["file"] == str(user.resolve()) and len(spec["sha256"]) == 64
     q = np.zeros((2, 3))
     assert np.isfinite(model.predict(q, q + 0.5, q)).all()
     bad = CliRunner().invoke(main, ["fit", str(session), "--model", "rigid-body", "-o", str(tmp_path / "x"),

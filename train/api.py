@@ -138,7 +138,8 @@ def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = ()
     data: a Dataset from load_sessions, or session file(s) (then arm, joints, alpha, zero_phase, config
     apply as in load_sessions); method: "rigid-body", "mlp-mse", "mlp-masked" or "hybrid"; effects
     (rigid-body, hybrid): physical effects added to the model, e.g. "coulomb", "coulomb:joint=joint2",
-    "stribeck:joint=joint4,stribeck_velocity=0.05"; effect_files: Python files defining more effects;
+    "stribeck:joint=joint4,stribeck_velocity=0.05"; effect_files: files defining more effects (effect-spec
+    files .json, read as data; Python files .py, run: the model records their SHA-256);
     epochs: of the network (default from the settings, 100); progress(done, total): called per epoch."""
     import numpy as np
 
@@ -146,9 +147,10 @@ def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = ()
     from .evaluation.metrics import metrics_table
     from .models.registry import make_model
 
-    effects = [_effect(e) for e in effects]  # bad input is refused before any work
     if (effects or effect_files) and method not in ("rigid-body", "hybrid"):
         raise ConfigError(f"effects apply to rigid-body and hybrid models, not {method}")
+    _define_effects(effect_files)
+    effects = [_effect(e) for e in effects]  # bad input is refused before any work
     settings = load_settings(config)
     if eval_set is not None:  # "auto", "all-moving" or "per-joint" (train.data.splits), over the config's
         from .data.splits import SplitConfig
@@ -167,9 +169,7 @@ def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = ()
         pool = pool.subset(rows)
     options = {}
     if effects or effect_files:
-        options["effects"] = [list(e) for e in effects]
-        # absolute, so that the saved model loads from any working directory
-        options["effect_files"] = [str(Path(f).resolve()) for f in effect_files]
+        options["effects"] = [list(e) for e in effects]  # the model records each effect's spec as data
     has_net = method.startswith("mlp-") or method == "hybrid"  # hybrid: a masked net on the residual
     if has_net:
         m = settings["mlp"]
@@ -205,11 +205,24 @@ def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = ()
     return FitResult(model, metrics, ds, splits)
 
 
-def load_model(model_dir: PathLike) -> Model:
+def _define_effects(effect_files: Sequence[PathLike]) -> None:
+    """Register the effects of files the user named to define effects (fit, diagnose): an effect-spec
+    file is read as data, a Python file is run."""
+    from crane_io.physics.effects import load_effect_file
+
+    for path in effect_files:
+        load_effect_file(path)
+
+
+def load_model(model_dir: PathLike, effect_files: Sequence[PathLike] = ()) -> Model:
     """A saved model (any method); `model.predict(q, dq, ddq)` takes (N, J) arrays in rad, rad/s, rad/s^2
-    and returns (N, J) N m."""
+    and returns (N, J) N m. Loading runs no code: a model that uses an effect defined in a user's Python
+    file needs that file in `effect_files`, and the file runs only when its SHA-256 is the recorded one."""
+    from crane_io.physics.effects.spec import offer_effect_files
+
     from .models.registry import load_model as _load
 
+    offer_effect_files(effect_files)
     return _load(model_dir)
 
 
@@ -217,15 +230,13 @@ def diagnosis_inputs(model_dir: PathLike, sessions: Sessions,
                      effect_files: Sequence[PathLike] = ()) -> tuple[Model, Dataset, str]:
     """What a diagnosis works on: the model, the sessions' data preprocessed as its training was (its
     own arm; a network only the samples it never trained on) and a phrase saying which samples those are.
-    `effect_files` are loaded first (their effects become candidates)."""
-    from crane_io.physics.effects import load_effect_file
-
+    `effect_files` may rebuild the model's own user effects (a Python file runs only when its SHA-256 is
+    the one the model records), then their effects become candidates."""
     from .data.preprocess import read_preprocessed
     from .evaluation.heldout import diagnosis_data, model_settings
 
-    for path in effect_files:
-        load_effect_file(path)
-    model = load_model(model_dir)
+    model = load_model(model_dir, effect_files)
+    _define_effects(effect_files)
     pconf = model_settings(model, model_dir)[0]
     ds, judged = diagnosis_data(model, read_preprocessed(_paths(sessions), pconf), model_dir)
     return model, ds, judged
@@ -265,22 +276,27 @@ def discover_terms(model_dir: PathLike, sessions: Sessions, *, every_joint: bool
 
 
 def compare_models(model_dirs: Sequence[PathLike], sessions: Sessions | None = None,
-            progress: bool = False) -> Comparison:
+            progress: bool = False, effect_files: Sequence[PathLike] = ()) -> Comparison:
     """The held-out error per joint of successive models on the same samples (default: the first model's
     training sessions); `.to_json()`, and train.evaluation.compare.table_text / plot for a table and a
-    chart."""
+    chart. `effect_files`: Python files defining user effects the models need (see load_model)."""
+    from crane_io.physics.effects.spec import offer_effect_files
+
     from .evaluation import compare
 
+    offer_effect_files(effect_files)
     return compare.compare_models([str(d) for d in model_dirs], _paths(sessions) if sessions else [],
                           progress=progress)
 
 
 def make_report(model_dir: PathLike, sessions: Sessions, output: PathLike, *, seed: int | None = None,
-                diagnosis: bool = True, discover: bool = False, force: bool = False) -> Path:
+                diagnosis: bool = True, discover: bool = False, force: bool = False,
+                effect_files: Sequence[PathLike] = ()) -> Path:
     """Write the self-contained HTML page of the model's error on the held-out part of `sessions` (with
     the diagnosis sentences unless `diagnosis=False`, and with `discover` the terms discovery finds in
-    the residual, each against it); `seed`: the split seed (default: the model's). The output is checked
-    first (never an input; an existing file replaced only with `force`) and written atomically."""
+    the residual, each against it); `seed`: the split seed (default: the model's); `effect_files`: Python
+    files defining user effects the model needs (see load_model). The output is checked first (never an
+    input; an existing file replaced only with `force`) and written atomically."""
     from crane_io.output_files import check_output
 
     from .evaluation.heldout import evaluation_data
@@ -288,7 +304,7 @@ def make_report(model_dir: PathLike, sessions: Sessions, output: PathLike, *, se
 
     paths = _paths(sessions)
     check_output(output, inputs=[model_dir, *paths], force=force, what="report", make_folders=True)
-    model = load_model(model_dir)
+    model = load_model(model_dir, effect_files)
     ds, _, held = evaluation_data(model, paths, seed=seed, model_dir=model_dir)
     diag = found = None
     if diagnosis or discover:

@@ -27,7 +27,11 @@ before exports existed). The export holds plain arrays only (loaded without pick
                         refused in one sentence
     rigid_effects       JSON list of effect terms {"name", "joint" (index or null), "shape", "n_coefs"}
     rigid_effect_coefs  their coefficients, concatenated in that order
-    rigid_effect_files  user effect files (`effect_files`) the terms need, loaded by crane_io.physics.effects
+    rigid_effect_specs  JSON list of the effects the terms use, as data (crane_io/physics/effects/spec.py):
+                        rebuilt without running code; an effect defined in a user's Python file is
+                        refused unless that file was named (offer_effect_files) with the recorded SHA-256.
+                        An older export without it may use built-in effects only; one that lists
+                        `rigid_effect_files` (Python files) is refused
 
 `sha256` is the hex digest of loop_model.npz's bytes (the weights the loop runs with); when model.json
 records the export's digest (`"loop_export": {"sha256": ...}`, written by Model.save) the two must agree.
@@ -495,12 +499,51 @@ class _Loader:
             paths.append(MLPPath(**arrays))
         return paths, effects
 
+    def _effects(self, recorded, again: str) -> dict | None:
+        """name -> Effect rebuilt from the export's effect specs (crane_io.physics.effects.spec: data, no
+        code runs); None for an export that predates them (then only built-in effects are rebuilt)."""
+        if recorded is None:
+            return None
+        from crane_io.physics.effects.spec import effect_table
+
+        try:
+            return effect_table(recorded, f"the model in {self.dir}",
+                                hint="the control loop runs no user code: write the effect as data (an "
+                                     "effect-spec file) and fit the model again")
+        except ConfigError as exc:
+            raise LoopModelError(str(exc)) from None
+
+    def _term_effect(self, table, recorded, spec: dict, again: str):
+        """The effect of one exported term: from the export's specs (its identity checked), or for an
+        export without specs the built-in effect of that name."""
+        name = spec.get("name")
+        if table is None:
+            from crane_io.physics.effects.spec import check_spec, rebuild
+
+            try:
+                return rebuild(check_spec({"kind": "library", "name": name, "version": 1}))
+            except ConfigError:
+                raise self.fail(f"uses the effect {name!r}, which is not built in and is not recorded as "
+                                f"data in its loop export; fit it again") from None
+        from crane_io.physics.effects.spec import identity
+
+        effect = table.get(name) if isinstance(name, str) else None
+        own = next((s for s in recorded if s.get("name") == name), None)
+        if effect is None or spec.get("identity") not in (None, identity(own)):
+            raise self.fail(f"has an inconsistent loop export: the effect term {name!r} has no matching "
+                            f"spec; {again}")
+        return effect
+
     def _rigid(self, a: dict, names: tuple, again: str):
         keys = ("rigid_theta_full", "rigid_locked_joints", "rigid_locked_angles", "rigid_payload_mass",
-                "rigid_effects", "rigid_effect_coefs", "rigid_effect_files")
+                "rigid_effects", "rigid_effect_coefs")
         lacking = [k for k in keys if k not in a]
         if lacking:
             raise self.fail(f"has a loop export without {lacking[0]}; {again}")
+        if "rigid_effect_files" in a and np.atleast_1d(a["rigid_effect_files"]).size:
+            files = ", ".join(str(f) for f in np.atleast_1d(a["rigid_effect_files"]))
+            raise self.fail(f"names the Python effect files {files}, which loading a model never runs; fit "
+                            f"it again so that it records its effects as data")
         if "rigid_context_joints" in a and np.atleast_1d(a["rigid_context_joints"]).size:
             ctx = ", ".join(str(n) for n in np.atleast_1d(a["rigid_context_joints"]))
             raise self.fail(f"is a rigid-body model whose kinematics read the recorded motion of {ctx} "
@@ -514,28 +557,18 @@ class _Loader:
                             f"{len(locked_angles)} locked angles; {again}")
         try:
             specs = json.loads(str(a["rigid_effects"]))
-        except json.JSONDecodeError:
+            recorded = json.loads(str(a["rigid_effect_specs"])) if "rigid_effect_specs" in a else None
+        except (json.JSONDecodeError, RecursionError):
             raise self.fail(f"has a loop export whose effect list is not readable; {again}") from None
-        from crane_io.physics import effects as fx
-        for f in (str(f) for f in np.atleast_1d(a["rigid_effect_files"])):
-            if not Path(f).is_file():
-                raise self.fail(f"uses the effects defined in {f}, which cannot be found; put that file back "
-                                f"or fit the model again")
-            try:
-                fx.load_effect_file(f)
-            except ConfigError as exc:
-                raise self.fail(f"uses the effects defined in {f}, which cannot be loaded ({exc})") from None
+        if not isinstance(specs, list) or not all(isinstance(s, dict) for s in specs):
+            raise self.fail(f"has a loop export whose effect list is not a list of tables; {again}")
+        table = self._effects(recorded, again)
         coefs = np.atleast_1d(np.asarray(a["rigid_effect_coefs"], dtype=float))
         terms, labels, k = [], [], 0
         for spec in specs:
             name, joint, shape = spec.get("name"), spec.get("joint"), spec.get("shape")
             n = spec.get("n_coefs")
-            try:
-                effect = fx.get_effect(name)
-            except ConfigError:
-                raise self.fail(f"uses the effect {name!r}, which is neither built in nor defined in an "
-                                f"effect file it names; fit it again with the file that "
-                                f"defines it in `effect_files`") from None
+            effect = self._term_effect(table, recorded, spec, again)
             if n != effect.n_columns() or k + effect.n_columns() > coefs.size:
                 raise self.fail(f"has an inconsistent loop export: effect {name} needs "
                                 f"{effect.n_columns()} coefficients; {again}")

@@ -59,7 +59,7 @@ from crane_io.description import default_arm
 from crane_io.dynamixel.units import AMPERE_PER_CURRENT_LSB, RAD_PER_PULSE, RADS_PER_VELOCITY_LSB
 from crane_io.errors import ConfigError
 from crane_io.physics.dynamics import ArmDynamics
-from crane_io.physics.effects import PlantTerms, get_effect
+from crane_io.physics.effects import PlantTerms
 from crane_io.sim import chain_kernel, noise_kernel, plant_kernel
 from crane_io.sim.environment import Environment
 from crane_io.sim.plant_api import ActuatorCommand, SensorReading
@@ -295,7 +295,7 @@ class ArmPlant:
         index = {name: k for k, name in enumerate(self.joints)}
         terms = PlantTerms(self.joints, {name: float(self.config.torque_constant[name]) for name in names})
         for spec in self.config.all_effects:
-            eff = get_effect(spec.effect)
+            eff = spec.build()  # the library's, or the plant's own from its definition (data)
             eff.add_to_plant(terms, index[spec.joint] if spec.joint is not None else None,
                              eff.check_values(spec.values))
         self.terms = terms

@@ -15,7 +15,10 @@ Keys (every one optional; crane_io/sim/plants/crane-x7.toml documents each with 
                                position followers. ArmPlant(joints=...) overrides it; every joint
                                effect and joint wall must be on an integrated joint
     substep_s = 0.00025        integration substep (s); stick-slip is resolved every substep
-    effect_files = []          user Python files with Effect subclasses to load first
+    effect_specs = [...]       effect-spec files (JSON, crane_io/physics/effects/spec.py; paths relative
+                               to this file): effects as data (sums of basis terms) that [[effects]]
+                               and [hidden] can name. Loading a plant never runs code: the former
+                               `effect_files` (Python files) is refused
     [torque_constant]          TRUE N m/A per joint (the recorder uses crane_io.description's values)
     [locked]                   angle (rad) at which each held joint is locked in the dynamics; an
                                entry for an integrated joint is not used (PlantConfig.locked holds
@@ -64,19 +67,31 @@ from crane_io.toml_config import check_keys, check_seed, expect, from_table, is_
 BILATERAL_JOINTS = ("joint1", "joint2", "joint4")  # the paper's joints: the default integrated set
 # the joints a plant can integrate (the gripper is always a held servo)
 ARM_JOINTS = ("joint1", "joint2", "joint3", "joint4", "joint5", "joint6", "joint7")
-_TOP_KEYS = {"name", "description", "base", "seed", "joints", "substep_s", "effect_files", "torque_constant",
-             "locked", "initial", "sensor", "overload", "limits", "effects", "known", "hidden", "environment"}
+_TOP_KEYS = {"name", "description", "base", "seed", "joints", "substep_s", "effect_files", "effect_specs",
+             "torque_constant", "locked", "initial", "sensor", "overload", "limits", "effects", "known",
+             "hidden", "environment"}
 ENVIRONMENT_KINDS = ("joint-wall", "plane")
 
 
 @dataclass
 class EffectSpec:
-    effect: str  # library name
+    effect: str  # library name, or the name of an effect of one of the plant's effect_specs files
     joint: str | None  # joint name (None for arm-scope effects)
     values: dict[str, float] = field(default_factory=dict)
+    definition: dict | None = None  # the effect as data when it comes from an effect-spec file
 
     def as_dict(self) -> dict:
         return {"effect": self.effect, "joint": self.joint, **self.values}
+
+    def build(self):
+        """A fresh instance of the effect (from its definition when it has one; nothing is run)."""
+        if self.definition is not None:
+            from crane_io.physics.effects.spec import rebuild
+
+            return rebuild(self.definition, f"the plant's effect {self.effect!r}")
+        from crane_io.physics.effects import get_effect
+
+        return get_effect(self.effect)
 
 
 @dataclass(frozen=True)
@@ -144,7 +159,6 @@ class PlantConfig:
     seed: int = 0
     joints: tuple[str, ...] = BILATERAL_JOINTS  # integrated joints when ArmPlant(joints=None)
     substep_s: float = 0.00025
-    effect_files: list[str] = field(default_factory=list)
     torque_constant: dict[str, float] = field(default_factory=dict)
     locked: dict[str, float] = field(default_factory=dict)
     initial: dict[str, float] = field(default_factory=dict)
@@ -287,15 +301,16 @@ def check_joints(joints, where: str = "the plant") -> tuple[str, ...]:
     return tuple(j for j in ARM_JOINTS if j in joints)
 
 
-def _effect_spec(entry, where: str, joints=BILATERAL_JOINTS) -> EffectSpec:
-    from crane_io.physics.effects import get_effect
-
+def _effect_spec(entry, where: str, joints=BILATERAL_JOINTS, defined: dict | None = None) -> EffectSpec:
     if not isinstance(entry, dict) or "effect" not in entry:
         raise ConfigError(f"{where}: every effect entry needs an 'effect' name")
     entry = dict(entry)
     name = entry.pop("effect")
     joint = entry.pop("joint", None)
-    eff = get_effect(name)
+    if not isinstance(name, str):
+        raise ConfigError(f"{where}: an effect name must be a text, got {name!r}")
+    spec = EffectSpec(name, joint, definition=(defined or {}).get(name))
+    eff = spec.build()
     if eff.scope == "joint":
         if joint not in joints:
             fix = (f" (to simulate it there, add {joint} to the plant's joints)" if joint in ARM_JOINTS
@@ -305,13 +320,39 @@ def _effect_spec(entry, where: str, joints=BILATERAL_JOINTS) -> EffectSpec:
     elif joint is not None:
         raise ConfigError(f"{where}: effect {name!r} acts on the whole arm; remove its joint")
     values = eff.check_values(entry)
-    return EffectSpec(name, joint, {k: values[k] for k in values})
+    spec.values = {k: values[k] for k in values}
+    return spec
+
+
+def _defined_effects(data: dict, where: str) -> dict[str, dict]:
+    """name -> terms spec of every effect in the plant's effect_specs files (read as data). A plant that
+    lists Python `effect_files` is refused: loading a plant never runs code."""
+    from crane_io.physics.effects.spec import read_spec_file
+
+    files = data.get("effect_files") or []
+    files = files if isinstance(files, list) else [files]
+    if files:
+        raise ConfigError(f"{where}: effect_files names Python files ({', '.join(map(str, files))}), which "
+                          f"loading a plant never runs; write the effects as data in an effect-spec file and "
+                          f"list it in effect_specs")
+    paths = data.get("effect_specs") or []
+    if not isinstance(paths, list) or not all(isinstance(p, str) and p for p in paths):
+        raise ConfigError(f"{where}: effect_specs must be a list of effect-spec file paths")
+    base_dir = Path(where).parent if Path(where).is_file() else Path.cwd()
+    out: dict[str, dict] = {}
+    for f in paths:
+        p = Path(f) if Path(f).is_absolute() else base_dir / f
+        for spec in read_spec_file(p):
+            if spec["name"] in out and out[spec["name"]] != spec:
+                raise ConfigError(f"{where}: two effect-spec files define different effects named "
+                                  f"{spec['name']!r}")
+            out[spec["name"]] = spec
+    return out
 
 
 def load_plant_config(preset_or_path: str | Path = "crane-x7") -> PlantConfig:
-    """A PlantConfig from a preset name (see presets()) or a TOML path. Bad input -> ConfigError."""
-    from crane_io.physics.effects import load_effect_file
-
+    """A PlantConfig from a preset name (see presets()) or a TOML path. Bad input -> ConfigError. Nothing
+    it names is run: effects come from the library or, as data, from its effect_specs files."""
     data, where = _raw(preset_or_path)
     cfg = PlantConfig(source=str(preset_or_path))
     cfg.name = str(data.get("name", Path(str(preset_or_path)).stem))
@@ -323,13 +364,7 @@ def load_plant_config(preset_or_path: str | Path = "crane-x7") -> PlantConfig:
     cfg.joints = check_joints(data.get("joints", list(BILATERAL_JOINTS)), where)
     if not 1e-5 <= cfg.substep_s <= 0.002:
         raise ConfigError(f"{where}: substep_s must be between 1e-05 and 0.002 s, got {cfg.substep_s}")
-    files = data.get("effect_files", []) or []
-    base_dir = Path(where).parent if Path(where).is_file() else Path.cwd()
-    for f in files:
-        p = Path(f)
-        p = p if p.is_absolute() else base_dir / p
-        load_effect_file(p)
-        cfg.effect_files.append(str(p))
+    defined = _defined_effects(data, where)
     arm = default_arm()
     cfg.torque_constant = {j.name: j.torque_constant for j in arm.joints}
     cfg.torque_constant.update(_float_table(data, "torque_constant", where))
@@ -346,9 +381,9 @@ def load_plant_config(preset_or_path: str | Path = "crane-x7") -> PlantConfig:
     effects = data.get("effects", []) or []
     if not isinstance(effects, list):
         raise ConfigError(f"{where}: effects must be a list of [[effects]] tables")
-    cfg.effects = [_effect_spec(e, where, cfg.joints) for e in effects]
+    cfg.effects = [_effect_spec(e, where, cfg.joints, defined) for e in effects]
     if data.get("hidden"):
-        cfg.hidden = _effect_spec(data["hidden"], where + " [hidden]", cfg.joints)
+        cfg.hidden = _effect_spec(data["hidden"], where + " [hidden]", cfg.joints, defined)
     known_table = data.get("known") or {}
     if not isinstance(known_table, dict):
         raise ConfigError(f"{where}: known must be a table ([known] with effects = [...])")
@@ -360,7 +395,8 @@ def load_plant_config(preset_or_path: str | Path = "crane-x7") -> PlantConfig:
     for k in known:
         if not isinstance(k, dict) or "effect" not in k:
             raise ConfigError(f"{where}: [known] effects must be tables with an 'effect' name")
-        get_effect(k["effect"])
+        if k["effect"] not in defined:
+            get_effect(k["effect"])
         cfg.known.append((str(k["effect"]), k.get("joint"), k.get("shape")))
     cfg.environment = _environment(data.get("environment", []), where, cfg.joints)
     return cfg

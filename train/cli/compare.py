@@ -30,11 +30,14 @@ def _default_sessions(model_dir) -> list[str]:
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
               help="Write the bar chart of the error per joint (one bar per model, log axis) to this PNG "
                    "(.pdf, .svg: that format).")
+@click.option("--effect-file", "effect_files", multiple=True, type=click.Path(dir_okay=False),
+              help="A Python file defining a user effect a model needs (repeatable); it runs only if its "
+                   "SHA-256 is the one the model records. Loading a model never runs code by itself.")
 @click.option("--metric", type=click.Choice(["mse", "rmse", "nmse"]), default="mse", show_default=True,
               help="The metric of the printed table and of the plot.")
 @force_option("the plot")
 @cli_errors
-def compare(model_dirs, sessions, as_json, output, metric, force):
+def compare(model_dirs, sessions, as_json, output, metric, effect_files, force):
     """Compare MODEL_DIR(s), in the given order, on the same held-out samples."""
     from crane_io.output_files import check_output
 
@@ -46,6 +49,9 @@ def compare(model_dirs, sessions, as_json, output, metric, force):
         plot_format(output)
         check_output(output, inputs=[*model_dirs, *(sessions or _default_sessions(model_dirs[0]))],
                      force=force, what="plot", make_folders=True)
+    from crane_io.physics.effects.spec import offer_effect_files
+
+    offer_effect_files(effect_files)
     result = compare_models(list(model_dirs), list(sessions), progress=show_progress(not as_json))
     if output:
         plot(result, output, metric)

@@ -7,8 +7,8 @@ refitted per fold on all samples, any other model is judged only on the samples 
 
 With --discover (train/diagnosis/discovery.py), each joint whose residual stays significant after the
 library's best candidate (every joint with --discover-all) gets a sparse regression of that residual on a
-basis of physical terms; --write-effect-file writes what is significant as an effect file for
-`fit --effect-file`.
+basis of physical terms; --write-effect-file writes what is significant as an effect-spec file (JSON:
+effects as data, nothing in it runs) for `fit --effect-file`.
 """
 
 from __future__ import annotations
@@ -18,7 +18,6 @@ import json
 import click
 
 from crane_io.cli_support import Number, cli_errors
-from crane_io.errors import ConfigError
 
 from ..diagnosis.defaults import DEFAULT_FOLDS, DEFAULT_MIN_REDUCTION
 from .options import force_option
@@ -43,14 +42,16 @@ def _params_text(params: dict) -> str:
 @click.option("--top", default=3, show_default=True, type=click.IntRange(1, 100),
               help="Candidates shown per joint in the text output.")
 @click.option("--effect-file", "effect_files", multiple=True, type=click.Path(dir_okay=False),
-              help="A Python file defining extra effects to try as candidates (repeatable).")
+              help="An effect-spec file (.json) or a Python file (.py, run) defining extra effects to try as "
+                   "candidates (repeatable); also the Python file of a user effect the model needs (run "
+                   "only if its SHA-256 is the one the model records).")
 @click.option("--discover", is_flag=True,
               help="Also propose the missing term: sparse regression of the residual on a basis of physical "
                    "terms, for each joint whose residual stays significant after the library's best.")
 @click.option("--discover-all", is_flag=True,
               help="Discovery on every joint, from the model alone (implies --discover).")
 @click.option("--write-effect-file", "effect_out", type=click.Path(dir_okay=False), default=None,
-              help="Write the significant discovered terms as an effect file PATH.py for "
+              help="Write the significant discovered terms as an effect-spec file PATH.json (data) for "
                    "`fit --effect-file` (implies --discover).")
 @force_option("the --json-out and --write-effect-file files")
 @cli_errors
@@ -59,10 +60,12 @@ def diagnose(model_dir, sessions, as_json, json_out, folds, min_reduction, top, 
     """Rank the library's effects by how much of MODEL_DIR's error on SESSION(s) each one removes."""
     from crane_io.output_files import check_output, write_text_atomic
 
-    if effect_out and not str(effect_out).endswith(".py"):
-        raise ConfigError(f"--write-effect-file must name a Python file (.py), got {effect_out}")
+    if effect_out:
+        from ..diagnosis.effect_writer import check_suffix
+
+        check_suffix(effect_out)
     inputs = [model_dir, *sessions, *effect_files]
-    for out, what, other in ((json_out, "JSON file", effect_out), (effect_out, "effect file", json_out)):
+    for out, what, other in ((json_out, "JSON file", effect_out), (effect_out, "effect-spec file", json_out)):
         if out is not None:
             check_output(out, inputs=inputs, force=force, what=what, others=[other], make_folders=True)
 
@@ -132,5 +135,5 @@ def _echo_discovery(found, written, effect_out) -> None:
         path, added = written
         flags = " ".join(f"--effect {name}:joint={joint}" + (f" --effect {lib}:joint={joint}" if lib else "")
                          for name, joint, lib in added)
-        click.echo(f"Effect file written to {path}. Refit with: crane-train fit SESSION... --model "
+        click.echo(f"Effect-spec file written to {path}. Refit with: crane-train fit SESSION... --model "
                    f"rigid-body --effect-file {path} {flags} (plus the model's own effects) -o NEW_MODEL_DIR")

@@ -1,6 +1,6 @@
 """`crane-train effects`: the physical-effects library — name, parameters with units, what each effect
 models and the residual signature it leaves when a model lacks it. Effects from a user's Python file
-(`--effect-file`) are listed too."""
+or an effect-spec file (`--effect-file`) are listed too."""
 
 from __future__ import annotations
 
@@ -39,7 +39,8 @@ def effect_rows(effect_files=()) -> list[dict]:
 
 @click.command()
 @click.option("--effect-file", "effect_files", multiple=True, type=click.Path(dir_okay=False),
-              help="A Python file defining Effect subclasses; its effects are listed too (repeatable).")
+              help="An effect-spec file (.json, read as data) or a Python file defining Effect subclasses "
+                   "(.py, run); its effects are listed too (repeatable).")
 @click.option("--json", "as_json", is_flag=True, help="Print the list as JSON.")
 @cli_errors
 def effects(effect_files, as_json):

@@ -60,7 +60,8 @@ def _fit_and_save(sessions, method: str, out_dir, train_size: int | None = None,
               help="Add a physical effect's columns (rigid-body, hybrid); repeatable. Without joint= a "
                    "joint effect goes on every learning joint.")
 @click.option("--effect-file", "effect_files", multiple=True, type=click.Path(dir_okay=False, exists=True),
-              help="Python file defining extra effects (see crane_io.physics.effects).")
+              help="A file defining extra effects: an effect-spec file (.json, data, e.g. from diagnose "
+                   "--write-effect-file) or a Python file (.py, run; the model records its SHA-256).")
 @click.option("--epochs", type=Number(int, 1), default=None,
               help="Epochs of the network (mlp-mse, mlp-masked, hybrid) [100].")
 @arm_option

@@ -23,9 +23,12 @@ from .options import force_option
                    "plotted against it.")
 @click.option("--seed", type=SEED, default=None,
               help="Split seed (default: the one the model was trained with).")
+@click.option("--effect-file", "effect_files", multiple=True, type=click.Path(dir_okay=False),
+              help="A Python file defining a user effect the model needs (repeatable); it runs only if its "
+                   "SHA-256 is the one the model records.")
 @force_option("the HTML file")
 @cli_errors
-def report(model_dir, sessions, output, diagnosis, discover, seed, force):
+def report(model_dir, sessions, output, diagnosis, discover, seed, effect_files, force):
     """Write an HTML report of MODEL_DIR's error on the held-out part of SESSION(s)."""
     from crane_io.output_files import check_output
 
@@ -35,5 +38,5 @@ def report(model_dir, sessions, output, diagnosis, discover, seed, force):
     check_output(output, inputs=[model_dir, *sessions], force=force, what="report", make_folders=True)
     click.echo(f"Evaluating {model_dir} on the held-out part of {', '.join(sessions)} ...", err=True)
     path = make_report(model_dir, list(sessions), output, seed=seed, diagnosis=diagnosis, discover=discover,
-                       force=force)
+                       force=force, effect_files=effect_files)
     click.echo(f"Wrote {path} ({path.stat().st_size / 1e3:.0f} kB); open it in a browser (works offline).")

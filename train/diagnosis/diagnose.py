@@ -190,7 +190,8 @@ def _own_shape_terms(model, ds: Dataset) -> list[dict]:
     out, k = [], int(dyn.n_base)
     for i, term in enumerate(terms):
         try:
-            effect = bind(fx.get_effect(term["name"]), ds.joint_names)
+            own = getattr(model, "effect_by_name", None)  # the model's own effect, not the library's by name
+            effect = bind(own(term["name"]) if own else fx.get_effect(term["name"]), ds.joint_names)
         except CraneError:
             return []
         n = effect.n_columns()

@@ -63,8 +63,8 @@ class FoundTerm:
     coefficient: float
     stderr: float
     unit: str = "N m"
-    code: str = field(default="", repr=False)
-    parameter: str = ""  # its name in a written effect file
+    expr: list = field(default_factory=list, repr=False)  # basis grammar: crane_io.physics.effects.terms
+    parameter: str = ""  # its name in a written effect-spec file
     family: str = ""  # "velocity sign x angle", "coupling", ... (train/diagnosis/discovery_basis.py)
 
 
@@ -89,7 +89,7 @@ class JointDiscovery:
         d = asdict(self)
         d.pop("curves")
         for t in d["terms"]:
-            t.pop("code")
+            t.pop("expr")
         return d
 
 
@@ -194,7 +194,7 @@ def discover_joint(ds: Dataset, base: np.ndarray, y: np.ndarray, j: int, fold: n
         order = np.argsort([-abs(c) * np.std(T[rows, s]) for c, s in zip(th_c, S)])
         for o in order:
             t = terms[S[o]]
-            found.append(FoundTerm(t.name, float(th_c[o]), float(se[o]), t.unit, t.code, t.parameter,
+            found.append(FoundTerm(t.name, float(th_c[o]), float(se[o]), t.unit, t.expr, t.parameter,
                                    t.family))
         fit = (C @ th_c)[:, j]
         partial = y[:, j] - (base @ th_x)[:, j] if base.shape[2] else y[:, j]

@@ -15,7 +15,8 @@ For the joint j under study (variables q_j, dq_j, ddq_j; "2" for joint2) and eve
 
 Columns that duplicate an earlier one (correlation beyond 0.9999 on the joint's moving samples, e.g.
 the library's Coulomb column and sign(dq_j)) or that are zero there are dropped. Every term carries the
-numpy code that computes it, so the effect file written from a discovery (train/diagnosis/effect_writer.py)
+expression in the basis grammar of crane_io/physics/effects/terms.py (plain data, computed over a whitelist
+of numpy functions), so the effect-spec file written from a discovery (train/diagnosis/effect_writer.py)
 computes exactly the column that was fitted.
 """
 
@@ -28,6 +29,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from crane_io.errors import CraneError
+from crane_io.physics.effects.terms import column, joint_label, term_name
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -39,7 +41,7 @@ _SKIP_LIBRARY = {"payload", "torque-constant-error"}  # need the arm's dynamics;
 @dataclass(frozen=True)
 class Term:
     name: str  # readable: "sign(dq2)·cos(2·q2)"
-    code: str  # numpy expression in q, dq, ddq ((N, J) arrays) and np, get_effect: "np.sign(dq[:, 1]) * ..."
+    expr: list  # in the basis grammar (crane_io.physics.effects.terms): [["sign", 1], ["cos", 2, [1]]]
     unit: str  # unit of the coefficient that multiplies it: "N m", "N m s/rad", ...
     family: str  # "velocity sign", "velocity sign x angle", "coupling", ...
     variables: frozenset  # the signals it reads: {"dq2", "q2"}
@@ -54,63 +56,58 @@ class Term:
 
 
 def evaluate(term: Term, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
-    """(N,) column of `term` (its code run on our own generated expression, never on user input)."""
-    from crane_io.physics.effects import get_effect
-
-    out = eval(term.code, {"np": np, "get_effect": get_effect, "__builtins__": {}},  # noqa: S307
-               {"q": q, "dq": dq, "ddq": ddq})
-    return np.broadcast_to(np.asarray(out, dtype=float), (len(q),)).copy()
+    """(N,) column of `term`, computed over the basis grammar's whitelist (nothing is run as code)."""
+    return column(term.expr, np.asarray(q, dtype=float), np.asarray(dq, dtype=float),
+                  np.asarray(ddq, dtype=float))
 
 
-def _label(name: str, index: int) -> str:
-    m = re.search(r"(\d+)$", name)
-    return m.group(1) if m else str(index + 1)
+def _piece(expr: list, joint_names, variables) -> tuple:
+    """(name, expr, variables, readable factors) of a one-factor piece."""
+    name = term_name(expr, joint_names)
+    return (name, expr, frozenset(variables), (name,))
 
 
 def _mul(a: tuple, b: tuple, family: str, unit: str) -> tuple:
-    """Product of two (name, code, variables, factors) pieces as a term tuple."""
-    return (f"{a[0]}·{b[0]}", f"({a[1]}) * ({b[1]})", unit, family, a[2] | b[2], a[3] + b[3])
-
-
-def _piece(name, code, variables):
-    return (name, code, frozenset(variables), (name,))
+    """Product of two pieces as a term tuple."""
+    return (f"{a[0]}·{b[0]}", a[1] + b[1], unit, family, a[2] | b[2], a[3] + b[3])
 
 
 def generate(joint_names: Sequence[str], j: int, library: bool = True) -> list[Term]:
     """Every candidate term for joint index `j` of `joint_names` (before dropping duplicates)."""
-    labels = [_label(n, i) for i, n in enumerate(joint_names)]
+    labels = [joint_label(n, i) for i, n in enumerate(joint_names)]
     out: list[tuple] = []
 
+    def piece(expr, *variables):
+        return _piece(expr, joint_names, variables)
+
     def q(k):
-        return _piece(f"q{labels[k]}", f"q[:, {k}]", {f"q{labels[k]}"})
+        return piece([["q", k]], f"q{labels[k]}")
 
     def dq(k):
-        return _piece(f"dq{labels[k]}", f"dq[:, {k}]", {f"dq{labels[k]}"})
+        return piece([["dq", k]], f"dq{labels[k]}")
 
     def sgn(k):
-        return _piece(f"sign(dq{labels[k]})", f"np.sign(dq[:, {k}])", {f"dq{labels[k]}"})
+        return piece([["sign", k]], f"dq{labels[k]}")
 
     def trig(fn, n, k):
-        arg = f"q{labels[k]}" if n == 1 else f"{n}·q{labels[k]}"
-        code = f"np.{fn}(q[:, {k}])" if n == 1 else f"np.{fn}({n} * q[:, {k}])"
-        return _piece(f"{fn}({arg})", code, {f"q{labels[k]}"})
+        return piece([[fn, n, [k]]], f"q{labels[k]}")
 
-    def add(piece, unit, family):
-        out.append(piece[:2] + (unit, family) + piece[2:])
+    def add(p, unit, family):
+        out.append(p[:2] + (unit, family) + p[2:])
 
     L = labels[j]
-    out.append(("1", "np.ones(q.shape[0])", "N m", "constant", frozenset(), ("1",)))
+    add(piece([["1"]]), "N m", "constant")
     add(sgn(j), "N m", "velocity sign")
     for v in SMOOTH_SIGN_VELOCITIES:
-        add(_piece(f"tanh(dq{L}/{v:g})", f"np.tanh(dq[:, {j}] / {v!r})", {f"dq{L}"}), "N m", "velocity sign")
+        add(piece([["tanh", j, v]], f"dq{L}"), "N m", "velocity sign")
     add(dq(j), "N m s/rad", "velocity")
-    add(_piece(f"|dq{L}|·dq{L}", f"np.abs(dq[:, {j}]) * dq[:, {j}]", {f"dq{L}"}), "N m s^2/rad^2", "velocity")
-    add(_piece(f"dq{L}³", f"dq[:, {j}] ** 3", {f"dq{L}"}), "N m s^3/rad^3", "velocity")
-    add(_piece(f"ddq{L}", f"ddq[:, {j}]", {f"ddq{L}"}), "N m s^2/rad", "acceleration")
+    add(piece([["abs", "dq", j], ["dq", j]], f"dq{L}"), "N m s^2/rad^2", "velocity")
+    add(piece([["pow", "dq", j, 3]], f"dq{L}"), "N m s^3/rad^3", "velocity")
+    add(piece([["ddq", j]], f"ddq{L}"), "N m s^2/rad", "acceleration")
     add(q(j), "N m/rad", "angle")
-    add(_piece(f"q{L}²", f"q[:, {j}] ** 2", {f"q{L}"}), "N m/rad^2", "angle")
-    add(_piece(f"q{L}³", f"q[:, {j}] ** 3", {f"q{L}"}), "N m/rad^3", "angle")
-    add(_piece(f"q{L}·|q{L}|", f"q[:, {j}] * np.abs(q[:, {j}])", {f"q{L}"}), "N m/rad^2", "angle")
+    add(piece([["pow", "q", j, 2]], f"q{L}"), "N m/rad^2", "angle")
+    add(piece([["pow", "q", j, 3]], f"q{L}"), "N m/rad^3", "angle")
+    add(piece([["q", j], ["abs", "q", j]], f"q{L}"), "N m/rad^2", "angle")
     for n in (1, 2, 3):
         for fn in ("sin", "cos"):
             add(trig(fn, n, j), "N m", "angle")
@@ -125,11 +122,10 @@ def generate(joint_names: Sequence[str], j: int, library: bool = True) -> list[T
             continue
         K = labels[k]
         add(sgn(k), "N m", "coupling")
-        add(_piece(f"tanh(dq{K}/0.25)", f"np.tanh(dq[:, {k}] / 0.25)", {f"dq{K}"}), "N m", "coupling")
+        add(piece([["tanh", k, 0.25]], f"dq{K}"), "N m", "coupling")
         add(dq(k), "N m s/rad", "coupling")
-        add(_piece(f"|dq{K}|·dq{K}", f"np.abs(dq[:, {k}]) * dq[:, {k}]", {f"dq{K}"}), "N m s^2/rad^2",
-            "coupling")
-        add(_piece(f"ddq{K}", f"ddq[:, {k}]", {f"ddq{K}"}), "N m s^2/rad", "coupling")
+        add(piece([["abs", "dq", k], ["dq", k]], f"dq{K}"), "N m s^2/rad^2", "coupling")
+        add(piece([["ddq", k]], f"ddq{K}"), "N m s^2/rad", "coupling")
         for n in (1, 2):
             for fn in ("sin", "cos"):
                 add(trig(fn, n, k), "N m", "coupling")
@@ -141,11 +137,8 @@ def generate(joint_names: Sequence[str], j: int, library: bool = True) -> list[T
     if n_j > 2:
         groups.append(tuple(range(n_j)))
     for g in groups:
-        arg = " + ".join(f"q{labels[k]}" for k in g)
-        code = " + ".join(f"q[:, {k}]" for k in g)
         for fn in ("sin", "cos"):
-            out.append((f"{fn}({arg})", f"np.{fn}({code})", "N m", "sum of angles",
-                        frozenset(f"q{labels[k]}" for k in g), (f"{fn}({arg})",)))
+            add(piece([[fn, 1, list(g)]], *(f"q{labels[k]}" for k in g)), "N m", "sum of angles")
     terms = [Term(*t) for t in out]
     if library:
         terms += library_terms(joint_names, j)
@@ -154,13 +147,14 @@ def generate(joint_names: Sequence[str], j: int, library: bool = True) -> list[T
 
 def library_terms(joint_names: Sequence[str], j: int) -> list[Term]:
     """The library's joint-scope effects as terms on joint j: one per column and point of the shape grid."""
-    from crane_io.physics.effects import list_effects
+    from crane_io.physics.effects.library import BUILTIN_EFFECTS
 
     from .effects import shape_options
 
-    L = _label(joint_names[j], j)
+    L = joint_label(joint_names[j], j)
     out = []
-    for effect in list_effects():
+    for cls in BUILTIN_EFFECTS:
+        effect = cls()
         if effect.scope != "joint" or effect.name in _SKIP_LIBRARY:
             continue
         for shape in shape_options(effect):
@@ -169,12 +163,10 @@ def library_terms(joint_names: Sequence[str], j: int) -> list[Term]:
                 k_cols = effect.n_columns()
             except CraneError:
                 continue
-            where = ", ".join(f"{k}={v:g}" for k, v in shape.items())
             for c, p in enumerate(effect.linear_params[:k_cols]):
-                base = effect.name if k_cols == 1 else f"{effect.name}.{p.name}"
-                name = f"{base}(joint{L}; {where})" if where else f"{base}(joint{L})"
-                code = f"get_effect({effect.name!r}).columns(q, dq, ddq, {j}, {shape!r})[:, {j}, {c}]"
-                out.append(Term(name, code, p.unit, "library", frozenset({f"q{L}", f"dq{L}", f"ddq{L}"}),
+                expr = [["library", effect.name, j, c, dict(shape)]]
+                name = term_name(expr, joint_names)
+                out.append(Term(name, expr, p.unit, "library", frozenset({f"q{L}", f"dq{L}", f"ddq{L}"}),
                                 (name,)))
     return out
 

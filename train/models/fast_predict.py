@@ -54,8 +54,6 @@ def _rigid_path(model) -> RigidPath:
     """The RigidPath of a fitted train.models.rigid_body.RigidBodyModel (its own cached dynamics)."""
     if model.theta is None:
         raise PredictorError("the rigid-body model has not been fitted or loaded")
-    from crane_io.physics.effects import get_effect
-
     if getattr(model, "context_joints", ()):
         raise PredictorError(f"the rigid-body model's kinematics read the recorded angles of "
                              f"{', '.join(model.context_joints)} (context joints), which a one-sample "
@@ -66,7 +64,7 @@ def _rigid_path(model) -> RigidPath:
     theta_full[indep] = model.theta[:len(indep)]
     terms, k = [], len(indep)
     for term in model.terms:
-        effect = get_effect(term["name"])
+        effect = model.effect_by_name(term["name"])  # the model's own, rebuilt from its recorded spec
         n = effect.n_columns()
         terms.append((effect, term["joint"], term["shape"], np.asarray(model.theta[k:k + n], dtype=float)))
         k += n

@@ -29,6 +29,7 @@ import numpy as np
 
 from ..data.dataset import Dataset
 from .base import Model, ModelFileError
+from .recorded_effects import refuse_effect_files, specs_for
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -43,6 +44,9 @@ class HybridModel(Model):
     def __init__(self, joint_names, preprocessing: dict | None = None, effects=(), hidden: int = 64,
                  lr: float = 0.01, epochs: int = 100, batch_size: int = 32, seed: int = 0, **rigid_options):
         effects = [list(e) if isinstance(e, (list, tuple)) else e for e in (effects or [])]
+        refuse_effect_files(rigid_options.pop("effect_files", ()))
+        if rigid_options.get("effect_specs") is None:  # the effects as data, passed on to the physics part
+            rigid_options["effect_specs"] = specs_for(e if isinstance(e, str) else e[0] for e in effects)
         super().__init__(joint_names, preprocessing, effects=effects, hidden=hidden, lr=lr, epochs=epochs,
                          batch_size=batch_size, seed=seed, **rigid_options)
         self.rigid_options = dict(rigid_options)

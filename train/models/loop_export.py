@@ -52,18 +52,21 @@ def _mlp_arrays(mlp) -> dict:
 
 
 def _rigid_arrays(rigid) -> dict:
-    from crane_io.physics import effects as fx
+    from crane_io.physics.effects.spec import identity
+
     dyn = rigid.dynamics
     indep = rigid.base_independent_columns()
     n_base = len(indep)
     theta = np.asarray(rigid.theta, dtype=np.float64)
     theta_full = np.zeros(10 * dyn.nbodies)
     theta_full[indep] = theta[:n_base]
+    table = rigid.effect_table()
+    recorded = {s["name"]: s for s in rigid.options.get("effect_specs", [])}
     specs, k = [], n_base
     for term in rigid.terms:
-        n = fx.get_effect(term["name"]).n_columns()
+        n = table[term["name"]].n_columns()
         specs.append({"name": term["name"], "joint": None if term["joint"] is None else int(term["joint"]),
-                      "shape": term["shape"], "n_coefs": n})
+                      "shape": term["shape"], "n_coefs": n, "identity": identity(recorded[term["name"]])})
         k += n
     if k != len(theta):
         raise LoopExportError(f"the rigid-body model has {len(theta)} parameters but its regressor and "
@@ -72,15 +75,14 @@ def _rigid_arrays(rigid) -> dict:
     # (train.models.rigid_body), or the options' `locked` for a model without context
     resolved = getattr(rigid, "locked_resolved", None)
     locked = (rigid.options.get("locked") or {}) if resolved is None else resolved
-    files = [str(Path(f).resolve()) if Path(f).is_file() else str(f)
-             for f in rigid.options.get("effect_files", [])]
+    used = [recorded[name] for name in dict.fromkeys(t["name"] for t in rigid.terms)]
     return {"rigid_theta_full": theta_full,
             "rigid_locked_joints": np.array(list(locked), dtype=str),
             "rigid_locked_angles": np.array([float(v) for v in locked.values()], dtype=np.float64),
             "rigid_payload_mass": np.float64(rigid.options.get("payload_mass", 0.0)),
             "rigid_effects": np.array(json.dumps(specs)),
             "rigid_effect_coefs": theta[n_base:].copy(),
-            "rigid_effect_files": np.array(files, dtype=str),
+            "rigid_effect_specs": np.array(json.dumps(used)),  # the effects as data (no code to run)
             # only when the kinematics read other joints' recorded motion (the loop refuses such a model)
             **({"rigid_context_joints": np.array(list(rigid.context_joints), dtype=str)}
                if getattr(rigid, "context_joints", ()) else {})}

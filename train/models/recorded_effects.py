@@ -28,3 +28,30 @@ def effect_entries(model: Model) -> list[tuple[object, object]]:
 def effect_labels(model: Model) -> list[str]:
     """'coulomb:joint=joint2' (or just 'payload' without a joint) for every effect in the model."""
     return [f"{name}:joint={joint}" if joint else str(name) for name, joint in effect_entries(model)]
+
+
+def specs_for(names) -> list[dict]:
+    """The spec (crane_io.physics.effects.spec, with its identity) of each distinct effect name, as the
+    library holds it now (built-in, an effect-spec file's or a Python file's the user named)."""
+    from crane_io.physics.effects import get_effect
+    from crane_io.physics.effects.spec import spec_of, with_identity
+
+    out, seen = [], set()
+    for name in names:
+        if name in seen:
+            continue
+        seen.add(name)
+        out.append(with_identity(spec_of(get_effect(name))))
+    return out
+
+
+def refuse_effect_files(files) -> None:
+    """A model that lists Python `effect_files` (saved by an older crane-train) is refused: loading a model
+    never runs the code it names."""
+    from .base import ModelFileError
+
+    files = [str(f) for f in (files if isinstance(files, (list, tuple)) else [files])] if files else []
+    if files:
+        raise ModelFileError(f"the model names the Python effect files {', '.join(files)}, which loading a "
+                             f"model never runs; fit it again (with --effect-file) so that it records its "
+                             f"effects as data")

@@ -23,7 +23,11 @@ Standard errors: sqrt(diag(s^2 P)) with s^2 the residual variance (RSS / (rows -
 Effects: `effects=[(name, joint_name or None, shape dict or None), ...]`. A joint-scope effect with
 joint None is added once per learning joint. An effect with shape parameters (e.g. a Stribeck
 velocity) and no shape given tries every value of its grid and keeps the one with the lowest validation
-MSE (effects are tuned one after another, in the order given).
+MSE (effects are tuned one after another, in the order given). The model records every effect it uses
+as data (option `effect_specs`, crane_io/physics/effects/spec.py: a library effect by name and version, a
+discovered one as its terms, a user's Python effect by file and SHA-256) and rebuilds its effects from
+those specs only, never by name from the library, so loading it runs no code and an effect of the same
+name elsewhere is never mistaken for its own.
 
 Context joints (the other arm joints' recorded angles enter the kinematics, option `context`, default
 True): a Dataset carries the filtered q, dq, ddq of the session's other arm joints (joint1..joint7, not
@@ -56,6 +60,7 @@ from ..data.dataset import Dataset
 from ..data.splits import AUTO_ALL_MOVING_MAX_JOINTS
 from ..data.splits import per_joint as per_joint_set
 from .base import Model, ModelFileError
+from .recorded_effects import refuse_effect_files, specs_for
 
 if TYPE_CHECKING:
     from crane_io.physics.dynamics import ArmDynamics
@@ -96,20 +101,13 @@ def rls(Phi: np.ndarray, y: np.ndarray, block: int = 64, p0: float = 1e8) -> tup
 FIT_ROWS = ("auto", "all-moving", "per-joint")
 
 
-def _effect_registry():
-    try:
-        from crane_io.physics import effects
-    except ImportError:
-        raise CraneError("the physical-effects library crane_io.physics.effects is not available") from None
-    return effects
-
-
 class RigidBodyModel(Model):
     method = "rigid-body"
 
-    def __init__(self, joint_names, preprocessing: dict | None = None, effects=(), effect_files=(),
+    def __init__(self, joint_names, preprocessing: dict | None = None, effects=(), effect_specs=None,
                  block: int = 64, p0: float = 1e8, payload_mass: float = 0.0, locked: dict | None = None,
-                 context: bool = True, rows: str = "auto"):
+                 context: bool = True, rows: str = "auto", effect_files=()):
+        refuse_effect_files(effect_files)
         if rows not in FIT_ROWS:
             raise ConfigError(f"rows must be one of {', '.join(FIT_ROWS)}, got {rows!r}")
         specs = []
@@ -118,10 +116,18 @@ class RigidBodyModel(Model):
                 spec = (spec, None, None)
             spec = tuple(spec) + (None,) * (3 - len(spec))
             specs.append([spec[0], spec[1], dict(spec[2]) if spec[2] else None])
-        files = [str(f) for f in effect_files]
-        super().__init__(joint_names, preprocessing, effects=specs, effect_files=files,
+        if effect_specs is None:  # a new model: the effects as the library holds them now, as data
+            effect_specs = specs_for(s[0] for s in specs)
+        if not isinstance(effect_specs, list) or not all(isinstance(s, dict) for s in effect_specs):
+            raise ModelFileError("the model's effect_specs is not a list of effect specs")
+        recorded = {s.get("name") for s in effect_specs}
+        lacking = [s[0] for s in specs if s[0] not in recorded]
+        if lacking:
+            raise ModelFileError(f"the model uses the effect {lacking[0]!r} but records no spec of it")
+        super().__init__(joint_names, preprocessing, effects=specs, effect_specs=effect_specs,
                          block=int(block), p0=float(p0), payload_mass=float(payload_mass),
                          locked=dict(locked or {}), context=bool(context), rows=rows)
+        self._table: dict | None = None  # effect name -> Effect, rebuilt from effect_specs
         self.block, self.p0 = int(block), float(p0)
         self._dyn: ArmDynamics | None = None
         self.context_joints: tuple[str, ...] = ()  # other arm joints that move: free in the kinematics
@@ -131,6 +137,23 @@ class RigidBodyModel(Model):
         self.names: list[str] = []
         self.terms: list[dict] = []  # resolved effect terms: name, joint (index or None), shape
         self.fit_info: dict = {}
+
+    # ---- effects (rebuilt from the specs this model records, never looked up by name elsewhere) ----------
+    def effect_table(self, where: str = "the model") -> dict:
+        """name -> Effect of every effect the model uses, rebuilt from its recorded specs (a user's Python
+        effect only from a file named with --effect-file whose SHA-256 is the recorded one)."""
+        if self._table is None:
+            from crane_io.physics.effects.spec import effect_table
+
+            self._table = effect_table(self.options["effect_specs"], where)
+        return self._table
+
+    def effect_by_name(self, name: str):
+        table = self.effect_table()
+        if not isinstance(name, str) or name not in table:
+            raise ModelFileError(f"the model uses the effect {name!r} but records no spec of it; fit it "
+                                 f"again")
+        return table[name]
 
     # ---- regressor -------------------------------------------------------------------------------
     @property
@@ -193,12 +216,9 @@ class RigidBodyModel(Model):
         return tuple(out)
 
     def _resolve_terms(self) -> list[dict]:
-        fx = _effect_registry()
-        for f in self.options["effect_files"]:
-            fx.load_effect_file(f)
         terms = []
         for name, joint, shape in self.options["effects"]:
-            effect = fx.get_effect(name)
+            effect = self.effect_by_name(name)
             if effect.scope == "arm":
                 if joint is not None:
                     raise ConfigError(f"effect {name} acts on the whole arm (one parameter for all joints); "
@@ -216,7 +236,7 @@ class RigidBodyModel(Model):
         return terms
 
     def _term_columns(self, term, q, dq, ddq, shape=None):
-        effect = _effect_registry().get_effect(term["name"])
+        effect = self.effect_by_name(term["name"])
         return effect.columns(q, dq, ddq, term["joint"], shape if shape is not None else term["shape"])
 
     def regressor(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, terms: list[dict] | None = None,
@@ -236,10 +256,9 @@ class RigidBodyModel(Model):
 
     def _parameter_names(self, terms) -> list[str]:
         names = list(self.dynamics.base_parameter_names_rows(self.joint_names))
-        fx = _effect_registry()
         for term in terms:
             joint = None if term["joint"] is None else self.joint_names[term["joint"]]
-            names += fx.get_effect(term["name"]).column_names(joint, term["shape"])
+            names += self.effect_by_name(term["name"]).column_names(joint, term["shape"])
         return names
 
     # ---- fitting ---------------------------------------------------------------------------------
@@ -268,7 +287,7 @@ class RigidBodyModel(Model):
             return
         where = "" if term["joint"] is None else f" on {self.joint_names[term['joint']]}"
         given = ", ".join(f"{k}={v:g}" for k, v in term["shape"].items())
-        grid = _effect_registry().get_effect(term["name"]).shape_grid
+        grid = self.effect_by_name(term["name"]).shape_grid
         hint = "; ".join(f"{k} is tried among {', '.join(f'{x:g}' for x in v)}" for k, v in grid.items())
         raise ConfigError(f"effect {term['name']}{where} with {given} adds "
                           f"{'nothing' if np.all(np.isfinite(cols)) else 'non-finite torque'} on this data; "
@@ -282,8 +301,7 @@ class RigidBodyModel(Model):
         rows = np.flatnonzero(train.moving.any(axis=1) if per_joint else train.all_moving)
         self._resolve_context(train)
         terms = self._resolve_terms()
-        fx = _effect_registry()
-        n_par = self.n_base + sum(fx.get_effect(t["name"]).n_columns() for t in terms)
+        n_par = self.n_base + sum(self.effect_by_name(t["name"]).n_columns() for t in terms)
         need = n_par // len(self.joint_names) + 1
         if per_joint:
             counts = train.moving.sum(axis=0)
@@ -307,7 +325,7 @@ class RigidBodyModel(Model):
                 self._check_given_shape(term, fit_ds)
         tuned = []
         for i, term in enumerate(terms):
-            effect = _effect_registry().get_effect(term["name"])
+            effect = self.effect_by_name(term["name"])
             options = effect.shape_options()
             if term["shape"] is not None or len(options) <= 1:
                 continue
@@ -375,10 +393,9 @@ class RigidBodyModel(Model):
 
     def effect_values(self) -> list[dict]:
         """Named physical values of every effect term (from its fitted coefficients and shape)."""
-        fx = _effect_registry()
         out, k = [], self.n_base
         for term in self.terms:
-            effect = fx.get_effect(term["name"])
+            effect = self.effect_by_name(term["name"])
             n = effect.n_columns()
             joint = None if term["joint"] is None else self.joint_names[term["joint"]]
             out.append({"effect": term["name"], "joint": joint,
@@ -414,8 +431,8 @@ class RigidBodyModel(Model):
         lr = state.get("locked_resolved")
         self.locked_resolved = None if lr is None else {str(k): float(v) for k, v in lr.items()}
         self._dyn = None
-        for f in self.options["effect_files"]:
-            if not Path(f).is_file():
-                raise ModelFileError(f"{directory} was fitted with the effects defined in {f}, which does "
-                                     f"not exist (any more); put that file back or fit the model again")
-            _effect_registry().load_effect_file(f)
+        self._table = None
+        self.effect_table(f"the model in {directory}")  # an effect it cannot rebuild: refused now
+        for term in self.terms if isinstance(self.terms, list) else ():
+            if isinstance(term, dict):
+                self.effect_by_name(term.get("name"))

@@ -7,15 +7,15 @@ model (columns to fit) and the diagnosis (candidates).
     eff.values_from_coefficients(coefs)          # {"coulomb": 0.21}, units in eff.units
 
 A user adds an effect without editing the package: write a Python file with `Effect` subclasses (see
-docs/arm-model.md) and call `load_effect_file(path)` (or pass `--effect-file` on the command lines).
+docs/arm-model.md), or an effect-spec file (effects as data over the basis grammar of
+crane_io/physics/effects/terms.py), and call `load_effect_file(path)` (or pass `--effect-file` on the
+command lines). A saved model or plant stores its effects as data (crane_io/physics/effects/spec.py):
+loading one never runs code.
 """
 
 from __future__ import annotations
 
-import importlib.util
 import inspect
-import sys
-from pathlib import Path
 
 import numpy as np
 
@@ -76,39 +76,38 @@ def get_effect(name: str, **kwargs) -> Effect:
 
 
 def load_effect_file(path) -> list[str]:
-    """Import a user's Python file and register every Effect subclass it defines; returns their names.
-    A missing or broken file, or one with no effect, -> ConfigError."""
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"effect file {path} does not exist")
-    mod_name = f"crane_user_effects_{abs(hash(str(path.resolve())))}"
-    spec = importlib.util.spec_from_file_location(mod_name, path)
-    if spec is None or spec.loader is None:
-        raise ConfigError(f"effect file {path} is not a Python file")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[mod_name] = module
-    try:
-        spec.loader.exec_module(module)
-    except Exception as exc:  # a user's file can fail in any way; report it in one sentence
-        sys.modules.pop(mod_name, None)
-        raise ConfigError(f"effect file {path} failed to load: {type(exc).__name__}: {exc}") from None
-    found = [obj for obj in vars(module).values()
-             if inspect.isclass(obj) and issubclass(obj, Effect) and obj.__module__ == mod_name and obj.name]
-    if not found:
-        raise ConfigError(f"effect file {path} defines no Effect subclass with a name")
+    """Register the effects of a file the user named (`--effect-file`); returns their names.
+
+    An effect-spec file (`.json`, crane_io.physics.effects.spec: effects as data, e.g. written by
+    `crane-train diagnose --write-effect-file`) is read, never run. A Python file (`.py`) is run: the one
+    way a user's code enters the toolkit, and only for a file named explicitly. A missing or broken file,
+    or one with no effect, -> ConfigError."""
+    from crane_io.physics.effects import spec as specs
+
+    path, raw, sha = specs.read_effect_file(path)
+    if path.suffix == ".json":
+        found = [specs.terms_effect_class(s) for s in specs.read_spec_file(path, raw)]
+    elif path.suffix == ".py":
+        found = specs.run_python_effects(path, raw, sha)
+    else:
+        raise ConfigError(f"effect file {path} must be an effect-spec file (.json) or a Python file (.py)")
     for cls in found:
+        old = _REGISTRY.get(cls.name)
         register_effect(cls, replace=True)
         try:
             inst = cls()
-            n = 4
-            cols = inst.columns(np.zeros((n, 3)), np.ones((n, 3)), np.zeros((n, 3)),
+            n, j = 4, getattr(cls, "_n_joints", 0) or 3
+            cols = inst.columns(np.zeros((n, j)), np.ones((n, j)), np.zeros((n, j)),
                                 None if inst.scope == "arm" else 0, None)
-            if np.shape(cols)[:2] != (n, 3):
+            if np.shape(cols)[:2] != (n, j):
                 raise ValueError(f"columns() returned shape {np.shape(cols)}, expected (N, J, k)")
         except ConfigError:
             raise
         except Exception as exc:
-            _REGISTRY.pop(cls.name, None)
+            if old is None:
+                _REGISTRY.pop(cls.name, None)
+            else:
+                _REGISTRY[cls.name] = old
             raise ConfigError(f"effect {cls.name!r} in {path} does not work: "
                               f"{type(exc).__name__}: {exc}") from None
     return [cls.name for cls in found]

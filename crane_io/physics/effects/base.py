@@ -78,6 +78,7 @@ class Effect:
     simply the linear parameters in order)."""
 
     name: str = ""  # library key, e.g. "coulomb"
+    version: int = 1  # of the effect's definition: a saved model records it (crane_io.physics.effects.spec)
     title: str = ""  # e.g. "Coulomb friction"
     description: str = ""  # what it models, one or two sentences
     signature: str = ""  # residual signature when missing; may contain {joint}
