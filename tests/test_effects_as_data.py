@@ -186,7 +186,7 @@ def test_a_named_python_effect_file_runs_only_with_the_recorded_sha256(fitted, t
             "sha256": hashlib.sha256(source.read_bytes()).hexdigest()}.items() <= recorded[-1].items()
     fresh()
     marker.unlink()
-    r = CliRunner().invoke(main, ["export", str(out), "--effect-file", str(source)])
+    r = CliRunner().invoke(main, ["export", str(out), "--force", "--effect-file", str(source)])
     assert r.exit_code == 0 and marker.exists(), r.output  # named, unchanged: it runs
     fresh()
     marker.unlink()

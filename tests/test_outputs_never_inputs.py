@@ -19,7 +19,7 @@ from tests.sessions import write_synthetic_session
 from train.cli import main as train_main
 
 LINKS = ["same", "symlink", "hardlink"]
-EXAMPLE_EFFECT = Path(__file__).parents[1] / "docs" / "examples" / "cable_drag.py"
+EXAMPLE_EFFECT = Path(__file__).parents[1] / "docs" / "examples" / "cable_drag.json"
 MAP = ["--map", "t=time", "--map", "joint1.q=q1,joint1.tau=tau1"]
 RUN_CONFIG = "[loop]\nstatus_hz = 0\n[operator.start_deg]\njoint2 = 0.0\njoint4 = -20.0\n"
 
@@ -36,7 +36,7 @@ def lab(tmp_path_factory):
     t = np.arange(200) / 100.0
     (d / "log.csv").write_text("time,q1,tau1\n" + "".join(f"{a},{np.sin(a)},{np.cos(a)}\n" for a in t))
     (d / "run.toml").write_text(RUN_CONFIG)
-    (d / "effect.py").write_text(EXAMPLE_EFFECT.read_text())
+    (d / "effect.json").write_text(EXAMPLE_EFFECT.read_text())
     return d
 
 
@@ -77,7 +77,7 @@ def _refused(r, *words):
 def _train_commands(lab: Path, out: Path) -> dict:
     """Each crane-train command that writes, with `out` in the place of its output, and its input that
     `out` names."""
-    session, model, effect = lab / "s.h5", lab / "model", lab / "effect.py"
+    session, model, effect = lab / "s.h5", lab / "model", lab / "effect.json"
     return {
         "report": (["report", model, session, "-o", out], session),
         "diagnose --json-out": (["diagnose", model, session, "--json-out", out], session),
@@ -98,7 +98,7 @@ TRAIN_CASES = [(command, how) for command in ["report", "diagnose --json-out", "
 
 @pytest.mark.parametrize("command, how", TRAIN_CASES)
 def test_a_train_output_that_is_an_input_is_refused_even_with_force(lab, tmp_path, command, how):
-    suffix = {"compare -o": ".png", "diagnose --write-effect-file": ".py"}.get(command)
+    suffix = {"compare -o": ".png", "diagnose --write-effect-file": ".json"}.get(command)
     _, target = _train_commands(lab, tmp_path)[command]
     out = _alias(target, how, tmp_path, suffix)
     args, _ = _train_commands(lab, out)[command]
@@ -287,7 +287,7 @@ def test_recover_output_needs_force_and_compare_refuses_a_plot_that_is_no_image(
 
 
 def test_an_existing_effect_file_is_refused_without_force_before_any_work(lab, tmp_path):
-    out = tmp_path / "found.py"
+    out = tmp_path / "found.json"
     out.write_text("# mine")
     r = _invoke(train_main, ["diagnose", lab / "model", lab / "s.h5", "--write-effect-file", out])
     _refused(r, "already exists", "--force")
