@@ -127,7 +127,7 @@ def _open(path: Path) -> h5py.File:
     # being written, or one whose writer crashed, refuses the plain read and is read in SWMR mode.
     try:
         return h5py.File(str(path), "r")
-    except OSError as exc:
+    except (OSError, RuntimeError, ValueError) as exc:
         cut = _TRUNCATED.search(str(exc))
         if cut:
             raise SessionFileError(f"{path} is cut off: it has {int(cut['eof'])} bytes but its HDF5 header "
@@ -135,7 +135,7 @@ def _open(path: Path) -> h5py.File:
                                    f"again") from None
     try:
         return h5py.File(str(path), "r", swmr=True)
-    except (OSError, ValueError) as exc:
+    except (OSError, RuntimeError, ValueError) as exc:
         raise SessionFileError(f"{path} cannot be opened as HDF5 ({exc})") from None
 
 
@@ -153,7 +153,7 @@ def check_version(path: Path, attrs: dict, fmt: str, newest: int) -> int:
         raise SessionFileError(f"{path} has an unreadable {VERSION_ATTR} {shown}; it must be a whole number "
                                f"from 1 to {newest}")
     if version > newest:
-        raise SessionFileError(f"{path} is {fmt} version {version}, newer than this reader's version "
+        raise SessionFileError(f"{path} is {fmt} {VERSION_ATTR} {version}, newer than this reader's version "
                                f"{newest}; update crane-x7")
     return version
 

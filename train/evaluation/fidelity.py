@@ -121,10 +121,10 @@ def _read_trace(path: Path, joint_names: tuple[str, ...]) -> _Trace:
         raise SessionFileError(f"{path} is not an HDF5 file, so it cannot be a truth trace")
     try:
         f = h5py.File(str(path), "r")
-    except OSError:
+    except (OSError, RuntimeError, ValueError):
         try:
             f = h5py.File(str(path), "r", swmr=True)  # a trace whose writer crashed
-        except (OSError, ValueError) as exc:
+        except (OSError, RuntimeError, ValueError) as exc:
             raise SessionFileError(f"{path} cannot be opened as HDF5 ({exc})") from None
     with f:
         attrs = read_attrs(path, f)
