@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -278,7 +279,9 @@ def read_torch_weights(directory: Path | str, name: str, shapes: dict) -> dict:
     if problem is not None:
         raise ModelFileError(f"{path} {problem}")
     try:
-        weights = torch.load(path, map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():  # a damaged file's pickle protocol warns before it fails
+            warnings.simplefilter("ignore")
+            weights = torch.load(path, map_location="cpu", weights_only=True)
     except Exception:  # a damaged file fails in many ways (pickle, zip, EOF, key, runtime, unsafe global)
         raise ModelFileError(f"{path} is corrupt, not a readable PyTorch weights file; fit the model "
                              f"again") from None
