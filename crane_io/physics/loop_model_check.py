@@ -59,6 +59,10 @@ def read_bytes(path: Path) -> tuple[bytes | None, str | None]:
 
 def npz_arrays(raw: bytes) -> tuple[dict | None, str | None]:
     """Every member of the .npz `raw`, read without pickle: (arrays, None) or (None, what is wrong)."""
+    if raw.startswith(b"\x93NUMPY"):
+        return None, "is a single array, not an .npz archive of named arrays"
+    if not raw.startswith(b"PK"):
+        return None, "is corrupt, not a readable numpy .npz file"
     try:
         with np.load(io.BytesIO(raw), allow_pickle=False) as z:
             if not hasattr(z, "files"):
