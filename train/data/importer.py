@@ -34,6 +34,7 @@ import json
 import os
 import re
 import tempfile
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -141,6 +142,15 @@ def _read_csv(path: Path, wanted: list[str]) -> dict[str, np.ndarray]:
         text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError:
         raise ImportMapError(f"{path} is not a text (CSV) file") from None
+    except OSError as exc:
+        raise ImportMapError(f"{path} cannot be read ({exc.strerror or exc})") from None
+    try:
+        return _csv_columns(path, text, wanted)
+    except csv.Error as exc:
+        raise ImportMapError(f"{path} is not a readable CSV file ({exc})") from None
+
+
+def _csv_columns(path: Path, text: str, wanted: list[str]) -> dict[str, np.ndarray]:
     lines = text.splitlines()
     if not lines or not lines[0].strip():
         raise ImportMapError(f"{path} is empty or has no header row")
@@ -181,10 +191,22 @@ def _listing(names, limit: int = 12) -> str:
 def _read_npz(path: Path, wanted: list[str]) -> dict[str, np.ndarray]:
     try:
         npz = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise ImportMapError(f"{path} cannot be read as NPZ ({exc})") from None
     if not hasattr(npz, "files"):
         raise ImportMapError(f"{path} is a single .npy array, not an NPZ archive of named arrays")
+    try:
+        return _npz_columns(path, npz, wanted)
+    except ValueError as exc:
+        if "allow_pickle" in str(exc) or "Object arrays" in str(exc):
+            raise ImportMapError(f"{path} holds Python objects (pickled data), which are never "
+                                 f"loaded") from None
+        raise ImportMapError(f"{path} cannot be read as NPZ ({exc})") from None
+    except (OSError, EOFError, zipfile.BadZipFile, MemoryError) as exc:
+        raise ImportMapError(f"{path} cannot be read as NPZ ({exc})") from None
+
+
+def _npz_columns(path: Path, npz, wanted: list[str]) -> dict[str, np.ndarray]:
     with npz:
         out = {}
         for name in wanted:
@@ -220,8 +242,11 @@ def read_columns(path: Path | str, wanted: list[str]) -> dict[str, np.ndarray]:
         raise ImportMapError(f"{path} does not exist")
     if not path.is_file():
         raise ImportMapError(f"{path} is not a file")
-    with open(path, "rb") as fh:
-        magic = fh.read(4)
+    try:
+        with open(path, "rb") as fh:
+            magic = fh.read(4)
+    except OSError as exc:
+        raise ImportMapError(f"{path} cannot be read ({exc.strerror or exc})") from None
     if magic == b"PK\x03\x04" or path.suffix.lower() == ".npz":
         return _read_npz(path, wanted)
     return _read_csv(path, wanted)
