@@ -203,6 +203,16 @@ def _rewrite_npz(path: Path, edit) -> None:
     path.write_bytes(buf.getvalue())
 
 
+def _rewrite_export(directory: Path, edit) -> None:
+    """Edit loop_model.npz's arrays and record the new file's digest in model.json (so the loader gets
+    past the digest to the content)."""
+    path = directory / EXPORT_FILE
+    _rewrite_npz(path, edit)
+    doc = json.loads((directory / "model.json").read_text())
+    doc["loop_export"]["sha256"] = hashlib.sha256(path.read_bytes()).hexdigest()
+    (directory / "model.json").write_text(json.dumps(doc))
+
+
 def _damage_bytes(data, path: Path) -> None:
     raw = path.read_bytes()
     if data.draw(st.booleans(), "garbage"):
@@ -281,12 +291,7 @@ def test_a_damaged_loop_export_is_one_sentence_or_a_working_model(saved, method,
     key = data.draw(st.sampled_from(keys), "key")
     value = data.draw(ARRAYS, "value")
 
-    def edit(arrays):
-        arrays[key] = value
-    _rewrite_npz(path, edit)
-    doc = json.loads((directory / "model.json").read_text())  # the digest follows, so the content is checked
-    doc["loop_export"]["sha256"] = hashlib.sha256(path.read_bytes()).hexdigest()
-    (directory / "model.json").write_text(json.dumps(doc))
+    _rewrite_export(directory, lambda arrays: arrays.__setitem__(key, value))
     before = _digests(directory)
     try:
         loop = LoopModel.load(directory)
@@ -312,3 +317,33 @@ def test_a_damaged_model_makes_a_command_print_one_error_line_and_exit_2(saved, 
     assert len(errors) == 1 and "model.json" in errors[0], result.output  # after a progress line, if any
     assert result.output.strip().splitlines()[-1] == errors[0] and "Traceback" not in result.output
     assert _digests(directory) == before
+
+
+def test_crane_collect_run_refuses_a_model_with_non_finite_weights_before_recording(saved, tmp_path):
+    from collect.cli import main as collect_main
+
+    directory = _copy(saved["mlp-masked"])
+    _rewrite_export(directory, lambda arrays: arrays.__setitem__("mlp_b1", np.full(8, np.nan)))
+    out = tmp_path / "s.h5"
+    result = CliRunner().invoke(collect_main, ["run", "--sim", "--duration", "1", "-o", str(out),
+                                               "--model", str(directory)])
+    assert result.exit_code == 2, result.output
+    errors = [line for line in result.output.splitlines() if line.startswith("Error: ")]
+    assert len(errors) == 1 and "mlp_b1 holds NaN" in errors[0] and "Traceback" not in result.output
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("method, key, value, words", [
+    ("mlp-masked", "mlp_x_std", np.zeros(9), "zero or negative spread"),
+    ("mlp-masked", "mlp_W2", np.full((8, 3), 1e308), "beyond any fitted value"),
+    ("mlp-masked", "mlp_W1", np.array([None] * 9, dtype=object), "Python objects"),
+    ("rigid-body", "rigid_theta_full", np.full(30, np.inf), "NaN or infinite"),
+    ("rigid-body", "rigid_payload_mass", np.float64(-1.0), "payload"),
+    ("rigid-body", "source_files", np.array(["../../elsewhere"]), "not a file inside the model directory"),
+])
+def test_loop_export_refusals_name_the_directory_and_the_member(saved, method, key, value, words):
+    directory = _copy(saved[method])
+    _rewrite_export(directory, lambda arrays: arrays.__setitem__(key, value))
+    with pytest.raises(CraneError, match=words) as info:
+        LoopModel.load(directory)
+    assert str(directory) in str(info.value) and (key in str(info.value) or EXPORT_FILE in str(info.value))
