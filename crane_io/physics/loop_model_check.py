@@ -4,7 +4,8 @@ files). Each check returns what is wrong as a phrase, or None, so each reader wo
 
 * a file is a regular file of at most a bounded size (MAX_FILE_BYTES), readable;
 * an .npz is read without pickle, every member an array of numbers or of text (no objects, records or
-  raw bytes), its numbers finite and at most MAX_ABS in size (larger ones are no fitted value and make a
+  raw bytes; the members named in NUMERIC_EXPORT numbers, in TEXT_EXPORT text), its numbers finite and
+  at most MAX_ABS in size (larger ones are no fitted value and make a
   prediction overflow);
 * a network's scales are usable: input spreads (`x_std`) > 0, output spreads (`y_std`) >= 0;
 * the rigid body's locked angles are angles (at most MAX_ANGLE_RAD), its payload a mass of 0 to
@@ -31,6 +32,9 @@ TEXT_KINDS, NUMBER_KINDS = "U", "iuf"
 NUMERIC_EXPORT = {"format_version": 0, "mlp_W1": 2, "mlp_b1": 1, "mlp_W2": 2, "mlp_b2": 1, "mlp_x_mean": 1,
                   "mlp_x_std": 1, "mlp_y_mean": 1, "mlp_y_std": 1, "rigid_theta_full": 1,
                   "rigid_locked_angles": None, "rigid_payload_mass": 0, "rigid_effect_coefs": None}
+# export members holding text
+TEXT_EXPORT = ("method", "joint_names", "units", "source_files", "source_sha256", "rigid_locked_joints",
+               "rigid_context_joints")
 
 
 def file_problem(path: Path, limit: int = MAX_FILE_BYTES) -> str | None:
@@ -113,8 +117,10 @@ def export_problem(arrays: dict) -> str | None:
     for name, a in arrays.items():
         if name in NUMERIC_EXPORT:
             problem = array_problem(name, a, NUMERIC_EXPORT[name])
-        else:
+        elif name in TEXT_EXPORT or np.asarray(a).dtype.kind not in NUMBER_KINDS:
             problem = array_problem(name, a, text=True)
+        else:  # a member of numbers this module does not name: finite and bounded all the same
+            problem = array_problem(name, a)
         if problem is not None:
             return problem
     for name in arrays.get("source_files", np.array([], dtype=str)).ravel().tolist():

@@ -217,8 +217,6 @@ def _check_state(path: Path, method: str, state: dict, joints: int) -> None:
             value = state.get(key)
             if value is not None and not (isinstance(value, list) and all(isinstance(v, str) for v in value)):
                 raise ModelFileError(f"{path} has a state {key} of {_shown(value)}, not a list of names")
-        if not isinstance(state.get("terms", []), list):
-            raise ModelFileError(f"{path} has effect terms of {_shown(state.get('terms'))}, not a list")
         lr = state.get("locked_resolved")
         if lr is not None and not _ANGLES[0](lr):
             raise ModelFileError(f"{path} has locked angles {_shown(lr)}, not joint names with finite angles")
