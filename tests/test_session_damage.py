@@ -260,3 +260,15 @@ def test_crane_train_info_on_a_damaged_session_prints_one_error_line_and_exits_2
     lines = result.output.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("Error: ") and str(path) in lines[0], result.output
     assert _digest(path) == before
+
+
+def test_datasets_larger_than_the_memory_are_refused_before_they_are_read(base):
+    def damage(path):
+        with h5py.File(path, "a") as f:
+            for name, shape in (("t", (10 ** 12,)), ("q", (10 ** 12, 2)), ("tau", (10 ** 12, 2))):
+                del f[f"follower/{name}"]
+                f.create_dataset(f"follower/{name}", shape=shape, dtype="f8", chunks=(1000,) + shape[1:])
+    path = _damaged(base, damage)
+    assert path.stat().st_size < 10 ** 6  # declared, never stored
+    with pytest.raises(SessionFileError, match="more than this computer's memory can read"):
+        read_session(path)

@@ -4,9 +4,11 @@ into plain numpy arrays.
 Only the contract minimum is needed: root attributes `format`, `format_version`, `rate_hz`,
 `joint_names`, `source`, and `/<arm>/t`, `/<arm>/q`, `/<arm>/tau`. Files are opened read-only (SWMR
 read when the file was written in SWMR mode, so a recording in progress can be read too); the input
-is never modified. Every problem is a `SessionFileError` whose one sentence names the file; stored data
-that fail their fletcher32 checksum (written by crane-collect) name the damaged dataset
-(`SessionDamagedError`).
+is never modified. Everything is checked before it is used (train.data.session_check: the attributes'
+kinds, the datasets' types and shapes, links that would leave the file, what fits in memory, rate_hz
+against t, finite values, t strictly increasing). Every problem is a `SessionFileError` whose one
+sentence names the file and the attribute or dataset; stored data that fail their fletcher32 checksum
+(written by crane-collect) name the damaged dataset (`SessionDamagedError`).
 
 Either arm's group can be read (`arm`, "follower" by default). The optional root attribute `hand_on`
 ("leader", the default when it is absent, or "follower") says which arm the operator's hand moved: that
