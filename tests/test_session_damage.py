@@ -272,3 +272,23 @@ def test_datasets_larger_than_the_memory_are_refused_before_they_are_read(base):
     assert path.stat().st_size < 10 ** 6  # declared, never stored
     with pytest.raises(SessionFileError, match="more than this computer's memory can read"):
         read_session(path)
+
+
+@pytest.mark.parametrize("kind, words", [("external", "external link"), ("strings", "not numbers"),
+                                         ("loop", "loop of links"), ("group", "not a dataset")])
+def test_a_damaged_truth_trace_is_one_sentence(tmp_path, kind, words):
+    from train.evaluation.fidelity import _read_trace
+
+    path = tmp_path / "trace.h5"
+    with h5py.File(path, "w") as f:
+        f.attrs.update({"format": "crane-truth-trace", "format_version": 1,
+                        "joint_names": np.array(NAMES, dtype=h5py.string_dtype())})
+        f["t"] = np.arange(N) / RATE
+        f["in_contact"] = np.zeros(N, bool)
+        f["tau_ext"] = np.zeros((N, 2))
+    make = dict(REPLACEMENT_LIST)[kind]
+    _replace(path, "tau_ext", kind, make)
+    before = _digest(path)
+    with pytest.raises(SessionFileError, match=words) as info:
+        _read_trace(path, NAMES)
+    assert "/tau_ext" in str(info.value) and _digest(path) == before
