@@ -76,3 +76,14 @@ def test_flipped_cut_or_inserted_bytes_are_one_sentence(data, suffix):
 def test_foreign_input_is_refused_in_one_sentence(content, suffix, words):
     with pytest.raises(ImportMapError, match=words):
         _columns(_write(content, suffix))
+
+
+def test_a_rate_that_disagrees_with_the_time_column_is_refused_at_import():
+    from train.data.importer import convert, parse_map
+
+    n = 200
+    columns = {"t": np.arange(n) * 0.002, "q1": np.zeros(n), "tau1": np.zeros(n)}
+    spec = parse_map(["t=t", "joint1.q=q1", "joint1.tau=tau1"])
+    assert convert(columns, spec, rate_hz=500.0).rate_hz == 500.0
+    with pytest.raises(ImportMapError, match="disagrees with the time column 't'"):
+        convert(columns, spec, rate_hz=50.0)

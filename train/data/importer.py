@@ -47,6 +47,7 @@ from crane_io.dynamixel.units import AMPERE_PER_CURRENT_LSB, POSITION_CENTER, RA
 from crane_io.errors import CraneError
 
 from .session import MIN_SAMPLES as MIN_ROWS  # what crane-train reads
+from .session_check import MAX_RATE_HZ, check_rate_matches
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Sequence
@@ -298,8 +299,16 @@ def convert(columns: dict[str, np.ndarray], spec: ImportMap, units: ImportUnits 
         rate_hz = 1.0 / float(np.median(step))
         if abs(rate_hz - round(rate_hz)) < 1e-6 * rate_hz:
             rate_hz = float(round(rate_hz))
-    elif not (np.isfinite(rate_hz) and rate_hz > 0):
-        raise ImportMapError(f"the rate must be a positive number of Hz, got {rate_hz}")
+    elif not (np.isfinite(rate_hz) and 0 < rate_hz <= MAX_RATE_HZ):
+        raise ImportMapError(f"the rate must be a positive number of Hz (at most {MAX_RATE_HZ:g}), got "
+                             f"{rate_hz}")
+    else:  # what every session reader checks (train.data.session_check.check_rate_matches)
+        try:
+            check_rate_matches(source_name, "input", t_raw, float(rate_hz))
+        except CraneError:
+            raise ImportMapError(f"the rate {rate_hz:g} Hz disagrees with the time column {spec.time!r} of "
+                                 f"{source_name}, which advances by {float(np.median(step)):.6g} s a row "
+                                 f"({1 / float(np.median(step)):.6g} Hz)") from None
     arm = default_arm()
     names = tuple(spec.joints)
     j = len(names)
