@@ -247,7 +247,7 @@ def read_arrays(directory: Path | str, name: str, shapes: dict) -> dict:
     """The arrays `shapes` names ({key: number of dimensions}) of the .npz `name` in `directory`, read
     without pickle and checked (numbers, finite, bounded, dimensions)."""
     path = Path(directory) / name
-    if file_problem(path) == "is missing or not a regular file" and not path.exists():
+    if not path.exists() and not path.is_symlink():
         raise ModelFileError(f"{directory} lacks its parameters {name}; fit the model again")
     raw, problem = read_bytes(path)
     arrays = None
