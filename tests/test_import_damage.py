@@ -29,8 +29,8 @@ def _npz(**arrays) -> bytes:
 NPZ = _npz(t=np.arange(20) * 0.002, q=np.ones((20, 2)), tau1=np.zeros(20))
 
 
-def _write(content: bytes, suffix: str) -> Path:
-    path = Path(tempfile.mkdtemp(prefix="import-input-")) / f"in{suffix}"
+def _write(content: bytes, suffix: str, folder: Path) -> Path:
+    path = folder / f"in{suffix}"
     path.write_bytes(content)
     return path
 
@@ -40,15 +40,16 @@ def _columns(path: Path):
 
 
 def _read(content: bytes, suffix: str):
-    path = _write(content, suffix)
-    before = hashlib.sha256(content).hexdigest()
-    try:
-        _columns(path)
-        message = None
-    except CraneError as exc:
-        message = str(exc)
-        assert message and "\n" not in message, message
-    assert hashlib.sha256(path.read_bytes()).hexdigest() == before
+    with tempfile.TemporaryDirectory(prefix="import-input-") as folder:
+        path = _write(content, suffix, Path(folder))
+        before = hashlib.sha256(content).hexdigest()
+        try:
+            _columns(path)
+            message = None
+        except CraneError as exc:
+            message = str(exc)
+            assert message and "\n" not in message, message
+        assert hashlib.sha256(path.read_bytes()).hexdigest() == before
     return message
 
 
@@ -73,9 +74,9 @@ def test_flipped_cut_or_inserted_bytes_are_one_sentence(data, suffix):
     (b"t,q1,tau1\n1," + b"9" * 200000 + b",2\n", ".csv", "not a readable CSV"),
     (_npz(t=np.array(["a", "b"]), q=np.ones((2, 2)), tau1=np.ones(2)), ".npz", "not numbers"),
 ])
-def test_foreign_input_is_refused_in_one_sentence(content, suffix, words):
+def test_foreign_input_is_refused_in_one_sentence(content, suffix, words, tmp_path):
     with pytest.raises(ImportMapError, match=words):
-        _columns(_write(content, suffix))
+        _columns(_write(content, suffix, tmp_path))
 
 
 def test_a_rate_that_disagrees_with_the_time_column_is_refused_at_import():

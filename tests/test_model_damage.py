@@ -58,7 +58,7 @@ def saved(tmp_path_factory):
 
 
 def _copy(source: Path) -> Path:
-    target = Path(tempfile.mkdtemp(prefix="damaged-model-")) / "model"
+    target = Path(tempfile.mkdtemp(prefix="damaged-", dir=source.parent)) / "model"  # pytest's folder
     shutil.copytree(source, target)
     return target
 
