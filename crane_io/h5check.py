@@ -11,7 +11,7 @@ from __future__ import annotations
 import h5py
 import numpy as np
 
-from crane_io.errors import SessionDamagedError
+from crane_io.errors import SessionDamagedError, SessionFileError
 
 FLETCHER32 = 3  # H5Z_FILTER_FLETCHER32
 
@@ -84,3 +84,98 @@ def damaged_dataset(path, ds: h5py.Dataset, exc: Exception) -> SessionDamagedErr
         salvage = ""
     return SessionDamagedError(f"{path}: dataset {ds.name} {what}, so the file is damaged (a disk or copy "
                                f"error); use another copy of the session{salvage}")
+
+
+# -- members reached without leaving the file --------------------------------------------------------------
+MAX_SOFT_LINKS = 16  # soft links followed on the way to one member; more is a loop
+
+
+def _hop(path, group: h5py.Group, name: str, where: str, hops: list):
+    """The object `name` (one path component) of `group`, following soft links inside the file only;
+    None when there is nothing of that name. `where` is the member's full name, for the sentence."""
+    try:
+        link = group.get(name, getlink=True)
+    except (KeyError, ValueError, OSError, RuntimeError, TypeError):
+        raise SessionFileError(f"{path}: the link /{where} cannot be read, so the file is damaged or not "
+                               f"a plain HDF5 file") from None
+    if link is None:
+        return None
+    if isinstance(link, h5py.ExternalLink):
+        raise SessionFileError(f"{path}: /{where} is an external link to {link.filename}:{link.path}; "
+                               f"a file is read from itself only, so it is refused")
+    if isinstance(link, h5py.SoftLink):
+        hops.append(link.path)
+        if len(hops) > MAX_SOFT_LINKS:
+            raise SessionFileError(f"{path}: /{where} is a soft link that leads into a loop of links "
+                                   f"({' -> '.join(hops[:4])} ...), so it names nothing")
+        root = group.file if link.path.startswith("/") else group
+        target = _walk(path, root, link.path, where, hops)
+        if target is None:
+            raise SessionFileError(f"{path}: /{where} is a soft link to {link.path}, which does not exist")
+        return target
+    if not isinstance(link, h5py.HardLink):
+        raise SessionFileError(f"{path}: /{where} is a link of a kind this reader does not follow")
+    try:
+        return group[name]
+    except (KeyError, ValueError, OSError, RuntimeError, TypeError):
+        raise SessionFileError(f"{path}: /{where} cannot be opened, so the file is damaged") from None
+
+
+def _walk(path, start: h5py.Group, name: str, where: str, hops: list):
+    obj = start
+    parts = [p for p in name.split("/") if p and p != "."]
+    for i, part in enumerate(parts):
+        if not isinstance(obj, h5py.Group):
+            shown = "/".join(parts[:i])
+            raise SessionFileError(f"{path}: /{shown} is a {kind_of(obj)}, not a group, so /{where} cannot "
+                                   f"be in it")
+        obj = _hop(path, obj, part, where, hops)
+        if obj is None:
+            return None
+    return obj
+
+
+def kind_of(obj) -> str:
+    """"group", "dataset" or "named datatype": what an HDF5 object is, for a sentence."""
+    if isinstance(obj, h5py.Group):
+        return "group"
+    if isinstance(obj, h5py.Dataset):
+        return "dataset"
+    return "named datatype" if isinstance(obj, h5py.Datatype) else type(obj).__name__
+
+
+def member(path, f: h5py.File, name: str, kind: type = h5py.Dataset):
+    """The object `name` ("follower/q") of the open file `f`, or None when the file has nothing there.
+
+    Soft links inside the file are followed (a dangling one or a loop is a SessionFileError); an
+    external link, a virtual dataset or a dataset stored in external files would read another file and
+    is refused, as is an object that is not a `kind` (h5py.Dataset or h5py.Group)."""
+    obj = _walk(path, f, name, name.strip("/"), [])
+    if obj is None:
+        return None
+    if not isinstance(obj, kind):
+        want = "dataset" if kind is h5py.Dataset else "group"
+        raise SessionFileError(f"{path}: /{name.strip('/')} is a {kind_of(obj)}, not a {want}")
+    if isinstance(obj, h5py.Dataset):
+        try:
+            outside = obj.is_virtual or bool(obj.external)
+        except (OSError, ValueError, RuntimeError):
+            outside = True
+        if outside:
+            raise SessionFileError(f"{path}: /{name.strip('/')} keeps its data in other files (a virtual or "
+                                   f"external dataset); a file is read from itself only, so it is refused")
+    return obj
+
+
+def missing_filter(ds: h5py.Dataset) -> str | None:
+    """The name or number of a filter `ds` was written with that this installation's HDF5 lacks, or None."""
+    try:
+        plist = ds.id.get_create_plist()
+        for i in range(plist.get_nfilters()):
+            code, _, _, name = plist.get_filter(i)
+            if not h5py.h5z.filter_avail(code):
+                text = name.decode("ascii", "replace") if isinstance(name, bytes) else str(name)
+                return text or str(code)
+    except (OSError, ValueError, RuntimeError):
+        return None
+    return None

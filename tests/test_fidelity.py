@@ -250,7 +250,7 @@ def test_refusals_are_one_sentence_and_leave_the_input_untouched(files):
     other_t = write_trace(tmp / "other_t.h5", sig, t=T + 0.5)
     msg = one_sentence_refusal([session, "--truth-trace", other_t], session, other_t)
     assert "not the truth trace of" in msg and "row 0" in msg
-    other_names = write_trace(tmp / "other_names.h5", sig, names=("a",) * 8)
+    other_names = write_trace(tmp / "other_names.h5", sig, names=tuple("abcdefgh"))
     assert "another session" in one_sentence_refusal([session, "--truth-trace", other_names], session,
                                                      other_names)
     no_bilateral = signals()

@@ -13,9 +13,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import h5py
 import numpy as np
 
+from crane_io.h5check import member
+
 from .data.session import _open, read_session
+from .data.session_check import dataset, read_rows
 
 SIGNALS = ("q", "tau", "tau_dis", "tau_res")
 
@@ -45,17 +49,16 @@ def read_replay(path: Path | str, every: int = 10) -> ReplayData:
     period = None
     with _open(path) as f:
         for arm in ("leader", "follower"):
-            if arm not in f:
+            if member(path, f, arm, h5py.Group) is None:
                 continue
             for sig in SIGNALS:
                 key = f"{arm}/{sig}"
-                if key in raw or sig not in f[arm]:
-                    continue
-                ds = f[arm][sig]
-                if ds.ndim == 2 and ds.shape[1] == len(names):
-                    raw[key] = np.asarray(ds[:n], dtype=float)
-        if "timing" in f and "period" in f["timing"]:
-            period = np.asarray(f["timing"]["period"][:n], dtype=float)
+                ds = None if key in raw else dataset(path, f, key, len(names), required=False)
+                if ds is not None:
+                    raw[key] = read_rows(path, ds, min(n, ds.shape[0]))
+        if member(path, f, "timing", h5py.Group) is not None:
+            ds = dataset(path, f, "timing/period", required=False)
+            period = None if ds is None else read_rows(path, ds, min(n, ds.shape[0]))
     m = min([n] + [len(a) for a in raw.values()] + ([len(period)] if period is not None else []))
     idx = np.arange(0, m, every)
     data = {key: arr[idx] for key, arr in raw.items()}

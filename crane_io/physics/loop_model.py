@@ -50,7 +50,6 @@ float32 for the networks) the result agrees to float32 precision (about 1e-6 rel
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import math
 from pathlib import Path
@@ -58,6 +57,7 @@ from pathlib import Path
 import numpy as np
 
 from crane_io.errors import ConfigError, CraneError
+from crane_io.physics.loop_model_check import export_problem, npz_arrays, preprocessing_problem, read_bytes
 
 MODEL_JSON = "model.json"
 EXPORT_FILE = "loop_model.npz"
@@ -370,6 +370,8 @@ class _Loader:
         if not d.is_dir():
             raise LoopModelError(f"model directory {d} does not exist")
         doc = self._model_json()
+        if not isinstance(doc.get("loop_export") or {}, dict):
+            raise self.fail(f"has a {MODEL_JSON} whose loop_export is not a record; fit it again")
         method = doc.get("method")
         if method not in METHODS:
             raise self.fail(f"is of method {method!r}, which the control loop cannot run "
@@ -381,18 +383,21 @@ class _Loader:
         if units != SI_UNITS:
             raise self.fail(f"has units {units}, not the SI units the loop feeds it ({SI_UNITS})")
         pre = self._preprocessing(doc.get("preprocessing"))
+        if (problem := preprocessing_problem(pre, len(names))) is not None:
+            raise self.fail(f"records an unusable preprocessing setting: {problem}; fit it again")
         arm = doc.get("arm", pre.get("arm", "follower"))
         if arm not in ARMS:
             raise self.fail(f"was fitted on the data of arm {arm!r}, which is neither leader nor follower")
-        raw, z = self._export()
+        raw, arrays = self._export()
         sha = hashlib.sha256(raw).hexdigest()
         recorded = (doc.get("loop_export") or {}).get("sha256")
         if recorded is not None and recorded != sha:
             raise self.fail(f"has a {EXPORT_FILE} whose SHA-256 differs from the one its model.json records, "
                             f"so it was not written with these weights; export it again with "
                             f"`crane-train export {d}`")
-        with z:
-            arrays = {k: z[k] for k in z.files}
+        if (problem := export_problem(arrays)) is not None:
+            raise self.fail(f"has an unusable loop export: {problem}; export it again with "
+                            f"`crane-train export {d}`")
         self._check_export_header(arrays, method, tuple(names))
         paths, effects = self._paths(arrays, method, tuple(names))
         return LoopModel(str(d), method, names, arm, effects, pre, SI_UNITS, sha, paths)
@@ -401,9 +406,12 @@ class _Loader:
         path = self.dir / MODEL_JSON
         if not path.is_file():
             raise LoopModelError(f"{self.dir} is not a crane-x7 model directory (it has no {MODEL_JSON})")
+        raw, problem = read_bytes(path)
+        if problem is not None:
+            raise LoopModelError(f"the {MODEL_JSON} in {self.dir} {problem}")
         try:
-            doc = json.loads(path.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError, OSError):
+            doc = json.loads(raw.decode("utf-8"))
+        except (ValueError, RecursionError):
             raise LoopModelError(f"the {MODEL_JSON} in {self.dir} is corrupt, not readable JSON") from None
         if not isinstance(doc, dict) or doc.get("format") != "crane-model":
             raise LoopModelError(f"{self.dir} does not hold a crane-x7 model (its {MODEL_JSON} is not a "
@@ -431,16 +439,14 @@ class _Loader:
         if not path.is_file():
             raise self.fail(f"has no loop export {EXPORT_FILE}; export it with "
                             f"`crane-train export {self.dir}`")
-        raw = path.read_bytes()
-        try:
-            z = np.load(io.BytesIO(raw), allow_pickle=False)
-        except (OSError, ValueError, EOFError):
-            raise self.fail(f"has a corrupt {EXPORT_FILE}, not a readable numpy .npz file; export it again "
-                            f"with `crane-train export {self.dir}`") from None
-        if not hasattr(z, "files"):
-            raise self.fail(f"has a {EXPORT_FILE} that is a single array, not an export; export it again "
-                            f"with `crane-train export {self.dir}`")
-        return raw, z
+        raw, problem = read_bytes(path)
+        arrays = None
+        if problem is None:
+            arrays, problem = npz_arrays(raw)
+        if problem is not None:
+            raise self.fail(f"has a {EXPORT_FILE} that {problem}; export it again with "
+                            f"`crane-train export {self.dir}`")
+        return raw, arrays
 
     def _check_export_header(self, a: dict, method: str, names: tuple) -> None:
         again = f"export it again with `crane-train export {self.dir}`"

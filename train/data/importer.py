@@ -32,6 +32,7 @@ import csv
 import io
 import json
 import re
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -45,6 +46,7 @@ from crane_io.errors import CraneError
 from crane_io.output_files import atomic_path, check_output
 
 from .session import MIN_SAMPLES as MIN_ROWS  # what crane-train reads
+from .session_check import MAX_RATE_HZ, check_rate_matches
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Sequence
@@ -140,6 +142,15 @@ def _read_csv(path: Path, wanted: list[str]) -> dict[str, np.ndarray]:
         text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError:
         raise ImportMapError(f"{path} is not a text (CSV) file") from None
+    except OSError as exc:
+        raise ImportMapError(f"{path} cannot be read ({exc.strerror or exc})") from None
+    try:
+        return _csv_columns(path, text, wanted)
+    except csv.Error as exc:
+        raise ImportMapError(f"{path} is not a readable CSV file ({exc})") from None
+
+
+def _csv_columns(path: Path, text: str, wanted: list[str]) -> dict[str, np.ndarray]:
     lines = text.splitlines()
     if not lines or not lines[0].strip():
         raise ImportMapError(f"{path} is empty or has no header row")
@@ -180,10 +191,22 @@ def _listing(names, limit: int = 12) -> str:
 def _read_npz(path: Path, wanted: list[str]) -> dict[str, np.ndarray]:
     try:
         npz = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise ImportMapError(f"{path} cannot be read as NPZ ({exc})") from None
     if not hasattr(npz, "files"):
         raise ImportMapError(f"{path} is a single .npy array, not an NPZ archive of named arrays")
+    try:
+        return _npz_columns(path, npz, wanted)
+    except ValueError as exc:
+        if "allow_pickle" in str(exc) or "Object arrays" in str(exc):
+            raise ImportMapError(f"{path} holds Python objects (pickled data), which are never "
+                                 f"loaded") from None
+        raise ImportMapError(f"{path} cannot be read as NPZ ({exc})") from None
+    except (OSError, EOFError, zipfile.BadZipFile, MemoryError) as exc:
+        raise ImportMapError(f"{path} cannot be read as NPZ ({exc})") from None
+
+
+def _npz_columns(path: Path, npz, wanted: list[str]) -> dict[str, np.ndarray]:
     with npz:
         out = {}
         for name in wanted:
@@ -219,8 +242,11 @@ def read_columns(path: Path | str, wanted: list[str]) -> dict[str, np.ndarray]:
         raise ImportMapError(f"{path} does not exist")
     if not path.is_file():
         raise ImportMapError(f"{path} is not a file")
-    with open(path, "rb") as fh:
-        magic = fh.read(4)
+    try:
+        with open(path, "rb") as fh:
+            magic = fh.read(4)
+    except OSError as exc:
+        raise ImportMapError(f"{path} cannot be read ({exc.strerror or exc})") from None
     if magic == b"PK\x03\x04" or path.suffix.lower() == ".npz":
         return _read_npz(path, wanted)
     return _read_csv(path, wanted)
@@ -272,8 +298,16 @@ def convert(columns: dict[str, np.ndarray], spec: ImportMap, units: ImportUnits 
         rate_hz = 1.0 / float(np.median(step))
         if abs(rate_hz - round(rate_hz)) < 1e-6 * rate_hz:
             rate_hz = float(round(rate_hz))
-    elif not (np.isfinite(rate_hz) and rate_hz > 0):
-        raise ImportMapError(f"the rate must be a positive number of Hz, got {rate_hz}")
+    elif not (np.isfinite(rate_hz) and 0 < rate_hz <= MAX_RATE_HZ):
+        raise ImportMapError(f"the rate must be a positive number of Hz (at most {MAX_RATE_HZ:g}), got "
+                             f"{rate_hz}")
+    else:  # what every session reader checks (train.data.session_check.check_rate_matches)
+        try:
+            check_rate_matches(source_name, "input", t_raw, float(rate_hz))
+        except CraneError:
+            raise ImportMapError(f"the rate {rate_hz:g} Hz disagrees with the time column {spec.time!r} of "
+                                 f"{source_name}, which advances by {float(np.median(step)):.6g} s a row "
+                                 f"({1 / float(np.median(step)):.6g} Hz)") from None
     arm = default_arm()
     names = tuple(spec.joints)
     j = len(names)

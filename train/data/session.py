@@ -4,9 +4,11 @@ into plain numpy arrays.
 Only the contract minimum is needed: root attributes `format`, `format_version`, `rate_hz`,
 `joint_names`, `source`, and `/<arm>/t`, `/<arm>/q`, `/<arm>/tau`. Files are opened read-only (SWMR
 read when the file was written in SWMR mode, so a recording in progress can be read too); the input
-is never modified. Every problem is a `SessionFileError` whose one sentence names the file; stored data
-that fail their fletcher32 checksum (written by crane-collect) name the damaged dataset
-(`SessionDamagedError`).
+is never modified. Everything is checked before it is used (train.data.session_check: the attributes'
+kinds, the datasets' types and shapes, links that would leave the file, what fits in memory, rate_hz
+against t, finite values, t strictly increasing). Every problem is a `SessionFileError` whose one
+sentence names the file and the attribute or dataset; stored data that fail their fletcher32 checksum
+(written by crane-collect) name the damaged dataset (`SessionDamagedError`).
 
 Either arm's group can be read (`arm`, "follower" by default). The optional root attribute `hand_on`
 ("leader", the default when it is absent, or "follower") says which arm the operator's hand moved: that
@@ -25,7 +27,7 @@ import h5py
 import numpy as np
 
 from crane_io.errors import SessionFileError
-from crane_io.h5check import damaged_dataset
+from crane_io.h5check import member
 from crane_io.session_format import (  # noqa: F401 - FORMAT_VERSION: the newest version this reader understands
     ARMS,
     DEFAULT_HAND_ON,
@@ -33,15 +35,26 @@ from crane_io.session_format import (  # noqa: F401 - FORMAT_VERSION: the newest
     FORMAT_ATTR,
     FORMAT_VERSION,
     HAND_ON,
-    JOINT_NAMES_ATTR,
-    RATE_ATTR,
     REQUIRED_ATTRS,
-    SOURCE_ATTR,
     TAU,
     VERSION_ATTR,
     Q,
     T,
 )
+
+from .session_check import (
+    check_declared,
+    check_fits,
+    check_format_attr,
+    check_joint_names,
+    check_rate,
+    check_rate_matches,
+    check_source,
+    dataset,
+    read_attrs,
+    read_rows,
+)
+from .session_check import decode as _decode  # noqa: F401 - the readers of other files decode with it
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -99,23 +112,16 @@ def check_hand_free(session: RawSession) -> None:
                              f"the arm's own dynamics", session.path, session.arm)
 
 
-def _decode(value):
-    if isinstance(value, bytes):
-        return value.decode("utf-8", "replace")
-    if isinstance(value, np.ndarray):
-        if value.dtype.kind in "SO":
-            return [_decode(v) for v in value.tolist()]
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
-
-
 def _open(path: Path) -> h5py.File:
     if not path.exists():
         raise SessionFileError(f"session file {path} does not exist")
     if not path.is_file():
         raise SessionFileError(f"{path} is not a file")
+    try:
+        with open(path, "rb") as fh:
+            fh.read(8)
+    except OSError as exc:
+        raise SessionFileError(f"{path} cannot be read ({exc.strerror or exc})") from None
     if not h5py.is_hdf5(str(path)):
         raise SessionFileError(f"{path} is not an HDF5 file, so it cannot be a crane-session")
     # A plain read first: it checks the file's length against its header, which an SWMR read skips (a
@@ -123,7 +129,7 @@ def _open(path: Path) -> h5py.File:
     # being written, or one whose writer crashed, refuses the plain read and is read in SWMR mode.
     try:
         return h5py.File(str(path), "r")
-    except OSError as exc:
+    except (OSError, RuntimeError, ValueError) as exc:
         cut = _TRUNCATED.search(str(exc))
         if cut:
             raise SessionFileError(f"{path} is cut off: it has {int(cut['eof'])} bytes but its HDF5 header "
@@ -131,29 +137,25 @@ def _open(path: Path) -> h5py.File:
                                    f"again") from None
     try:
         return h5py.File(str(path), "r", swmr=True)
-    except (OSError, ValueError) as exc:
+    except (OSError, RuntimeError, ValueError) as exc:
         raise SessionFileError(f"{path} cannot be opened as HDF5 ({exc})") from None
 
 
 def _read(path: Path, ds: h5py.Dataset, n: int) -> np.ndarray:
-    """The first n rows as float; a chunk failing its fletcher32 checksum (or not decodable) is one
-    sentence naming the dataset."""
-    try:
-        return np.asarray(ds[:n], dtype=float)
-    except OSError as exc:
-        raise damaged_dataset(path, ds, exc) from None
+    """The first n rows of a checked dataset as float (train.data.session_check.read_rows)."""
+    return read_rows(path, ds, n)
 
 
 def check_version(path: Path, attrs: dict, fmt: str, newest: int) -> int:
     """The file's format_version; one sentence (SessionFileError) when it is unreadable or newer than
     `newest`, the version this reader understands."""
-    try:
-        version = int(attrs.get(VERSION_ATTR))
-    except (TypeError, ValueError):
-        raise SessionFileError(f"{path} has an unreadable {VERSION_ATTR} "
-                               f"{attrs.get(VERSION_ATTR)!r}") from None
+    version = attrs.get(VERSION_ATTR)
+    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+        shown = repr(version) if len(repr(version)) <= 60 else repr(version)[:57] + "..."
+        raise SessionFileError(f"{path} has an unreadable {VERSION_ATTR} {shown}; it must be a whole number "
+                               f"from 1 to {newest}")
     if version > newest:
-        raise SessionFileError(f"{path} is {fmt} version {version}, newer than this reader's version "
+        raise SessionFileError(f"{path} is {fmt} {VERSION_ATTR} {version}, newer than this reader's version "
                                f"{newest}; update crane-x7")
     return version
 
@@ -162,41 +164,27 @@ def read_session(path: str | PathLike[str], arm: str = "follower") -> RawSession
     """Read and validate one session file; see the module docstring for what is checked."""
     path = Path(path)
     with _open(path) as f:
-        attrs = {k: _decode(v) for k, v in f.attrs.items()}
-        fmt = attrs.get(FORMAT_ATTR)
-        if fmt != FORMAT:
-            what = "has no 'format' attribute" if fmt is None else f"has format {fmt!r}"
-            raise SessionFileError(f"{path} is not a crane-session file (it {what})")
+        attrs = read_attrs(path, f)
+        check_format_attr(path, attrs, FORMAT)
         missing = [a for a in REQUIRED_ATTRS if a not in attrs]
         if missing:
             raise SessionFileError(f"{path} lacks the required attribute(s) {', '.join(missing)}")
         check_version(path, attrs, FORMAT, FORMAT_VERSION)
-        try:
-            rate = float(attrs[RATE_ATTR])
-        except (TypeError, ValueError):
-            rate = float("nan")
-        if not np.isfinite(rate) or rate <= 0:
-            raise SessionFileError(f"{path} has an invalid {RATE_ATTR} {attrs[RATE_ATTR]!r}")
-        names = attrs[JOINT_NAMES_ATTR]
-        names = tuple(names) if isinstance(names, list) else (str(names),)
-        if arm not in f or not isinstance(f[arm], h5py.Group):
+        rate = check_rate(path, attrs)
+        names = check_joint_names(path, attrs)
+        source = check_source(path, attrs)
+        check_declared(path, attrs)
+        hand_on(attrs, path)
+        if member(path, f, arm, h5py.Group) is None:
             raise SessionFileError(f"{path} has no /{arm} group")
-        group = f[arm]
-        for key in (T, Q, TAU):
-            if key not in group or not isinstance(group[key], h5py.Dataset):
-                raise SessionFileError(f"{path} lacks the required dataset /{arm}/{key}")
-        dt, dq, dtau = group[T], group[Q], group[TAU]
-        if dt.ndim != 1:
-            raise SessionFileError(f"{path}: /{arm}/{T} has shape {dt.shape}, expected (N,)")
-        for name, d in ((Q, dq), (TAU, dtau)):
-            if d.ndim != 2 or d.shape[1] != len(names):
-                raise SessionFileError(f"{path}: /{arm}/{name} has shape {d.shape}, expected (N, "
-                                       f"{len(names)}) to match the {len(names)} joint_names")
+        dt = dataset(path, f, f"{arm}/{T}")
+        dq, dtau = (dataset(path, f, f"{arm}/{key}", len(names)) for key in (Q, TAU))
         n = min(dt.shape[0], dq.shape[0], dtau.shape[0])
         truncated = len({dt.shape[0], dq.shape[0], dtau.shape[0]}) > 1
+        check_fits(path, arm, n, 1 + 2 * len(names))
+        if n < MIN_SAMPLES:
+            raise SessionFileError(f"{path} has only {n} samples; at least {MIN_SAMPLES} are needed")
         t, q, tau = (_read(path, d, n) for d in (dt, dq, dtau))
-    if n < MIN_SAMPLES:
-        raise SessionFileError(f"{path} has only {n} samples; at least {MIN_SAMPLES} are needed")
     for name, arr in ((T, t), (Q, q), (TAU, tau)):
         bad = ~np.isfinite(arr)
         if bad.any():
@@ -206,7 +194,8 @@ def read_session(path: str | PathLike[str], arm: str = "follower") -> RawSession
     if np.any(np.diff(t) <= 0):
         row = int(np.argmax(np.diff(t) <= 0))
         raise SessionFileError(f"{path}: /{arm}/t is not strictly increasing (at sample {row + 1})")
-    return RawSession(t=t, q=q, tau=tau, rate_hz=rate, joint_names=names, source=str(attrs[SOURCE_ATTR]),
+    check_rate_matches(path, arm, t, rate)
+    return RawSession(t=t, q=q, tau=tau, rate_hz=rate, joint_names=names, source=source,
                       path=str(path), attrs=attrs, truncated=truncated, arm=arm)
 
 

@@ -36,10 +36,12 @@ import numpy as np
 
 from crane_io import session_format as sf
 from crane_io.errors import CraneError, SessionFileError
+from crane_io.h5check import member
 from crane_io.session_format import TRUTH_TRACE_FORMAT as TRUTH_FORMAT
 from crane_io.session_format import TRUTH_TRACE_VERSION as TRUTH_FORMAT_VERSION
 
-from ..data.session import _decode, _open, _read, check_version, read_session
+from ..data.session import _open, _read, check_version, read_session
+from ..data.session_check import check_format_attr, check_joint_names, dataset, read_attrs
 
 NOMINAL = "nominal model"
 DEAD_ZONE_ALPHA = 0.1  # a joint moves when |dq| > alpha std(dq) (the paper's dead-zone rule)
@@ -104,10 +106,10 @@ def _model_attr(attrs: dict, arm: str):
 
 def _arm_member(path: Path, f: h5py.File, arm: str, key: str, n: int, joints: int) -> np.ndarray:
     name = sf.arm_path(arm, key)
-    if name not in f or not isinstance(f[name], h5py.Dataset):
+    ds = dataset(path, f, name, joints, required=False)
+    if ds is None:
         raise SessionFileError(f"{path} has no /{name} dataset, so its force channel cannot be measured")
-    ds = f[name]
-    if ds.ndim != 2 or ds.shape[1] != joints or ds.shape[0] < n:
+    if ds.shape[0] < n:
         raise SessionFileError(f"{path}: /{name} has shape {ds.shape}, expected ({n}, {joints})")
     return _read(path, ds, n)
 
@@ -119,43 +121,38 @@ def _read_trace(path: Path, joint_names: tuple[str, ...]) -> _Trace:
         raise SessionFileError(f"{path} is not an HDF5 file, so it cannot be a truth trace")
     try:
         f = h5py.File(str(path), "r")
-    except OSError:
+    except (OSError, RuntimeError, ValueError):
         try:
             f = h5py.File(str(path), "r", swmr=True)  # a trace whose writer crashed
-        except (OSError, ValueError) as exc:
+        except (OSError, RuntimeError, ValueError) as exc:
             raise SessionFileError(f"{path} cannot be opened as HDF5 ({exc})") from None
     with f:
-        attrs = {k: _decode(v) for k, v in f.attrs.items()}
-        if attrs.get(sf.FORMAT_ATTR) != TRUTH_FORMAT:
-            raise SessionFileError(f"{path} is not a truth trace (its format is "
-                                   f"{attrs.get(sf.FORMAT_ATTR)!r}, not {TRUTH_FORMAT!r})")
+        attrs = read_attrs(path, f)
+        check_format_attr(path, attrs, TRUTH_FORMAT, "a truth trace")
         check_version(path, attrs, TRUTH_FORMAT, TRUTH_FORMAT_VERSION)
-        names = attrs.get(sf.JOINT_NAMES_ATTR)
-        names = tuple(names) if isinstance(names, list) else (names,)
+        if sf.JOINT_NAMES_ATTR not in attrs:
+            raise SessionFileError(f"{path} lacks the required attribute {sf.JOINT_NAMES_ATTR}")
+        names = check_joint_names(path, attrs)
         if names != tuple(joint_names):
             raise FidelityError(f"{path} names the joints {', '.join(map(str, names))} but the session has "
                                 f"{', '.join(joint_names)}; it is the truth trace of another session")
         j = len(joint_names)
         t_key, ext_key, leader_key, contact_key = (sf.TRUTH_TRACE_T, sf.TRUTH_TRACE_TAU_EXT,
                                                    sf.TRUTH_TRACE_LEADER_TAU_EXT, sf.TRUTH_TRACE_IN_CONTACT)
-        shapes = {t_key: 1, ext_key: 2, contact_key: 1, leader_key: 2}
-        for key, ndim in shapes.items():
-            if key == leader_key and key not in f:
-                continue
-            if key not in f or not isinstance(f[key], h5py.Dataset):
-                raise SessionFileError(f"{path} lacks the dataset /{key} of a truth trace")
-            if f[key].ndim != ndim or (ndim == 2 and f[key].shape[1] != j):
-                raise SessionFileError(f"{path}: /{key} has shape {f[key].shape}, expected "
-                                       f"{'(N,)' if ndim == 1 else f'(N, {j})'}")
-        keys = [k for k in shapes if k in f]
-        n = min(f[k].shape[0] for k in keys)
-        t = _read(path, f[t_key], n)
-        tau_ext = _read(path, f[ext_key], n)
-        leader = _read(path, f[leader_key], n) if leader_key in f else None
-        try:
-            in_contact = np.asarray(f[contact_key][:n], dtype=bool)
-        except (OSError, ValueError, TypeError) as exc:
-            raise SessionFileError(f"{path}: /{contact_key} cannot be read ({exc})") from None
+        sets = {t_key: dataset(path, f, t_key), ext_key: dataset(path, f, ext_key, j),
+                contact_key: member(path, f, contact_key),
+                leader_key: dataset(path, f, leader_key, j, required=False)}
+        contact = sets[contact_key]
+        if contact is None:
+            raise SessionFileError(f"{path} lacks the dataset /{contact_key} of a truth trace")
+        if contact.dtype.kind not in "biu" or contact.ndim != 1:
+            raise SessionFileError(f"{path}: /{contact_key} has shape {contact.shape} and type "
+                                   f"{contact.dtype}, expected flags of shape (N,)")
+        n = min(ds.shape[0] for ds in sets.values() if ds is not None)
+        t = _read(path, sets[t_key], n)
+        tau_ext = _read(path, sets[ext_key], n)
+        leader = _read(path, sets[leader_key], n) if sets[leader_key] is not None else None
+        in_contact = _read(path, contact, n) != 0
     return _Trace(t, tau_ext, leader, in_contact)
 
 

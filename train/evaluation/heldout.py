@@ -20,6 +20,8 @@ import numpy as np
 from ..data.dataset import Dataset
 from ..data.preprocess import PreprocessConfig, read_preprocessed
 from ..data.splits import SplitConfig, Splits, make_splits
+from ..models.base import ModelFileError
+from ..models.model_files import MAX_SEED
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -98,9 +100,13 @@ def fit_record(model_dir: Path | str | None) -> dict:
         return {}
     path = Path(model_dir) / "fit_metrics.json"
     try:
-        return json.loads(path.read_text()) if path.is_file() else {}
-    except (OSError, json.JSONDecodeError):
+        doc = json.loads(path.read_text()) if path.is_file() else {}
+    except (OSError, ValueError, RecursionError):
         return {}
+    if not isinstance(doc, dict):
+        raise ModelFileError(f"{path} is not the record crane-train fit writes (its top level is not an "
+                             f"object)")
+    return doc
 
 
 def model_settings(model: Model, model_dir: Path | str | None = None
@@ -120,7 +126,10 @@ def model_settings(model: Model, model_dir: Path | str | None = None
     sknown = set(SplitConfig.__dataclass_fields__)
     sconf = SplitConfig(**{k: v for k, v in split.items() if k in sknown})
     record = fit_record(model_dir)
-    seed = int(record.get("seed", prep.get("seed", 0)) or 0)
+    seed = record.get("seed", prep.get("seed", 0)) or 0
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
+        raise ModelFileError(f"{Path(model_dir or '.') / 'fit_metrics.json'} records the seed {seed!r}, not "
+                             f"a whole number from 0 to {MAX_SEED}")
     return pconf, sconf, seed
 
 

@@ -148,13 +148,7 @@ def _jsonable(obj):
 
 
 def read_model_json(directory: Path | str) -> dict:
-    path = Path(directory) / MODEL_JSON
-    if not path.is_file():
-        raise ModelFileError(f"{directory} is not a crane-x7 model directory (no {MODEL_JSON})")
-    try:
-        doc = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ModelFileError(f"{path} is corrupt: {exc.msg}") from None
-    if doc.get("format") != "crane-model":
-        raise ModelFileError(f"{path} is not a crane-x7 model file")
-    return doc
+    """model.json of a model directory, checked (train.models.model_files.read_model_json)."""
+    from .model_files import read_model_json as read_checked
+
+    return read_checked(directory)

@@ -22,6 +22,7 @@ from crane_io.errors import CraneError
 from ..data.dataset import Dataset
 from .base import Model, ModelFileError
 from .batched import MLPSettings, predict, train_mlps
+from .model_files import mlp_shapes, read_torch_weights
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -108,22 +109,13 @@ class MLPModel(Model):
         torch.save({k: torch.as_tensor(v[0]) for k, v in self.params.items()}, directory / WEIGHTS)
 
     def _load_extra(self, directory: Path, state: dict) -> None:
-        path = Path(directory) / WEIGHTS
-        if not path.is_file():
-            raise ModelFileError(f"{directory} lacks its network weights {WEIGHTS}")
+        shapes = mlp_shapes(len(self.joint_names), self.settings.hidden)
+        weights = read_torch_weights(directory, WEIGHTS, shapes)  # weights_only: never unpickles an object
+        self.params = {k: w[None] for k, w in weights.items()}
         try:
-            weights = torch.load(path, map_location="cpu", weights_only=True)
-        except Exception:  # torch.load of a damaged file fails in many ways (pickle, zip, EOF, key, runtime)
-            raise ModelFileError(f"{path} is corrupt, not a readable PyTorch weights file; fit the model "
-                                 f"again") from None
-        try:
-            self.params = {k: weights[k].numpy()[None].astype(np.float32) for k in ("W1", "b1", "W2", "b2")}
             self.norm = {k: np.asarray(state["norm"][k], dtype=np.float32)[None]
                          for k in ("x_mean", "x_std", "y_mean", "y_std")}
-        except KeyError as exc:
-            raise ModelFileError(f"{directory} is incomplete: its weights or normalisation lack "
-                                 f"{exc.args[0]!r}; fit the model again") from None
-        except (TypeError, AttributeError):
-            raise ModelFileError(f"{path} is corrupt, not the weights crane-train fit writes; fit the model "
-                                 f"again") from None
+        except (KeyError, TypeError):
+            raise ModelFileError(f"{directory} is incomplete: its model.json lacks the network's "
+                                 f"normalisation; fit the model again") from None
         self.history = state.get("history", {})

@@ -9,6 +9,7 @@
 from __future__ import annotations
 
 import importlib
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -16,6 +17,7 @@ from crane_io.errors import CraneError
 
 from .base import Model, ModelFileError, read_model_json
 from .method_names import METHOD_NAMES
+from .model_files import check_hybrid_parts, check_loaded
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -69,11 +71,17 @@ def load_model(directory: Path | str) -> Model:
     cls, _ = model_class(method)
     try:
         model = cls(doc["joint_names"], preprocessing=doc.get("preprocessing") or {},
-                    **doc.get("options", {}))
+                    **(doc.get("options") or {}))
     except KeyError as exc:
         raise ModelFileError(f"{Path(directory) / 'model.json'} lacks {exc.args[0]!r}; it is damaged or "
                              f"not written by crane-train fit") from None
-    except TypeError as exc:
-        raise ModelFileError(f"{Path(directory)} has an unusable model.json ({exc})") from None
-    model._load_extra(Path(directory), doc.get("state", {}))
+    except (TypeError, ValueError) as exc:
+        unknown = re.search(r"keyword argument '(\w+)'", str(exc))
+        what = (f"the option {unknown[1]!r}, which a {method} model does not take" if unknown
+                else "unusable options")
+        raise ModelFileError(f"{Path(directory) / 'model.json'} has {what}; fit the model again") from None
+    if method == "hybrid":
+        check_hybrid_parts(directory, doc.get("state") or {})
+    model._load_extra(Path(directory), doc.get("state") or {})
+    check_loaded(directory, model)
     return model

@@ -60,6 +60,7 @@ from ..data.dataset import Dataset
 from ..data.splits import AUTO_ALL_MOVING_MAX_JOINTS
 from ..data.splits import per_joint as per_joint_set
 from .base import Model, ModelFileError
+from .model_files import read_arrays
 from .recorded_effects import refuse_effect_files, specs_for
 
 if TYPE_CHECKING:
@@ -414,8 +415,7 @@ class RigidBodyModel(Model):
     def _load_extra(self, directory: Path, state: dict) -> None:
         path = Path(directory) / ARRAYS
         try:
-            with np.load(path) as z:
-                self.theta, self.stderr = z["theta"], z["stderr"]
+            self.theta, self.stderr = read_arrays(directory, ARRAYS, {"theta": 1, "stderr": 1}).values()
             self.terms = state["terms"]
             self.names = state["names"]
         except FileNotFoundError:
