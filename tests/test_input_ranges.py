@@ -226,6 +226,16 @@ def test_arm_names_are_checked_before_they_reach_a_file():
         build_calibration("left\narm", "KEY", ["joint1"], [0.0])
 
 
+@pytest.mark.parametrize("name", ["", "left\narm", "\x1b[2Jx"])
+def test_calibrate_refuses_a_bad_arm_name_before_opening_the_port(tmp_path, name):
+    port = tmp_path / "no-such-port"  # opening it would fail with a sentence about the port instead
+    r = CliRunner().invoke(collect_main, ["calibrate", "--port", str(port), "--arm", name,
+                                          "--output", str(tmp_path / "c.toml")], input="\n\n")
+    assert r.exit_code == 2, r.output
+    assert "an arm name must be" in r.output and "Traceback" not in r.output
+    assert not (tmp_path / "c.toml").exists()
+
+
 def test_a_good_calibration_still_loads(tmp_path):
     path = tmp_path / "c.toml"
     path.write_text(GOOD_CALIBRATION)

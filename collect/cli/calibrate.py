@@ -83,11 +83,13 @@ def calibrate(port, arm_name, no_range, output, force):
         adapter_key,
         build_calibration,
         calibration_path,
+        check_arm_name,
         offsets_at_marks,
         save_calibration,
     )
     from crane_io.output_files import check_output
 
+    check_arm_name(arm_name)  # stored in TOML and shown on terminals: refused before the arm is touched
     arm = default_arm()
     names = arm.joint_names
     key = adapter_key(port)
