@@ -236,12 +236,18 @@ def atomic_path(path, what: str = "output") -> Iterator[Path]:
     except BaseException as exc:
         with contextlib.suppress(OSError):
             tmp.unlink()
-        if isinstance(exc, OSError):
-            raise write_error(exc, target, what) from None
-        if isinstance(exc, Exception) and not isinstance(exc, CraneError) and (
-                is_disk_full(exc) or _no_space_left(folder)):
-            raise write_error(_HiddenDiskFull(exc), target, what) from None
+        _raise_write_error(exc, target, what, folder)
         raise
+
+
+def _raise_write_error(exc: BaseException, target: Path, what: str, folder: Path) -> None:
+    """Raise the one sentence for a failed write of `target` (an OSError, or a writer's own error that
+    hides a full disk); return for anything else, which the caller re-raises as it is."""
+    if isinstance(exc, OSError):
+        raise write_error(exc, target, what) from None
+    if isinstance(exc, Exception) and not isinstance(exc, CraneError) and (
+            is_disk_full(exc) or _no_space_left(folder)):
+        raise write_error(_HiddenDiskFull(exc), target, what) from None
 
 
 def write_bytes_atomic(path, data: bytes, what: str = "output") -> Path:
@@ -286,11 +292,7 @@ def atomic_directory(path, what: str = "output folder") -> Iterator[Path]:
                 os.replace(old, target)
             old = None
         shutil.rmtree(tmp, ignore_errors=True)
-        if isinstance(exc, OSError):
-            raise write_error(exc, target, what) from None
-        if isinstance(exc, Exception) and not isinstance(exc, CraneError) and (
-                is_disk_full(exc) or _no_space_left(folder)):
-            raise write_error(_HiddenDiskFull(exc), target, what) from None
+        _raise_write_error(exc, target, what, folder)
         raise
     finally:
         if old is not None:
