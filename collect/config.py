@@ -36,7 +36,6 @@ MODEL_FILTERS = ("training", "observer")  # controller.model_filters (docs/colle
 # the friction dither needs at least this many control cycles per period (4: a square wave's two levels
 # are each held for two cycles; a sine is sampled at its peaks and zero crossings)
 DITHER_MIN_CYCLES = 4
-MAX_STATUS_HZ = 50.0  # the live status line is for a person: faster refreshes only cost the loop time
 # joint -> (lower, upper) rad: [held] and [operator.start_deg] angles must lie within them
 _JOINT_LIMITS = {j.name: (j.lower, j.upper) for j in default_arm().joints}
 
@@ -263,8 +262,8 @@ def _build(values: dict, where: str) -> Config:
           f"between {MIN_RATE_HZ:g} and {MAX_RATE_HZ:g} Hz", loop.rate_hz)
     _need(loop.spin_s <= loop.period_s, where, "loop.spin_s", f"at most one control period "
           f"({loop.period_s:g} s)", loop.spin_s)
-    _need(loop.status_hz <= MAX_STATUS_HZ, where, "loop.status_hz", f"at most {MAX_STATUS_HZ:g} Hz",
-          loop.status_hz)
+    _need(loop.status_hz <= loop.rate_hz, where, "loop.status_hz", f"at most the loop's rate "
+          f"({loop.rate_hz:g} Hz: one status line a cycle)", loop.status_hz)
 
     c = values["controller"]
     _need(c["gravity_model"] in GRAVITY_MODELS, where, "controller.gravity_model",

@@ -118,7 +118,7 @@ def test_status_line_rewrites_a_terminal_and_spares_a_log(tmp_path, tty):
     log file at most one line per status_log_s of wall time (here: none in a short run), and the final
     summary always comes."""
     cfg = tmp_path / "c.toml"
-    cfg.write_text(TEST_CONFIG.format(status=1000, log=3600))
+    cfg.write_text(TEST_CONFIG.format(status=500, log=3600))
     stream = _Terminal() if tty else io.StringIO()
     run_session(_opts(tmp_path, cfg, duration=0.5, status=True, stream=stream))
     text = stream.getvalue()
