@@ -35,7 +35,7 @@ OUT=${OUT:-out/loop}
 TRAIN_S=${TRAIN_S:-180}
 EVAL_S=${EVAL_S:-120}
 mkdir -p "$OUT/models"
-FIT="$BIN/crane-train fit --scale-to-data --no-progress --seed 1"
+FIT="$BIN/crane-train fit --scale-to-data --no-progress --seed 1 --force"
 # have PATH: with REUSE=1, PATH exists already (skip the step that makes it)
 have() { [ -n "${REUSE:-}" ] && [ -e "$1" ]; }
 # evaluate NAME ARGS...: one contact-task run on contact-wall (seed 23: the same operator every time) with

@@ -29,7 +29,7 @@ have "$S" || $BIN/crane-collect run --sim --joints all --seed "$SEED" --duration
 $BIN/crane-train info "$S" --joints all | tee "$OUT/info.txt"
 
 echo "== 2/3 the paper's sweep at seven joints: rigid-body, mlp-mse, mlp-masked, 10 sizes x 10 trials"
-$BIN/crane-train sweep "$S" --joints all -o "$OUT/sweep" --seed "$SEED" --scale-to-data --no-progress
+$BIN/crane-train sweep "$S" --joints all -o "$OUT/sweep" --seed "$SEED" --scale-to-data --no-progress --force
 
 $BIN/python scripts/masked_vs_mse.py "$OUT/sweep/results.json" --markdown | tee "$OUT/masked_vs_mse.md"
 
@@ -48,7 +48,7 @@ print(' '.join(f'--effect {n}:joint={j}' for n, j, _ in load_plant_config('$pres
 from crane_io.sim.plant_config import load_plant_config
 h = load_plant_config('$preset').hidden
 print(f'{h.effect}:joint={h.joint}')")
-    FIT="$BIN/crane-train fit $P/session.h5 --joints all --model rigid-body --scale-to-data --no-progress"
+    FIT="$BIN/crane-train fit $P/session.h5 --joints all --model rigid-body --scale-to-data --no-progress --force"
     $FIT "${KNOWN[@]}" -o "$P/baseline" --seed "$SEED"
     $BIN/crane-train diagnose "$P/baseline" "$P/session.h5" | tee "$P/diagnosis.txt"
     $BIN/crane-train diagnose "$P/baseline" "$P/session.h5" --json > "$P/diagnosis.json"
