@@ -73,7 +73,8 @@ def test_the_kernels_mass_matrix_and_bias_equal_pinocchios(tmp_path, name):
     rng = np.random.default_rng(5)
     for _ in range(300):
         q, dq = rng.uniform(-3, 3, n), rng.uniform(-4, 4, n)
-        dynamics(n, plant._kgeo, plant._karm, plant._kscal, q, dq, mass, bias, *work)
+        k = plant._stepper
+        dynamics(n, k.geo, k.arm, k.scal, q, dq, mass, bias, *work)
         m = pin.crba(model, data, q)
         m = np.triu(m) + np.triu(m, 1).T
         b = pin.nonLinearEffects(model, data, q, dq)
@@ -85,7 +86,8 @@ def test_the_kernels_mass_matrix_and_bias_equal_pinocchios(tmp_path, name):
 @pytest.mark.parametrize("name", ["crane-x7", "crane-x7-7dof", "hidden-cogging", "asymmetric+spring"])
 def test_the_compiled_kernel_computes_what_its_python_source_computes_bit_for_bit(tmp_path, name):
     plant = _plant(tmp_path, name)
-    compiled = plant._kstep
+    stepper = plant._stepper
+    compiled = stepper.step_substeps
     rng = np.random.default_rng(9)
     n = len(plant.joints)
     q, dq = plant.q.copy(), np.zeros(n)
@@ -98,7 +100,7 @@ def test_the_compiled_kernel_computes_what_its_python_source_computes_bit_for_bi
             pd = rng.random(n) < 0.5
             cmd[pd, plant_kernel.C_PD] = 1.0
             cmd[pd, plant_kernel.C_KP:plant_kernel.C_GOAL + 1] = (8.0, 0.2, -1.5, 1.5, 0.3)
-        args = (cmd, plant.h, 8, plant._kgeo, plant._karm, plant._kpar, plant._kcog, plant._kscal)
+        args = (cmd, plant.h, 8, stepper.geo, stepper.arm, stepper.par, stepper.cog, stepper.scal)
         got, want = compiled(q, dq, *args), plant_kernel.step(q, dq, *args)
         assert got.tobytes() == want.tobytes(), k
         q, dq = got[:n], got[n:2 * n]
