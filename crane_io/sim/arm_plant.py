@@ -120,7 +120,6 @@ class ArmPlant:
         self.data = self.model.createData()
         lo = np.array([arm.joint(n).lower for n in joints]) - _STOP_MARGIN
         hi = np.array([arm.joint(n).upper for n in joints]) + _STOP_MARGIN
-        self._lo, self._hi = lo, hi
         self._lo_l, self._hi_l = lo.tolist(), hi.tolist()
         self._k_stop, self._d_stop = config.limits.stiffness, config.limits.damping
         init = np.array([config.initial.get(n, 0.0) for n in names])
@@ -141,12 +140,10 @@ class ArmPlant:
         self._held_dq = np.zeros(len(self._held))
         self._held_current = np.zeros(len(self._held))
         self._held_ext = np.zeros(len(self._held))
-        self._held_inertia = np.array([DEFAULT_INERTIA[i] for i in self._held])
-        self._held_visc = np.array([DEFAULT_VISCOUS[i] for i in self._held])
-        self._held_lo = np.array([arm.joint(n).lower - _STOP_MARGIN for n in self._held_names])
-        self._held_hi = np.array([arm.joint(n).upper + _STOP_MARGIN for n in self._held_names])
-        self._held_lo_l, self._held_hi_l = self._held_lo.tolist(), self._held_hi.tolist()
-        self._held_inertia_l, self._held_visc_l = self._held_inertia.tolist(), self._held_visc.tolist()
+        self._held_inertia_l = [float(DEFAULT_INERTIA[i]) for i in self._held_l]
+        self._held_visc_l = [float(DEFAULT_VISCOUS[i]) for i in self._held_l]
+        self._held_lo_l = [arm.joint(n).lower - _STOP_MARGIN for n in self._held_names]
+        self._held_hi_l = [arm.joint(n).upper + _STOP_MARGIN for n in self._held_names]
         self.external = np.zeros(n_int)
         self._external_all = np.zeros(len(names))  # the last set_external_torque, joint order
         self.environment = list(config.environment)  # the parsed [[environment]] objects
