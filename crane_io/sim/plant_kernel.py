@@ -403,7 +403,7 @@ def _euler(n, q, dq, ddq, h):
 
 
 def step_arm(q, dq, hq, hdq, cmds, pd, ext, hext, h, n_sub, dt, hmat, geo, arm, par, cog, scal, hpar):
-    """A whole ArmPlant step: the held joints (ArmPlant._step_held, the same operations), then the
+    """A whole ArmPlant step: the held joints (ReferenceStepper._step_held, the same operations), then the
     integrated joints' n_sub substeps (`step`). cmds (5, servos): torque enabled, operating mode, goal
     current, goal position, current limit per servo; pd (n, 6): per integrated joint 1.0 when its servo's
     PD drives it, then kp, kd, -cap, cap, goal; ext, hext: the external torque on the integrated and the
