@@ -194,7 +194,7 @@ def test_the_lockstep_cycle_takes_one_compiled_call_per_packet_and_agrees_throug
     for _ in range(10):
         _cycle(chains, [2, 3, 5], rng.integers(-300, 300, 3), ids)
     assert handled == []  # every packet took the lockstep path
-    assert fast.plant._kviews is not None and fast.plant.q is fast.plant._kviews[0]
+    assert fast.plant._stepper.views is not None and fast.plant.q is fast.plant._stepper.views[0]
     # a packet in two pieces, two packets in one piece
     pkt = _sync_write_current([2, 3, 5], [40, -40, 5])
     _feed(chains, pkt[:9])

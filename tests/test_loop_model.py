@@ -380,7 +380,6 @@ def test_the_loops_smooth_coulomb_sign_replaces_sign_by_tanh_and_zero_restores_t
     """set_coulomb_velocity(v0): each Coulomb-type term's sign(dq) becomes tanh(dq / v0); the rest of the
     prediction is untouched, and v0 = 0 gives load_model(dir).predict again."""
     from crane_io.errors import ConfigError
-    from crane_io.physics.loop_model import _scalar_name
 
     for method in ("rigid-body", "hybrid"):
         loop = LoopModel.load(saved[method])
@@ -388,7 +387,7 @@ def test_the_loops_smooth_coulomb_sign_replaces_sign_by_tanh_and_zero_restores_t
         test = _data(60, 3)
         expected = ref.predict(test.q, test.dq, test.ddq)
         rigid = next(p for p in loop.paths if hasattr(p, "set_coulomb_velocity"))
-        terms = [(_scalar_name(fn), j, c, s) for j, fn, c, s in rigid.scalar_terms]
+        terms = [(effect.name, j, c, s) for j, effect, c, s in rigid.scalar_terms]
         coulomb = {j: c[0] for name, j, c, s in terms if name == "coulomb"}
         assert sorted(coulomb) == [0, 1, 2]
         stribeck = next((c[0], s["stribeck_velocity"]) for name, j, c, s in terms if name == "stribeck")

@@ -356,15 +356,15 @@ def test_the_plant_terms_of_an_effect_are_its_torque_on_any_joint(tmp_path, effe
     body = "".join(f"{k} = {v}\n" for k, v in values.items())
     path = write(tmp_path, "one", f'joints = {list(ARM_JOINTS)!r}\n'.replace("'", '"')
                  + f'[[effects]]\neffect = "{effect}"\njoint = "joint6"\n{body}')
-    plant = ArmPlant(path)
+    plant = ArmPlant(path, kernel=False)
     rng = np.random.default_rng(0)
     q = rng.uniform(-1.0, 1.0, (50, 7))
     q[:, 3] = rng.uniform(-2.0, -0.1, 50)  # inside joint4's limits (no end stop)
     dq = rng.normal(0.0, 0.1, (50, 7))
     want = get_effect(effect).torque(q, dq, np.zeros_like(q), 5, values)
     for qi, dqi, w in zip(q, dq, want):
-        got = np.array(plant._other_torque(qi.tolist(), dqi.tolist()))
-        got += [plant._kinetic(i, v) for i, v in enumerate(dqi.tolist())]
+        got = np.array(plant._stepper.other_torques(qi.tolist(), dqi.tolist()))
+        got += plant._stepper.kinetic_torques(dqi.tolist())
         np.testing.assert_allclose(got, w, rtol=1e-12, atol=1e-14)
 
 

@@ -1,4 +1,5 @@
-"""The compiled plant kernel (crane_io/sim/plant_kernel.py, issue 13) against the plant's reference path.
+"""The plant's two steppers (crane_io/sim/plant_backend.py): the compiled one (crane_io/sim/plant_kernel.py)
+against the reference (crane_io/sim/plant_reference.py), through the plant that picked them.
 
 The kernel computes the rigid-body terms itself (Newton-Euler in the joints' frames) instead of calling
 pinocchio every substep, so it cannot give pinocchio's last bits. What is pinned instead:
@@ -6,9 +7,9 @@ pinocchio every substep, so it cannot give pinocchio's last bits. What is pinned
   7 joints, held joints locked at other angles, a payload;
 - the compiled code computes exactly what its Python source computes (no fused multiply-add, no
   reassociation), bit for bit;
-- a plant's trajectory equals the reference path's (`ArmPlant(kernel=False)`) to 1e-12 over the first
+- a plant's trajectory equals the reference stepper's (`ArmPlant(kernel=False)`) to 1e-12 over the first
   second and stays close (a stick-slip decision at a rounding-level tie may later go the other way);
-- the reference path still records the pinned 1 s session bit for bit, and so does the kernel (that
+- the reference stepper still records the pinned 1 s session bit for bit, and so does the kernel (that
   session takes no decision at a tie); the plant's physics tests run on the kernel unchanged.
 """
 
@@ -73,7 +74,8 @@ def test_the_kernels_mass_matrix_and_bias_equal_pinocchios(tmp_path, name):
     rng = np.random.default_rng(5)
     for _ in range(300):
         q, dq = rng.uniform(-3, 3, n), rng.uniform(-4, 4, n)
-        dynamics(n, plant._kgeo, plant._karm, plant._kscal, q, dq, mass, bias, *work)
+        k = plant._stepper
+        dynamics(n, k.geo, k.arm, k.scal, q, dq, mass, bias, *work)
         m = pin.crba(model, data, q)
         m = np.triu(m) + np.triu(m, 1).T
         b = pin.nonLinearEffects(model, data, q, dq)
@@ -85,7 +87,8 @@ def test_the_kernels_mass_matrix_and_bias_equal_pinocchios(tmp_path, name):
 @pytest.mark.parametrize("name", ["crane-x7", "crane-x7-7dof", "hidden-cogging", "asymmetric+spring"])
 def test_the_compiled_kernel_computes_what_its_python_source_computes_bit_for_bit(tmp_path, name):
     plant = _plant(tmp_path, name)
-    compiled = plant._kstep
+    stepper = plant._stepper
+    compiled = stepper.step_substeps
     rng = np.random.default_rng(9)
     n = len(plant.joints)
     q, dq = plant.q.copy(), np.zeros(n)
@@ -98,7 +101,7 @@ def test_the_compiled_kernel_computes_what_its_python_source_computes_bit_for_bi
             pd = rng.random(n) < 0.5
             cmd[pd, plant_kernel.C_PD] = 1.0
             cmd[pd, plant_kernel.C_KP:plant_kernel.C_GOAL + 1] = (8.0, 0.2, -1.5, 1.5, 0.3)
-        args = (cmd, plant.h, 8, plant._kgeo, plant._karm, plant._kpar, plant._kcog, plant._kscal)
+        args = (cmd, plant.h, 8, stepper.geo, stepper.arm, stepper.par, stepper.cog, stepper.scal)
         got, want = compiled(q, dq, *args), plant_kernel.step(q, dq, *args)
         assert got.tobytes() == want.tobytes(), k
         q, dq = got[:n], got[n:2 * n]
@@ -199,3 +202,18 @@ def test_a_kernel_that_cannot_run_here_leaves_the_reference_path(monkeypatch):
     assert not plant.kernel
     with pytest.raises(RuntimeError, match="no code"):
         ArmPlant("crane-x7", kernel=True)
+
+
+def test_only_the_compiled_stepper_takes_array_commands_and_the_lockstep_cycle():
+    """The reference stepper hands the simulated chain's fast path back (the chain then calls step_lists);
+    the compiled one takes it, except for an integrated joint's servo in a position mode."""
+    cmds = np.zeros((5, 8))
+    ref = ArmPlant("crane-x7", kernel=False)
+    assert ref.step_command(cmds, 0, PERIOD) is False and ref.time == 0.0
+    assert ref.kernel_step_args(PERIOD) is None and ref.kernel_cycle_args(PERIOD) is None
+    assert ref.kernel_read_args() is None
+    fast = ArmPlant("crane-x7", kernel=True)
+    assert fast.step_command(cmds, 0, PERIOD) is True and fast.time == PERIOD
+    assert fast.step_command(cmds, 1 << 0, PERIOD) is False and fast.time == PERIOD  # joint1's servo
+    assert fast.step_command(cmds, 1 << 2, PERIOD) is True  # joint3: a held joint
+    assert fast.kernel_step_args(PERIOD) is not None and fast.kernel_read_args() is not None

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from crane_io.dynamixel.units import AMPERE_PER_CURRENT_LSB, RADS_PER_VELOCITY_LSB
-from crane_io.sim.arm_plant import _PULSE_SIGNS, ArmPlant, _eliminate, _solve
+from crane_io.sim.arm_plant import _PULSE_SIGNS, ArmPlant
+from crane_io.sim.plant_reference import _eliminate, _solve
 
 
 def _array_read(plant: ArmPlant, rng: np.random.Generator):

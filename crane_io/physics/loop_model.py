@@ -39,8 +39,8 @@ records the export's digest (`"loop_export": {"sha256": ...}`, written by Model.
 The forward paths (also used by train.models.fast_predict):
 - MLPPath: y = relu(x W1' + b1') W2' + b2' with the input and output standardisation folded in;
 - RigidPath: pinocchio's joint-torque regressor of the one sample @ theta_full, plus each effect term
-  (the built-in one-joint effects as scalar formulas, the same as crane_io/physics/effects/library.py; any
-  other effect through its `columns`, which allocates);
+  (a one-joint effect defined by its `formula`, crane_io/physics/effects/base.py, evaluates that formula on
+  floats; any other effect goes through its `columns`, which allocates);
 - hybrid: the sum of the two.
 Buffers are allocated once; `predict_one` writes into `out` (default: a buffer of the model that the
 next call overwrites). Inputs are not checked in the call. Against the model's own `predict` (torch
@@ -57,6 +57,7 @@ from pathlib import Path
 import numpy as np
 
 from crane_io.errors import ConfigError, CraneError
+from crane_io.physics.effects.base import SCALAR_OPS, smooth_sign_ops
 from crane_io.physics.loop_model_check import export_problem, npz_arrays, preprocessing_problem, read_bytes
 
 MODEL_JSON = "model.json"
@@ -124,56 +125,11 @@ class MLPPath:
         return out
 
 
-def _sgn(v: float) -> float:
-    return 1.0 if v > 0 else (-1.0 if v < 0 else 0.0)  # as np.sign: 0 at 0
-
-
-def _gauss(v: float, width: float) -> float:
-    return math.exp(-((v / max(width, 1e-9)) ** 2))
-
-
-# name -> scalar torque of one joint from (q, dq, ddq) of that joint, coefficients c, shape s: the same
-# formulas as the columns of crane_io/physics/effects/library.py, used only when the effect in the registry is
-# that built-in class (tests check each against the train model's own prediction)
-SCALAR_EFFECTS = {
-    "coulomb": lambda q, v, a, c, s: c[0] * _sgn(v),
-    "coulomb-asym": lambda q, v, a, c, s: c[0] if v > 0 else (-c[1] if v < 0 else 0.0),
-    "viscous": lambda q, v, a, c, s: c[0] * v,
-    "stribeck": lambda q, v, a, c, s: c[0] * _gauss(v, s["stribeck_velocity"]) * _sgn(v),
-    "stiction": lambda q, v, a, c, s: c[0] * _sgn(v) + c[1] * _gauss(v, s["stiction_velocity"]) * _sgn(v),
-    "offset": lambda q, v, a, c, s: c[0],
-    "spring": lambda q, v, a, c, s: c[0] * (q - s["rest_angle"]),
-    "rotor-inertia": lambda q, v, a, c, s: c[0] * a,
-    "cogging": lambda q, v, a, c, s: (c[0] * math.sin(s["cycles_per_rev"] * q)
-                                      + c[1] * math.cos(s["cycles_per_rev"] * q)),
-    "backlash": lambda q, v, a, c, s: c[0] * a * _gauss(v, s["reversal_velocity"]),
-}
-
-
-def _ssgn(v: float, v0: float) -> float:
-    return math.tanh(v / v0)  # the smooth sign of the loop's `coulomb_velocity` option (v0 > 0)
-
-
-# the same formulas with sign(v) replaced by tanh(v / v0) (`RigidPath.set_coulomb_velocity`); the shape
-# dict carries v0 as "coulomb_velocity"
-SMOOTH_SIGN_EFFECTS = {
-    "coulomb": lambda q, v, a, c, s: c[0] * _ssgn(v, s["coulomb_velocity"]),
-    "coulomb-asym": lambda q, v, a, c, s: (c[0] if v > 0 else c[1]) * _ssgn(v, s["coulomb_velocity"]),
-    "stribeck": lambda q, v, a, c, s: (c[0] * _gauss(v, s["stribeck_velocity"])
-                                       * _ssgn(v, s["coulomb_velocity"])),
-    "stiction": lambda q, v, a, c, s: (c[0] + c[1] * _gauss(v, s["stiction_velocity"]))
-                                      * _ssgn(v, s["coulomb_velocity"]),
-}
-
-
-def _scalar_name(fn) -> str | None:
-    return next((k for k, f in SCALAR_EFFECTS.items() if f is fn), None)
-
-
-def _builtin_class(name: str):
+def _smoothed_effects() -> frozenset[str]:
+    """The built-in effects whose sign(dq) set_coulomb_velocity smooths (the library's friction effects)."""
     from crane_io.physics.effects import library
 
-    return next((cls for cls in library.BUILTIN_EFFECTS if cls.name == name), None)
+    return frozenset(cls.name for cls in library.BUILTIN_EFFECTS if cls.friction)
 
 
 class RigidPath:
@@ -205,7 +161,7 @@ class RigidPath:
                               f"({10 * dynamics.nbodies},) for joints {', '.join(dynamics.joint_names)}")
         self._qm, self._dqm, self._ddqm = (np.empty(self.n_joints) for _ in range(3))
         self._tau_model = np.empty(self.n_joints)
-        self.scalar_terms: list[tuple] = []  # (joint, function, coefficients, shape)
+        self.scalar_terms: list[tuple] = []  # (joint, effect, coefficients, shape): its formula on floats
         self.generic_terms: list[tuple] = []  # (effect, joint or None, shape, coefficients)
         for effect, joint, shape, coefs in terms:
             coefs = np.asarray(coefs, dtype=np.float64).ravel()
@@ -215,13 +171,14 @@ class RigidPath:
             if joint is not None and not 0 <= int(joint) < self.n_joints:
                 raise ConfigError(f"effect {effect.name} acts on joint index {joint}, out of range for "
                                   f"{self.n_joints} joints")
-            scalar = SCALAR_EFFECTS.get(effect.name)
-            if scalar is not None and joint is not None and type(effect) is _builtin_class(effect.name):
-                self.scalar_terms.append((int(joint), scalar, tuple(float(c) for c in coefs),
+            if joint is not None and effect.has_scalar_form:
+                self.scalar_terms.append((int(joint), effect, tuple(float(c) for c in coefs),
                                           effect._shape(shape)))
             else:
                 self.generic_terms.append((effect, None if joint is None else int(joint), shape, coefs))
-        self._sign_terms = tuple(self.scalar_terms)  # as fitted: sign(dq)
+        self._formulas = tuple((j, effect.formula, coefs, shape)
+                               for j, effect, coefs, shape in self.scalar_terms)
+        self._ops = SCALAR_OPS  # as fitted: sign(dq)
         self.coulomb_velocity = 0.0
 
     def set_coulomb_velocity(self, v0: float) -> None:
@@ -233,17 +190,12 @@ class RigidPath:
         if not (math.isfinite(v0) and v0 >= 0):
             raise ConfigError(f"the Coulomb smoothing velocity must be zero or a positive number of "
                               f"rad/s, not {v0}")
+        smoothed = _smoothed_effects()
         for effect, _, _, _ in self.generic_terms:
-            if v0 > 0 and effect.name in SMOOTH_SIGN_EFFECTS:
+            if v0 > 0 and effect.name in smoothed:
                 raise ConfigError(f"the effect term {effect.name} of this model cannot be smoothed in the "
                                   f"loop (it is not a built-in term of one joint)")
-        if v0 == 0:
-            self.scalar_terms = list(self._sign_terms)
-        else:
-            self.scalar_terms = [
-                (j, SMOOTH_SIGN_EFFECTS[fn_name], coefs, {**shape, "coulomb_velocity": v0})
-                if (fn_name := _scalar_name(fn)) in SMOOTH_SIGN_EFFECTS else (j, fn, coefs, shape)
-                for j, fn, coefs, shape in self._sign_terms]
+        self._ops = SCALAR_OPS if v0 == 0 else smooth_sign_ops(v0)
         self.coulomb_velocity = v0
 
     def __call__(self, q, dq, ddq, out: np.ndarray) -> np.ndarray:
@@ -260,10 +212,11 @@ class RigidPath:
         else:
             np.dot(y, self.theta_full, out=self._tau_model)
             out[:] = self._tau_model[self._perm]
-        if self.scalar_terms:  # on Python floats: faster than numpy scalars
+        if self._formulas:  # on Python floats: faster than numpy scalars
             qs, vs, accs = q.tolist(), dq.tolist(), ddq.tolist()
-            for joint, fn, coefs, shape in self.scalar_terms:
-                out[joint] += fn(qs[joint], vs[joint], accs[joint], coefs, shape)
+            ops = self._ops
+            for joint, formula, coefs, shape in self._formulas:
+                out[joint] += formula(qs[joint], vs[joint], accs[joint], coefs, shape, ops)
         for effect, joint, shape, coefs in self.generic_terms:
             out += effect.columns(q[None], dq[None], ddq[None], joint, shape)[0] @ coefs
         return out

@@ -46,21 +46,16 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import struct
-import warnings
-from operator import add, sub
 from pathlib import Path
 
 import numpy as np
-import pinocchio as pin
 
 from crane_io.description import default_arm
 from crane_io.dynamixel.units import AMPERE_PER_CURRENT_LSB, RAD_PER_PULSE, RADS_PER_VELOCITY_LSB
 from crane_io.errors import ConfigError
 from crane_io.physics.dynamics import ArmDynamics
 from crane_io.physics.effects import PlantTerms
-from crane_io.sim import chain_kernel, noise_kernel, plant_kernel
+from crane_io.sim import chain_kernel, plant_backend, plant_layout
 from crane_io.sim.environment import Environment
 from crane_io.sim.plant_api import ActuatorCommand, SensorReading
 from crane_io.sim.plant_config import ARM_JOINTS, PlantConfig, check_joints, load_plant_config
@@ -71,24 +66,11 @@ _TWO_TO_MINUS_53 = 1.0 / 9007199254740992.0  # Generator.random: (64-bit output 
 _EMPTY_U64, _EMPTY_F64 = np.zeros(0, dtype=np.uint64), np.zeros(0)
 
 
-def _SUBSTEP_KEY(n: int) -> struct.Struct:  # noqa: N802 (it names a struct, as it did for 3 joints)
-    """The struct packing a substep's inputs for n joints (q, dq, motor and external torque, h), bit exact."""
-    key = _SUBSTEP_KEYS.get(n)
-    if key is None:
-        key = _SUBSTEP_KEYS[n] = struct.Struct(f"<{4 * n + 1}d")
-    return key
-
-
-_SUBSTEP_KEYS: dict[int, struct.Struct] = {}
-
 OVERLOAD_BIT = 0x20
 _HELD_OMEGA = 30.0  # rad/s: held joints follow their goal as a critically damped 2nd-order system
 _STOP_MARGIN = math.radians(2.0)  # end stops sit this far beyond the software limits
 _CONTACT_OMEGA_H = 0.25  # backlash contact: natural frequency on the motor inertia x substep
 _CONTACT_DAMPING_RATIO = 1.5
-# joint kinds the kernel takes: their axis (None: the model's)
-_REVOLUTE = {"JointModelRX": (1.0, 0.0, 0.0), "JointModelRY": (0.0, 1.0, 0.0),
-             "JointModelRZ": (0.0, 0.0, 1.0), "JointModelRevoluteUnaligned": None}
 _SKL_INERTIA = dict(zip(("joint1", "joint2", "joint3", "joint4", "joint5", "joint6", "joint7", "gripper"),
                         DEFAULT_INERTIA))
 
@@ -97,12 +79,13 @@ class ArmPlant:
     """The simulated CRANE-X7 (see module docstring). `config`: a PlantConfig, a preset name or a
     TOML path (default "crane-x7"); `seed`: the sensor-noise seed (default: the config's); `joints`:
     the joints integrated with the rigid-body dynamics (any of joint1..joint7, put in arm order;
-    default the config's `joints`, itself by default joint1, joint2, joint4); `kernel`: integrate with
-    the compiled substep kernel (crane_io.sim.plant_kernel) or with the reference path (pinocchio calls
-    and Python floats per substep). Default: the kernel when numba is installed and the plant has no
-    backlash, user-defined effect or [[environment]] object (those run on the reference path), unless
-    the environment variable CRANE_PLANT_KERNEL is "0" (then always the reference path). The two agree
-    to rounding, not bit for bit (see crane_io.sim.plant_kernel)."""
+    default the config's `joints`, itself by default joint1, joint2, joint4); `kernel`: step with the
+    compiled stepper (crane_io.sim.plant_backend.CompiledStepper, crane_io.sim.plant_kernel) or with the
+    reference stepper (crane_io.sim.plant_reference: pinocchio calls and Python floats per substep),
+    chosen once, when the plant is built (crane_io.sim.plant_backend.choose). Default: the compiled one
+    when numba is installed and the plant has no backlash, user-defined effect or [[environment]] object
+    (those run on the reference stepper), unless the environment variable CRANE_PLANT_KERNEL is "0" (then
+    always the reference). The two agree to rounding, not bit for bit (see crane_io.sim.plant_kernel)."""
 
     def __init__(self, config: PlantConfig | str | Path | None = None, seed: int | None = None,
                  joints=None, kernel: bool | None = None):
@@ -137,7 +120,6 @@ class ArmPlant:
         self.data = self.model.createData()
         lo = np.array([arm.joint(n).lower for n in joints]) - _STOP_MARGIN
         hi = np.array([arm.joint(n).upper for n in joints]) + _STOP_MARGIN
-        self._lo, self._hi = lo, hi
         self._lo_l, self._hi_l = lo.tolist(), hi.tolist()
         self._k_stop, self._d_stop = config.limits.stiffness, config.limits.damping
         init = np.array([config.initial.get(n, 0.0) for n in names])
@@ -147,9 +129,6 @@ class ArmPlant:
         # in the gap
         self.motor_q, self.motor_dq = self.q.tolist(), [0.0] * n_int
         self.h = config.substep_s
-        self._key = _SUBSTEP_KEY(n_int)
-        self._joint_range = tuple(range(n_int))
-        self._euler, self._drive, self._mirror = _written_out(n_int)
         # PD controller of the integrated servos in position modes (SimplePlant's servo model: the
         # joint's nominal inertia, the servo's stall torque)
         self._pd = SimplePlant(servo_ids=tuple(self.servo_ids[i] for i in self._bi),
@@ -161,13 +140,10 @@ class ArmPlant:
         self._held_dq = np.zeros(len(self._held))
         self._held_current = np.zeros(len(self._held))
         self._held_ext = np.zeros(len(self._held))
-        self._held_inertia = np.array([DEFAULT_INERTIA[i] for i in self._held])
-        self._held_visc = np.array([DEFAULT_VISCOUS[i] for i in self._held])
-        self._held_lo = np.array([arm.joint(n).lower - _STOP_MARGIN for n in self._held_names])
-        self._held_hi = np.array([arm.joint(n).upper + _STOP_MARGIN for n in self._held_names])
-        self._held_lo_l, self._held_hi_l = self._held_lo.tolist(), self._held_hi.tolist()
-        self._held_inertia_l, self._held_visc_l = self._held_inertia.tolist(), self._held_visc.tolist()
-        self._held_cache: dict[float, tuple[float, float, float, float]] = {}
+        self._held_inertia_l = [float(DEFAULT_INERTIA[i]) for i in self._held_l]
+        self._held_visc_l = [float(DEFAULT_VISCOUS[i]) for i in self._held_l]
+        self._held_lo_l = [arm.joint(n).lower - _STOP_MARGIN for n in self._held_names]
+        self._held_hi_l = [arm.joint(n).upper + _STOP_MARGIN for n in self._held_names]
         self.external = np.zeros(n_int)
         self._external_all = np.zeros(len(names))  # the last set_external_torque, joint order
         self.environment = list(config.environment)  # the parsed [[environment]] objects
@@ -179,98 +155,18 @@ class ArmPlant:
         self._saturated_time = np.zeros(len(names))
         self._errors: dict[int, int] = {}
         self.time = 0.0
-        self._last_key, self._last_out = b"", None  # the last substep's inputs and result (_substep)
-        self._raw_signs_ok = None  # the generator _pulse_signs may read raw (see there)
-        self._rng_kept = None  # kernel_cycle_args: the generator and its pointers (noise_kernel.RngPointers)
-        # per-joint parameters of the substep's scalar loops: (Coulomb +, Coulomb -, Stribeck terms) and
-        # (viscous, offset, spring stiffness, stiffness x rest angle, lower stop, upper stop)
-        self._kinetic_l = [(self._fc_pos_l[i], self._fc_neg_l[i], tuple(self._strib_l[i]))
-                           for i in range(n_int)]
-        self._other_l = list(zip(self._visc_l, self._offset_l, self._spring_k_l, self._spring_q0k_l,
-                                 self._lo_l, self._hi_l))
-        self._kstep = None  # the compiled kernel's step, when this plant uses it
-        required = kernel is True
-        if kernel is None:
-            kernel = os.environ.get("CRANE_PLANT_KERNEL", "1") != "0" and self._kernel_fits()
-        elif kernel and not self._kernel_fits():
-            raise ConfigError("the compiled plant kernel does not simulate backlash, user-defined effects or "
-                              "[[environment]] objects; use kernel=False for this plant")
-        if kernel:
-            fns = plant_kernel.compiled()
-            if fns is None and required:
-                raise ConfigError("the compiled plant kernel needs numba (pip install numba)")
-            if fns is not None:
-                self._kstep_arm, self._kstep = fns[0], fns[1]
-                self._kernel_arrays()
-                try:  # load (or compile) it now, with this plant's own argument types: no surprise later
-                    self._kstep_arm(self.q, self.dq, self._held_q, self._held_dq, np.zeros((5, len(names))),
-                                    self._kpd0, self.external, self._held_ext, self.h, 0, self.h,
-                                    np.array(self._held_matrix(self.h)), self._kgeo, self._karm, self._kpar,
-                                    self._kcog, self._kscal, self._khpar)
-                except Exception as exc:  # e.g. a numba that cannot compile it here: the reference path
-                    if required:
-                        raise
-                    warnings.warn(f"the compiled plant kernel is not usable here ({type(exc).__name__}: "
-                                  f"{exc}); the plant integrates on its reference path", stacklevel=2)
-                    self._kstep = None
-
-    # ---- the compiled kernel -------------------------------------------------------------------------
-    def _kernel_fits(self) -> bool:
-        """The kernel's model covers this plant: a serial chain of revolute joints, effects in closed form."""
-        if self._backlash or self._generic or self.environment:
-            return False
-        m = self.model
-        return all(m.parents[i] == i - 1 and m.joints[i].shortname() in _REVOLUTE
-                   for i in range(1, m.njoints))
-
-    def _kernel_arrays(self) -> None:
-        """The kernel's parameter arrays (crane_io.sim.plant_kernel's layouts) from the model and effects."""
-        k = plant_kernel
-        m, n = self.model, len(self.joints)
-        geo = np.zeros((n, k.GEO_COLS))
-        for i in range(n):
-            placement, inertia = m.jointPlacements[i + 1], m.inertias[i + 1]
-            geo[i, k.G_R:k.G_R + 9] = placement.rotation.ravel()
-            geo[i, k.G_P:k.G_P + 3] = placement.translation
-            kind = m.joints[i + 1].shortname()
-            geo[i, k.G_AX:k.G_AX + 3] = (_REVOLUTE[kind] if _REVOLUTE[kind] is not None
-                                         else m.joints[i + 1].extract().axis)
-            geo[i, k.G_M] = inertia.mass
-            geo[i, k.G_C:k.G_C + 3] = inertia.lever
-            geo[i, k.G_I:k.G_I + 9] = inertia.inertia.ravel()
-        n_strib = max([len(s) for s in self._strib_l] + [0])
-        par = np.zeros((n, k.P_STRIB + 2 * n_strib))
-        for i in range(n):
-            par[i, :k.P_STRIB] = (self._fc_pos_l[i], self._fc_neg_l[i], self._band_pos_l[i],
-                                  self._band_neg_l[i], self._visc_l[i], self._offset_l[i],
-                                  self._spring_k_l[i], self._spring_q0k_l[i], self._lo_l[i], self._hi_l[i],
-                                  self._kt_l[self._bi_l[i]], self._bi_l[i], len(self._strib_l[i]))
-            for j, (amp, vs) in enumerate(self._strib_l[i]):
-                par[i, k.P_STRIB + 2 * j:k.P_STRIB + 2 * j + 2] = amp, vs
-        self._kgeo, self._kpar = geo, par
-        self._karm = m.armature  # a view of the model's vector (kept live: a test may change it)
-        self._kcog = np.array(self._cogging, dtype=float).reshape(-1, 4)
-        self._kscal = np.array([self._k_stop, self._d_stop, *m.gravity.linear, _HELD_OMEGA])
-        self._khpar = np.array([(kt, inertia, visc, lo, hi, s) for kt, inertia, visc, lo, hi, s in zip(
-            self._held_kt_l, self._held_inertia_l, self._held_visc_l, self._held_lo_l, self._held_hi_l,
-            self._held_l)], dtype=float).reshape(-1, k.HELD_COLS)
-        self._kpd0 = np.zeros((n, 6))  # no servo PD
-        self._khmat: dict[float, np.ndarray] = {}
-        # the same parameters packed for the simulated chain's compiled lockstep cycle (crane_io.sim.
-        # lockstep_kernel's layout): one float array and its int64 layout, with the servo indices
-        parts = (geo, par, self._kcog, self._kscal, self._khpar, self._kpd0)
-        offsets = np.cumsum([0] + [p.size for p in parts])[:-1].tolist()
-        self._kpack = np.concatenate([p.ravel() for p in parts])
-        self._klay = np.array([n, len(self._held_l), par.shape[1], self._kcog.shape[0], *offsets, *self._bi_l,
-                               *self._held_l], dtype=np.int64)
-        self._kdt: dict[float, tuple] = {}  # dt -> (substep, its hmat, n_sub, dt / n_sub)
-        self._kst = self._kviews = None  # the packed state and its views (_kernel_state)
-        self._supply_lists = ([12.0] * len(self.servo_ids), [35.0] * len(self.servo_ids))  # (never changed)
+        self._raw_signs_ok = None  # the generator _position_noise may read raw (see _raw_signs)
+        # the effects and end stops per integrated joint, in crane_io.sim.plant_layout's layout
+        self.par = plant_layout.effect_rows(self.terms, self._lo_l, self._hi_l,
+                                            [self._kt_l[i] for i in self._bi_l], self._bi_l)
+        self.cog = plant_layout.cogging_rows(self.terms.cogging)
+        self.held_omega = _HELD_OMEGA
+        self._stepper = plant_backend.choose(self, kernel)
 
     @property
     def kernel(self) -> bool:
-        """True when this plant integrates with the compiled kernel (crane_io.sim.plant_kernel)."""
-        return self._kstep is not None
+        """True when this plant steps with the compiled kernel (crane_io.sim.plant_kernel)."""
+        return self._stepper.compiled
 
     # ---- effects -> arrays ---------------------------------------------------------------------------
     def _check_objects(self) -> None:
@@ -291,7 +187,6 @@ class ArmPlant:
         """Every configured effect adds its own contribution to the plant's terms (Effect.add_to_plant),
         in configuration order; the terms become the substep's per-joint parameters."""
         names = self.arm.joint_names
-        n = len(self.joints)
         index = {name: k for k, name in enumerate(self.joints)}
         terms = PlantTerms(self.joints, {name: float(self.config.torque_constant[name]) for name in names})
         for spec in self.config.all_effects:
@@ -302,14 +197,7 @@ class ArmPlant:
         self.kt = np.array([terms.torque_constant[name] for name in names], dtype=float)
         self._armature = np.array(terms.armature)
         self._payload = terms.payload
-        self._cogging = list(terms.cogging)
         self._generic = list(terms.generic)
-        self._zero_row = np.zeros((1, n))
-        self._fc_pos_l, self._fc_neg_l = list(terms.coulomb_pos), list(terms.coulomb_neg)
-        self._band_pos_l, self._band_neg_l = list(terms.band_pos), list(terms.band_neg)
-        self._strib_l = [list(t) for t in terms.stribeck]
-        self._visc_l, self._offset_l = list(terms.viscous), list(terms.offset)
-        self._spring_k_l, self._spring_q0k_l = list(terms.spring_k), list(terms.spring_q0k)
         backlash = terms.backlash
         # backlash: (joint, half gap, motor inertia, contact stiffness, contact damping). The contact is
         # a stiff unilateral spring-damper sized to the substep h: natural frequency x h = 0.25 on the
@@ -322,48 +210,6 @@ class ArmPlant:
             stiffness = jm * (_CONTACT_OMEGA_H / h) ** 2
             self._backlash.append((k, 0.5 * width, jm, stiffness,
                                    2 * _CONTACT_DAMPING_RATIO * math.sqrt(stiffness * jm)))
-
-    # ---- forces (the hot path: plain Python floats per integrated joint, pinocchio for the arm) --------
-    def _kinetic(self, i: int, v: float) -> float:
-        """Kinetic friction of joint i at velocity v (v = +-tiny for a joint breaking away)."""
-        fc_pos, fc_neg, stribeck = self._kinetic_l[i]
-        if v > 0:
-            f = fc_pos
-        elif v < 0:
-            f = -fc_neg
-        else:
-            return 0.0
-        for amp, vs in stribeck:
-            x = v / vs
-            f += math.copysign(amp * math.exp(-x * x), v)
-        return f
-
-    def _other_torque(self, q, dq) -> list:
-        """Non-friction effect torques and end stops (inverse-dynamics sense), per joint."""
-        out = []
-        k_stop, d_stop = self._k_stop, self._d_stop
-        for qi, dqi, (visc, offset, spring_k, spring_q0k, lo, hi) in zip(q, dq, self._other_l):
-            t = visc * dqi + offset + spring_k * qi - spring_q0k
-            if qi < lo:
-                t += k_stop * (qi - lo) + d_stop * dqi
-            elif qi > hi:
-                t += k_stop * (qi - hi) + d_stop * dqi
-            out.append(t)
-        for k, a, b, n in self._cogging:
-            out[k] += a * math.sin(n * q[k]) + b * math.cos(n * q[k])
-        return out
-
-    def _generic_torques(self, q: list, dq: list) -> tuple[list, list]:
-        """(non-friction, friction) torques of user-defined effects."""
-        qa, dqa = np.array([q]), np.array([dq])
-        n = len(q)
-        nf, fr = [0.0] * n, [0.0] * n
-        for eff, k, v in self._generic:
-            t = eff.torque(qa, dqa, self._zero_row, k, v)[0].tolist()
-            tgt = fr if eff.friction else nf
-            for i in range(n):
-                tgt[i] += t[i]
-        return nf, fr
 
     # ---- Plant protocol ------------------------------------------------------------------------------
     def step(self, command: ActuatorCommand, dt: float) -> None:
@@ -383,225 +229,40 @@ class ArmPlant:
         if self.config.overload.enabled:
             self._overload(np.array(en_l, dtype=bool), np.array(mode_l), np.array(gc_l, dtype=float),
                            np.array(lim_l, dtype=float), dt)
-        if self._kstep is not None:
-            self._step_kernel(en_l, mode_l, gc_l, gp_l, gains_l, lim_l, dt)
-            return
-        # per joint in plain Python (8 values: cheaper than numpy's fancy indexing and reductions; the
-        # same IEEE operations, so the same results)
-        held = self._held_l
-        self._step_held([en_l[i] for i in held], [mode_l[i] for i in held], [gc_l[i] for i in held],
-                        [gp_l[i] for i in held], [lim_l[i] for i in held], dt)
-        bi = self._bi_l
-        kt = self._kt_l
-        current_mode = [bool(en_l[i]) and mode_l[i] == 0 for i in bi]
-        position_mode = any(en_l[i] and mode_l[i] != 0 for i in bi)
-        tau_l = [kt[i] * gc_l[i] if cm else 0.0 for i, cm in zip(bi, current_mode)]
-        pd = None  # per joint: (kp, kd, -cap, cap, goal) of a servo in a position mode, else None
-        if position_mode:
-            def pick(values, dtype=float):  # the integrated joints' entries as an array
-                return np.array([values[i] for i in bi], dtype=dtype)
-
-            bi_cmd = ActuatorCommand(pick(en_l, bool), pick(mode_l, None), pick(gc_l), pick(gp_l),
-                                     pick(gains_l), pick(lim_l))
-            pos, kp, kd, cap = self._pd.position_controller(bi_cmd)
-            if kp is not None:
-                pd = [(a, b, -c, c, float(g)) if p else None
-                      for p, a, b, c, g in zip(pos.tolist(), kp.tolist(), kd.tolist(), cap.tolist(),
-                                               bi_cmd.goal_position)]
-        tau_base = tau_l  # current mode: Kt x goal current; otherwise none
-        n_sub = max(1, math.ceil(dt / self.h - 1e-9))
-        h = dt / n_sub
-        ext = self.external.tolist()
-        q, dq = self.q.tolist(), self.dq.tolist()
-        for _ in range(n_sub):
-            if pd is not None:  # the servo's PD (SimplePlant.motor_torque, the same operations in floats)
-                tau_l = [b if c is None else _clip(c[0] * (c[4] - qi) - c[1] * dqi, c[2], c[3])
-                         for c, b, qi, dqi in zip(pd, tau_base, q, dq)]
-            q, dq = self._substep(q, dq, tau_l, ext, h)
-        self.q, self.dq = np.array(q), np.array(dq)
-        if self._env is not None:
-            self._contact = np.array(self._env.torque_list(q, dq))
-            self._in_contact = self._env.in_contact(self.q)
-        self.motor_torque = np.array(tau_l)
+        self._stepper.step(en_l, mode_l, gc_l, gp_l, gains_l, lim_l, dt)
         self.time += dt
 
-    def _step_kernel(self, en_l, mode_l, gc_l, gp_l, gains_l, lim_l, dt: float) -> None:
-        """step_lists on the compiled kernel: held and integrated joints in one call (step_arm)."""
-        bi = self._bi_l
-        pd = self._kpd0
-        if any(en_l[i] and mode_l[i] != 0 for i in bi):  # the servos' PD (as step_lists computes it)
-            def pick(values, dtype=float):
-                return np.array([values[i] for i in bi], dtype=dtype)
-
-            bi_cmd = ActuatorCommand(pick(en_l, bool), pick(mode_l, None), pick(gc_l), pick(gp_l),
-                                     pick(gains_l), pick(lim_l))
-            pos, kp, kd, cap = self._pd.position_controller(bi_cmd)
-            if kp is not None:
-                pd = np.array([(1.0, a, b, -c, c, float(g)) if p else (0.0,) * 6
-                               for p, a, b, c, g in zip(pos.tolist(), kp.tolist(), kd.tolist(), cap.tolist(),
-                                                        bi_cmd.goal_position)])
-        hmat = self._khmat.get(dt)
-        if hmat is None:
-            hmat = self._khmat[dt] = np.array(self._held_matrix(dt))
-        n_sub = max(1, math.ceil(dt / self.h - 1e-9))
-        out = self._kstep_arm(self.q, self.dq, self._held_q, self._held_dq,
-                              np.array((en_l, mode_l, gc_l, gp_l, lim_l), dtype=float), pd, self.external,
-                              self._held_ext, dt / n_sub, n_sub, dt, hmat, self._kgeo, self._karm, self._kpar,
-                              self._kcog, self._kscal, self._khpar)
-        n, k = len(bi), len(self._held_l)
-        b = 3 * n
-        self.q, self.dq, self.motor_torque = out[:n], out[n:2 * n], out[2 * n:b]
-        self._held_q, self._held_dq, self._held_current = out[b:b + k], out[b + k:b + 2 * k], out[b + 2 * k:]
+    def step_command(self, cmds: np.ndarray, position_mask: int, dt: float) -> bool:
+        """`step_lists` from the commands as one (5, servos) float array (driving 1.0/0.0, operating mode,
+        goal current A, goal position rad, current limit A; the simulated chain's fast path) when the
+        stepper takes them as they are (the compiled one: no integrated joint's servo driving in a position
+        mode (bit i of `position_mask`: servo i is), no overload model). Returns False (nothing done)
+        otherwise."""
+        if dt <= 0:
+            return True
+        if not self._stepper.step_command(cmds, position_mask, dt):
+            return False
         self.time += dt
+        return True
 
-    def _substep(self, q, dq, tau_m, ext, h: float) -> tuple:
-        """One substep: ((q), (dq)) as tuples of n floats. Without backlash (motor-side state) and user
-        effects, a substep is a pure function of its inputs: a joint set standing still (stuck) under an
-        unchanged torque gives the same inputs substep after substep, so the last result is reused when
-        the inputs are the same bits (pinocchio and the float arithmetic are deterministic: nothing
-        changes)."""
-        if self._backlash or self._generic:
-            return self._substep_compute(q, dq, tau_m, ext, h)
-        key = self._key.pack(*q, *dq, *tau_m, *ext, h)
-        if key != self._last_key:
-            self._last_key, self._last_out = key, self._substep_compute(q, dq, tau_m, ext, h)
-        return self._last_out
+    def _servo_pd(self, en_l, mode_l, gc_l, gp_l, gains_l, lim_l) -> list | None:
+        """Per integrated joint (kp, kd, -cap, cap, goal) of its servo's PD in a position mode, else None;
+        None when no integrated joint's servo is in a position mode."""
+        bi = self._bi_l
+        if not any(en_l[i] and mode_l[i] != 0 for i in bi):
+            return None
 
-    def _substep_compute(self, q, dq, tau_m, ext, h: float) -> tuple:
-        if self._backlash:
-            tau_m = self._gear_gap(q, dq, tau_m, h)
-        if self._env is not None:  # the objects push like a hand: a pure function of q, dq
-            ext = list(map(add, ext, self._env.torque_list(q, dq)))
-        other = self._other_torque(q, dq)
-        gen_fr = None
-        if self._generic:
-            gen_nf, gen_fr = self._generic_torques(q, dq)
-            other = list(map(add, other, gen_nf))
-        drive = self._drive(tau_m, ext, other)
-        qa, dqa = np.array(q), np.array(dq)
-        if 0.0 not in dq:  # every joint moves (== : -0.0 is at rest too)
-            kinetic = self._kinetic
-            f = [kinetic(i, v) for i, v in enumerate(dq)]
-            if gen_fr is not None:
-                f = list(map(add, f, gen_fr))
-            net = np.array(list(map(sub, drive, f)))
-            ddq = pin.aba(self.model, self.data, qa, dqa, net).tolist()
-        else:
-            ddq = self._stick_slip(qa, dqa, dq, drive, gen_fr)
-        # semi-implicit Euler: velocity first, then position; friction stops a joint, it never reverses
-        # it within a substep
-        return self._euler(q, dq, ddq, h)
+        def pick(values, dtype=float):  # the integrated joints' entries as an array
+            return np.array([values[i] for i in bi], dtype=dtype)
 
-    def _gear_gap(self, q: list, dq: list, tau_m: list, h: float) -> list:
-        """Backlash: the motor drives its own inertia; the link only gets the torque the gear passes
-        on once the gap has closed (unilateral contact). Steps the motor side by one substep and
-        returns the torques that reach the links."""
-        tau = list(tau_m)
-        mq, mdq = self.motor_q, self.motor_dq
-        for i, half, jm, stiffness, damping in self._backlash:
-            d = mq[i] - q[i]
-            if d > half:
-                tc = max(0.0, stiffness * (d - half) + damping * (mdq[i] - dq[i]))
-            elif d < -half:
-                tc = min(0.0, stiffness * (d + half) + damping * (mdq[i] - dq[i]))
-            else:
-                tc = 0.0
-            mdq[i] += h * (tau_m[i] - tc) / jm
-            mq[i] += h * mdq[i]
-            tau[i] = tc
-        return tau
-
-    def _stick_slip(self, qa, dqa, dq, drive: list, gen_fr) -> list:
-        """Accelerations when some joint stands still: the stuck joints are held while the friction needed
-        to hold each lies inside its static band; the joint pushed furthest beyond its band breaks away
-        first, in that direction (then the others are tested again)."""
-        m = pin.crba(self.model, self.data, qa).tolist()  # the upper triangle; mirror it
-        self._mirror(m)
-        nle = pin.nonLinearEffects(self.model, self.data, qa, dqa).tolist()
-        rhs = list(map(sub, drive, nle))
-        free = [v != 0.0 for v in dq]
-        vel = list(dq)  # velocity used for friction: tiny in the break-away direction
-        kinetic, band_pos, band_neg = self._kinetic, self._band_pos_l, self._band_neg_l
-        joints = self._joint_range
-        n = len(joints)
-        for _ in range(n + 1):  # each pass returns or frees one joint
-            idx = [i for i in joints if free[i]]
-            ddq = [0.0] * n
-            if idx:
-                net = []  # drive beyond the free joints' kinetic friction
-                for a in idx:
-                    f = kinetic(a, vel[a])
-                    if gen_fr is not None:
-                        f = f + gen_fr[a]
-                    net.append(rhs[a] - f)
-                for a, x in zip(idx, _solve_free(m, idx, net)):
-                    ddq[a] = x
-            worst, worst_excess, push = -1, 0.0, 0.0
-            for s in joints:
-                if free[s]:
-                    continue
-                coupled = 0  # sum(m[s][a] * ddq[a] for a in idx), added up as sum() does
-                for a in idx:
-                    coupled = coupled + m[s][a] * ddq[a]
-                hold = rhs[s] - coupled  # friction needed to hold joint s
-                above, below = hold - band_pos[s], -band_neg[s] - hold
-                excess = below if below > above else above  # max(above, below)
-                if excess > worst_excess:
-                    worst, worst_excess, push = s, excess, hold
-            if worst < 0:
-                return ddq
-            # the joint pushed furthest beyond its static band breaks away first, in that direction
-            free[worst] = True
-            vel[worst] = 1e-12 if push > 0 else -1e-12
-        return ddq
-
-    def _step_held(self, enabled, mode, goal_current, goal_position, limit, dt) -> None:
-        """Held joints: position modes -> a critically damped second-order response to the goal
-        (exact discretisation); current mode -> inertia + viscous friction; torque off -> at rest.
-        The commands are lists over the held joints.
-
-        Scalar Python over the held joints (cheaper than numpy on arrays this small); the arithmetic
-        is the element-wise arithmetic of the array form, in the same order."""
-        a00, a01, a10, a11 = self._held_matrix(dt)
-        w = _HELD_OMEGA
-        q_out, dq_out, cur_out = [], [], []
-        for on, m, gc, gp, lim, q, dq, kt, inertia, visc, ext, lo, hi in zip(
-                enabled, mode, goal_current, goal_position, limit, self._held_q.tolist(),
-                self._held_dq.tolist(), self._held_kt_l,
-                self._held_inertia_l, self._held_visc_l, self._held_ext.tolist(), self._held_lo_l,
-                self._held_hi_l):
-            current = 0.0
-            if on and m != 0:  # position modes
-                e = q - gp
-                new_e = a00 * e + a01 * dq
-                new_dq = a10 * e + a11 * dq
-                torque = inertia * (-(w * w) * e - 2 * w * dq)
-                current = _clip(torque / kt, -lim, lim)
-                q, dq = gp + new_e, new_dq
-            elif on:  # current mode
-                tau = kt * gc + ext - visc * dq
-                dq = dq + dt * (tau / inertia)
-                q = q + dt * dq
-                current = gc
-            else:  # torque off
-                dq = 0.0
-            q_out.append(_clip(q, lo, hi))
-            dq_out.append(dq)
-            cur_out.append(current)
-        self._held_q = np.array(q_out)
-        self._held_dq = np.array(dq_out)
-        self._held_current = np.array(cur_out)
-
-    def _held_matrix(self, dt: float) -> tuple[float, float, float, float]:
-        """(a00, a01, a10, a11): the exact transition matrix over dt of x'' = -w^2 x - 2 w x' (critically
-        damped), kept per dt."""
-        a = self._held_cache.get(dt)
-        if a is None:
-            w = _HELD_OMEGA
-            e = math.exp(-w * dt)
-            a = (e * (1 + w * dt), e * dt, -w * w * dt * e, e * (1 - w * dt))
-            self._held_cache[dt] = a
-        return a
+        bi_cmd = ActuatorCommand(pick(en_l, bool), pick(mode_l, None), pick(gc_l), pick(gp_l), pick(gains_l),
+                                 pick(lim_l))
+        pos, kp, kd, cap = self._pd.position_controller(bi_cmd)
+        if kp is None:
+            return None
+        return [(a, b, -c, c, float(g)) if p else None
+                for p, a, b, c, g in zip(pos.tolist(), kp.tolist(), kd.tolist(), cap.tolist(),
+                                         bi_cmd.goal_position)]
 
     def _overload(self, enabled, mode, goal_current, limit, dt) -> None:
         if not self.config.overload.enabled:
@@ -685,13 +346,8 @@ class ArmPlant:
         p = s.position_noise_probability
         raw, flips, signs = _EMPTY_U64, _EMPTY_F64, _EMPTY_F64
         if p > 0:
-            rng = self.rng
-            if n % 2 == 0 and self._raw_signs_ok is not rng:  # as _position_noise decides it
-                bg = rng.bit_generator
-                pcg = type(bg) is np.random.PCG64 and not bg.state["has_uint32"]
-                self._raw_signs_ok = rng if pcg else None
-            if n % 2 == 0 and self._raw_signs_ok is rng:
-                raw = rng.bit_generator.random_raw(n + n // 2)
+            if self._raw_signs(n):  # as _position_noise decides it
+                raw = self.rng.bit_generator.random_raw(n + n // 2)
             else:
                 flips, signs = (np.array(x) for x in self._position_noise(n))
         vel_sd = s.velocity_noise_lsb * RADS_PER_VELOCITY_LSB if s.velocity_noise_lsb > 0 else 0.0
@@ -702,24 +358,11 @@ class ArmPlant:
 
     # ---- the simulated chain's compiled lockstep cycle (crane_io.sim.lockstep_kernel) ----------------------
     def kernel_step_args(self, dt: float) -> tuple | None:
-        """The plant's arguments of lockstep_kernel.sync_write_goal for a step of dt (the step
-        `step_command` takes to the compiled kernel; the kernel writes the new state into the packed state,
-        and the caller calls `kernel_stepped(dt)`), or None when the kernel is off, the overload model on, or
-        dt not positive (then the plant steps through step_command / step_lists)."""
-        if self._kstep is None or self.config.overload.enabled or not dt > 0:
-            return None
-        kst = self._kernel_state()
-        if kst is None:
-            return None
-        per = self._kdt.get(dt)
-        if per is None or per[0] != self.h:
-            n_sub = max(1, math.ceil(dt / self.h - 1e-9))
-            hmat = self._khmat.get(dt)
-            if hmat is None:
-                hmat = self._khmat[dt] = np.array(self._held_matrix(dt))
-            per = self._kdt[dt] = (self.h, hmat, n_sub, dt / n_sub)
-        return (self._bi_mask, kst, self.external, self._held_ext, per[1], self._karm, self._kpack,
-                self._klay, per[3], per[2], dt)
+        """The plant's arguments of lockstep_kernel.sync_write_goal for a step of dt (the step `step_command`
+        takes; the kernel writes the new state into the packed state, crane_io.sim.plant_layout, and the
+        caller calls `kernel_stepped(dt)`), or None when the compiled stepper is off, the overload model on,
+        or dt not positive (then the plant steps through step_command / step_lists)."""
+        return self._stepper.step_args(dt)
 
     def kernel_cycle_args(self, dt: float) -> tuple | None:
         """kernel_step_args(dt) and what lockstep_kernel.sync_write_read reads the plant with after the step:
@@ -727,30 +370,9 @@ class ArmPlant:
         draws from `rng` what _noise would draw, in its order), the position noise probability, the velocity
         and current noise sd, then the voltages and temperatures (lists); or None when kernel_step_args is
         None or the plant draws its noise otherwise (a subclass's own _noise)."""
-        step = self.kernel_step_args(dt)
-        if step is None or self._chain_fns is False or type(self)._noise is not ArmPlant._noise:
+        if type(self)._noise is not ArmPlant._noise:
             return None
-        if not noise_kernel.verified():  # numba's normal sampler is not numpy's here: draw with numpy
-            return None
-        rng = self.rng
-        kept = self._rng_kept
-        if kept is None or kept.rng is not rng:
-            kept = self._rng_kept = noise_kernel.RngPointers(rng)
-        s = self.config.sensor
-        p = s.position_noise_probability
-        raw_signs = False
-        if p > 0:  # the signs as _position_noise draws them: raw when it would, else as integers(0, 2, n)
-            n = len(self.servo_ids)
-            if n % 2 == 0 and self._raw_signs_ok is not rng:
-                bg = rng.bit_generator
-                pcg = type(bg) is np.random.PCG64 and not bg.state["has_uint32"]
-                self._raw_signs_ok = rng if pcg else None
-            raw_signs = n % 2 == 0 and self._raw_signs_ok is rng
-            if not raw_signs:
-                self._raw_signs_ok = None
-        vel_sd = s.velocity_noise_lsb * RADS_PER_VELOCITY_LSB if s.velocity_noise_lsb > 0 else 0.0
-        cur_sd = s.current_noise_lsb * AMPERE_PER_CURRENT_LSB if s.current_noise_lsb > 0 else 0.0
-        return (*step, self._kt_array(), kept.array, float(p), raw_signs, vel_sd, cur_sd, *self._supply_lists)
+        return self._stepper.cycle_args(dt)
 
     def kernel_stepped(self, dt: float) -> None:
         """The compiled lockstep cycle stepped the plant's packed state by dt."""
@@ -759,55 +381,16 @@ class ArmPlant:
     def kernel_read_args(self) -> tuple | None:
         """read_arrays for lockstep_kernel.sense: (packed state, layout, torque constants, the noise drawn as
         read_arrays draws it, voltages, temperatures), or None (nothing drawn) when the kernel is off."""
-        if self._kstep is None or self._chain_fns is False:
-            return None
-        kst = self._kernel_state()
-        if kst is None:
-            return None
-        return (kst, self._klay, self._kt_array(), *self._noise(), *self._supply_lists)
+        return self._stepper.read_args()
 
-    def _kernel_state(self) -> np.ndarray | None:
-        """The packed state (integrated joints' angles, velocities, motor torques, held joints' angles,
-        velocities, currents) whose views `q`, `dq`, `motor_torque`, `_held_q`, `_held_dq` and
-        `_held_current` are; made anew (the same values) when one of them was replaced since. None when one
-        has the wrong size."""
-        v = self._kviews
-        if (v is not None and self.q is v[0] and self.dq is v[1] and self.motor_torque is v[2]
-                and self._held_q is v[3] and self._held_dq is v[4] and self._held_current is v[5]):
-            return self._kst
-        n, k = len(self._bi_l), len(self._held_l)
-        parts = (self.q, self.dq, self.motor_torque, self._held_q, self._held_dq, self._held_current)
-        if [np.shape(x) for x in parts] != [(n,)] * 3 + [(k,)] * 3:
-            return None
-        kst = np.concatenate([np.asarray(x, dtype=float) for x in parts])
-        b = 3 * n
-        views = (kst[:n], kst[n:2 * n], kst[2 * n:b], kst[b:b + k], kst[b + k:b + 2 * k], kst[b + 2 * k:])
-        self.q, self.dq, self.motor_torque, self._held_q, self._held_dq, self._held_current = views
-        self._kst, self._kviews = kst, views
-        return kst
-
-    def step_command(self, cmds: np.ndarray, position_mask: int, dt: float) -> bool:
-        """`step_lists` from the commands as one (5, servos) float array (driving 1.0/0.0, operating mode,
-        goal current A, goal position rad, current limit A; the simulated chain's fast path) when the kernel
-        takes them as they are: no integrated joint's servo driving in a position mode (bit i of
-        `position_mask`: servo i is), no overload model. Returns False (nothing done) otherwise."""
-        if dt <= 0:
-            return True
-        if self._kstep is None or self.config.overload.enabled or position_mask & self._bi_mask:
-            return False
-        hmat = self._khmat.get(dt)
-        if hmat is None:
-            hmat = self._khmat[dt] = np.array(self._held_matrix(dt))
-        n_sub = max(1, math.ceil(dt / self.h - 1e-9))
-        out = self._kstep_arm(self.q, self.dq, self._held_q, self._held_dq, cmds, self._kpd0, self.external,
-                              self._held_ext, dt / n_sub, n_sub, dt, hmat, self._kgeo, self._karm, self._kpar,
-                              self._kcog, self._kscal, self._khpar)
-        n, k = len(self._bi_l), len(self._held_l)
-        b = 3 * n
-        self.q, self.dq, self.motor_torque = out[:n], out[n:2 * n], out[2 * n:b]
-        self._held_q, self._held_dq, self._held_current = out[b:b + k], out[b + k:b + 2 * k], out[b + 2 * k:]
-        self.time += dt
-        return True
+    def _raw_signs(self, n: int) -> bool:
+        """The position noise's n uniforms and signs may come from the generator's raw outputs (see
+        _position_noise); the answer is kept for the generator."""
+        rng = self.rng
+        if n % 2 == 0 and self._raw_signs_ok is not rng:
+            bg = rng.bit_generator
+            self._raw_signs_ok = rng if type(bg) is np.random.PCG64 and not bg.state["has_uint32"] else None
+        return n % 2 == 0 and self._raw_signs_ok is rng
 
     def _position_noise(self, n: int) -> tuple[list, list]:
         """(n uniforms, n signed one-pulse errors): `rng.random(n)`, then -+RAD_PER_PULSE as
@@ -822,10 +405,7 @@ class ArmPlant:
         else of 32 bits) takes this path, at a fifth of the cost; anything else calls random and
         integers."""
         rng = self.rng
-        if n % 2 == 0 and self._raw_signs_ok is not rng:
-            bg = rng.bit_generator
-            self._raw_signs_ok = rng if type(bg) is np.random.PCG64 and not bg.state["has_uint32"] else None
-        if n % 2 == 0 and self._raw_signs_ok is rng:
+        if self._raw_signs(n):
             raw = rng.bit_generator.random_raw(n + n // 2).tolist()
             flips = [(v >> 11) * _TWO_TO_MINUS_53 for v in raw[:n]]
             neg, pos = -RAD_PER_PULSE, RAD_PER_PULSE
@@ -915,95 +495,3 @@ class ArmPlant:
         return path
 
 
-
-def _written_out(n: int) -> tuple:
-    """(euler, drive, mirror) for n joints: the per-joint float arithmetic of the substep written out
-    (generated once per n: a loop over n small lists costs more than the arithmetic itself):
-
-    - euler(q, dq, ddq, h) -> ((q'), (dq')): semi-implicit Euler, velocity first (a velocity that would
-      change sign in the substep stops at zero: friction stops a joint, it never reverses it), then
-      position;
-    - drive(tau_m, ext, other) -> [tau_m + ext - other] per joint;
-    - mirror(m): copies the upper triangle of the n x n list-of-lists m (pinocchio's crba) below the
-      diagonal."""
-    fns = _WRITTEN_OUT.get(n)
-    if fns is None:
-        r = range(n)
-        src = ["def euler(q, dq, ddq, h):",
-               f"    {', '.join(f'q{i}' for i in r)}, = q",
-               f"    {', '.join(f'd{i}' for i in r)}, = dq",
-               f"    {', '.join(f'a{i}' for i in r)}, = ddq"]
-        for i in r:
-            src += [f"    v{i} = d{i} + h * a{i}",
-                    f"    if (d{i} > 0 and v{i} < 0) or (d{i} < 0 and v{i} > 0):",
-                    f"        v{i} = 0.0"]
-        src += [f"    return ({', '.join(f'q{i} + h * v{i}' for i in r)},), "
-                f"({', '.join(f'v{i}' for i in r)},)",
-                "def drive(t, e, o):",
-                f"    return [{', '.join(f't[{i}] + e[{i}] - o[{i}]' for i in r)}]",
-                "def mirror(m):"]
-        lower = [(a, b) for a in range(1, n) for b in range(a)]
-        src += [f"    {', '.join(f'm[{a}][{b}]' for a, b in lower)}, = "
-                f"{', '.join(f'm[{b}][{a}]' for a, b in lower)}," if lower else "    pass"]
-        space: dict = {}
-        exec(compile("\n".join(src), f"<arm_plant substep, {n} joints>", "exec"), space)  # noqa: S102
-        fns = _WRITTEN_OUT[n] = (space["euler"], space["drive"], space["mirror"])
-    return fns
-
-
-_WRITTEN_OUT: dict[int, tuple] = {}
-
-
-def _clip(x: float, lo: float, hi: float) -> float:
-    """np.clip for one float, exactly (NaN passes through; on a tie the bound wins, so signed zeros
-    come out as numpy's do)."""
-    x = x if (x != x or x > lo) else lo
-    return x if (x != x or x < hi) else hi
-
-def _solve_free(m: list, idx: list, b: list) -> list:
-    """_solve of the rows and columns `idx` of m (the free joints), without building the submatrix for
-    one or two unknowns."""
-    if len(idx) == 1:
-        i = idx[0]
-        return [b[0] / m[i][i]]
-    if len(idx) == 2:
-        i, j = idx
-        return _solve(((m[i][i], m[i][j]), (m[j][i], m[j][j])), b)
-    return _solve([[m[a][c] for c in idx] for a in idx], b)
-
-
-def _solve(a: list, b: list) -> list:
-    """Solve a small symmetric positive-definite system. Up to 3 unknowns by Gaussian elimination in
-    floats (the 1- and 2-unknown cases are the general loop written out: the same operations in the same
-    order, `sum` included: it adds from 0.0); more (4..7 integrated joints) with LAPACK, which is cheaper
-    there than the loop."""
-    n = len(b)
-    if n > 3:
-        return np.linalg.solve(np.array(a), np.array(b)).tolist()
-    if n == 1:
-        return [b[0] / a[0][0]]
-    if n == 2:
-        (a00, a01), (a10, a11) = a
-        f = a10 / a00
-        x1 = (b[1] - f * b[0]) / (a11 - f * a01)
-        return [(b[0] - (0.0 + a01 * x1)) / a00, x1]
-    return _eliminate(a, b)
-
-
-def _eliminate(a: list, b: list) -> list:
-    """Gaussian elimination without pivoting on lists of floats, any size (what _solve writes out for 1
-    and 2 unknowns)."""
-    n = len(b)
-    a = [row[:] for row in a]
-    b = b[:]
-    for k in range(n):
-        p = a[k][k]
-        for r in range(k + 1, n):
-            f = a[r][k] / p
-            for c in range(k, n):
-                a[r][c] -= f * a[k][c]
-            b[r] -= f * b[k]
-    x = [0.0] * n
-    for k in range(n - 1, -1, -1):
-        x[k] = (b[k] - sum(a[k][c] * x[c] for c in range(k + 1, n))) / a[k][k]
-    return x

@@ -1,25 +1,26 @@
-"""The compiled substep kernel of crane_io.sim.arm_plant.ArmPlant (issue 13): a whole plant step (all its
-substeps) in one call, compiled with numba when it is installed.
+"""The compiled stepper of crane_io.sim.arm_plant.ArmPlant: a whole plant step (all its substeps) in one call,
+compiled with numba when it is installed (crane_io.sim.plant_backend.CompiledStepper calls it).
 
-`step(q, dq, cmd, h, n_sub, geo, par, cog, scal)` integrates the plant's n integrated joints over n_sub
+`step(q, dq, cmd, h, n_sub, geo, arm, par, cog, scal)` integrates the plant's n integrated joints over n_sub
 substeps of h seconds and returns one (3 n,) array: the new angles, velocities and the motor torque of the
-last substep. It is the same model as ArmPlant's reference path (`ArmPlant(kernel=False)`: pinocchio calls
-and Python floats per substep), written for a serial chain of revolute joints:
+last substep; `step_arm` adds the held joints. It is the model of the reference stepper
+(crane_io.sim.plant_reference: pinocchio calls and Python floats per substep), for a serial chain of
+revolute joints:
 
 - rigid-body dynamics in the joints' local frames (pinocchio's conventions: motion (linear, angular),
   the base accelerating against gravity): the joint-space mass matrix by the composite-rigid-body
   algorithm plus the armature on its diagonal, mirrored from the upper triangle; the bias torque
   C(q, dq) dq + g(q) by the recursive Newton-Euler algorithm with zero acceleration. When every joint
   moves, the accelerations solve M ddq = drive - friction - bias by Gaussian elimination without
-  pivoting (M is symmetric positive definite; the reference path uses pinocchio's ABA there);
-- the effects ArmPlant compiles to closed forms (Coulomb +/- and Stribeck terms as kinetic friction, their
-  static bands, viscous, offset, spring, cogging, the end stops), the servos' PD controller in position
-  modes, the stick-slip solve (the joint pushed furthest beyond its static band breaks away first) and
-  the semi-implicit Euler update (a velocity that would change sign stops at zero), in the reference
-  path's order of operations.
+  pivoting (M is symmetric positive definite; the reference stepper uses pinocchio's ABA there);
+- the effects with the layout's own functions (crane_io.sim.plant_layout: kinetic friction, static bands,
+  viscous, offset, spring, cogging, the end stops; the reference stepper calls the same functions), the
+  servos' PD controller in position modes, the stick-slip solve (the joint pushed furthest beyond its
+  static band breaks away first) and the semi-implicit Euler update (a velocity that would change sign
+  stops at zero), in the reference stepper's order of operations.
 
-The same floats go in; the results agree with the reference path to rounding (the dynamics are summed in
-another order than pinocchio's Eigen kernels): ~1e-15 relative per substep. Over a session, a stick-slip
+The same floats go in; the results agree with the reference stepper to rounding (the dynamics are summed
+in another order than pinocchio's Eigen kernels): ~1e-15 relative per substep. Over a session, a stick-slip
 decision taken at a rounding-level tie can go the other way, so trajectories agree closely but not bit
 for bit (tests/test_plant_kernel.py).
 
@@ -27,22 +28,9 @@ Compiled with numba (`nopython`, `cache=True`: the machine code is kept in __pyc
 processes; no `fastmath`, so LLVM neither reassociates nor contracts a*b+c into fused multiply-adds:
 the compiled kernel computes the same IEEE operations as the Python source, `step.py_func`, which the
 tests run as its reference). `error_model="numpy"`: a division by zero gives inf/nan instead of raising
-(none occurs: the mass matrix is positive definite, Stribeck velocities positive).
-
-Array layouts (float64; built by ArmPlant):
-- geo (n, GEO_COLS): per joint, its placement in the parent joint's frame (rotation row-major, translation),
-  its unit axis, the body's mass, centre of mass and rotational inertia about it (row-major);
-- arm (n,): the armature (rotor inertia) of each joint: the pinocchio model's own vector (a view: a change
-  to `plant.model.armature` is seen);
-- par (n, P_STRIB + 2 S): Coulomb +, Coulomb -, static band +, static band -, viscous, offset, spring
-  stiffness, stiffness x rest angle, lower and upper end stop, torque constant, servo index, number of
-  Stribeck terms, then S (amplitude, velocity) pairs;
-- hpar (k, HELD_COLS): per held joint its torque constant, inertia, viscous friction, lower and upper end
-  stop, servo index (`step_arm`);
-- cog (C, 4): cogging terms (joint, sin amplitude, cos amplitude, periods per turn); C may be 0;
-- scal: (end-stop stiffness, end-stop damping, gravity x, y, z);
-- cmd (n, CMD_COLS): per joint the motor torque outside a position mode, 1.0 if its servo is in a position
-  mode (then kp, kd, -cap, cap, goal of its PD), the external torque.
+(none occurs: the mass matrix is positive definite, Stribeck velocities positive). The arrays' layouts
+are crane_io.sim.plant_layout's; `arm` is the armature (rotor inertia) of each joint, the pinocchio
+model's own vector (a view: a change to `plant.model.armature` is seen).
 """
 
 from __future__ import annotations
@@ -51,14 +39,50 @@ import math
 
 import numpy as np
 
-G_R, G_P, G_AX, G_M, G_C, G_I = 0, 9, 12, 15, 16, 19
-GEO_COLS = 28
-(P_FCP, P_FCN, P_BANDP, P_BANDN, P_VISC, P_OFF, P_SK, P_SQ0K, P_LO, P_HI, P_KT, P_SERVO, P_NSTRIB) = range(13)
-P_STRIB = 13
-H_KT, H_INERTIA, H_VISC, H_LO, H_HI, H_SERVO = range(6)
-HELD_COLS = 6
-C_TAU, C_PD, C_KP, C_KD, C_LO, C_HI, C_GOAL, C_EXT = range(8)
-CMD_COLS = 8
+# the layout's names are the kernel's (its compiled functions, the layout's included, run in this namespace;
+# callers read the columns here too)
+from crane_io.sim.plant_layout import (  # noqa: F401
+    C_EXT,
+    C_GOAL,
+    C_HI,
+    C_KD,
+    C_KP,
+    C_LO,
+    C_PD,
+    C_TAU,
+    CMD_COLS,
+    G_AX,
+    G_C,
+    G_I,
+    G_M,
+    G_P,
+    G_R,
+    GEO_COLS,
+    H_HI,
+    H_INERTIA,
+    H_KT,
+    H_LO,
+    H_SERVO,
+    H_VISC,
+    HELD_COLS,
+    P_BANDN,
+    P_BANDP,
+    P_FCN,
+    P_FCP,
+    P_HI,
+    P_KT,
+    P_LO,
+    P_NSTRIB,
+    P_OFF,
+    P_SERVO,
+    P_SK,
+    P_SQ0K,
+    P_STRIB,
+    P_VISC,
+    cogging_torque,
+    kinetic,
+    other_torque,
+)
 
 
 def _kinematics(n, geo, q, rot, pos):
@@ -224,21 +248,6 @@ def dynamics(n, geo, arm, scal, q, dq, mass, bias, rot, pos, wk, zero, cm, ch, c
     _rnea(n, geo, rot, pos, dq, zero, scal[2], scal[3], scal[4], bias, wk)
 
 
-def _kinetic(par, i, v):
-    """Kinetic friction of joint i at velocity v (ArmPlant._kinetic)."""
-    if v > 0:
-        f = par[i, P_FCP]
-    elif v < 0:
-        f = -par[i, P_FCN]
-    else:
-        return 0.0
-    for k in range(int(par[i, P_NSTRIB])):
-        amp, vs = par[i, P_STRIB + 2 * k], par[i, P_STRIB + 2 * k + 1]
-        x = v / vs
-        f += math.copysign(amp * math.exp(-x * x), v)
-    return f
-
-
 def _solve(a, idx, m, b, x, work):
     """x[:m] = the solution of a[idx, idx] x = b[:m] (Gaussian elimination without pivoting)."""
     for r in range(m):
@@ -287,87 +296,114 @@ def _integrate(q0, dq0, cmd, h, n_sub, geo, arm, par, cog, scal, out):
     free, idx = iw[0:n], iw[n:2 * n]  # (free: 1 while the joint moves, in the stick-slip solve)
     for i in range(n):
         q[i], dq[i], zero[i] = q0[i], dq0[i], 0.0
-    k_stop, d_stop = scal[0], scal[1]
     for _ in range(n_sub):
-        for i in range(n):  # the servo's PD in position modes (SimplePlant.motor_torque), clipped as np.clip
-            if cmd[i, C_PD] != 0.0:
-                x = cmd[i, C_KP] * (cmd[i, C_GOAL] - q[i]) - cmd[i, C_KD] * dq[i]
-                lo, hi = cmd[i, C_LO], cmd[i, C_HI]
-                x = x if (x != x or x > lo) else lo
-                tau[i] = x if (x != x or x < hi) else hi
-            else:
-                tau[i] = cmd[i, C_TAU]
-        # non-friction effect torques and end stops; drive = motor + external - those
-        for i in range(n):
-            qi, dqi = q[i], dq[i]
-            t = par[i, P_VISC] * dqi + par[i, P_OFF] + par[i, P_SK] * qi - par[i, P_SQ0K]
-            if qi < par[i, P_LO]:
-                t += k_stop * (qi - par[i, P_LO]) + d_stop * dqi
-            elif qi > par[i, P_HI]:
-                t += k_stop * (qi - par[i, P_HI]) + d_stop * dqi
-            drive[i] = t
-        for c in range(cog.shape[0]):
-            k = int(cog[c, 0])
-            drive[k] += cog[c, 1] * math.sin(cog[c, 3] * q[k]) + cog[c, 2] * math.cos(cog[c, 3] * q[k])
-        moving = True
-        for i in range(n):
-            drive[i] = tau[i] + cmd[i, C_EXT] - drive[i]
-            if dq[i] == 0.0:
-                moving = False
+        _motor(n, cmd, q, dq, tau)
+        moving = _drive(n, par, cog, cmd, scal, q, dq, tau, drive)
         dynamics(n, geo, arm, scal, q, dq, mass, bias, rot, pos, wk, zero, cm, ch, ci)
         for i in range(n):
             rhs[i] = drive[i] - bias[i]
         if moving:
             for i in range(n):
                 idx[i] = i
-                net[i] = rhs[i] - _kinetic(par, i, dq[i])
+                net[i] = rhs[i] - kinetic(par[i], dq[i])
             _solve(mass, idx, n, net, ddq, work)
-        else:  # stick-slip: hold the stuck joints while their holding torque lies in their static band
-            for i in range(n):
-                free[i] = 1 if dq[i] != 0.0 else 0
-                vel[i] = dq[i]
-            for _pass in range(n + 1):
-                m = 0
-                for i in range(n):
-                    ddq[i] = 0.0
-                    if free[i]:
-                        idx[m] = i
-                        net[m] = rhs[i] - _kinetic(par, i, vel[i])
-                        m += 1
-                if m:
-                    _solve(mass, idx, m, net, sol, work)
-                    for a in range(m):
-                        ddq[idx[a]] = sol[a]
-                worst, worst_excess, push = -1, 0.0, 0.0
-                for s in range(n):
-                    if free[s]:
-                        continue
-                    coupled = 0.0
-                    for a in range(m):
-                        coupled = coupled + mass[s, idx[a]] * ddq[idx[a]]
-                    hold = rhs[s] - coupled
-                    above, below = hold - par[s, P_BANDP], -par[s, P_BANDN] - hold
-                    excess = below if below > above else above
-                    if excess > worst_excess:
-                        worst, worst_excess, push = s, excess, hold
-                if worst < 0:
-                    break
-                free[worst] = 1
-                vel[worst] = 1e-12 if push > 0 else -1e-12
-        # semi-implicit Euler: velocity first (friction stops a joint, it never reverses it), then position
-        for i in range(n):
-            d = dq[i]
-            v = d + h * ddq[i]
-            if (d > 0 and v < 0) or (d < 0 and v > 0):
-                v = 0.0
-            dq[i] = v
-            q[i] = q[i] + h * v
+        else:
+            _stick_slip(n, par, mass, rhs, dq, ddq, free, vel, idx, net, sol, work)
+        _euler(n, q, dq, ddq, h)
     for i in range(n):
         out[i], out[n + i], out[2 * n + i] = q[i], dq[i], tau[i]
 
 
+def _motor(n, cmd, q, dq, tau):
+    """tau: the motor torque of each joint; the servo's PD in position modes (SimplePlant.motor_torque),
+    clipped as np.clip."""
+    for i in range(n):
+        if cmd[i, C_PD] != 0.0:
+            x = cmd[i, C_KP] * (cmd[i, C_GOAL] - q[i]) - cmd[i, C_KD] * dq[i]
+            lo, hi = cmd[i, C_LO], cmd[i, C_HI]
+            x = x if (x != x or x > lo) else lo
+            tau[i] = x if (x != x or x < hi) else hi
+        else:
+            tau[i] = cmd[i, C_TAU]
+
+
+def _drive(n, par, cog, cmd, scal, q, dq, tau, drive):
+    """drive = motor + external torque - the non-friction effect torques and end stops; True when every
+    joint moves."""
+    for i in range(n):
+        drive[i] = other_torque(par[i], q[i], dq[i], scal[0], scal[1])
+    for c in range(cog.shape[0]):
+        k = int(cog[c, 0])
+        drive[k] += cogging_torque(cog[c], q[k])
+    moving = True
+    for i in range(n):
+        drive[i] = tau[i] + cmd[i, C_EXT] - drive[i]
+        if dq[i] == 0.0:
+            moving = False
+    return moving
+
+
+def _stick_slip(n, par, mass, rhs, dq, ddq, free, vel, idx, net, sol, work):
+    """ddq when some joint stands still: the stuck joints are held while their holding torque lies in their
+    static band; the joint pushed furthest beyond its band breaks away first, in that direction."""
+    for i in range(n):
+        free[i] = 1 if dq[i] != 0.0 else 0
+        vel[i] = dq[i]
+    for _pass in range(n + 1):
+        m = _free_accelerations(n, par, mass, rhs, ddq, free, vel, idx, net, sol, work)
+        worst, push = _breaking_away(n, par, mass, rhs, ddq, free, idx, m)
+        if worst < 0:
+            break
+        free[worst] = 1
+        vel[worst] = 1e-12 if push > 0 else -1e-12
+
+
+def _free_accelerations(n, par, mass, rhs, ddq, free, vel, idx, net, sol, work):
+    """ddq of the free joints with the stuck ones held (zero); returns their number (their indices in idx)."""
+    m = 0
+    for i in range(n):
+        ddq[i] = 0.0
+        if free[i]:
+            idx[m] = i
+            net[m] = rhs[i] - kinetic(par[i], vel[i])
+            m += 1
+    if m:
+        _solve(mass, idx, m, net, sol, work)
+        for a in range(m):
+            ddq[idx[a]] = sol[a]
+    return m
+
+
+def _breaking_away(n, par, mass, rhs, ddq, free, idx, m):
+    """(the stuck joint pushed furthest beyond its static band, or -1 when none is; its holding torque)."""
+    worst, worst_excess, push = -1, 0.0, 0.0
+    for s in range(n):
+        if free[s]:
+            continue
+        coupled = 0.0
+        for a in range(m):
+            coupled = coupled + mass[s, idx[a]] * ddq[idx[a]]
+        hold = rhs[s] - coupled
+        above, below = hold - par[s, P_BANDP], -par[s, P_BANDN] - hold
+        excess = below if below > above else above
+        if excess > worst_excess:
+            worst, worst_excess, push = s, excess, hold
+    return worst, push
+
+
+def _euler(n, q, dq, ddq, h):
+    """Semi-implicit Euler: velocity first (friction stops a joint, it never reverses it), then position."""
+    for i in range(n):
+        d = dq[i]
+        v = d + h * ddq[i]
+        if (d > 0 and v < 0) or (d < 0 and v > 0):
+            v = 0.0
+        dq[i] = v
+        q[i] = q[i] + h * v
+
+
 def step_arm(q, dq, hq, hdq, cmds, pd, ext, hext, h, n_sub, dt, hmat, geo, arm, par, cog, scal, hpar):
-    """A whole ArmPlant step: the held joints (ArmPlant._step_held, the same operations), then the
+    """A whole ArmPlant step: the held joints (ReferenceStepper._step_held, the same operations), then the
     integrated joints' n_sub substeps (`step`). cmds (5, servos): torque enabled, operating mode, goal
     current, goal position, current limit per servo; pd (n, 6): per integrated joint 1.0 when its servo's
     PD drives it, then kp, kd, -cap, cap, goal; ext, hext: the external torque on the integrated and the
@@ -433,8 +469,9 @@ def compiled():
     if _COMPILED is None:
         from crane_io.jit import compile_functions
 
-        names = ("_kinematics", "_rnea", "_crba", "dynamics", "_kinetic", "_solve", "_integrate", "step",
-                 "step_arm")
+        names = ("_kinematics", "_rnea", "_crba", "dynamics", "kinetic", "other_torque", "cogging_torque",
+                 "_solve", "_motor", "_drive", "_free_accelerations", "_breaking_away", "_stick_slip",
+                 "_euler", "_integrate", "step", "step_arm")
         fns = compile_functions(globals(), names, SIGNATURES, error_model="numpy")
         _COMPILED = False if fns is None else (fns["step_arm"], fns["step"], fns["dynamics"])
     return _COMPILED or None

@@ -7,10 +7,7 @@
 The tests load this very file, so the example stays working.
 """
 
-import numpy as np
-
 from crane_io.physics.effects import Effect, Param
-from crane_io.physics.effects.base import joint_columns
 
 
 class CableDrag(Effect):
@@ -20,5 +17,5 @@ class CableDrag(Effect):
     signature = "the residual of {joint} grows with the square of its angle"
     params = (Param("drag", "N m/rad^2", 0.1, "drag per rad squared"),)
 
-    def _columns(self, q, dq, ddq, joint, shape):
-        return joint_columns(len(q), q.shape[1], joint, q[:, joint] * np.abs(q[:, joint]))
+    def formula(self, q, dq, ddq, c, shape, ops):  # q, dq, ddq of its joint: floats or arrays
+        return c[0] * q * abs(q)

@@ -2,6 +2,12 @@
 regressor columns and the residual signature it leaves when a model lacks it.
 
 Conventions (all arrays SI, (N, J) in the dynamics' joint order):
+- A one-joint effect whose torque has a closed form defines it once, in `formula(q, dq, ddq, c, shape, ops)`:
+  the torque on its joint from that joint's angle, velocity and acceleration (floats, or (N,) arrays), its
+  coefficients c and shape values, with the elementwise functions of `ops` (`ARRAY_OPS` for arrays,
+  `SCALAR_OPS` for floats; `smooth_sign_ops(v0)` replaces sign(dq) by tanh(dq / v0)). Its regressor
+  columns are the formula at each unit coefficient vector (`_columns`), and the control loop evaluates the
+  same formula on floats (crane_io.physics.loop_model): one definition, the same IEEE operations in both.
 - `torque(q, dq, ddq, joint, values)` is what the effect ADDS to the torque the motor must supply
   (inverse-dynamics sense): tau = tau_rigid + sum of effects.
 - `columns(q, dq, ddq, joint, shape)` -> (N, J, k) are linear in the effect's coefficients for the
@@ -22,11 +28,32 @@ Conventions (all arrays SI, (N, J) in the dynamics' joint order):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 
 import numpy as np
 
 from crane_io.errors import ConfigError
+
+
+def _sign(x: float) -> float:
+    return 1.0 if x > 0 else (-1.0 if x < 0 else 0.0)  # as np.sign: 0 at 0
+
+
+def _positive(x: float) -> float:
+    return 1.0 if x > 0 else 0.0
+
+
+# the elementwise functions an effect's formula uses: on (N,) arrays, and on floats (the same values)
+ARRAY_OPS = SimpleNamespace(sign=np.sign, positive=lambda x: (x > 0).astype(float), exp=np.exp,
+                            sin=np.sin, cos=np.cos)
+SCALAR_OPS = SimpleNamespace(sign=_sign, positive=_positive, exp=math.exp, sin=math.sin, cos=math.cos)
+
+
+def smooth_sign_ops(v0: float) -> SimpleNamespace:
+    """SCALAR_OPS with sign(v) replaced by tanh(v / v0) (v0 > 0 rad/s): friction without its jump at rest."""
+    return SimpleNamespace(**{**vars(SCALAR_OPS), "sign": lambda v: math.tanh(v / v0)})
 
 
 @dataclass(frozen=True)
@@ -73,9 +100,9 @@ class PlantTerms:
 
 
 class Effect:
-    """Base class of every physical effect. Subclass, set the class attributes, implement
-    `_columns` (and override `coefficients`/`values_from_coefficients` when the coefficients are not
-    simply the linear parameters in order)."""
+    """Base class of every physical effect. Subclass, set the class attributes, implement `formula` (a
+    one-joint closed form) or `_columns` (and override `coefficients`/`values_from_coefficients` when the
+    coefficients are not simply the linear parameters in order)."""
 
     name: str = ""  # library key, e.g. "coulomb"
     version: int = 1  # of the effect's definition: a saved model records it (crane_io.physics.effects.spec)
@@ -89,6 +116,9 @@ class Effect:
     integer_shapes: tuple[str, ...] = ()
     scope: str = "joint"  # "joint" or "arm"
     friction: bool = False  # the plant treats it as friction: it can hold a joint at rest
+    # formula(q, dq, ddq, c, shape, ops) -> the torque on the effect's joint (see the module docstring);
+    # None: the effect defines `_columns` instead
+    formula = None
 
     # ---- parameter helpers ------------------------------------------------------------------------------
     @property
@@ -203,7 +233,8 @@ class Effect:
         """True when this effect's torque is `cls`'s (a subclass that changes it is evaluated
         generically instead of with cls's closed form)."""
         t = type(self)
-        return t._columns is cls._columns and t.torque is cls.torque and t.coefficients is cls.coefficients
+        return (t._columns is cls._columns and t.torque is cls.torque and t.coefficients is cls.coefficients
+                and t.formula is cls.formula)
 
     def describe_signature(self, joint_name: str = "the joint") -> str:
         return self.signature.format(joint=joint_name)
@@ -218,9 +249,21 @@ class Effect:
             "shape_grid": {k: list(v) for k, v in self.shape_grid.items()},
         }
 
+    @property
+    def has_scalar_form(self) -> bool:
+        """The effect's columns are its `formula` (so a per-sample path may evaluate the formula instead)."""
+        return self.formula is not None and type(self)._columns is Effect._columns
+
     # ---- for subclasses ----------------------------------------------------------------------------------
     def _columns(self, q, dq, ddq, joint: int | None, shape: dict) -> np.ndarray:
-        raise NotImplementedError
+        """The formula's columns: the formula at each unit coefficient vector."""
+        if self.formula is None:
+            raise NotImplementedError
+        k = self.n_columns()
+        qj, dqj, ddqj = q[:, joint], dq[:, joint], ddq[:, joint]
+        cols = [self.formula(qj, dqj, ddqj, [1.0 if a == b else 0.0 for b in range(k)], shape, ARRAY_OPS)
+                for a in range(k)]
+        return joint_columns(len(q), q.shape[1], joint, *cols)
 
     def _check_joint(self, joint, n_joints: int) -> int | None:
         if self.scope == "arm":

@@ -1,5 +1,9 @@
 """The built-in physical effects. See crane_io/physics/effects/base.py for the conventions and
-docs/arm-model.md for the table (parameters, units, residual signature)."""
+docs/arm-model.md for the table (parameters, units, residual signature). Each one-joint effect with a
+closed form defines its torque once, in `formula`: its regressor columns and the control loop's per-sample
+torque are that formula; `plant_terms` gives the simulated plant the same torque as the plant's terms
+(Coulomb levels, Stribeck terms, viscous, ...), which crane_io.sim.plant_layout evaluates for both of the
+plant's steppers."""
 
 from __future__ import annotations
 
@@ -11,10 +15,6 @@ from crane_io.errors import ConfigError
 from crane_io.physics.effects.base import Effect, Param, joint_columns
 
 
-def _sign(x):
-    return np.sign(x)
-
-
 class Coulomb(Effect):
     name = "coulomb"
     title = "Coulomb friction"
@@ -23,8 +23,8 @@ class Coulomb(Effect):
     params = (Param("coulomb", "N m", 0.2, "friction torque while moving"),)
     friction = True
 
-    def _columns(self, q, dq, ddq, joint, shape):
-        return joint_columns(len(q), q.shape[1], joint, _sign(dq[:, joint]))
+    def formula(self, q, dq, ddq, c, shape, ops):
+        return c[0] * ops.sign(dq)
 
     def static_band(self, values):
         v = self.check_values(values)
@@ -48,9 +48,8 @@ class CoulombAsym(Effect):
               Param("coulomb_neg", "N m", 0.2, "friction (magnitude) while moving in the negative direction"))
     friction = True
 
-    def _columns(self, q, dq, ddq, joint, shape):
-        v = dq[:, joint]
-        return joint_columns(len(q), q.shape[1], joint, (v > 0).astype(float), -(v < 0).astype(float))
+    def formula(self, q, dq, ddq, c, shape, ops):
+        return (c[0] * ops.positive(dq) + c[1] * ops.positive(-dq)) * ops.sign(dq)
 
     def static_band(self, values):
         v = self.check_values(values)
@@ -70,8 +69,8 @@ class Viscous(Effect):
     signature = "the residual of {joint} grows in proportion to its velocity"
     params = (Param("viscous", "N m s/rad", 0.03, "torque per rad/s of velocity"),)
 
-    def _columns(self, q, dq, ddq, joint, shape):
-        return joint_columns(len(q), q.shape[1], joint, dq[:, joint])
+    def formula(self, q, dq, ddq, c, shape, ops):
+        return c[0] * dq
 
     def plant_terms(self, terms, k, values):
         if not self._same_physics(Viscous):
@@ -92,10 +91,8 @@ class Stribeck(Effect):
     shape_grid = {"stribeck_velocity": [0.02, 0.05, 0.1, 0.2, 0.4]}
     friction = True
 
-    def _columns(self, q, dq, ddq, joint, shape):
-        v = dq[:, joint]
-        vs = max(shape["stribeck_velocity"], 1e-9)
-        return joint_columns(len(q), q.shape[1], joint, np.exp(-((v / vs) ** 2)) * _sign(v))
+    def formula(self, q, dq, ddq, c, shape, ops):
+        return c[0] * ops.exp(-((dq / max(shape["stribeck_velocity"], 1e-9)) ** 2)) * ops.sign(dq)
 
     def static_band(self, values):
         v = self.check_values(values)
@@ -123,11 +120,8 @@ class Stiction(Effect):
     shape_grid = {"stiction_velocity": [0.005, 0.01, 0.02, 0.05]}
     friction = True
 
-    def _columns(self, q, dq, ddq, joint, shape):
-        v = dq[:, joint]
-        vb = max(shape["stiction_velocity"], 1e-9)
-        s = _sign(v)
-        return joint_columns(len(q), q.shape[1], joint, s, np.exp(-((v / vb) ** 2)) * s)
+    def formula(self, q, dq, ddq, c, shape, ops):
+        return (c[0] + c[1] * ops.exp(-((dq / max(shape["stiction_velocity"], 1e-9)) ** 2))) * ops.sign(dq)
 
     def coefficients(self, values):
         v = self.check_values(values)
@@ -163,8 +157,8 @@ class Offset(Effect):
     signature = "the residual of {joint} has a constant non-zero mean, whatever the motion"
     params = (Param("offset", "N m", 0.1, "constant torque"),)
 
-    def _columns(self, q, dq, ddq, joint, shape):
-        return joint_columns(len(q), q.shape[1], joint, np.ones(len(q)))
+    def formula(self, q, dq, ddq, c, shape, ops):
+        return c[0]
 
     def plant_terms(self, terms, k, values):
         if not self._same_physics(Offset):
@@ -182,8 +176,8 @@ class Spring(Effect):
               Param("rest_angle", "rad", 0.0, "angle at which the spring is relaxed", linear=False))
     shape_grid = {"rest_angle": [round(x, 3) for x in np.linspace(-1.5, 1.5, 13)]}
 
-    def _columns(self, q, dq, ddq, joint, shape):
-        return joint_columns(len(q), q.shape[1], joint, q[:, joint] - shape["rest_angle"])
+    def formula(self, q, dq, ddq, c, shape, ops):
+        return c[0] * (q - shape["rest_angle"])
 
     def plant_terms(self, terms, k, values):
         if not self._same_physics(Spring):
@@ -202,8 +196,8 @@ class RotorInertia(Effect):
     signature = "the residual of {joint} is proportional to its own acceleration"
     params = (Param("inertia", "kg m^2", 0.01, "reflected rotor inertia"),)
 
-    def _columns(self, q, dq, ddq, joint, shape):
-        return joint_columns(len(q), q.shape[1], joint, ddq[:, joint])
+    def formula(self, q, dq, ddq, c, shape, ops):
+        return c[0] * ddq
 
     def plant_terms(self, terms, k, values):
         """Rotor inertia goes into the plant's mass matrix (pinocchio's armature)."""
@@ -226,9 +220,9 @@ class Cogging(Effect):
     shape_grid = {"cycles_per_rev": [4.0, 6.0, 8.0, 12.0, 16.0, 24.0]}
     integer_shapes = ("cycles_per_rev",)
 
-    def _columns(self, q, dq, ddq, joint, shape):
-        a = shape["cycles_per_rev"] * q[:, joint]
-        return joint_columns(len(q), q.shape[1], joint, np.sin(a), np.cos(a))
+    def formula(self, q, dq, ddq, c, shape, ops):
+        a = shape["cycles_per_rev"] * q
+        return c[0] * ops.sin(a) + c[1] * ops.cos(a)
 
     def coefficients(self, values):
         v = self.check_values(values)
@@ -268,10 +262,8 @@ class Backlash(Effect):
                     linear=False, model=False))
     shape_grid = {"reversal_velocity": [0.02, 0.05, 0.1, 0.2]}
 
-    def _columns(self, q, dq, ddq, joint, shape):
-        vr = max(shape["reversal_velocity"], 1e-9)
-        c = ddq[:, joint] * np.exp(-((dq[:, joint] / vr) ** 2))
-        return joint_columns(len(q), q.shape[1], joint, c)
+    def formula(self, q, dq, ddq, c, shape, ops):
+        return c[0] * ddq * ops.exp(-((dq / max(shape["reversal_velocity"], 1e-9)) ** 2))
 
     def plant_terms(self, terms, k, values):
         """The plant simulates the gear gap itself (width, motor_inertia): the motor side is a state of
