@@ -45,7 +45,8 @@ def _commands(cfg, steps=400):
     out = []
     for k in range(steps):
         c = ctl.step(ArmSignals(ql[k]), ArmSignals(qf[k]), DT)
-        out.append((c.leader_tau.copy(), c.follower_tau.copy(), ctl.dither.copy(), ctl._obs_f.applied.copy()))
+        out.append((c.leader_tau.copy(), c.follower_tau.copy(), ctl.dither.copy(),
+                    ctl.observer("follower").applied.copy()))
     return [np.array(x) for x in zip(*out)]
 
 
