@@ -49,7 +49,7 @@ from crane_io.errors import ConfigError
 
 from . import operator_kernel
 from .config import PAPER_JOINTS, Config, load_config
-from .operator_kernel import CompiledHand, PythonHand, min_jerk
+from .operator_kernel import CompiledHand, Hand, PythonHand, min_jerk
 
 _PUSH_RAMP_S = 0.3  # s: the press force ramps up over this long
 _WALL_CLEARANCE = 0.05  # rad: free-motion targets stay this far from a joint wall
@@ -61,7 +61,7 @@ def minimum_jerk(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return min_jerk(np.clip(tau, 0.0, 1.0))
 
 
-def _hand_backend(compiled: bool | None, n: int, o) -> PythonHand:
+def _hand_backend(compiled: bool | None, n: int, o) -> Hand:
     """The hand's backend (collect/operator_kernel.py): compiled when asked for (`compiled=True`; a
     ConfigError without numba) or by default when numba is already loaded in this process (the simulator's
     kernels load it), else the Python one."""

@@ -72,20 +72,33 @@ def compiled():
     return _COMPILED or None
 
 
-class PythonHand:
-    """The reference backend: hand_torque in Python floats, joint by joint."""
+class Hand:
+    """The interface of the hand's backends: `moves(rows)` the moves (a list of rows (index, t0, T, a,
+    b - a)) in the form `torque(t, moves, q, dq)` reads them, which gives the hand's torque (n,): on the
+    moves' joints hand_torque of the arm's angles q (n,) and velocities dq (n,), 0 elsewhere."""
 
-    compiled = False
+    compiled: bool
 
     def __init__(self, n: int, stiffness: float, damping: float, max_torque: float):
         self.n = n
         self._gains = (float(stiffness), float(damping), float(max_torque))
 
+    def moves(self, rows: list):
+        raise NotImplementedError
+
+    def torque(self, t: float, moves, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+
+class PythonHand(Hand):
+    """The reference backend: hand_torque in Python floats, joint by joint."""
+
+    compiled = False
+
     def moves(self, rows: list) -> list:
         return rows
 
     def torque(self, t: float, moves: list, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
-        """(n,) the hand's torque: on the moves' joints, 0 elsewhere."""
         k_p, k_d, top = self._gains
         q, dq = q.tolist(), dq.tolist()
         out = [0.0] * self.n
@@ -94,17 +107,20 @@ class PythonHand:
         return np.array(out)
 
 
+_F64 = np.dtype(np.float64)
+
+
 def _f64(x, n: int) -> np.ndarray:
     """x as `hand` takes it: (n,) float64, C-contiguous and writeable (x itself when it is one already)."""
-    if not (type(x) is np.ndarray and x.dtype == np.float64 and x.flags.carray):
+    if not (type(x) is np.ndarray and x.dtype is _F64 and x.flags.carray):
         x = np.array(x, dtype=float)
     if x.shape != (n,):  # the compiled code does not check its indices
         raise ValueError(f"the hand takes the arm's {n} joint angles and velocities, not {x.shape}")
     return x
 
 
-class CompiledHand(PythonHand):
-    """The compiled backend (`compiled()`'s `hand`; its moves a (k, N_MOVE) array)."""
+class CompiledHand(Hand):
+    """The compiled backend: `fn`, compiled()'s `hand`; the moves a (k, N_MOVE) array."""
 
     compiled = True
 
@@ -117,5 +133,6 @@ class CompiledHand(PythonHand):
 
     def torque(self, t: float, moves: np.ndarray, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         out = np.zeros(self.n)
-        self._fn(float(t), moves, _f64(q, self.n), _f64(dq, self.n), *self._gains, out)
+        n = self.n
+        self._fn(float(t), moves, _f64(q, n), _f64(dq, n), *self._gains, out)
         return out
