@@ -31,7 +31,7 @@ Kp, Kd, Kf and cutoff g (shared/crane_x7_facts.md section 6a; the Sakaino/Tsuji-
   `dither_amplitude` = 0 (the default) the commands are exactly those without the term. A joint's
   `dither_min_velocity` v_j > 0 raises its amplitude to |A_j| >= v_j 2 pi f J_j(q) (J_j the follower's
   nominal inertia at this pose, `inertia_model`), sign kept: the wave's velocity amplitude A / (J 2 pi f)
-  stays at least v_j where the arm's pose makes the joint heavy (issue 10, docs/collect.md).
+  stays at least v_j where the arm's pose makes the joint heavy (docs/collect.md).
 
 Goal torques become goal currents through each joint's torque constant. Joints that are not
 bilateral get no current (they are held in position mode by the servos); their observer estimates are

@@ -432,10 +432,7 @@ class CompiledLaw(ControlLaw):
         np.multiply(np.asarray(tau_follower, dtype=float), bil, out=s[S_ARM + S_AP])
 
     def _safety_rows(self, safety) -> np.ndarray:
-        """The monitor's limits as `control` reads them (fixed once the monitor is built: kept)."""
-        seen = self._limits
-        if seen[0] is safety:
-            return seen[1]
+        """The monitor's limits as `control` reads them, kept (they are fixed once the monitor is built)."""
         limits = safety.kernel_constants()
         if not (type(limits) is np.ndarray and limits.dtype is _F64 and limits.flags.carray
                 and limits.shape == (N_SAFETY, self.n)):  # the compiled code does not check its indices
@@ -452,14 +449,16 @@ class CompiledLaw(ControlLaw):
         dql = ql if dql is None else _input(dql, n)
         dqf = qf if dqf is None else _input(dqf, n)
         dt = float(dt)
-        limits = self._safety_rows(safety)
+        seen = self._limits
+        limits = seen[1] if seen[0] is safety else self._safety_rows(safety)
         out = np.empty((N_OUT_CONTROL, n))
         gl, gf = self._observers(ql, qf, dt)
         status = self._control(ql, qf, dql, dqf, gl, gf, self._gidx, self.state, self.consts, limits, dt,
                                self._band, has_dq, self._finite, out)
         if status & NONFINITE:
             self._refused(ql, qf)
-        self._estimates(out)
+        self.leader = ArmEstimates(out[O_DQ_L], out[O_DIS_L], out[O_RES_L])  # _estimates(out), inline
+        self.follower = ArmEstimates(out[O_DQ_F], out[O_DIS_F], out[O_RES_F])
         if status:  # a joint in its soft zone, past its stop or faster than its guard
             return self._monitor(status, leader, follower, safety, out)
         return RowCommands(out), out[O_LIM_L], out[O_LIM_F], None

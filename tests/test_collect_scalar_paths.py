@@ -115,7 +115,7 @@ def test_safety_takes_lists_and_other_shapes_the_old_way():
     assert b is not None and b.kind == "joint_limit" and b.joint == m.names[1]
 
 
-# ---- the controller helper's additions (issue 13) ------------------------------------------------------
+# ---- the operator's cached schedule and its compiled hand ------------------------------------------------
 @pytest.mark.parametrize("joints", [None, "all"])
 def test_operator_torque_skips_only_cycles_where_no_move_ends(joints):
     """torque() advances the schedule only from the earliest end of a move on: the schedule, the draws and
