@@ -74,7 +74,7 @@ class GravityModel:
         self.n = len(arm.joints)
         self._dyn = None
         self._dyn_idx = None
-        self._pin = None  # (pinocchio's gravity, model, data): gravity_torque's call without its checks
+        self.unchecked = None  # (pinocchio's gravity, model, data): gravity_torque's call without its checks
         names = arm.joint_names
         self._i2 = names.index("joint2") if "joint2" in names else None
         self._i4 = names.index("joint4") if "joint4" in names else None
@@ -96,7 +96,7 @@ class GravityModel:
                 if self._dyn._identity:  # the joints in the model's order: gravity_torque's one-pose call
                     import pinocchio
 
-                    self._pin = (pinocchio.computeGeneralizedGravity, self._dyn.model, self._dyn.data)
+                    self.unchecked = (pinocchio.computeGeneralizedGravity, self._dyn.model, self._dyn.data)
         self._out = np.zeros(self.n)
         # the joints `values` gives, in its order
         self.index = np.array(self._dyn_idx if self.kind == "dynamics" else range(self.n), dtype=np.int64)
@@ -106,8 +106,8 @@ class GravityModel:
         `__call__` puts in its (n,) result, the other joints' being 0. checked=False: without the
         dynamics' check that those angles are finite (NaN in, NaN out; the caller checks them)."""
         if self.kind == "dynamics":
-            if not checked and self._pin is not None:
-                f, model, data = self._pin
+            if not checked and self.unchecked is not None:
+                f, model, data = self.unchecked
                 return f(model, data, q[self._dyn_idx])  # a new array
             return self._dyn.gravity_torque(q[self._dyn_idx])
         return self(q)

@@ -330,7 +330,7 @@ class CompiledLaw(ControlLaw):
         self._limits = (None, None)  # (the monitor control() was last given, its kernel_constants())
         # pinocchio's gravity call, taken inline from the second cycle on when it gives the array the
         # compiled functions take (float64, C-contiguous)
-        self._pin = self.gravity._pin
+        self._pin = self.gravity.unchecked
         if self._pin is not None:
             f, model, data = self._pin
             g = f(model, data, np.zeros(len(self.gravity.index)))
@@ -372,7 +372,7 @@ class CompiledLaw(ControlLaw):
         k = self.cycles
         if k and self._pin is not None:  # GravityModel.values(q, checked=False), inline
             f, model, data = self._pin
-            idx = grav._dyn_idx
+            idx = grav.index
             gl, gf = f(model, data, ql[idx]), f(model, data, qf[idx])
         else:  # as the kernel takes them (the compiled call does not check them)
             n = len(grav.index)
