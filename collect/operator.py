@@ -49,7 +49,8 @@ from crane_io.errors import ConfigError
 
 from . import operator_kernel
 from .config import PAPER_JOINTS, Config, load_config
-from .operator_kernel import CompiledHand, Hand, PythonHand, min_jerk
+from .operator_kernel import CompiledHand, hand_torque, min_jerk
+from .operator_layout import Hand
 
 _PUSH_RAMP_S = 0.3  # s: the press force ramps up over this long
 _WALL_CLEARANCE = 0.05  # rad: free-motion targets stay this far from a joint wall
@@ -59,6 +60,23 @@ _PLANE_CLEARANCE = 0.02  # m: free-motion poses keep the contact frame this far 
 def minimum_jerk(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Normalised minimum-jerk profile s(tau) and ds/dtau for tau in [0, 1] (outside: clipped)."""
     return min_jerk(np.clip(tau, 0.0, 1.0))
+
+
+class PythonHand(Hand):
+    """The hand's reference backend: hand_torque in Python floats, joint by joint."""
+
+    compiled = False
+
+    def moves(self, rows: list) -> list:
+        return rows
+
+    def torque(self, t: float, moves: list, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        k_p, k_d, top = self._gains
+        q, dq = q.tolist(), dq.tolist()
+        out = [0.0] * self.n
+        for i, t0, T, a, d in moves:
+            out[i] = hand_torque(t, t0, T, a, d, q[i], dq[i], k_p, k_d, top)
+        return np.array(out)
 
 
 def _hand_backend(compiled: bool | None, n: int, o) -> Hand:

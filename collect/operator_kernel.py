@@ -1,22 +1,20 @@
 """The simulated operator's hand (collect/operator.py) per joint, defined once and run two ways.
 
 `min_jerk` (the normalised minimum-jerk profile) and `hand_torque` (one joint's impedance torque on its
-move) are plain Python: the operator's numpy profile calls `min_jerk` on arrays, the reference backend
-`PythonHand` calls `hand_torque` on Python floats, and the compiled backend `CompiledHand` runs them
-compiled with numba through crane_io.jit (`hand`: no `fastmath`, the same IEEE operations, so the same
-bits; tests/test_collect_scalar_paths.py). Both backends take the moves as `torque` is given them:
-rows (index, t0, T, a, b - a), one per bilateral joint (the columns `M_*`; no T is 0), in the form their
-`moves` makes.
+move) are plain Python: the operator's numpy profile calls `min_jerk` on arrays, its reference backend
+(collect/operator.py `PythonHand`) calls `hand_torque` on Python floats, and the compiled backend
+`CompiledHand` here runs them compiled with numba through crane_io.jit (`hand`: no `fastmath`, the same
+IEEE operations, so the same bits; tests/test_collect_scalar_paths.py). Both implement
+collect/operator_layout.Hand; the compiled one takes the moves' rows as a (k, 5) array.
+
+This module imports numpy, crane_io.jit (numba, when compiling) and its layout only.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-# the columns of a move's row: the joint's index in the arm, the move's start (s) and duration T (s), its
-# start angle a and its length b - a (rad)
-M_INDEX, M_T0, M_T, M_A, M_D = range(5)
-N_MOVE = 5
+from .operator_layout import MOVE_FIELDS, Hand
 
 
 def min_jerk(x):
@@ -43,11 +41,11 @@ def hand_torque(t, t0, T, a, d, q, dq, k_p, k_d, top):
 
 
 def hand(t, moves, q, dq, k_p, k_d, top, out):
-    """hand_torque of every move's joint into out (moves: (k, N_MOVE) rows)."""
+    """hand_torque of every move's joint into out (moves: (k, 5) rows (index, t0, T, a, d))."""
     for j in range(moves.shape[0]):
-        i = int(moves[j, M_INDEX])
-        out[i] = hand_torque(t, moves[j, M_T0], moves[j, M_T], moves[j, M_A], moves[j, M_D], q[i], dq[i],
-                             k_p, k_d, top)
+        i = int(moves[j, 0])
+        out[i] = hand_torque(t, moves[j, 1], moves[j, 2], moves[j, 3], moves[j, 4], q[i], dq[i], k_p, k_d,
+                             top)
 
 
 _F = "float64[::1]"
@@ -72,41 +70,6 @@ def compiled():
     return _COMPILED or None
 
 
-class Hand:
-    """The interface of the hand's backends: `moves(rows)` the moves (a list of rows (index, t0, T, a,
-    b - a)) in the form `torque(t, moves, q, dq)` reads them, which gives the hand's torque (n,): on the
-    moves' joints hand_torque of the arm's angles q (n,) and velocities dq (n,), 0 elsewhere."""
-
-    compiled: bool
-
-    def __init__(self, n: int, stiffness: float, damping: float, max_torque: float):
-        self.n = n
-        self._gains = (float(stiffness), float(damping), float(max_torque))
-
-    def moves(self, rows: list):
-        raise NotImplementedError
-
-    def torque(self, t: float, moves, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
-        raise NotImplementedError
-
-
-class PythonHand(Hand):
-    """The reference backend: hand_torque in Python floats, joint by joint."""
-
-    compiled = False
-
-    def moves(self, rows: list) -> list:
-        return rows
-
-    def torque(self, t: float, moves: list, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
-        k_p, k_d, top = self._gains
-        q, dq = q.tolist(), dq.tolist()
-        out = [0.0] * self.n
-        for i, t0, T, a, d in moves:
-            out[i] = hand_torque(t, t0, T, a, d, q[i], dq[i], k_p, k_d, top)
-        return np.array(out)
-
-
 _F64 = np.dtype(np.float64)
 
 
@@ -120,7 +83,7 @@ def _f64(x, n: int) -> np.ndarray:
 
 
 class CompiledHand(Hand):
-    """The compiled backend: `fn`, compiled()'s `hand`; the moves a (k, N_MOVE) array."""
+    """The compiled backend: `fn`, compiled()'s `hand`; the moves a (k, 5) array."""
 
     compiled = True
 
@@ -129,7 +92,7 @@ class CompiledHand(Hand):
         self._fn = fn
 
     def moves(self, rows: list) -> np.ndarray:
-        return np.array(rows, dtype=float).reshape(len(rows), N_MOVE)
+        return np.array(rows, dtype=float).reshape(len(rows), len(MOVE_FIELDS))
 
     def torque(self, t: float, moves: np.ndarray, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         out = np.zeros(self.n)
