@@ -47,7 +47,10 @@ import numpy as np
 from crane_io.description import ArmDescription, default_arm
 from crane_io.errors import ConfigError
 
+from . import operator_kernel
 from .config import PAPER_JOINTS, Config, load_config
+from .operator_kernel import CompiledHand, hand_torque, min_jerk
+from .operator_layout import Hand
 
 _PUSH_RAMP_S = 0.3  # s: the press force ramps up over this long
 _WALL_CLEARANCE = 0.05  # rad: free-motion targets stay this far from a joint wall
@@ -55,59 +58,38 @@ _PLANE_CLEARANCE = 0.02  # m: free-motion poses keep the contact frame this far 
 
 
 def minimum_jerk(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Normalised minimum-jerk profile s(tau) and ds/dtau for tau in [0, 1]."""
-    tau = np.clip(tau, 0.0, 1.0)
-    t2 = tau * tau
-    s = t2 * tau * (10.0 - 15.0 * tau + 6.0 * t2)
-    ds = 30.0 * t2 * (1.0 - 2.0 * tau + t2)
-    return s, ds
+    """Normalised minimum-jerk profile s(tau) and ds/dtau for tau in [0, 1] (outside: clipped)."""
+    return min_jerk(np.clip(tau, 0.0, 1.0))
 
 
-def _hand_kernel(t, moves, q, dq, k_p, k_d, top, out):
-    """SimulatedOperator._hand compiled (`_hand_compiled`): moves (k, 5) rows (index, t0, T, a, b - a);
-    out[index] = the hand's torque, the same operations as _hand's Python floats (Python's min and max:
-    the first argument unless the second is beyond it)."""
-    for j in range(moves.shape[0]):
-        i = int(moves[j, 0])
-        t0, T, a, d = moves[j, 1], moves[j, 2], moves[j, 3], moves[j, 4]
-        x = (t - t0) / T
-        if 0.0 > x:
-            x = 0.0
-        if 1.0 < x:
-            x = 1.0
-        t2 = x * x
-        s = t2 * x * (10.0 - 15.0 * x + 6.0 * t2)
-        ds = 30.0 * t2 * (1.0 - 2.0 * x + t2)
-        tau = k_p * (a + d * s - q[i]) + k_d * (d * ds / T - dq[i])
-        if -top > tau:
-            tau = -top
-        if top < tau:
-            tau = top
-        out[i] = tau
+class PythonHand(Hand):
+    """The hand's reference backend: hand_torque in Python floats, joint by joint."""
+
+    compiled = False
+
+    def moves(self, rows: list) -> list:
+        return rows
+
+    def torque(self, t: float, moves: list, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        k_p, k_d, top = self._gains
+        q, dq = q.tolist(), dq.tolist()
+        out = [0.0] * self.n
+        for i, t0, T, a, d in moves:
+            out[i] = hand_torque(t, t0, T, a, d, q[i], dq[i], k_p, k_d, top)
+        return np.array(out)
 
 
-_HAND_SIGNATURES = {"_hand_kernel": ("void(float64, float64[:, ::1], float64[::1], float64[::1], float64, "
-                                     "float64, float64, float64[::1])",)}
-_HAND_COMPILED = None
-
-
-def _hand_compiled():
-    """_hand_kernel compiled (or loaded from numba's cache) by crane_io.jit, closed to other argument
-    types, as its native entry (collect/controller_kernel.py `direct`); None without numba."""
-    global _HAND_COMPILED
-    if _HAND_COMPILED is None:
-        from crane_io.jit import compile_functions
-
-        fns = compile_functions(globals(), ("_hand_kernel",), _HAND_SIGNATURES)
-        if fns is None:
-            _HAND_COMPILED = False
-        else:
-            from .controller_kernel import direct
-
-            fns["_hand_kernel"].disable_compile()
-            # its native entry: torque() passes it the signature's types only (_f64, _move_rows' array)
-            _HAND_COMPILED = direct(fns["_hand_kernel"])
-    return _HAND_COMPILED or None
+def _hand_backend(compiled: bool | None, n: int, o) -> Hand:
+    """The hand's backend (collect/operator_kernel.py): compiled when asked for (`compiled=True`; a
+    ConfigError without numba) or by default when numba is already loaded in this process (the simulator's
+    kernels load it), else the Python one."""
+    use = compiled if compiled is not None else "numba" in sys.modules
+    fn = operator_kernel.compiled() if use else None
+    if compiled and fn is None:
+        raise ConfigError("the compiled operator needs numba (pip install numba)")
+    if fn is None:
+        return PythonHand(n, o.stiffness, o.damping, o.max_torque)
+    return CompiledHand(fn, n, o.stiffness, o.damping, o.max_torque)
 
 
 class _Objects:
@@ -148,15 +130,10 @@ class _Objects:
             self.objects.append(obj)
 
 
-def _f64(x, n: int) -> bool:
-    """x is an (n,) float64 array as _hand_kernel takes it (C-contiguous, writeable)."""
-    return type(x) is np.ndarray and x.dtype == np.float64 and x.shape == (n,) and x.flags.carray
-
-
 class SimulatedOperator:
     """`SimulatedOperator(seed, arm, rate)`; `start(q0, t0)` then `torque(t, q, dq) -> (n,)` each cycle.
-    The hand's arithmetic runs compiled (`_hand_kernel`, the same bits) when numba is already loaded in
-    this process (the simulator's kernels load it), `compiled=True` asks for it, False never uses it."""
+    The hand's arithmetic is a backend's (`_hand_backend`: compiled, the same bits, when numba is already
+    loaded in this process; `compiled=True` asks for it, False never uses it)."""
 
     def __init__(self, seed: int = 0, arm: ArmDescription | None = None, rate: float = 500.0,
                  config: Config | None = None, environment=None, compiled: bool | None = None):
@@ -184,10 +161,7 @@ class SimulatedOperator:
         self._phase_end = np.zeros(k)  # end of the current on or off phase
         self._out = np.zeros(self.n)
         self._moves = None  # the moves as torque() reads them (_move_rows, _contact_rows); None: to be made
-        use = compiled if compiled is not None else "numba" in sys.modules
-        self._kernel = _hand_compiled() if use else None
-        if compiled and self._kernel is None:
-            raise ConfigError("the compiled operator needs numba (pip install numba)")
+        self._hand = _hand_backend(compiled, self.n, self.o)
         self.started = False
         self.task = self.o.task
         self._pressing = False
@@ -408,9 +382,9 @@ class SimulatedOperator:
         d = self._seg_b - self._seg_a
         return self._seg_a + d * s, d * ds / self._seg_T
 
-    def _move_rows(self, ends: bool = True) -> tuple[float, bool, list, np.ndarray]:
-        """The moves as lists, made again whenever the schedule changes: (the time before which `_advance`
-        has nothing to do; no T is 0; per joint (index, t0, T, a, b - a); those rows as a (k, 5) array).
+    def _move_rows(self, ends: bool = True) -> tuple[float, bool, object]:
+        """The moves, made again whenever the schedule changes: (the time before which `_advance` has
+        nothing to do; no T is 0; per joint (index, t0, T, a, b - a) in the hand backend's form).
         That time is the earliest over the joints of the end t0 + T of a moving joint's move, and of a
         pausing joint's max(t0 + T, end of its pause): `_advance` leaves a pausing joint alone until both
         have passed (it does not draw, nor change its segment). ends=False: that time is not needed (inf)."""
@@ -424,9 +398,9 @@ class SimulatedOperator:
                 if e < end:
                     end = e
         rows = [(i, t0, T, a, b - a) for i, t0, T, a, b in zip(self._idx_list, t0s, Ts, a_s, b_s)]
-        return end, 0.0 not in Ts, rows, np.array(rows, dtype=float).reshape(len(rows), 5)
+        return end, 0.0 not in Ts, self._hand.moves(rows)
 
-    def _contact_rows(self) -> tuple[float, bool, list, np.ndarray]:
+    def _contact_rows(self) -> tuple[float, bool, object]:
         """_move_rows for the contact task, after `_advance_contact`: the time before which it has nothing to
         do first. In a press episode the end of the stage; in a free phase the next event of its joints'
         processes (`_advance`) when it comes before the phase's end, else the end of the phase or of the
@@ -439,22 +413,6 @@ class SimulatedOperator:
             return rows
         last = max((t0 + T for t0, T in zip(self._seg_t0.tolist(), self._seg_T.tolist())), default=-math.inf)
         return (max(self._free_end, last),) + rows[1:]
-
-    def _hand(self, t: float, moves: list, q: list, dq: list) -> np.ndarray:
-        """`torque` after the schedule advanced, per joint in Python floats: the arithmetic of
-        `_profile`, `minimum_jerk` and the impedance, operation for operation (the same results, bit for
-        bit, without a dozen small-array numpy calls per cycle). moves: _move_rows' (none has T 0)."""
-        o = self.o
-        k_p, k_d, top = o.stiffness, o.damping, o.max_torque
-        out = [0.0] * self.n
-        for i, t0, T, a, d in moves:
-            x = min(max((t - t0) / T, 0.0), 1.0)  # np.clip: NaN and signed zeros kept alike
-            t2 = x * x
-            s = t2 * x * (10.0 - 15.0 * x + 6.0 * t2)
-            ds = 30.0 * t2 * (1.0 - 2.0 * x + t2)
-            tau = k_p * (a + d * s - q[i]) + k_d * (d * ds / T - dq[i])
-            out[i] = min(max(tau, -top), top)
-        return np.array(out)
 
     def moving(self) -> np.ndarray:
         """Which bilateral joints are in a moving phase now (bool (k,))."""
@@ -472,14 +430,8 @@ class SimulatedOperator:
                 else:
                     self._advance(t)
                     moves = self._moves = self._move_rows()
-            if moves[1]:
-                f = self._kernel
-                if f is not None and _f64(q, self.n) and _f64(dq, self.n):
-                    o, out = self.o, np.zeros(self.n)
-                    f(float(t), moves[3], q, dq, float(o.stiffness), float(o.damping), float(o.max_torque),
-                      out)
-                    return out
-                return self._hand(t, moves[2], q.tolist(), dq.tolist())
+            if moves[1]:  # the arithmetic of `_profile` and the impedance below, joint by joint
+                return self._hand.torque(t, moves[2], q, dq)
             q_ref, dq_ref = self._profile(t)
         else:
             q_ref, dq_ref = self.reference(t)

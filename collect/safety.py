@@ -25,6 +25,7 @@ from crane_io.description import ArmDescription, default_arm
 from crane_io.errors import ConfigError
 
 from .config import Config
+from .controller_layout import SAFETY_ROWS
 
 
 def _floats(x) -> list:
@@ -115,13 +116,12 @@ class SafetyMonitor:
         return np.clip(tau, -self.tau_max, self.tau_max) * self.bil
 
     def kernel_constants(self) -> np.ndarray:
-        """The limits as the compiled controller reads them (collect/controller_kernel.py, K_* rows): soft
-        zone bounds, tau_max, stop bounds, velocity guards, bilateral mask; made at the first call (the
-        limits are fixed once the monitor is built)."""
+        """The limits as the compiled controller reads them: the rows collect/controller_layout.SAFETY_ROWS
+        names (soft zone bounds, tau_max, stop bounds, velocity guards, bilateral mask), a (rows, n)
+        C-contiguous float64 array made at the first call (the limits are fixed once the monitor is built)."""
         if self._kernel_constants is None:
             self._kernel_constants = np.ascontiguousarray(np.array(
-                [self.soft_lower, self.soft_upper, self.tau_max, self.stop_lower, self.stop_upper, self.vmax,
-                 self.bil_f], dtype=float))
+                [getattr(self, name) for name in SAFETY_ROWS], dtype=float))
         return self._kernel_constants
 
     @staticmethod

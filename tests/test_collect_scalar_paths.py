@@ -115,7 +115,7 @@ def test_safety_takes_lists_and_other_shapes_the_old_way():
     assert b is not None and b.kind == "joint_limit" and b.joint == m.names[1]
 
 
-# ---- the controller helper's additions (issue 13) ------------------------------------------------------
+# ---- the operator's cached schedule and its compiled hand ------------------------------------------------
 @pytest.mark.parametrize("joints", [None, "all"])
 def test_operator_torque_skips_only_cycles_where_no_move_ends(joints):
     """torque() advances the schedule only from the earliest end of a move on: the schedule, the draws and
@@ -142,7 +142,7 @@ def test_the_compiled_hand_gives_the_python_floats_bits(joints):
     pytest.importorskip("numba")
     cfg, arm = _setup(joints)
     ops = [SimulatedOperator(2, arm, cfg.loop.rate_hz, cfg, compiled=c) for c in (True, False)]
-    assert ops[0]._kernel is not None and ops[1]._kernel is None
+    assert ops[0]._hand.compiled and not ops[1]._hand.compiled
     q = np.array([0.0, 0.2, 0.0, -1.2, 0.0, 0.0, 0.0, 0.0])
     rng = np.random.default_rng(4)
     for op in ops:

@@ -95,7 +95,7 @@ def _drive(cfg, steps=1500, seed=0, nan_held=False):
             tf = c_ref.follower_tau * 0.9 if k % 4 else -0.0 * c_ref.follower_tau
             ref.applied(tl, tf)
             new.applied(tl.copy(), tf.copy())
-        for r, m in ((ref._obs_l, new._obs_l), (ref._obs_f, new._obs_f)):
+        for r, m in ((ref.observer(a), new.observer(a)) for a in ("leader", "follower")):
             for name in ("z", "y", "applied", "J"):
                 _same(getattr(r, name), getattr(m, name), (k, name))
 
@@ -161,7 +161,7 @@ def test_it_is_chosen_where_it_covers_the_run_and_refused_where_not():
     ctl = BilateralController(load_config(), compiled=True)
     ctl.step(ArmSignals(np.zeros(8)), ArmSignals(np.zeros(8)), DT)
     ctl.reset()
-    assert ctl._obs_l.z is None and ctl.leader is None
+    assert ctl.observer("leader").z is None and ctl.leader is None
 
 
 def test_a_process_without_numba_keeps_the_numpy_path():
@@ -252,6 +252,6 @@ def test_control_is_step_clamps_applied_and_checks(joints, compiled):
         seen["breach"] += want[3] is not None
         seen["soft"] += bool(safety._outside(ql.tolist(), safety.soft_lower.tolist(),
                                              safety.soft_upper.tolist()))
-        for r, m in ((ref._obs_l, new._obs_l), (ref._obs_f, new._obs_f)):
+        for r, m in ((ref.observer(a), new.observer(a)) for a in ("leader", "follower")):
             _same(r.applied, m.applied, (k, "applied"))
     assert seen["soft"] > 100 and seen["breach"] > 100  # the safety monitor's own cases were met

@@ -1,6 +1,6 @@
-"""BilateralController.control on the compiled path (collect/controller.py, issue 13): the safety limits it
+"""BilateralController.control on the compiled backend (collect/controller_kernel.py): the safety limits it
 keeps between calls are those of the monitor it is given each call, and its commands (made from the
-kernel's output rows when read) are the numpy path's, bit for bit."""
+compiled call's output rows when read) are the numpy backend's, bit for bit; the compiled hand's guard."""
 
 from __future__ import annotations
 
@@ -15,7 +15,6 @@ from collect.config import _build, load_config  # noqa: E402
 from collect.controller import ArmSignals, BilateralController, Commands  # noqa: E402
 from collect.runner import run_arm  # noqa: E402
 from collect.safety import SafetyMonitor  # noqa: E402
-from crane_io.errors import ConfigError  # noqa: E402
 from tests.loop_reference import control_reference  # noqa: E402
 
 DT = 0.002
@@ -69,7 +68,7 @@ def test_control_refuses_a_monitor_of_another_arm_after_one_of_its_own():
         def kernel_constants(self):
             return super().kernel_constants()[:, :5].copy()
 
-    with pytest.raises(ConfigError, match="joints"):
+    with pytest.raises(ValueError, match="joints"):
         ctl.control(ArmSignals(q), ArmSignals(q), DT, Other(cfg, arm))
 
 
@@ -102,37 +101,22 @@ def test_the_compiled_control_commands_read_as_the_numpy_ones(joints):
         assert all(getattr(got, name).tobytes() == w.tobytes() for name, w in zip(FIELDS, want))
 
 
-def test_the_native_entries_are_used_and_give_the_dispatchers_results():
-    from collect import controller_kernel
-    from collect.operator import _hand_compiled
+def test_the_compiled_hand_refuses_angles_of_another_length():
+    from collect.operator_kernel import CompiledHand, compiled
 
-    step, _hold, control = controller_kernel.compiled()
-    cfg = _config()
-    ctl = BilateralController(cfg, run_arm(cfg), compiled=True)
-    assert ctl._control_entry is not control and callable(ctl._control_entry)
-    assert _hand_compiled() is not None and not hasattr(_hand_compiled(), "signatures")
-    # the entry gives the dispatcher's bits (one cycle of `step` on both, from the same state)
-    n = ctl.n
-    rng = np.random.default_rng(1)
-    ql, qf, gl, gf = (rng.normal(0, 0.5, n) for _ in range(4))
-    gidx = np.arange(n, dtype=np.int64)
-    state = rng.normal(0, 1.0, (controller_kernel.N_STATE, n))
-    consts = np.abs(rng.normal(1.0, 0.2, (controller_kernel.N_CONST, n)))
-    outs = []
-    for f in (step, controller_kernel.direct(step)):
-        s, out = state.copy(), np.zeros((controller_kernel.N_OUT, n))
-        assert f(ql, qf, gl, gf, gidx, s, consts, DT, 0.0, True, out) == 0
-        outs.append((s.tobytes(), out.tobytes()))
-    assert controller_kernel.direct(step) is not step
-    assert outs[0] == outs[1]
+    hand = CompiledHand(compiled(), 8, 100.0, 2.0, 5.0)
+    moves = hand.moves([(7, 0.0, 1.0, 0.0, 0.5)])
+    with pytest.raises(ValueError, match="8 joint"):
+        hand.torque(0.5, moves, np.zeros(4), np.zeros(8))
+    out = hand.torque(0.5, moves, np.zeros(8), np.zeros(8))
+    assert out[7] > 0.0 and not out[:7].any()
 
 
-def test_direct_keeps_a_dispatcher_it_cannot_bypass():
-    from collect import controller_kernel
+def test_the_compiled_functions_cache_entries_change_with_the_layout(monkeypatch):
+    """numba's cache sees only the compiled module's file: a change of the layout's rows names new entries."""
+    from collect import controller_layout
 
-    class Several:
-        signatures = ("a", "b")
-
-    d = Several()
-    assert controller_kernel.direct(d) is d
-    assert controller_kernel.direct(len) is len
+    before = controller_layout.digest()
+    assert controller_layout.digest() == before
+    monkeypatch.setattr(controller_layout, "S_ARM", controller_layout.S_ARM + 1)
+    assert controller_layout.digest() != before

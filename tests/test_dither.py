@@ -45,7 +45,8 @@ def _commands(cfg, steps=400):
     out = []
     for k in range(steps):
         c = ctl.step(ArmSignals(ql[k]), ArmSignals(qf[k]), DT)
-        out.append((c.leader_tau.copy(), c.follower_tau.copy(), ctl.dither.copy(), ctl._obs_f.applied.copy()))
+        out.append((c.leader_tau.copy(), c.follower_tau.copy(), ctl.dither.copy(),
+                    ctl.observer("follower").applied.copy()))
     return [np.array(x) for x in zip(*out)]
 
 
@@ -183,6 +184,6 @@ def test_the_example_dither_configurations_load_with_their_documented_settings()
     assert model.model_coulomb_velocity == 0.1
     factors = {n: model.joints[n].dither for n in ("joint1", "joint2", "joint4")}
     assert factors["joint2"] == 2.5 and factors["joint4"] == -1.5 and factors["joint1"] == 1.0
-    # joint 1: a velocity floor for its heavy poses; joint 2: its loop lags at 45 rad/s (issue 10)
+    # joint 1: a velocity floor for its heavy poses; joint 2: its loop lags at 45 rad/s
     assert model.joints["joint1"].dither_min_velocity == 0.045 and model.joints["joint2"].model_cutoff == 45.0
     assert plain.joints["joint1"].dither_min_velocity == 0.0 and plain.joints["joint2"].model_cutoff == 0.0

@@ -45,7 +45,7 @@ def _run(cfg, q, steps=300):
     for _ in range(steps):
         ctl.step(ArmSignals(q), ArmSignals(q), DT)
         d.append(ctl.dither.copy())
-        J.append(ctl._obs_f.J.copy())
+        J.append(ctl.observer("follower").J.copy())
     return np.array(d), np.array(J)
 
 
