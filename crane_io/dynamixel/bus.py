@@ -64,7 +64,6 @@ from crane_io.dynamixel.control_table import (
     model_by_number,
     span,
 )
-from crane_io.dynamixel.crc import crc16
 from crane_io.dynamixel.faults import (
     STATUS_ALERT_BIT,
     WATCHDOG_EXPIRED,
@@ -80,7 +79,7 @@ from crane_io.dynamixel.faults import (
     describe_faults,
     servo_label,
 )
-from crane_io.dynamixel.packets import CranePacketHandler
+from crane_io.dynamixel.packets import CranePacketHandler, crc16
 from crane_io.dynamixel.port import CranePortHandler, open_port
 from crane_io.dynamixel.servo_report import servo_report as _servo_report
 from crane_io.errors import ConfigError, CraneError

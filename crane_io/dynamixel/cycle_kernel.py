@@ -5,7 +5,7 @@ packet built from the amps, and the Fast Sync Read reply of the Present block ch
 operations in the same order (no fastmath): per current-mode joint the clamp to its Current Limit, the
 rounding half to even, the clamp to the limit's whole steps, the commanded amps, then the parameters (ID,
 Goal Current low, high byte) written into a kept packet whose header is already there, the check for
-byte stuffing and the CRC-16 (the e-manual's byte table). The bytes are those of
+byte stuffing and the CRC-16 (crc_layout's byte table and loop). The bytes are those of
 `CranePacketHandler.sync_write_packet`; a packet that would need stuffing, or a command that is not
 finite, is left to the Python path (which raises or stuffs).
 
@@ -23,17 +23,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from crane_io.dynamixel.crc import CRC_TABLE
+from crane_io.dynamixel.crc_layout import byte_table, crc_step, crc_update  # noqa: F401 (compiled with them)
 
-TABLE = np.array(CRC_TABLE, dtype=np.int64)  # the kernels' last argument
+TABLE = byte_table()  # the kernels' last argument: the bus client's own CRC table (the simulator has its own)
 _HEAD_LEN = 12  # a sync write: FF FF FD 00, ID, LEN L H, INST, address L H, data length L H
-
-
-def _crc(buf, n, table):
-    crc = np.int64(0)
-    for i in range(n):
-        crc = ((crc << 8) & 0xFF00) ^ table[((crc >> 8) ^ np.int64(buf[i])) & 0xFF]
-    return crc
 
 
 def goal_current_packet(amps, joints, ids, limits, limits_raw, lsb, buf, sent, table):
@@ -69,7 +62,7 @@ def goal_current_packet(amps, joints, ids, limits, limits_raw, lsb, buf, sent, t
     for i in range(5, p - 2):
         if buf[i] == 0xFF and buf[i + 1] == 0xFF and buf[i + 2] == 0xFD:
             return -2
-    crc = _crc(buf, p, table)
+    crc = crc_update(buf, 0, p, np.int64(0), table)
     buf[p] = crc & 0xFF
     buf[p + 1] = crc >> 8
     return p + 2
@@ -101,7 +94,8 @@ def present_reply_state(data, head, ids, out, center, rad_per_pulse, rads_per_ls
         s = 8 + k * chunk
         if data[s] != 0 or data[s + 1] != ids[k]:
             return False
-    if _crc(data, n - 2, table) != (np.int64(data[n - 2]) | (np.int64(data[n - 1]) << 8)):
+    crc = crc_update(data, 0, n - 2, np.int64(0), table)
+    if crc != (np.int64(data[n - 2]) | (np.int64(data[n - 1]) << 8)):
         return False
     for k in range(count):
         s = 10 + k * chunk
@@ -138,7 +132,8 @@ def compiled():
         try:
             from crane_io.jit import compile_functions
 
-            fns = compile_functions(globals(), ("_crc", "_u", "goal_current_packet", "present_reply_state"),
+            fns = compile_functions(globals(), ("crc_step", "crc_update", "_u", "goal_current_packet",
+                                                "present_reply_state"),
                                     SIGNATURES, qualname_prefix="cycle_kernel.")
         except Exception:  # noqa: BLE001 - a broken numba install: the Python path, as without numba
             fns = None
