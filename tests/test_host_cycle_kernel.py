@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from fakes import FlipCrcByte
 
-from crane_io.dynamixel import bus as bus_mod
 from crane_io.dynamixel import cycle_kernel, units
 from crane_io.dynamixel.bus import CommandError
 from crane_io.dynamixel.packets import CranePacketHandler, crc16
+from crane_io.dynamixel.status_read import STUFFED
 from crane_io.sim import simulated_arm
 from crane_io.sim.protocol import fast_status_packet
 from tests.sim_bus import capture_writes, open_bus
@@ -121,7 +121,7 @@ def _python_accepts(reader, data: bytes) -> bool:
     """The fast path's condition of _StatusSyncRead.fast_read, as written there."""
     chunk = reader.data_length + 4
     return (len(data) == reader._fast_total and data.startswith(reader._fast_head)
-            and bus_mod._STUFFED not in data and data[8::chunk] == reader._no_errors
+            and STUFFED not in data and data[8::chunk] == reader._no_errors
             and crc16(data[:-2]) == (data[-2] | (data[-1] << 8))
             and data[9::chunk] == reader._fast_id_bytes)
 
