@@ -1,6 +1,6 @@
-"""The host's control-cycle shortcuts (issue 13) give what the general paths give: the bus's fast read of
-the Present block (the reply parsed straight from its bytes) against the reader's general path, and the
-recorder's row writer (whole blocks of members copied in one step) against `append` of a dict."""
+"""The host's control-cycle shortcuts give what the general paths give: the bus's fast read of the Present
+block (the reply converted by the plain codec straight from its bytes) against the reader's general path,
+and the recorder's row writer (whole blocks of members copied in one step) against `append` of a dict."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from fakes import FlipCrcByte, OverloadBit
 
 from collect.recorder import SessionRecorder
 from crane_io import session_format as sf
+from crane_io.dynamixel.codec import PlainCodec
 from crane_io.dynamixel.faults import CommunicationError, ServoFaultError
 from crane_io.sim import simulated_arm
 from crane_io.sim.protocol import fast_status_packet
@@ -52,7 +53,12 @@ def test_the_state_of_a_fast_reply_equals_the_general_paths(sim, seed):
                  int(rng.integers(-2 ** 31, 2 ** 31))) for _ in bus.ids]
             reply = fast_status_packet([(0, sid, _present(*r)) for sid, r in zip(bus.ids, raws)])
             assert len(reply) == 8 + 14 * 8  # not byte-stuffed
-            fast = bus._state_from_reply(reply, 1.5)
+            out = np.empty((3, 8))
+            assert PlainCodec(bus._ph, 8).present_state(reply, out) is False  # told no expected reply
+            codec = PlainCodec(bus._ph, 8)
+            bus._reader.use_codec(codec)
+            assert codec.present_state(reply, out)
+            fast = bus._fast_state(out, 1.5)
             reader = bus._reader
             reader.packet = None  # the general path: the data_dict blocks, unpacked with struct
             for sid, r in zip(bus.ids, raws):

@@ -28,8 +28,8 @@ Watchdog register (-1 after expiry) in `read_hardware_errors`, which the collect
 
 The object is not thread-safe: use one bus per thread (one per arm).
 
-Its layers, one module each: the packet codec (crane_io.dynamixel.packets: instruction packets;
-status_read: the sync reads and their replies; cycle_kernel: the control cycle's two packets compiled), the
+Its layers, one module each: the packets (crane_io.dynamixel.packets: instruction packets; status_read: the
+sync reads and their replies; codec: the control cycle's two packets, plain or compiled, a backend), the
 transfers with the one retry loop and the error budget (transfer.Link), the register-level API
 (registers.ServoRegisters: discovery, set-up, torque, diagnostics, the per-servo report's reads); this module
 adds the control cycle (`read_state`, `write_goal_current`, `write_goal_position`) and the life cycle.
@@ -50,7 +50,8 @@ from dynamixel_sdk import COMM_RX_CORRUPT, COMM_SUCCESS, COMM_TX_FAIL, GroupSync
 
 from crane_io import shutdown
 from crane_io.description import ArmDescription
-from crane_io.dynamixel import cycle_kernel, units
+from crane_io.dynamixel import units
+from crane_io.dynamixel.codec import FAST_RECORD, PlainCodec, compiled_codec
 from crane_io.dynamixel.control_table import PRESENT_BLOCK_ADDRESS, PRESENT_BLOCK_SIZE, X_SERIES
 from crane_io.dynamixel.faults import STATUS_ALERT_BIT, CommunicationError, decode_status_error
 from crane_io.dynamixel.port import open_port
@@ -67,10 +68,6 @@ log = logging.getLogger(__name__)
 _FAST_TRIES_BEFORE_FALLBACK = 2
 _PRESENT = struct.Struct("<hii")  # Present Current, Velocity, Position (addresses 126, 128, 132)
 assert _PRESENT.size == PRESENT_BLOCK_SIZE
-# one servo's part of the Fast Sync Read reply of the Present block: ERR ID DATA CRC
-_FAST_RECORD = np.dtype([("error", "u1"), ("id", "u1"), ("current", "<i2"), ("velocity", "<i4"),
-                         ("position", "<i4"), ("crc", "<u2")])
-assert _FAST_RECORD.itemsize == PRESENT_BLOCK_SIZE + 4
 _GOAL_CURRENT, _GOAL_POSITION = X_SERIES["goal_current"], X_SERIES["goal_position"]  # the goal sync writes
 _NO_FAST_READ = (COMM_TX_FAIL, None)  # what the reader's fast_read returns when the port failed
 _STALL_FRACTION = 0.5  # a pause longer than this share of the watchdog time makes the bus check it
@@ -106,10 +103,9 @@ class DynamixelBus(ServoRegisters):
         self._present_all = struct.Struct("<" + _PRESENT.format.lstrip("<") * len(self.ids))  # every servo's
         self._n_servos = len(self.ids)
         self._limits_seen: list | None = None  # current_limits as write_goal_current last saw them
-        self._current_plan: list[tuple] = []  # ... per current-mode joint (see write_goal_current)
-        self._kernels: tuple | None = None  # crane_io.dynamixel.cycle_kernel.compiled(), when the bus opens
-        self._current_kernel = None  # its goal_current_packet when the current-mode joints suit it ...
-        self._current_args: tuple = ()  # ... and its arguments after the amps, from the plan
+        # the control cycle's packets (crane_io.dynamixel.codec): plain, compiled from torque_on on
+        self._codec: PlainCodec = PlainCodec(self._ph, self._n_servos)
+        self._compiled_tried = False
         self._reader: StatusSyncRead | None = None
         self._current_writer: GroupSyncWrite | None = None
         self._position_writer: GroupSyncWrite | None = None
@@ -129,6 +125,7 @@ class DynamixelBus(ServoRegisters):
         self._reader = StatusSyncRead(port, ph, PRESENT_BLOCK_ADDRESS, PRESENT_BLOCK_SIZE)
         for sid in self.ids:
             self._reader.addParam(sid)
+        self._reader.use_codec(self._codec)
         cur, pos = _GOAL_CURRENT, _GOAL_POSITION
         self._current_writer = GroupSyncWrite(port, ph, cur.address, cur.size)
         for i in self.current_joints:
@@ -138,19 +135,23 @@ class DynamixelBus(ServoRegisters):
             self._position_writer.addParam(self.ids[i], [0] * pos.size)
         return self
 
-    def _use_kernels(self) -> None:
-        """The control cycle's compiled calls (crane_io.dynamixel.cycle_kernel), compiled or loaded from
-        numba's cache now, between transfers (never while a reply is awaited); without numba the bus keeps
-        its Python paths. Done by torque_on: a bus that never drives the arm (check, ping) needs no numba."""
-        if self._kernels is not None or self._reader is None:
+    def _use_compiled_codec(self) -> None:
+        """The compiled codec (crane_io.dynamixel.codec), compiled or loaded from numba's cache now, between
+        transfers (never while a reply is awaited); without numba the bus keeps the plain one. Done by
+        torque_on: a bus that never drives the arm (check, ping) needs no numba."""
+        if self._compiled_tried or self._reader is None:
             return
-        kernels = cycle_kernel.compiled()
-        self._kernels = kernels
-        self._limits_seen = None  # the next goal current write plans for the kernel
-        if kernels is not None:
-            self._reader.use_kernel(kernels[1], float(units.POSITION_CENTER), units.RAD_PER_PULSE,
-                                    units.RADS_PER_VELOCITY_LSB, units.AMPERE_PER_CURRENT_LSB,
-                                    cycle_kernel.TABLE)
+        self._compiled_tried = True
+        codec = compiled_codec(self._ph, self._n_servos)
+        if codec is not None:
+            self.use_codec(codec)
+
+    def use_codec(self, codec: PlainCodec) -> None:
+        """Build the control cycle's packets with `codec` from now on (crane_io.dynamixel.codec)."""
+        self._codec = codec
+        self._limits_seen = None  # the next goal current write plans for it
+        if self._reader is not None:
+            self._reader.use_codec(codec)
 
     def close(self) -> None:
         """Goal current 0 and torque off on every servo that answers, then close the port.
@@ -196,7 +197,7 @@ class DynamixelBus(ServoRegisters):
     def torque_on(self) -> None:
         """Hold the held joints where they are (goal position = present), zero the goal current of the
         current-mode joints, then enable torque on every servo."""
-        self._use_kernels()  # before the first write: the servos' torque is still off
+        self._use_compiled_codec()  # before the first write: the servos' torque is still off
         super().torque_on()
 
     def safe_stop(self) -> dict[str, str]:
@@ -269,16 +270,9 @@ class DynamixelBus(ServoRegisters):
         if fast:
             out = np.empty((3, self._n_servos))  # filled by the compiled path (a new one per read)
             result, reply = self._link.transfer(reader.fast_read, out, failed=_NO_FAST_READ)
-            if reply is not None:  # the expected reply, no status error
+            if reply is not None:  # the expected reply, no status error, converted into `out`
                 if reader._fast_ids == self.ids:  # the usual case: the servos in joint order
-                    if self.stats.fast is None:
-                        self.stats.fast = True
-                    if reader.decoded:
-                        stats, port = self.stats, self._port
-                        stats.reads += 1
-                        stats.bytes_written, stats.bytes_read = port.bytes_written, port.bytes_read
-                        return BusState(out[0], out[1], out[2], t, True)
-                    return self._state_from_reply(reply, t)
+                    return self._fast_state(out, t)
                 result = reader._take_fast_reply(reply)  # else the general path, from data_dict
         else:
             result = self._link.transfer(reader.txRxPacket)
@@ -308,21 +302,20 @@ class DynamixelBus(ServoRegisters):
                 "worked; using plain sync read from now on (update the servo firmware to speed up the loop)")
             log.warning("%s: %s", self.name, self.stats.fallback_note)
 
-    def _state_from_reply(self, reply: bytes, t: float) -> BusState:
-        """`_state_from` for a whole fast reply of the servos in joint order without status errors."""
-        rec = np.frombuffer(reply, dtype=_FAST_RECORD, count=self._n_servos, offset=FIRST_PARAM)
-        self.stats.reads += 1
-        port = self._port
-        self.stats.bytes_written, self.stats.bytes_read = port.bytes_written, port.bytes_read
-        # the arithmetic of units.position_to_rad etc. (integers converted to float, then scaled)
-        return BusState((rec["position"] - float(units.POSITION_CENTER)) * units.RAD_PER_PULSE,
-                        rec["velocity"] * units.RADS_PER_VELOCITY_LSB,
-                        rec["current"] * units.AMPERE_PER_CURRENT_LSB, t, True)
+    def _fast_state(self, out: np.ndarray, t: float) -> BusState:
+        """The state of a whole fast reply of the servos in joint order without status errors, which the
+        codec converted into `out` (positions, velocities, currents)."""
+        stats, port = self.stats, self._port
+        if stats.fast is None:
+            stats.fast = True
+        stats.reads += 1
+        stats.bytes_written, stats.bytes_read = port.bytes_written, port.bytes_read
+        return BusState(out[0], out[1], out[2], t, True)
 
     def _state_from(self, reader: StatusSyncRead, t: float, fast: bool, check_faults: bool) -> BusState:
         packet = reader.packet
         if packet is not None and reader._fast_ids == self.ids:  # the fast reply, servos in joint order
-            rec = np.frombuffer(packet, dtype=_FAST_RECORD, count=len(self.ids), offset=FIRST_PARAM)
+            rec = np.frombuffer(packet, dtype=FAST_RECORD, count=len(self.ids), offset=FIRST_PARAM)
             cur, vel, pos = rec["current"].astype(float), rec["velocity"].astype(float), \
                 rec["position"].astype(float)
         else:
@@ -352,58 +345,25 @@ class DynamixelBus(ServoRegisters):
         limits = self.current_limits.tolist()
         if limits != self._limits_seen:  # configure() read them back, or a caller changed them
             self._plan_currents(limits)
-        kernel = self._current_kernel
-        if kernel is not None:
-            arr = np.ascontiguousarray(amps, dtype=float)
-            if arr.shape == (self._n_servos,):
-                sent = np.zeros(self._n_servos)
-                size = kernel(arr, *self._current_args, sent, cycle_kernel.TABLE)
-                if size > 0:  # the packet, as the Python path below builds it
-                    packet = self._current_args[-1].tobytes()
-                    self._send(self._ph.send_broadcast, "goal current", self._port, packet)
-                    return sent
-            # a wrong shape or a value that is not finite (raised below), a packet to stuff (sent below)
-        _arr, values = self._command_values(amps, "goal current", self.current_joints)
-        lsb = units.AMPERE_PER_CURRENT_LSB
-        sent = [0.0] * len(self.ids)
-        params = []
-        for i, sid, lim, lim_raw in self._current_plan:
-            # scalar form of units.ampere_to_current(np.clip(...)): same rounding (half to even)
-            raw = round(min(max(values[i], -lim), lim) / lsb)
-            raw = max(-lim_raw, min(lim_raw, raw))
-            sent[i] = raw * lsb
-            params += (sid, raw & 0xFF, (raw >> 8) & 0xFF)
-        # the Sync Write packet as GroupSyncWrite + CranePacketHandler make it, built here directly (a kept
-        # header, the parameters, the CRC); a packet that needs byte stuffing goes the SDK's way
-        cur = _GOAL_CURRENT
-        packet = self._ph.sync_write_packet(cur.address, cur.size, params) if params else None
-        if packet is None:
+        done = self._codec.goal_current(amps)
+        if done is None:  # a wrong shape or a value that is not finite: nothing was sent
+            raise self._refusal(amps, "goal current", self.current_joints)
+        packet, params, sent = done
+        if packet is None:  # it needs byte stuffing: the SDK's way
             for k in range(0, len(params), 3):
-                self._current_writer.changeParam(params[k], params[k + 1:k + 3])
+                self._current_writer.changeParam(params[k], list(params[k + 1:k + 3]))
             self._send(self._current_writer.txPacket, "goal current")
         else:
             self._send(self._ph.send_broadcast, "goal current", self._port, packet)
-        return np.array(sent)
+        return sent
 
     def _plan_currents(self, limits: list) -> None:
-        """write_goal_current's per-joint plan for the Current Limits `limits` (A), and its kernel's
-        arguments: the current-mode joints, their IDs, limits in A and in whole Goal Current steps, and the
-        packet with its header in place (crane_io.dynamixel.cycle_kernel)."""
+        """write_goal_current's plan for the Current Limits `limits` (A), given to the codec: per
+        current-mode joint its index, servo ID, limit in A and in whole Goal Current steps."""
         lsb = units.AMPERE_PER_CURRENT_LSB
         self._limits_seen = limits
-        # per current-mode joint: index, servo ID, limit in A and in Goal Current steps
-        self._current_plan = plan = [(i, self.ids[i], limits[i], math.floor(limits[i] / lsb + 1e-9))
-                                     for i in self.current_joints]
-        self._current_kernel = None
-        if self._kernels is None or not plan or any(sid > 0xFF for _i, sid, _l, _r in plan):
-            return
-        head = self._ph.sync_write_header(_GOAL_CURRENT.address, _GOAL_CURRENT.size, 3 * len(plan))
-        buf = np.zeros(len(head) + 3 * len(plan) + 2, dtype=np.uint8)
-        buf[:len(head)] = np.frombuffer(head, dtype=np.uint8)
-        column = [np.array(c) for c in zip(*plan)]
-        self._current_args = (column[0].astype(np.int64), column[1].astype(np.int64),
-                              column[2].astype(float), column[3].astype(np.int64), lsb, buf)
-        self._current_kernel = self._kernels[0]
+        self._codec.plan_currents([(i, self.ids[i], limits[i], math.floor(limits[i] / lsb + 1e-9))
+                                   for i in self.current_joints])
 
     def write_goal_position(self, rad) -> np.ndarray:
         """Send the goal position of every position-mode (held) joint in ONE sync write, clamped to the
@@ -438,15 +398,23 @@ class DynamixelBus(ServoRegisters):
         of a used joint that is not finite."""
         arr = np.asarray(values, dtype=float)
         if arr.shape != (len(self.ids),):
-            raise CommandError(f"{what} needs {len(self.ids)} values in joint order "
-                               f"({', '.join(self.joint_names)}), got shape {arr.shape}")
+            raise self._refusal(arr, what, used)
         values = arr.tolist()
         isfinite = math.isfinite
         for i in used:
             if not isfinite(values[i]):
-                bad = [self.joint_names[i] for i in used if not isfinite(values[i])]
-                raise CommandError(f"{what} for {', '.join(bad)} is not a finite number; nothing was sent")
+                raise self._refusal(arr, what, used)
         return arr, values
+
+    def _refusal(self, values, what: str, used) -> CommandError:
+        """Why the command `values` cannot be sent: a wrong shape, or the used joints whose value is not
+        finite."""
+        arr = np.asarray(values, dtype=float)
+        if arr.shape != (len(self.ids),):
+            return CommandError(f"{what} needs {len(self.ids)} values in joint order "
+                                f"({', '.join(self.joint_names)}), got shape {arr.shape}")
+        bad = [self.joint_names[i] for i in used if not math.isfinite(arr[i])]
+        return CommandError(f"{what} for {', '.join(bad)} is not a finite number; nothing was sent")
 
     def _send(self, fn, what: str, *args) -> None:
         """Send a sync write: `fn(*args)` (a GroupSyncWrite's txPacket, or the packet handler's

@@ -35,16 +35,11 @@ class StatusSyncRead(GroupSyncRead):
         self._fast_total = 0
         self._fast_ids: tuple = ()
         self._fast_id_bytes: bytes | None = None
-        self._no_errors = b""  # the error bytes of a reply without errors
         self._zero_errors: dict[int, int] = {}  # ... and its `errors`
         self._request: bytes | None = None  # fast_read's kept Fast Sync Read packet, for `param`
         self._request_param: list | None = None
-        # fast_read(out): the compiled check and conversion of the Present block's reply (`use_kernel`)
-        self._kernel = None
-        self._kernel_args: tuple = ()
-        self._head_array: np.ndarray | None = None  # _fast_head and _fast_id_bytes as arrays, for it
-        self._id_array: np.ndarray | None = None
-        self.decoded = False  # the latest fast_read(out) filled `out`
+        self._codec = None  # fast_read's check and conversion of the Present block's reply (`use_codec`)
+        self.decoded = False  # the latest fast_read filled its `out`
 
     def rxPacket(self):  # noqa: N802 (SDK name)
         self.last_result = False
@@ -78,25 +73,27 @@ class StatusSyncRead(GroupSyncRead):
             self._fast_total = total
             self._fast_ids = tuple(self.data_dict)
             self._fast_id_bytes = bytes(self._fast_ids) if all(i < 256 for i in self._fast_ids) else None
-            self._no_errors = bytes(count)
             self._zero_errors = dict.fromkeys(self._fast_ids, 0)
-            self._head_array = np.frombuffer(self._fast_head, dtype=np.uint8)
-            ok = self._fast_id_bytes is not None and self.data_length == PRESENT_BLOCK_SIZE
-            self._id_array = np.frombuffer(self._fast_id_bytes, dtype=np.uint8) if ok else None
+            self._tell_codec()
 
-    def use_kernel(self, kernel, *args) -> None:
-        """Let fast_read(out) check the reply and convert it into `out` in one compiled call,
-        `kernel(reply, head, ids, out, *args)` (cycle_kernel.present_reply_state: the Present block only)."""
-        self._kernel = kernel
-        self._kernel_args = args
+    def use_codec(self, codec) -> None:
+        """Let fast_read check the expected reply and convert it with `codec` (crane_io.dynamixel.codec: the
+        Present block only)."""
+        self._codec = codec
+        self._tell_codec()
+
+    def _tell_codec(self) -> None:
+        if self._codec is not None and self._fast_head is not None:
+            ok = self._fast_id_bytes is not None and self.data_length == PRESENT_BLOCK_SIZE
+            self._codec.expect(self._fast_head, self._fast_id_bytes if ok else None)
 
     def fast_read(self, out: np.ndarray | None = None) -> tuple[int, bytes | None]:
         """fastSyncRead for the control cycle, the same bytes on the wire: (result, reply). `reply` is the
-        whole fast reply when it is the expected one with every status error byte 0 (the usual case);
-        then only `packet` and `errors` are updated (not data_dict: the reply holds the data). Otherwise
-        `reply` is None and the reader is left exactly as fastSyncRead leaves it. With `out` ((3, n)
-        floats) and a kernel (`use_kernel`), an accepted reply is also converted into `out` (positions,
-        velocities, currents in the servos' request order) and `decoded` is set."""
+        whole fast reply when the codec (`use_codec`) accepts it: the expected one with every status error
+        byte 0 (the usual case); then it is converted into `out` ((3, n) floats, a new array when None:
+        positions, velocities, currents in the servos' request order), `decoded` is set and only `packet`
+        and `errors` are updated (not data_dict: the reply holds the data). Otherwise `reply` is None and
+        the reader is left exactly as fastSyncRead leaves it."""
         self.decoded = False
         request = self._request
         if request is None or self.is_param_changed or self.param is not self._request_param:
@@ -115,28 +112,16 @@ class StatusSyncRead(GroupSyncRead):
         self.last_result = False
         self.errors = {}
         self.packet = None
-        total = self._fast_total
-        data = port.readPort(total)
-        kernel, ids = self._kernel, self._id_array
-        if out is not None and kernel is not None and ids is not None and type(data) is bytes:
-            # the same checks as below, and the conversion, compiled
-            if kernel(data, self._head_array, ids, out, *self._kernel_args):
-                port.is_using = False
-                self.packet = data
-                self.errors = self._zero_errors
-                self.last_result = True
-                self.decoded = True
-                return COMM_SUCCESS, data
-            return self._take_fast_reply(data), None
-        chunk = self.data_length + 4
-        if (len(data) == total and data.startswith(self._fast_head) and STUFFED not in data
-                and data[8::chunk] == self._no_errors
-                and crc16(data[:-2]) == (data[-2] | (data[-1] << 8))
-                and data[9::chunk] == self._fast_id_bytes):
+        data = port.readPort(self._fast_total)
+        codec = self._codec
+        if out is None:
+            out = np.empty((3, len(self._fast_ids)))
+        if codec is not None and codec.present_state(data, out):
             port.is_using = False
             self.packet = data
             self.errors = self._zero_errors  # shared: `errors` is always replaced, never changed in place
             self.last_result = True
+            self.decoded = True
             return COMM_SUCCESS, data
         return self._take_fast_reply(data), None
 
