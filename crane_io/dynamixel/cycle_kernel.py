@@ -75,10 +75,9 @@ def _u(data, i, size):
     return v
 
 
-def present_reply_state(data, head, ids, out, center, rad_per_pulse, rads_per_lsb, amps_per_lsb, table):
-    """True when `data` is the whole expected Fast Sync Read reply of the Present block (`head`: its first
-    8 bytes; `ids`: the servos in request order) with no status error; then out[0], out[1], out[2] hold
-    every servo's position (rad), velocity (rad/s) and current (A). False (and `out` unusable) else."""
+def _expected_reply(data, head, ids, table):
+    """`data` is the whole Fast Sync Read reply of the Present block starting with `head`, the servos `ids`
+    in request order, no stuffed FF FF FD FD, every status error byte 0 and the CRC right."""
     count = ids.shape[0]
     chunk = 14  # ERR ID, Present Current (2), Velocity (4), Position (4), CRC (2)
     n = 8 + chunk * count
@@ -95,10 +94,17 @@ def present_reply_state(data, head, ids, out, center, rad_per_pulse, rads_per_ls
         if data[s] != 0 or data[s + 1] != ids[k]:
             return False
     crc = crc_update(data, 0, n - 2, np.int64(0), table)
-    if crc != (np.int64(data[n - 2]) | (np.int64(data[n - 1]) << 8)):
+    return crc == (np.int64(data[n - 2]) | (np.int64(data[n - 1]) << 8))
+
+
+def present_reply_state(data, head, ids, out, center, rad_per_pulse, rads_per_lsb, amps_per_lsb, table):
+    """True when `data` is the whole expected Fast Sync Read reply of the Present block (`head`: its first
+    8 bytes; `ids`: the servos in request order) with no status error; then out[0], out[1], out[2] hold
+    every servo's position (rad), velocity (rad/s) and current (A). False (and `out` unusable) else."""
+    if not _expected_reply(data, head, ids, table):
         return False
-    for k in range(count):
-        s = 10 + k * chunk
+    for k in range(ids.shape[0]):
+        s = 10 + k * 14  # ERR ID, then the Present block (its CRC after it)
         cur = _u(data, s, 2)
         if cur >= 0x8000:
             cur -= 0x10000
@@ -132,8 +138,8 @@ def compiled():
         try:
             from crane_io.jit import compile_functions
 
-            fns = compile_functions(globals(), ("crc_step", "crc_update", "_u", "goal_current_packet",
-                                                "present_reply_state"),
+            fns = compile_functions(globals(), ("crc_step", "crc_update", "_u", "_expected_reply",
+                                                "goal_current_packet", "present_reply_state"),
                                     SIGNATURES, qualname_prefix="cycle_kernel.")
         except Exception:  # noqa: BLE001 - a broken numba install: the Python path, as without numba
             fns = None

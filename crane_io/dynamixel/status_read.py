@@ -192,10 +192,7 @@ def rx_packet(ph, port, prefix=b""):
             rxpacket.extend(port.readPort(wait_length - rx_length))
             rx_length = len(rxpacket)
         if rx_length >= wait_length:
-            for idx in range(0, (rx_length - 3)):  # find the packet header
-                if (rxpacket[idx] == 0xFF and rxpacket[idx + 1] == 0xFF and rxpacket[idx + 2] == 0xFD
-                        and rxpacket[idx + 3] != 0xFD):
-                    break
+            idx = _header_at(rxpacket, rx_length)
             if idx == 0:
                 length = rxpacket[_PKT_LEN_L] | (rxpacket[_PKT_LEN_L + 1] << 8)
                 if (rxpacket[_PKT_RESERVED] != 0x00 or rxpacket[_PKT_ID] > packet_id
@@ -222,4 +219,14 @@ def rx_packet(ph, port, prefix=b""):
             break
     port.is_using = False
     return rxpacket, result
+
+
+def _header_at(rxpacket: list, rx_length: int) -> int:
+    """Where rxPacket's search finds the packet header (FF FF FD not followed by FD) among the first
+    `rx_length` (at least 4) bytes: its index, or the last index searched when there is none."""
+    for idx in range(0, rx_length - 3):
+        if (rxpacket[idx] == 0xFF and rxpacket[idx + 1] == 0xFF and rxpacket[idx + 2] == 0xFD
+                and rxpacket[idx + 3] != 0xFD):
+            return idx
+    return rx_length - 4
 
