@@ -1,22 +1,23 @@
-"""The bus's two control-cycle transfers in one compiled call each (numba): the Goal Current Sync Write
-packet built from the amps, and the Fast Sync Read reply of the Present block checked and converted.
+"""The compiled bus codec (crane_io.dynamixel.codec.CompiledCodec): the bus's two control-cycle transfers in
+one compiled call each (numba), the Goal Current Sync Write packet built from the amps, and the Fast Sync
+Read reply of the Present block checked and converted. It imports numpy and the CRC's layout only.
 
-`goal_current_packet` does what `DynamixelBus.write_goal_current`'s Python loop does, the same float
+`goal_current_packet` does what `PlainCodec.goal_current`'s Python loop does, the same float
 operations in the same order (no fastmath): per current-mode joint the clamp to its Current Limit, the
 rounding half to even, the clamp to the limit's whole steps, the commanded amps, then the parameters (ID,
 Goal Current low, high byte) written into a kept packet whose header is already there, the check for
 byte stuffing and the CRC-16 (crc_layout's byte table and loop). The bytes are those of
 `CranePacketHandler.sync_write_packet`; a packet that would need stuffing, or a command that is not
-finite, is left to the Python path (which raises or stuffs).
+finite, is left to the caller (which refuses or stuffs).
 
-`present_reply_state` accepts exactly the Fast Sync Read replies `_StatusSyncRead.fast_read` accepts
-on its fast path (the expected length and header, no stuffed FF FF FD FD, every status error byte 0, the
-CRC right, the servos in request order) and converts the Present Current, Velocity and Position of each
-servo as `DynamixelBus._state_from_reply` does (integers to float, then scaled).
+`present_reply_state` accepts exactly the Fast Sync Read replies `PlainCodec.present_state` accepts (the
+expected length and header, no stuffed FF FF FD FD, every status error byte 0, the CRC right, the servos
+in request order) and converts the Present Current, Velocity and Position of each servo as it does
+(integers to float, then scaled).
 
 Compiled when a bus switches torque on (as crane_io.jit.compile_functions does: explicit signatures,
-numba's cache), never lazily at a first packet; without numba `compiled()` is None and the bus keeps its
-Python path.
+numba's cache), never lazily at a first packet; without numba `compiled()` is None and the bus keeps the
+plain codec.
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ every packet) with some of its steps made cheaper, the bytes on the wire unchang
   for a caller that has the parameters at hand (the bus's goal writes, without GroupSyncWrite); a sync
   write's CRC comes from per-position tables made once for its header and length (crc.FixedPrefixCrc);
 - `sync_read_packet` + `send_packet`: the kept (Fast) Sync Read packet and its sending, for the bus's
-  control-cycle read (`_StatusSyncRead.fast_read`).
+  control-cycle read (`status_read.StatusSyncRead.fast_read`).
 Packets that do need (un)stuffing go through the SDK's own code.
 """
 
