@@ -12,9 +12,8 @@ from fakes import FlipCrcByte, OverloadBit
 
 from crane_io.dynamixel import bus as bus_mod
 from crane_io.dynamixel.bus import _StatusSyncRead
-from crane_io.dynamixel.crc import crc16
 from crane_io.dynamixel.faults import CommunicationError, ServoFaultError
-from crane_io.dynamixel.packets import CranePacketHandler
+from crane_io.dynamixel.packets import CranePacketHandler, crc16
 from crane_io.sim import simulated_arm
 from crane_io.sim.protocol import fast_status_packet
 from tests.sim_bus import capture_writes, open_bus

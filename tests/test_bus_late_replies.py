@@ -79,3 +79,20 @@ def test_check_prints_which_servo_is_late_and_exits_1(sim, tmp_path, monkeypatch
     assert "REPLIES TOO LATE" in lines[5] and lines[5].strip().startswith("ID  7")
     others = lines[:5] + lines[6:]
     assert all("REPLIES TOO LATE" not in ln and "NOT ANSWERING" not in ln for ln in others)
+
+
+def test_the_report_reads_through_the_buss_public_api_only():
+    """servo_report.py touches no private member of the bus it is given, and every member it touches is
+    the bus's (read from the source, so a new private access fails here)."""
+    import ast
+    from pathlib import Path
+
+    from crane_io.dynamixel import servo_report
+
+    tree = ast.parse(Path(servo_report.__file__).read_text())
+    used = {node.attr for node in ast.walk(tree) if isinstance(node, ast.Attribute)
+            and isinstance(node.value, ast.Name) and node.value.id == "bus"}
+    assert {"read_block", "late_reply_s", "reply_timeout_s", "require_open"} <= used
+    assert [name for name in used if name.startswith("_")] == []
+    bus = DynamixelBus("dxlsim://nothing-opened")
+    assert all(hasattr(bus, name) for name in used)

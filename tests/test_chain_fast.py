@@ -361,8 +361,6 @@ def test_commands_compiled_equals_python_and_command():
 
 
 def test_fast_status_compiled_equals_python_and_the_protocols_packet():
-    from crane_io.dynamixel.crc import crc16
-
     fn = _fns()["fast_status"]
     rng = np.random.default_rng(7)
     for trial in range(200):
@@ -383,7 +381,7 @@ def test_fast_status_compiled_equals_python_and_the_protocols_packet():
                   for r, i in zip(rows, ids)]
         expected = p.fast_status_packet(blocks)
         assert packet.tobytes() == expected
-        assert crc == crc16(expected[:-2]) == expected[-2] | expected[-1] << 8
+        assert crc == p.crc16(expected[:-2]) == expected[-2] | expected[-1] << 8
 
 
 def test_reading_compiled_equals_python_and_read_lists():

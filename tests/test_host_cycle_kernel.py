@@ -1,7 +1,7 @@
-"""The bus's compiled control-cycle calls (crane_io/dynamixel/cycle_kernel.py) against its Python paths: the
-Goal Current Sync Write (the same packet bytes and commanded amps, bit for bit, rounding ties and clamps
-included) and the Fast Sync Read reply of the Present block (the same verdict on every kind of bad reply,
-the same floats)."""
+"""The bus codec's two implementations (crane_io/dynamixel/codec.py: CompiledCodec, whose calls are
+cycle_kernel's, against PlainCodec, the reference): the Goal Current Sync Write (the same packet bytes and
+commanded amps, bit for bit, rounding ties and clamps included) and the Fast Sync Read reply of the Present
+block (the same verdict on every kind of bad reply, the same floats)."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from fakes import FlipCrcByte
 
-from crane_io.dynamixel import bus as bus_mod
 from crane_io.dynamixel import cycle_kernel, units
 from crane_io.dynamixel.bus import CommandError
+from crane_io.dynamixel.codec import CompiledCodec, PlainCodec
 from crane_io.dynamixel.packets import CranePacketHandler
 from crane_io.sim import simulated_arm
 from crane_io.sim.protocol import fast_status_packet
@@ -29,10 +29,9 @@ def sim():
     arm.close()
 
 
-def _python_path(bus) -> None:
-    """Make `bus` write its goal currents the Python way from now on."""
-    bus._kernels = None
-    bus._limits_seen = None
+def _plain_codec(bus) -> None:
+    """Make `bus` read and write with the plain codec from now on."""
+    bus.use_codec(PlainCodec(bus._ph, len(bus.ids)))
 
 
 def _amps(rng, bus) -> np.ndarray:
@@ -56,12 +55,12 @@ def test_the_compiled_goal_current_write_sends_what_the_python_path_sends(sim, s
     for compiled in (True, False):
         with open_bus(sim) as bus:
             if not compiled:
-                _python_path(bus)
+                _plain_codec(bus)
             if commands is None:
                 commands = [_amps(rng, bus) for _ in range(200)]
             sent = capture_writes(bus)
             returned = [bus.write_goal_current(a) for a in commands]
-            assert (bus._current_kernel is not None) == compiled
+            assert isinstance(bus._codec, CompiledCodec) == compiled
             results.append((list(sent), returned))  # (not the stop's write when the bus closes)
     (sent_k, ret_k), (sent_p, ret_p) = results
     sent_k, sent_p = ([p for p in sent if p[7] == 0x83] for sent in (sent_k, sent_p))  # the Sync Writes
@@ -117,24 +116,17 @@ def _present(current: int, velocity: int, position: int) -> bytes:
         + (position & 0xFFFFFFFF).to_bytes(4, "little")
 
 
-def _python_accepts(reader, data: bytes) -> bool:
-    """The fast path's condition of _StatusSyncRead.fast_read, as written there."""
-    chunk = reader.data_length + 4
-    return (len(data) == reader._fast_total and data.startswith(reader._fast_head)
-            and bus_mod._STUFFED not in data and data[8::chunk] == reader._no_errors
-            and bus_mod.crc16(data[:-2]) == (data[-2] | (data[-1] << 8))
-            and data[9::chunk] == reader._fast_id_bytes)
-
-
 @needs_numba
 @pytest.mark.parametrize("seed", [0, 1])
-def test_the_compiled_reply_check_and_conversion_equal_the_python_ones(sim, seed):
+def test_the_compiled_reply_check_and_conversion_equal_the_plain_ones(sim, seed):
     rng = np.random.default_rng(seed)
     with open_bus(sim) as bus:
         bus.read_state()
-        reader = bus._reader
-        kernel, args = reader._kernel, reader._kernel_args
-        assert kernel is not None
+        compiled = bus._codec
+        assert isinstance(compiled, CompiledCodec)
+        plain = PlainCodec(bus._ph, len(bus.ids))
+        bus._reader.use_codec(plain)  # the reader's expected reply, told to the plain codec too
+        verdicts = set()
         for k in range(60):
             raws = [(int(rng.integers(-32768, 32768)), int(rng.integers(-2 ** 31, 2 ** 31)),
                      int(rng.integers(-2 ** 31, 2 ** 31))) for _ in bus.ids]
@@ -152,13 +144,13 @@ def test_the_compiled_reply_check_and_conversion_equal_the_python_ones(sim, seed
             if k % 6 == 5:
                 data = data[:-1]
             data = bytes(data)
-            out = np.full((3, 8), np.nan)
-            accepted = kernel(data, reader._head_array, reader._id_array, out, *args)
-            assert accepted == _python_accepts(reader, data), k
+            out, out_plain = np.full((3, 8), np.nan), np.full((3, 8), np.nan)
+            accepted = compiled.present_state(data, out)
+            assert accepted == plain.present_state(data, out_plain), k
+            verdicts.add(accepted)
             if accepted:
-                state = bus._state_from_reply(data, 0.0)
-                for row, field in enumerate(("position", "velocity", "current")):
-                    assert out[row].tobytes() == getattr(state, field).tobytes()
+                assert out.tobytes() == out_plain.tobytes()
+        assert verdicts == {True, False}
 
 
 def test_a_bus_without_numba_reads_and_writes_the_same(sim, monkeypatch):
@@ -167,7 +159,7 @@ def test_a_bus_without_numba_reads_and_writes_the_same(sim, monkeypatch):
         if not compiled:
             monkeypatch.setattr(cycle_kernel, "compiled", lambda: None)
         with open_bus(sim) as bus:
-            assert (bus._kernels is not None) == (compiled and KERNELS is not None)
+            assert isinstance(bus._codec, CompiledCodec) == (compiled and KERNELS is not None)
             sent = capture_writes(bus)
             states = []
             for k in range(5):

@@ -1,6 +1,6 @@
-"""The host's control-cycle shortcuts (issue 13) give what the general paths give: the bus's fast read of
-the Present block (the reply parsed straight from its bytes) against the reader's general path, and the
-recorder's row writer (whole blocks of members copied in one step) against `append` of a dict."""
+"""The host's control-cycle shortcuts give what the general paths give: the bus's fast read of the Present
+block (the reply converted by the plain codec straight from its bytes) against the reader's general path,
+and the recorder's row writer (whole blocks of members copied in one step) against `append` of a dict."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from fakes import FlipCrcByte, OverloadBit
 
 from collect.recorder import SessionRecorder
 from crane_io import session_format as sf
+from crane_io.dynamixel.codec import PlainCodec
 from crane_io.dynamixel.faults import CommunicationError, ServoFaultError
 from crane_io.sim import simulated_arm
 from crane_io.sim.protocol import fast_status_packet
@@ -52,7 +53,12 @@ def test_the_state_of_a_fast_reply_equals_the_general_paths(sim, seed):
                  int(rng.integers(-2 ** 31, 2 ** 31))) for _ in bus.ids]
             reply = fast_status_packet([(0, sid, _present(*r)) for sid, r in zip(bus.ids, raws)])
             assert len(reply) == 8 + 14 * 8  # not byte-stuffed
-            fast = bus._state_from_reply(reply, 1.5)
+            out = np.empty((3, 8))
+            assert PlainCodec(bus._ph, 8).present_state(reply, out) is False  # told no expected reply
+            codec = PlainCodec(bus._ph, 8)
+            bus._reader.use_codec(codec)
+            assert codec.present_state(reply, out)
+            fast = bus._fast_state(out, 1.5)
             reader = bus._reader
             reader.packet = None  # the general path: the data_dict blocks, unpacked with struct
             for sid, r in zip(bus.ids, raws):
@@ -246,20 +252,26 @@ def test_fletcher32_folds_like_hdf5():
 # ---- the goal writes' CRC from tables --------------------------------------------------------------------
 @pytest.mark.parametrize("n", [0, 1, 3, 9, 21, 64])
 def test_a_crc_from_tables_equals_the_crc_of_the_whole_packet(n):
-    from crane_io.dynamixel.crc import FixedPrefixCrc, _crc16
+    from crane_io.dynamixel.packets import crc16
 
     rng = np.random.default_rng(n)
     head = bytes((0xFF, 0xFF, 0xFD, 0x00, 0xFE, (n + 7) & 0xFF, 0, 0x83, 102, 0, 2, 0))
-    tabled = FixedPrefixCrc(head, n)
+    tabled = crc16.fixed_prefix(head, n)
     for _ in range(300):
         params = bytes(rng.integers(0, 256, n, dtype=np.uint8))
-        assert tabled(params) == _crc16(head + params, 0)
-    assert tabled(bytes(n)) == _crc16(head + bytes(n), 0)
-    assert tabled(b"\xff" * n) == _crc16(head + b"\xff" * n, 0)
+        assert tabled(params) == crc16(head + params) == _sdk_crc(head + params)
+    assert tabled(bytes(n)) == _sdk_crc(head + bytes(n))
+    assert tabled(b"\xff" * n) == _sdk_crc(head + b"\xff" * n)
 
 
-def test_a_sync_write_packet_carries_the_crc_of_its_bytes_and_files_it_for_the_receiver():
-    from crane_io.dynamixel import crc as crc_mod
+def _sdk_crc(data: bytes) -> int:
+    """dynamixel-sdk's own byte-wise CRC."""
+    from dynamixel_sdk.protocol2_packet_handler import Protocol2PacketHandler
+
+    return Protocol2PacketHandler().updateCRC(0, list(data), len(data))
+
+
+def test_a_sync_write_packet_carries_the_crc_of_its_bytes():
     from crane_io.dynamixel.packets import CranePacketHandler
 
     ph = CranePacketHandler()
@@ -270,8 +282,7 @@ def test_a_sync_write_packet_carries_the_crc_of_its_bytes_and_files_it_for_the_r
         if packet is None:  # needs byte stuffing: the SDK's way
             continue
         body = packet[:-2]
-        assert crc_mod._crc16(body, 0) == packet[-2] | (packet[-1] << 8)
-        assert crc_mod._MEMO.get(body) == packet[-2] | (packet[-1] << 8)
+        assert _sdk_crc(body) == packet[-2] | (packet[-1] << 8)
 
 
 def test_the_goal_position_packet_and_values_are_the_group_sync_writes(sim):

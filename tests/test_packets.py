@@ -7,8 +7,11 @@ from dynamixel_sdk.protocol2_packet_handler import Protocol2PacketHandler
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from crane_io.dynamixel.crc import CRC_TABLE, crc16, crc16_append, crc16_chain
+from crane_io.dynamixel.crc import Crc16
 from crane_io.dynamixel.packets import CranePacketHandler
+
+crc16 = Crc16()
+CRC_TABLE, crc16_append, crc16_chain = crc16.table, crc16.append, crc16.chain
 
 # bytes drawn mostly from FF / FD / 00 so that FF FF FD (and FF FF FD FD) occur often
 _BYTE = st.one_of(st.sampled_from([0xFF, 0xFD, 0x00, 0x55]), st.integers(0, 255))

@@ -179,37 +179,45 @@ def load_calibration(path: str | os.PathLike) -> Calibration:
     table = data.get("joints")
     if table is not None and not isinstance(table, dict):
         raise CalibrationError(f"the calibration {path}: [joints] must be a table of [joints.NAME] tables")
-    joints = {}
     known = default_arm().joint_names
-    for name, entry in (table or {}).items():
-        if name not in known:
-            raise CalibrationError(f"the calibration {path} names unknown joint {name!r} "
-                                   f"(joints: {', '.join(known)})")
-        if not isinstance(entry, dict) or "offset_rad" not in entry:
-            raise CalibrationError(f"the calibration {path}: joint {name} needs a number offset_rad "
-                                   "(and numbers for min_rad/max_rad if given)")
-        unknown = sorted(set(entry) - {"offset_rad", "min_rad", "max_rad"})
-        if unknown:
-            raise CalibrationError(f"the calibration {path}: unknown key {unknown[0]!r} in joint {name} "
-                                   "(known: offset_rad, min_rad, max_rad)")
-        offset = _number(entry["offset_rad"], f"joint {name}'s offset_rad", path)
-        if abs(offset) > MAX_OFFSET_RAD:
-            raise CalibrationError(f"the calibration {path}: joint {name}'s offset {offset} rad is not "
-                                   f"within ±{math.degrees(MAX_OFFSET_RAD):.0f} deg; calibrate the arm again")
-        lo, hi = entry.get("min_rad"), entry.get("max_rad")
-        if (lo is None) != (hi is None):
-            raise CalibrationError(f"the calibration {path}: joint {name} needs both min_rad and max_rad, "
-                                   "or neither")
-        if lo is not None:
-            lo = _number(lo, f"joint {name}'s min_rad", path)
-            hi = _number(hi, f"joint {name}'s max_rad", path)
-            if not (-MAX_RANGE_RAD <= lo <= hi <= MAX_RANGE_RAD):
-                raise CalibrationError(f"the calibration {path}: joint {name}'s range {lo:g} .. {hi:g} rad "
-                                       f"must have min_rad <= max_rad, both within ±{MAX_RANGE_RAD:.4g} rad")
-        joints[name] = JointCalibration(offset, lo, hi)
+    joints = {name: _joint(name, entry, known, path) for name, entry in (table or {}).items()}
     if not joints:
         raise CalibrationError(f"the calibration {path} names no joint")
-    head = data.get("arm")
+    name, key, created = _arm_table(data.get("arm"), path)
+    return Calibration(name=name, key=key, joints=joints, created=created, path=str(path))
+
+
+def _joint(name: str, entry, known: tuple[str, ...], path: Path) -> JointCalibration:
+    """One [joints.NAME] table of a calibration file, checked (see load_calibration)."""
+    if name not in known:
+        raise CalibrationError(f"the calibration {path} names unknown joint {name!r} "
+                               f"(joints: {', '.join(known)})")
+    if not isinstance(entry, dict) or "offset_rad" not in entry:
+        raise CalibrationError(f"the calibration {path}: joint {name} needs a number offset_rad "
+                               "(and numbers for min_rad/max_rad if given)")
+    unknown = sorted(set(entry) - {"offset_rad", "min_rad", "max_rad"})
+    if unknown:
+        raise CalibrationError(f"the calibration {path}: unknown key {unknown[0]!r} in joint {name} "
+                               "(known: offset_rad, min_rad, max_rad)")
+    offset = _number(entry["offset_rad"], f"joint {name}'s offset_rad", path)
+    if abs(offset) > MAX_OFFSET_RAD:
+        raise CalibrationError(f"the calibration {path}: joint {name}'s offset {offset} rad is not "
+                               f"within ±{math.degrees(MAX_OFFSET_RAD):.0f} deg; calibrate the arm again")
+    lo, hi = entry.get("min_rad"), entry.get("max_rad")
+    if (lo is None) != (hi is None):
+        raise CalibrationError(f"the calibration {path}: joint {name} needs both min_rad and max_rad, "
+                               "or neither")
+    if lo is not None:
+        lo = _number(lo, f"joint {name}'s min_rad", path)
+        hi = _number(hi, f"joint {name}'s max_rad", path)
+        if not (-MAX_RANGE_RAD <= lo <= hi <= MAX_RANGE_RAD):
+            raise CalibrationError(f"the calibration {path}: joint {name}'s range {lo:g} .. {hi:g} rad "
+                                   f"must have min_rad <= max_rad, both within ±{MAX_RANGE_RAD:.4g} rad")
+    return JointCalibration(offset, lo, hi)
+
+
+def _arm_table(head, path: Path) -> tuple[str, str, str]:
+    """The [arm] table of a calibration file, checked: (name, key, created)."""
     if not isinstance(head, dict):
         raise CalibrationError(f"the calibration {path} has no [arm] table (name, key, created); "
                                "calibrate the arm again or add one")
@@ -229,7 +237,7 @@ def load_calibration(path: str | os.PathLike) -> Calibration:
     if not KEY.fullmatch(key):
         raise CalibrationError(f"the calibration {path}: [arm] key must be 1 to 64 letters, digits or . _ -, "
                                f"got {key!r}")
-    return Calibration(name=name, key=key, joints=joints, created=head.get("created", ""), path=str(path))
+    return name, key, head.get("created", "")
 
 
 def save_calibration(cal: Calibration, path: str | os.PathLike | None = None) -> Path:

@@ -1,15 +1,15 @@
-"""The CRC-16 of Dynamixel Protocol 2.0 (polynomial 0x8005, initial value 0, MSB first, no final xor),
-shared by the bus client (crane_io.dynamixel.packets) and the simulated servos (crane_io.sim.protocol).
+"""The CRC-16 of Dynamixel Protocol 2.0 in plain Python (the algorithm and its table: crc_layout).
 
-Pure Python with a 65536-entry table so the loop runs once per 16-bit word instead of once per byte:
-for a 16-bit CRC, shifting in the big-endian word w gives crc' = TABLE16[crc ^ w]. About 4x faster
-than the byte-wise loop of the e-manual (and of dynamixel-sdk), same results.
+    crc16 = Crc16()                 # one per side: the bus client's (crane_io.dynamixel.packets) and the
+    crc16(packet[:-2])              # simulated servos' (crane_io.sim.protocol) each make their own
 
-Every packet on a simulated bus has its CRC computed twice, by its sender and by its receiver, over the
-same bytes; and the Sync Read instruction of the control loop is the same packet every cycle. So
-`crc16` from zero keeps the CRCs of the last few packets (a memo keyed by the exact bytes: any changed
-byte is a different key and gets computed), and `remember` lets a sender that computed a packet's CRC
-in pieces (the Fast Sync Read status packet) file it for the receiver.
+Each `Crc16` holds its own tables and no memo of earlier packets, so the host's check of a simulated
+servo's reply and the servo's check of the host's packet are independent computations: a fault on one
+side is caught by the other.
+
+A 65536-entry word table lets the loop run once per 16-bit word instead of once per byte: for a 16-bit
+CRC, shifting in the big-endian word w gives crc' = TABLE16[crc ^ w]. About 4x faster than the byte-wise
+loop of the e-manual (and of dynamixel-sdk), same results.
 """
 
 from __future__ import annotations
@@ -17,16 +17,9 @@ from __future__ import annotations
 import array
 import sys
 
+from crane_io.dynamixel.crc_layout import byte_table, crc_step
 
-def _byte_table() -> list[int]:
-    """The e-manual's 256-entry table: CRC register after shifting byte i through a zero register."""
-    table = []
-    for i in range(256):
-        crc = i << 8
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x8005) if crc & 0x8000 else (crc << 1)
-        table.append(crc & 0xFFFF)
-    return table
+_SWAP = sys.byteorder == "little"
 
 
 def _word_table(table: list[int]) -> list[int]:
@@ -39,85 +32,70 @@ def _word_table(table: list[int]) -> list[int]:
     return out
 
 
-CRC_TABLE = _byte_table()
-# 16-bit entries in one contiguous 128 KiB block: a list of 65536 Python ints is ~2.5 MB spread over the
-# heap, and in a running session (pinocchio, numpy, h5py around it) its lookups miss the CPU caches
-CRC_TABLE16 = array.array("H", _word_table(CRC_TABLE))
-_SWAP = sys.byteorder == "little"
+class Crc16:
+    """The CRC-16 with tables of its own: `crc16(data, crc=0)` for bytes-like data (or a sequence of
+    ints 0..255), optionally continuing `crc`."""
 
+    def __init__(self):
+        self.table = byte_table().tolist()  # the e-manual's 256 entries, as Python ints
+        # 16-bit entries in one contiguous 128 KiB block: a list of 65536 Python ints is ~2.5 MB spread
+        # over the heap, and in a running session its lookups miss the CPU caches
+        self.table16 = array.array("H", _word_table(self.table))
 
-_MEMO: dict[bytes, int] = {}
-_MEMO_SIZE = 32  # packets remembered (a control cycle of two arms puts 4 on the wire)
+    def __call__(self, data, crc: int = 0) -> int:
+        if not isinstance(data, (bytes, bytearray, memoryview)):
+            data = bytes(data)
+        n = len(data)
+        if n & 1:
+            crc = crc_step(crc, data[0], self.table)
+            data = memoryview(data)[1:]
+        if n < 2:
+            return crc
+        return self._words(data, crc)
 
-
-def remember(data: bytes, crc: int) -> None:
-    """File `crc` as the CRC-16 (from zero) of `data` for a later crc16(data)."""
-    if len(_MEMO) >= _MEMO_SIZE:
-        _MEMO.clear()
-    _MEMO[bytes(data)] = crc
-
-
-def crc16(data, crc: int = 0) -> int:
-    """CRC-16 of `data` (bytes-like, or a sequence of ints 0..255), optionally continuing `crc`."""
-    if crc == 0:
-        key = data if type(data) is bytes else bytes(data)
-        value = _MEMO.get(key)
-        if value is None:
-            value = _crc16(key, 0)
-            remember(key, value)
-        return value
-    return _crc16(data, crc)
-
-
-def _crc16(data, crc: int) -> int:
-    if not isinstance(data, (bytes, bytearray, memoryview)):
-        data = bytes(data)
-    n = len(data)
-    if n & 1:
-        crc = ((crc << 8) & 0xFF00) ^ CRC_TABLE[(crc >> 8) ^ data[0]]
-        data = memoryview(data)[1:]
-    if n < 2:
-        return crc
-    words = array.array("H")
-    words.frombytes(data)
-    if _SWAP:
-        words.byteswap()
-    table = CRC_TABLE16
-    for w in words:
-        crc = table[crc ^ w]
-    return crc
-
-
-def crc16_append(crc: int) -> int:
-    """The CRC after the two bytes of `crc` itself (low byte first) have been appended to the data."""
-    return CRC_TABLE16[crc ^ (((crc & 0xFF) << 8) | (crc >> 8))]
-
-
-def crc16_chain(head, parts) -> list[int]:
-    """Running CRCs of a Fast Sync Read status packet: the CRC of `head` + parts[0], then of everything
-    so far plus that CRC (low byte first) + parts[1], and so on; one CRC per part."""
-    crc = crc16(head)
-    out = []
-    if len(head) % 2 or any(len(p) % 2 for p in parts):
-        for p in parts:
-            crc = crc16(p, crc)
-            out.append(crc)
-            crc = crc16_append(crc)
-        return out
-    words = array.array("H")
-    words.frombytes(b"".join(parts))
-    if _SWAP:
-        words.byteswap()
-    table = CRC_TABLE16
-    k = 0
-    for p in parts:
-        end = k + (len(p) >> 1)
-        for w in words[k:end]:
+    def _words(self, data, crc: int) -> int:
+        words = array.array("H")
+        words.frombytes(data)
+        if _SWAP:
+            words.byteswap()
+        table = self.table16
+        for w in words:
             crc = table[crc ^ w]
-        k = end
-        out.append(crc)
-        crc = table[crc ^ (((crc & 0xFF) << 8) | (crc >> 8))]
-    return out
+        return crc
+
+    def append(self, crc: int) -> int:
+        """The CRC after the two bytes of `crc` itself (low byte first) have been appended to the data."""
+        return self.table16[crc ^ (((crc & 0xFF) << 8) | (crc >> 8))]
+
+    def chain(self, head, parts) -> list[int]:
+        """Running CRCs of a Fast Sync Read status packet: the CRC of `head` + parts[0], then of everything
+        so far plus that CRC (low byte first) + parts[1], and so on; one CRC per part."""
+        crc = self(head)
+        out = []
+        if len(head) % 2 or any(len(p) % 2 for p in parts):
+            for p in parts:
+                crc = self(p, crc)
+                out.append(crc)
+                crc = self.append(crc)
+            return out
+        words = array.array("H")
+        words.frombytes(b"".join(parts))
+        if _SWAP:
+            words.byteswap()
+        table = self.table16
+        k = 0
+        for p in parts:
+            end = k + (len(p) >> 1)
+            for w in words[k:end]:
+                crc = table[crc ^ w]
+            k = end
+            out.append(crc)
+            crc = table[crc ^ (((crc & 0xFF) << 8) | (crc >> 8))]
+        return out
+
+    def fixed_prefix(self, prefix: bytes, n: int) -> FixedPrefixCrc:
+        """`FixedPrefixCrc` of `prefix` and `n` parameter bytes, with this CRC's tables."""
+        return FixedPrefixCrc(self, prefix, n)
 
 
 class FixedPrefixCrc:
@@ -126,14 +104,15 @@ class FixedPrefixCrc:
     CRCs of its bytes each alone at its place (zeros elsewhere). So it is the CRC of prefix + n zeros,
     xored with one table entry per parameter byte: n lookups instead of a pass over the whole packet."""
 
-    def __init__(self, prefix: bytes, n: int):
+    def __init__(self, crc16: Crc16, prefix: bytes, n: int):
         self.n = n
-        self.base = _crc16(bytes(prefix) + bytes(n), 0)
+        self.base = crc16(bytes(prefix) + bytes(n))
+        byte = crc16.table
         tables = []
-        table = CRC_TABLE  # byte v as the last byte: crc16(bytes([v])) == CRC_TABLE[v]
+        table = byte  # byte v as the last byte: crc16(bytes([v])) == table[v]
         for _ in range(n):
             tables.append(table)
-            table = [((x << 8) & 0xFF00) ^ CRC_TABLE[x >> 8] for x in table]  # one more zero byte after it
+            table = [crc_step(x, 0, byte) for x in table]  # one more zero byte after it
         self.tables = tables[::-1]  # tables[p][v]: byte v at position p of the params
 
     def __call__(self, params) -> int:

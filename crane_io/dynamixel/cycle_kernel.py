@@ -1,39 +1,33 @@
-"""The bus's two control-cycle transfers in one compiled call each (numba): the Goal Current Sync Write
-packet built from the amps, and the Fast Sync Read reply of the Present block checked and converted.
+"""The compiled bus codec (crane_io.dynamixel.codec.CompiledCodec): the bus's two control-cycle transfers in
+one compiled call each (numba), the Goal Current Sync Write packet built from the amps, and the Fast Sync
+Read reply of the Present block checked and converted. It imports numpy and the CRC's layout only.
 
-`goal_current_packet` does what `DynamixelBus.write_goal_current`'s Python loop does, the same float
+`goal_current_packet` does what `PlainCodec.goal_current`'s Python loop does, the same float
 operations in the same order (no fastmath): per current-mode joint the clamp to its Current Limit, the
 rounding half to even, the clamp to the limit's whole steps, the commanded amps, then the parameters (ID,
 Goal Current low, high byte) written into a kept packet whose header is already there, the check for
-byte stuffing and the CRC-16 (the e-manual's byte table). The bytes are those of
+byte stuffing and the CRC-16 (crc_layout's byte table and loop). The bytes are those of
 `CranePacketHandler.sync_write_packet`; a packet that would need stuffing, or a command that is not
-finite, is left to the Python path (which raises or stuffs).
+finite, is left to the caller (which refuses or stuffs).
 
-`present_reply_state` accepts exactly the Fast Sync Read replies `_StatusSyncRead.fast_read` accepts
-on its fast path (the expected length and header, no stuffed FF FF FD FD, every status error byte 0, the
-CRC right, the servos in request order) and converts the Present Current, Velocity and Position of each
-servo as `DynamixelBus._state_from_reply` does (integers to float, then scaled).
+`present_reply_state` accepts exactly the Fast Sync Read replies `PlainCodec.present_state` accepts (the
+expected length and header, no stuffed FF FF FD FD, every status error byte 0, the CRC right, the servos
+in request order) and converts the Present Current, Velocity and Position of each servo as it does
+(integers to float, then scaled).
 
 Compiled when a bus switches torque on (as crane_io.jit.compile_functions does: explicit signatures,
-numba's cache), never lazily at a first packet; without numba `compiled()` is None and the bus keeps its
-Python path.
+numba's cache), never lazily at a first packet; without numba `compiled()` is None and the bus keeps the
+plain codec.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from crane_io.dynamixel.crc import CRC_TABLE
+from crane_io.dynamixel.crc_layout import byte_table, crc_step, crc_update  # noqa: F401 (compiled with them)
 
-TABLE = np.array(CRC_TABLE, dtype=np.int64)  # the kernels' last argument
+TABLE = byte_table()  # the kernels' last argument: the bus client's own CRC table (the simulator has its own)
 _HEAD_LEN = 12  # a sync write: FF FF FD 00, ID, LEN L H, INST, address L H, data length L H
-
-
-def _crc(buf, n, table):
-    crc = np.int64(0)
-    for i in range(n):
-        crc = ((crc << 8) & 0xFF00) ^ table[((crc >> 8) ^ np.int64(buf[i])) & 0xFF]
-    return crc
 
 
 def goal_current_packet(amps, joints, ids, limits, limits_raw, lsb, buf, sent, table):
@@ -69,7 +63,7 @@ def goal_current_packet(amps, joints, ids, limits, limits_raw, lsb, buf, sent, t
     for i in range(5, p - 2):
         if buf[i] == 0xFF and buf[i + 1] == 0xFF and buf[i + 2] == 0xFD:
             return -2
-    crc = _crc(buf, p, table)
+    crc = crc_update(buf, 0, p, np.int64(0), table)
     buf[p] = crc & 0xFF
     buf[p + 1] = crc >> 8
     return p + 2
@@ -82,10 +76,9 @@ def _u(data, i, size):
     return v
 
 
-def present_reply_state(data, head, ids, out, center, rad_per_pulse, rads_per_lsb, amps_per_lsb, table):
-    """True when `data` is the whole expected Fast Sync Read reply of the Present block (`head`: its first
-    8 bytes; `ids`: the servos in request order) with no status error; then out[0], out[1], out[2] hold
-    every servo's position (rad), velocity (rad/s) and current (A). False (and `out` unusable) else."""
+def _expected_reply(data, head, ids, table):
+    """`data` is the whole Fast Sync Read reply of the Present block starting with `head`, the servos `ids`
+    in request order, no stuffed FF FF FD FD, every status error byte 0 and the CRC right."""
     count = ids.shape[0]
     chunk = 14  # ERR ID, Present Current (2), Velocity (4), Position (4), CRC (2)
     n = 8 + chunk * count
@@ -101,10 +94,18 @@ def present_reply_state(data, head, ids, out, center, rad_per_pulse, rads_per_ls
         s = 8 + k * chunk
         if data[s] != 0 or data[s + 1] != ids[k]:
             return False
-    if _crc(data, n - 2, table) != (np.int64(data[n - 2]) | (np.int64(data[n - 1]) << 8)):
+    crc = crc_update(data, 0, n - 2, np.int64(0), table)
+    return crc == (np.int64(data[n - 2]) | (np.int64(data[n - 1]) << 8))
+
+
+def present_reply_state(data, head, ids, out, center, rad_per_pulse, rads_per_lsb, amps_per_lsb, table):
+    """True when `data` is the whole expected Fast Sync Read reply of the Present block (`head`: its first
+    8 bytes; `ids`: the servos in request order) with no status error; then out[0], out[1], out[2] hold
+    every servo's position (rad), velocity (rad/s) and current (A). False (and `out` unusable) else."""
+    if not _expected_reply(data, head, ids, table):
         return False
-    for k in range(count):
-        s = 10 + k * chunk
+    for k in range(ids.shape[0]):
+        s = 10 + k * 14  # ERR ID, then the Present block (its CRC after it)
         cur = _u(data, s, 2)
         if cur >= 0x8000:
             cur -= 0x10000
@@ -138,7 +139,8 @@ def compiled():
         try:
             from crane_io.jit import compile_functions
 
-            fns = compile_functions(globals(), ("_crc", "_u", "goal_current_packet", "present_reply_state"),
+            fns = compile_functions(globals(), ("crc_step", "crc_update", "_u", "_expected_reply",
+                                                "goal_current_packet", "present_reply_state"),
                                     SIGNATURES, qualname_prefix="cycle_kernel.")
         except Exception:  # noqa: BLE001 - a broken numba install: the Python path, as without numba
             fns = None

@@ -3,8 +3,8 @@
 `CranePacketHandler` is `dynamixel_sdk.Protocol2PacketHandler` (the SDK still sends, receives and checks
 every packet) with some of its steps made cheaper, the bytes on the wire unchanged:
 
-- `updateCRC` uses the word-wise table of crane_io.dynamixel.crc instead of rebuilding a 256-entry list on
-  every call and looping per byte;
+- `updateCRC` uses the word-wise table of crane_io.dynamixel.crc (the client's own `crc16`) instead of
+  rebuilding a 256-entry list on every call and looping per byte;
 - `addStuffing` returns the packet untouched when its instruction and parameters hold no "FF FF FD"
   (the usual case) instead of copying it through a 1024-entry scratch list;
 - `removeStuffing` returns the packet untouched when it holds no stuffed "FF FF FD FD".
@@ -15,7 +15,7 @@ every packet) with some of its steps made cheaper, the bytes on the wire unchang
   for a caller that has the parameters at hand (the bus's goal writes, without GroupSyncWrite); a sync
   write's CRC comes from per-position tables made once for its header and length (crc.FixedPrefixCrc);
 - `sync_read_packet` + `send_packet`: the kept (Fast) Sync Read packet and its sending, for the bus's
-  control-cycle read (`_StatusSyncRead.fast_read`).
+  control-cycle read (`status_read.StatusSyncRead.fast_read`).
 Packets that do need (un)stuffing go through the SDK's own code.
 """
 
@@ -33,7 +33,7 @@ from dynamixel_sdk.protocol2_packet_handler import (
     Protocol2PacketHandler,
 )
 
-from crane_io.dynamixel.crc import FixedPrefixCrc, crc16, remember
+from crane_io.dynamixel.crc import Crc16
 
 _LEN_L, _LEN_H = 5, 6
 _STUFF = b"\xff\xff\xfd"
@@ -41,6 +41,8 @@ _STUFFED = b"\xff\xff\xfd\xfd"
 _HEADER = b"\xff\xff\xfd\x00"
 _KEPT_READS = 16  # Sync Read packets kept (a bus sends two kinds: the Present block and the error poll)
 _TABLED_PARAMS = 64  # sync writes with at most this many parameter bytes get their CRC from tables
+# the bus client's CRC, with its own tables (the simulated servos have theirs: crane_io.sim.protocol)
+crc16 = Crc16()
 
 
 class CranePacketHandler(Protocol2PacketHandler):
@@ -115,17 +117,13 @@ class CranePacketHandler(Protocol2PacketHandler):
             head = _sync_header(inst, start_address, data_length, param_length)
             # a sync write's parameters change every cycle: its CRC from tables (see FixedPrefixCrc)
             tabled = inst == INST_SYNC_WRITE and param_length <= _TABLED_PARAMS
-            kept = self._headers[key] = (head, FixedPrefixCrc(head, param_length) if tabled else None)
+            kept = self._headers[key] = (head, crc16.fixed_prefix(head, param_length) if tabled else None)
         head, tabled = kept
         params = bytes(param[:param_length])
         packet = head + params
         if packet.find(_STUFF, 5) >= 0 or len(packet) + 2 > TXPACKET_MAX_LEN:
             return None
-        if tabled is None:
-            crc = crc16(packet)
-        else:
-            crc = tabled(params)
-            remember(packet, crc)  # the receiving end of a simulated bus checks the same bytes
+        crc = crc16(packet) if tabled is None else tabled(params)
         return packet + bytes((crc & 0xFF, crc >> 8))
 
     @staticmethod

@@ -6,18 +6,15 @@
 
 It reads the control table of each servo in one read (addresses 0..146) and converts what a person
 checks (model, firmware, mode, torque, limits, watchdog, errors, voltage, temperature, angle) to SI
-units. It is no part of the control cycle: it goes through the bus's own transfers (retries, counters,
-port errors) but may wait far longer than a cycle may (`late_listen_s`). `DynamixelBus.servo_report`
+units. It is no part of the control cycle: it uses the bus's public reads (`read_block`, `reply_timeout_s`,
+`late_reply_s`: the bus's own transfers, retries, counters, port errors) but may wait far longer than a cycle
+may (`late_listen_s`). `DynamixelBus.servo_report`
 calls it.
 """
 
 from __future__ import annotations
 
-import time
 from typing import TYPE_CHECKING
-
-from dynamixel_sdk import COMM_SUCCESS
-from dynamixel_sdk.protocol2_packet_handler import PKT_ID, PKT_LENGTH_H, PKT_LENGTH_L
 
 from crane_io.dynamixel import units
 from crane_io.dynamixel.control_table import X_SERIES, model_by_number, span
@@ -29,8 +26,7 @@ if TYPE_CHECKING:
 LATE_REPLY_LISTEN_S = 0.5  # what `crane-collect check` gives a servo that missed every try
 # addresses 0..146 (Model Number .. Present Temperature): everything the report shows, one read per servo
 REPORT_ADDRESS, REPORT_SIZE = span("model_number", "present_temperature")
-# the second look at a servo that did not answer in time: a read of Model Number (2 bytes), whose short
-# reply cannot be mistaken for a late reply to the report's own reads
+# the second look at a servo that did not answer in time (see servo_report)
 _PROBE = X_SERIES["model_number"]
 
 
@@ -44,15 +40,19 @@ def servo_report(bus: DynamixelBus, late_listen_s: float = 0.0) -> list[dict]:
     timeout of each try), `listen_s` and `late_reply_s`. With `late_listen_s` > 0 (a check, never a
     stop that must be quick) it is asked once more and given that long to answer: `late_reply_s`
     is the seconds its reply took, or None when nothing came (silence; also without a second look)."""
-    bus._need_port()
+    bus.require_open()
     rows = []
     for j, (joint, sid) in enumerate(zip(bus.joint_names, bus.ids)):
         row = {"id": sid, "joint": joint, "expected_model": bus.arm.joints[j].model}
         try:
-            block = bus._read_block(sid, REPORT_ADDRESS, REPORT_SIZE, joint)
+            block = bus.read_block(sid, REPORT_ADDRESS, REPORT_SIZE, joint)
         except CommunicationError:
-            late = late_reply_s(bus, sid, late_listen_s) if late_listen_s > 0 else None
-            row.update(answering=False, tries=1 + bus.retries, timeout_s=reply_timeout_s(bus, REPORT_SIZE),
+            # a second look: a read of Model Number (2 bytes), whose short reply cannot be mistaken for a
+            # late reply to the report's own reads
+            late = None
+            if late_listen_s > 0:
+                late = bus.late_reply_s(sid, _PROBE.address, _PROBE.size, late_listen_s)
+            row.update(answering=False, tries=1 + bus.retries, timeout_s=bus.reply_timeout_s(REPORT_SIZE),
                        listen_s=late_listen_s, late_reply_s=late)
             rows.append(row)
             continue
@@ -91,36 +91,3 @@ def _value(block: bytes, r) -> int:
     """Register `r` out of a block read from address REPORT_ADDRESS."""
     start = r.address - REPORT_ADDRESS
     return int.from_bytes(block[start:start + r.size], "little", signed=r.signed)
-
-
-def reply_timeout_s(bus: DynamixelBus, data_length: int) -> float:
-    """How long each try waits for the reply to a read of `data_length` bytes (as the SDK computes it)."""
-    bus._port.setPacketTimeout(data_length + 11)  # the SDK's own arithmetic, with this port's latency
-    return bus._port.packet_timeout / 1000.0
-
-
-def late_reply_s(bus: DynamixelBus, sid: int, listen_s: float) -> float | None:
-    """Ask servo `sid` for its Model Number once and listen up to `listen_s` for that reply (late
-    replies to earlier reads, of another length, are skipped): the seconds it took, or None.
-    For reports only: it waits far longer than any control cycle may."""
-    port, ph = bus._port, bus._ph
-
-    def probe():
-        sent = time.monotonic()
-        if ph.readTx(port, sid, _PROBE.address, _PROBE.size) != COMM_SUCCESS:
-            port.is_using = False
-            return None
-        port.setPacketTimeoutMillis(listen_s * 1000.0)
-        while True:
-            packet, result = ph.rxPacket(port, False)
-            if result == COMM_SUCCESS:
-                length = packet[PKT_LENGTH_L] | packet[PKT_LENGTH_H] << 8
-                if packet[PKT_ID] == sid and length == _PROBE.size + 4:  # INST ERR DATA CRC
-                    return time.monotonic() - sent
-            elif port.isPacketTimeout():
-                return None
-
-    try:
-        return bus._transfer(probe, failed=None)  # a port error: no reply
-    finally:
-        bus._update_byte_stats()

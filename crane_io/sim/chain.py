@@ -33,7 +33,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from crane_io.dynamixel.control_table import X_SERIES, XM430_W350, ServoModel
-from crane_io.dynamixel.crc import remember
 from crane_io.errors import ConfigError
 from crane_io.sim import chain_kernel, lockstep_kernel
 from crane_io.sim import protocol as p
@@ -506,7 +505,6 @@ class SimulatedChain:
             if result < 0:
                 return None
             reply = buf[:result >> 16].tobytes()
-            remember(reply[:-2], result & 0xFFFF)  # the host checks the packet's CRC next
             st = self.stats
             st.bytes_received += len(data)
             st.packets_received += 1
@@ -718,11 +716,9 @@ class SimulatedChain:
                 return None
         for s in chosen:
             s.contact(now)
-        packet, crc = fast[2](self.memories, rows, id_array, address, length, _HW_ERROR_AT,
-                              chain_kernel.CRC_TABLE_U16)
-        packet = packet.tobytes()
-        remember(packet[:-2], crc)  # the host checks the packet's CRC next
-        return [(packet, chosen[0].return_delay_s)]
+        packet, _crc = fast[2](self.memories, rows, id_array, address, length, _HW_ERROR_AT,
+                               chain_kernel.CRC_TABLE_U16)
+        return [(packet.tobytes(), chosen[0].return_delay_s)]
 
     def _bulk_requests(self, params):
         return [(params[i], params[i + 1] | params[i + 2] << 8, params[i + 3] | params[i + 4] << 8)

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from crane_io.dynamixel.crc import CRC_TABLE
+from crane_io.dynamixel.crc_layout import byte_table, crc_step
 from crane_io.dynamixel.units import (
     AMPERE_PER_CURRENT_LSB,
     POSITION_CENTER,
@@ -24,7 +24,9 @@ from crane_io.dynamixel.units import (
     RADS_PER_VELOCITY_LSB,
 )
 
-CRC_TABLE_U16 = np.array(CRC_TABLE, dtype=np.int64)
+CRC_TABLE_U16 = byte_table()  # the simulated servos' own CRC table (the host's is another: cycle_kernel)
+# the CRC's one-byte step (crc_layout), under the name the kernels compiled from this module call it by
+_crc_byte = crc_step
 _I32_MIN, _I32_MAX = -(2**31), 2**31 - 1
 _BIG = 2.0**40  # beyond this a rounded value is clamped anyway (and stays exact below it)
 _TWO_TO_MINUS_53 = 1.0 / 9007199254740992.0
@@ -109,10 +111,6 @@ def commands(mem, expired, out, torque_at, mode_at, gc_at, gp_at, lim_at):
         if driving and mode != 0:
             mask |= 1 << i
     return mask
-
-
-def _crc_byte(crc, b, table):
-    return ((crc << 8) & 0xFF00) ^ table[((crc >> 8) ^ b) & 0xFF]
 
 
 def fast_status(mem, rows, ids, address, length, hw_at, table):

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from crane_io.dynamixel.crc import crc16, crc16_append, crc16_chain, remember
+from crane_io.dynamixel.crc import Crc16
 
 HEADER = b"\xff\xff\xfd\x00"
 BROADCAST_ID = 0xFE
@@ -53,6 +53,10 @@ ERR_ALERT = 0x80
 
 # Longest LEN the parser accepts; anything larger is treated as line noise and skipped.
 MAX_LENGTH = 1024
+
+# the simulated servos' CRC, with tables of their own: the host computes its own (crane_io.dynamixel.packets),
+# so a fault in either side's CRC is caught by the other's check
+crc16 = Crc16()
 
 
 _STUFF_MARK = b"\xff\xff\xfd"
@@ -118,13 +122,11 @@ def fast_status_packet(blocks: list[tuple[int, int, bytes]]) -> bytes:
     length = 1 + sum(len(s) + 2 for s in stuffed_parts)
     head = HEADER + bytes((BROADCAST_ID, length & 0xFF, (length >> 8) & 0xFF, INST_STATUS))
     packet = bytearray(head)
-    for s, crc in zip(stuffed_parts, crc16_chain(head, stuffed_parts)):
+    for s, crc in zip(stuffed_parts, crc16.chain(head, stuffed_parts)):
         packet += s
         packet.append(crc & 0xFF)
         packet.append(crc >> 8)
-    packet = bytes(packet)
-    remember(packet[:-2], crc)  # the last running CRC is the packet's: the host checks it next
-    return packet
+    return bytes(packet)
 
 
 def fast_status_prefix(blocks: list[tuple[int, int, bytes]], n_total: int, data_length: int) -> bytes:
@@ -141,7 +143,7 @@ def fast_status_prefix(blocks: list[tuple[int, int, bytes]], n_total: int, data_
         packet += part
         crc = crc16(part, crc)
         packet += bytes((crc & 0xFF, crc >> 8))
-        crc = crc16_append(crc)
+        crc = crc16.append(crc)
     return bytes(packet)
 
 
