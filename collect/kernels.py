@@ -39,7 +39,8 @@ def compile_sentence(sim: bool) -> str:
     """What a command says while it compiles the kernels (crane_io.jit.compile_notice)."""
     what = "the simulator's kernels" if sim else "the control kernels"
     estimate = COMPILE_ESTIMATE_S if sim else 6
-    return f"compiling {what} once, about {estimate} s (numba; later runs load them from its cache)"
+    return (f"compiling {what} once, about {estimate} s, longer on a busy machine (numba; later runs load "
+            "them from its cache)")
 
 
 def main() -> int:
