@@ -159,7 +159,7 @@ class SimulatedChain(InstructionHandlers, LockstepWrites):
         self.time = 0.0
         self._t0 = time.monotonic()
         self._lock = threading.RLock()
-        self._plant_paths: tuple = (None, None)  # (plant, its PlantPaths): see _lists_of
+        self._plant_paths: tuple = (None, None)  # (plant, its PlantPaths): see _paths_of
         self._read_plant()
 
     @classmethod
@@ -273,7 +273,7 @@ class SimulatedChain(InstructionHandlers, LockstepWrites):
         """The plant's reading as (position, velocity, current, voltage, temperature) lists of floats
         (None for a voltage or temperature the plant does not give)."""
         plant = self.plant
-        reader = self._lists_of(plant).read_lists
+        reader = self._paths_of(plant).read_lists
         if reader is not None:
             return reader()
         reading = plant.read()
@@ -283,7 +283,7 @@ class SimulatedChain(InstructionHandlers, LockstepWrites):
         return (floats(reading.position), floats(reading.velocity), floats(reading.current),
                 floats(reading.voltage), floats(reading.temperature))
 
-    def _lists_of(self, plant) -> PlantPaths:
+    def _paths_of(self, plant) -> PlantPaths:
         """The plant's faster methods (crane_io.sim.chain_paths.plant_paths), found once per plant."""
         kept_for, paths = self._plant_paths
         if kept_for is not plant:  # first use, or the plant was replaced
@@ -299,13 +299,13 @@ class SimulatedChain(InstructionHandlers, LockstepWrites):
             if s.watchdog_expired:
                 expired |= 1 << i
         plant = self.plant
-        paths = self._lists_of(plant)
+        paths = self._paths_of(plant)
         step_lists = paths.step_lists
         fast = self._fast()
         if fast is not None and paths.step_command is not None:  # the commands read out at once
             cmds = self._commands
             mask = fast.commands(self.memories, expired, cmds, _TORQUE_AT, _MODE_AT, GOAL_CURRENT_ADDRESS,
-                           GOAL_POSITION_ADDRESS, _LIMIT_AT)
+                                 GOAL_POSITION_ADDRESS, _LIMIT_AT)
             done = paths.step_command(cmds, mask, dt)
         else:
             done = False
@@ -321,12 +321,12 @@ class SimulatedChain(InstructionHandlers, LockstepWrites):
     def _read_plant(self) -> None:
         now = self.time
         fast = self._fast()
-        paths = self._lists_of(self.plant)
+        paths = self._paths_of(self.plant)
         sensed = paths.kernel_read_args() if fast is not None and paths.kernel_read_args is not None else None
         if sensed is not None:  # read_arrays + sensors_into in one compiled call (lockstep_kernel.sense)
             volt, temp = self._supply(sensed[10], sensed[11])
             done = self._lockstep_fns.sense(self.memories, *sensed[:10], volt, temp, int(now * 1000) % 32768,
-                                         self._sensed)
+                                            self._sensed)
             if not done:
                 position, velocity, current = self._sensed.copy()
                 voltage, temperature = sensed[10], sensed[11]
@@ -439,7 +439,7 @@ class SimulatedChain(InstructionHandlers, LockstepWrites):
         if inst == p.INST_FAST_SYNC_READ and self.fast_sync_read and self.reply_filter is None:
             buf = self._reply_buffer
             result = fns.fast_sync_read(data, self.memories, self.servo_state, code,
-                            self.parser.max_length, self.time, buf)
+                                        self.parser.max_length, self.time, buf)
             if result < 0:
                 return None
             reply = buf[:result >> 16].tobytes()
@@ -471,7 +471,7 @@ class SimulatedChain(InstructionHandlers, LockstepWrites):
                 return None
         for s in chosen:
             s.contact(now)
-        packet, crc = fast.fast_status(self.memories, rows, id_array, address, length, _HW_ERROR_AT,
+        packet, crc = fast[2](self.memories, rows, id_array, address, length, _HW_ERROR_AT,
                               chain_kernel.CRC_TABLE_U16)
         packet = packet.tobytes()
         remember(packet[:-2], crc)  # the host checks the packet's CRC next

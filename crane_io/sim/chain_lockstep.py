@@ -20,7 +20,7 @@ class LockstepWrites:
         """What feed returns for the Sync Write `data` (b"": no reply), or None when the packet is not such a
         case and nothing was done. `code`: the port's Baud Rate register value (-1: any)."""
         dt = self.period_s
-        paths = self._lists_of(self.plant)
+        paths = self._paths_of(self.plant)
         args = None if paths.kernel_cycle_args is None else paths.kernel_cycle_args(dt)
         if args is not None:
             return self._sync_write_read(data, code, dt, args)
