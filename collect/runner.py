@@ -195,13 +195,11 @@ class BilateralRun:
         before torque on: on hardware a pause between torque on and the first cycle would trip the
         servos' Bus Watchdog."""
         opts, config, arm, stop = self.options, self.config, self.arm, self.stop
-        # every kernel at once, said when it is a compilation (after an install; setup.sh does it before)
-        set_activity("loading or compiling the simulator's kernels" if opts.sim else
-                     "loading or compiling the control kernels")
-        with compile_notice(self._say_compiling):
-            compile_kernels(sim=opts.sim)
-        stop.check()
-        if opts.sim:
+        if opts.sim:  # every kernel at once, said when it is a compilation (setup.sh compiles them before)
+            set_activity("loading or compiling the simulator's kernels")
+            with compile_notice(self._say_compiling):
+                compile_kernels()
+            stop.check()
             set_activity("building the simulated arms")
             self.sims = make_sim_arms(opts.plant, opts.seed, config, arm)
             ports = {name: self.sims[name].url for name in ARMS}
@@ -308,7 +306,7 @@ class BilateralRun:
     # -- helpers ----------------------------------------------------------------------------------------
     def _say_compiling(self) -> None:
         if self.options.status and self.out is not None:
-            print(compile_sentence(self.options.sim), file=self.out, flush=True)
+            print(compile_sentence(), file=self.out, flush=True)
 
     def _torque_going_on(self) -> None:
         """From the first torque on, a stop is taken between two steps (the safe stop then runs)."""

@@ -14,7 +14,7 @@ from collect.runner import RunOptions, run_session
 from crane_io import jit
 
 
-def _slow_compile(sim=True):
+def _slow_compile():
     for _ in range(2):  # two slow modules: said once
         timer = jit._notice_timer()
         threading.Event().wait(0.3)
@@ -30,8 +30,8 @@ def test_a_run_that_compiles_says_so_once_before_the_alignment(tmp_path, monkeyp
     run_session(RunOptions(output=tmp_path / "s.h5", sim=True, duration=0.02, stream=out, status=status))
     lines = out.getvalue().splitlines()
     if not status:
-        assert compile_sentence(True) not in lines
+        assert compile_sentence() not in lines
         return
-    assert lines.count(compile_sentence(True)) == 1
+    assert lines.count(compile_sentence()) == 1
     aligning = [i for i, line in enumerate(lines) if line.startswith("aligning")]
-    assert aligning and lines.index(compile_sentence(True)) < aligning[0]
+    assert aligning and lines.index(compile_sentence()) < aligning[0]

@@ -149,8 +149,8 @@ def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_
 
     from ..kernels import compile_kernels, compile_sentence
 
-    with compile_notice(lambda: click.echo(compile_sentence(True), err=True)):  # said when it compiles
-        compile_kernels(sim=True)
+    with compile_notice(lambda: click.echo(compile_sentence(), err=True)):  # said when it compiles
+        compile_kernels()
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
