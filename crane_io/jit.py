@@ -23,7 +23,7 @@ import contextlib
 import threading
 import types
 
-COMPILE_ESTIMATE_S = 40  # compiling every kernel of a simulated run from an empty cache, 2 cores, some load
+COMPILE_ESTIMATE_S = 30  # every kernel of a simulated run from an empty cache: 27 s on 2 cores at load 2
 _notice: list = []  # [callback, seconds]: the compile_notice in effect (at most one, per process)
 
 
@@ -59,7 +59,7 @@ def compile_functions(namespace: dict, names: tuple[str, ...], signatures: dict[
 def compile_notice(callback, after_s: float = 1.0):
     """While inside: once a `compile_functions` call is still busy after `after_s` (numba compiling, not
     loading from its cache), `callback()` is called, once, from a timer thread (a command says there
-    what it is doing, e.g. "compiling the simulator's kernels once, about 40 s")."""
+    what it is doing, e.g. "compiling the simulator's kernels once, about 30 s")."""
     _notice[:] = [callback, float(after_s)]
     try:
         yield

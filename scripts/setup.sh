@@ -21,6 +21,6 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
     fi
     echo "$want" > "$stamp"
 fi
-# the numba kernels compiled once, so that no command pays it (about 40 s after an install; a second or two
+# the numba kernels compiled once, so that no command pays it (about 30 s after an install; a second or two
 # when numba's cache has them; collect/kernels.py)
 .venv/bin/python -m collect.kernels
