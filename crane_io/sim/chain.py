@@ -20,6 +20,9 @@ servo's silence is measured from the real time each instruction arrived, so a sl
 watchdog expire while the host keeps talking, and a host that really went silent is still caught.
 
 Hooks for fault-injection tests: `servos`, `remove_servo`/`restore_servo`, `reply_filter`, `stats`.
+
+The instructions the servos carry out are in crane_io.sim.chain_instructions, the lockstep Sync Write's
+compiled path in chain_lockstep, the plant's faster methods and the compiled calls by name in chain_paths.
 """
 
 from __future__ import annotations
