@@ -45,6 +45,7 @@ import numpy as np
 
 from crane_io import session_format as fmt
 from crane_io.description import ArmDescription, default_arm
+from crane_io.jit import compile_notice
 from crane_io.shutdown import StopRequest, disarm_prompt_exit, handle_termination, set_activity
 
 from .alignment import SafetyStop, StartRefused, checked
@@ -52,6 +53,7 @@ from .arm_calibration import calibration_offsets, calibration_sentence, resolve_
 from .arm_pair import ARMS
 from .bilateral_loop import BilateralLoop, RunContext
 from .config import Config, load_config
+from .kernels import compile_kernels, compile_sentence
 from .loop_models import load_reaction_models, observer_sentence
 from .realtime import enter_realtime
 from .run_options import RunOptions, RunResult, check_run_outputs
@@ -193,8 +195,12 @@ class BilateralRun:
         before torque on: on hardware a pause between torque on and the first cycle would trip the
         servos' Bus Watchdog."""
         opts, config, arm, stop = self.options, self.config, self.arm, self.stop
-        if opts.sim:
-            set_activity("building the simulated arms (loading or compiling their kernels)")
+        if opts.sim:  # every kernel at once, said when it is a compilation (setup.sh compiles them before)
+            set_activity("loading or compiling the simulator's kernels")
+            with compile_notice(self._say_compiling):
+                compile_kernels()
+            stop.check()
+            set_activity("building the simulated arms")
             self.sims = make_sim_arms(opts.plant, opts.seed, config, arm)
             ports = {name: self.sims[name].url for name in ARMS}
         else:
@@ -298,6 +304,10 @@ class BilateralRun:
         self.closed = True
 
     # -- helpers ----------------------------------------------------------------------------------------
+    def _say_compiling(self) -> None:
+        if self.options.status and self.out is not None:
+            print(compile_sentence(), file=self.out, flush=True)
+
     def _torque_going_on(self) -> None:
         """From the first torque on, a stop is taken between two steps (the safe stop then runs)."""
         disarm_prompt_exit()  # from here the clean-up must run: no end from outside the main thread

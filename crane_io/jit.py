@@ -9,11 +9,22 @@ switches a bus's torque on). A kernel compiled lazily instead would be compiled 
 which for a simulator serving a pseudo-terminal is while a host waits for a reply: on a fresh checkout
 that is several seconds, and the host rightly declares the servos silent.
 Returns None when numba is not installed.
+
+numba keeps the machine code in `__pycache__` next to each kernel module (in `NUMBA_CACHE_DIR` when set; a
+module whose source changed is compiled again). Loading from the cache takes a fraction of a second per
+module; compiling them all (after an install, or after a kernel's source changed) takes about
+`COMPILE_ESTIMATE_S` on a 2-core machine. `scripts/setup.sh` compiles them once (`python -m collect.kernels`);
+a command that may compile says so while it does, with `compile_notice`.
 """
 
 from __future__ import annotations
 
+import contextlib
+import threading
 import types
+
+COMPILE_ESTIMATE_S = 30  # every kernel of a simulated run from an empty cache: 27 s on 2 cores at load 2
+_notice: list = []  # [callback, seconds]: the compile_notice in effect (at most one, per process)
 
 
 def compile_functions(namespace: dict, names: tuple[str, ...], signatures: dict[str, tuple[str, ...]],
@@ -33,7 +44,40 @@ def compile_functions(namespace: dict, names: tuple[str, ...], signatures: dict[
         g = types.FunctionType(f.__code__, ns, name, f.__defaults__)
         g.__qualname__ = qualname_prefix + name if qualname_prefix else f.__qualname__
         ns[name] = jit(g)
-    for name, sigs in signatures.items():
-        for sig in sigs:
-            ns[name].compile(sig)
+    timer = _notice_timer()
+    try:
+        for name, sigs in signatures.items():
+            for sig in sigs:
+                ns[name].compile(sig)
+    finally:
+        if timer is not None:
+            timer.cancel()
     return {name: ns[name] for name in names}
+
+
+@contextlib.contextmanager
+def compile_notice(callback, after_s: float = 1.0):
+    """While inside: once a `compile_functions` call is still busy after `after_s` (numba compiling, not
+    loading from its cache), `callback()` is called, once, from a timer thread (a command says there
+    what it is doing, e.g. "compiling the simulator's kernels once, about 30 s")."""
+    _notice[:] = [callback, float(after_s)]
+    try:
+        yield
+    finally:
+        _notice.clear()
+
+
+def _notice_timer() -> threading.Timer | None:
+    if not _notice:
+        return None
+    callback, after_s = _notice
+
+    def fire():
+        if _notice and _notice[0] is callback:
+            _notice.clear()  # said once
+            callback()
+
+    timer = threading.Timer(after_s, fire)
+    timer.daemon = True
+    timer.start()
+    return timer

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Create .venv and install crane-x7 with its dev tools and the live-view extra. The CPU build of torch 2.13.0 is pinned
+# Create .venv, install crane-x7 with its dev tools and the live-view extra, compile the numba kernels. The CPU build of torch 2.13.0 is pinned
 # through constraints.txt (an unpinned torch would pull several GB of CUDA packages).
-# Idempotent: re-running after a change to pyproject.toml or constraints.txt re-installs.
+# Idempotent: re-running after a change to pyproject.toml or constraints.txt re-installs; the kernels load from cache.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
@@ -21,3 +21,6 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
     fi
     echo "$want" > "$stamp"
 fi
+# the numba kernels compiled once, so that no command pays it (about 30 s after an install; a second or two
+# when numba's cache has them; collect/kernels.py)
+.venv/bin/python -m collect.kernels

@@ -467,10 +467,9 @@ def test_the_one_call_cycle_draws_the_noise_the_general_path_draws(joints):
     chains = _pair(lambda: ArmPlant(joints, seed=8))
     ids = _bring_up(chains, [2, 3, 4, 5, 6, 7, 8])
     calls = []
-    one_call = chains[0]._lockstep_fns[3]
-    fns = list(chains[0]._lockstep_fns)
-    fns[3] = lambda *a: calls.append(1) or one_call(*a)
-    chains[0]._lockstep_fns = tuple(fns)
+    fns = chains[0]._lockstep_fns
+    chains[0]._lockstep_fns = fns._replace(
+        sync_write_read=lambda *a: calls.append(1) or fns.sync_write_read(*a))
     rng = np.random.default_rng(2)
 
     def run(n):

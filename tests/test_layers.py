@@ -80,3 +80,57 @@ def test_the_library_never_imports_its_command_line(package):
     inward = [(f, m) for f, m in _offending(package, (f"{package}.cli", "click"))
               if not f.startswith(f"{package}/cli")]
     assert inward == []
+
+
+# Compiled modules (docs/architecture.md, "Compiled paths") import only numpy, math, numba, crane_io.jit and
+# the layout modules listed here for each one (the constants and tables their arrays are laid out by, and
+# the compiled modules they call). A new *_kernel.py module must be listed.
+COMPILED_ANYWHERE = ("__future__", "numpy", "math", "numba", "crane_io.jit")
+COMPILED_LAYOUTS = {
+    "collect/controller_kernel.py": (),
+    "crane_io/dynamixel/cycle_kernel.py": ("crane_io.dynamixel.crc",),  # the CRC table
+    "crane_io/sim/chain_kernel.py": ("crane_io.dynamixel.crc", "crane_io.dynamixel.units"),
+    "crane_io/sim/lockstep_kernel.py": (
+        "crane_io.dynamixel.control_table",  # the X series' addresses
+        "crane_io.dynamixel.units",
+        "crane_io.sim.servo",  # the servo memory's size and the servo state's columns
+        "crane_io.sim.chain_kernel", "crane_io.sim.noise_kernel", "crane_io.sim.plant_kernel",  # it calls
+    ),
+    # ctypes: the numpy generator's state pointer; warnings: a numba whose sampler differs is said once
+    "crane_io/sim/noise_kernel.py": ("crane_io.dynamixel.units", "ctypes", "warnings"),
+    "crane_io/sim/plant_kernel.py": (),
+}
+
+
+def _modules_imported(path: Path) -> set[str]:
+    """The modules a file imports (`from a.b import c` names module a.b.c when that is a module of the tree,
+    else a.b), anywhere in the file."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0:
+            for alias in node.names:
+                sub = f"{node.module}.{alias.name}"
+                is_module = (ROOT / (sub.replace(".", "/") + ".py")).exists()
+                found.add(sub if is_module else node.module)
+    return found
+
+
+def test_every_compiled_module_is_listed():
+    kernels = {p.relative_to(ROOT).as_posix() for pkg in ("crane_io", "collect", "train")
+               for p in (ROOT / pkg).rglob("*_kernel.py")}
+    assert kernels == set(COMPILED_LAYOUTS)
+
+
+def test_the_imports_of_a_compiled_module_are_resolved():  # or the next test could not fail
+    found = _modules_imported(ROOT / "crane_io/sim/lockstep_kernel.py")
+    assert {"numpy", "crane_io.sim.chain_kernel", "crane_io.sim.servo", "crane_io.jit"} <= found
+
+
+@pytest.mark.parametrize("module", sorted(COMPILED_LAYOUTS))
+def test_compiled_modules_import_only_numpy_math_numba_and_their_layout(module):
+    allowed = COMPILED_ANYWHERE + COMPILED_LAYOUTS[module]
+    others = sorted(m for m in _modules_imported(ROOT / module)
+                    if not any(m == a or m.startswith(a + ".") for a in allowed))
+    assert others == [], f"{module} imports {others}: not numpy, math, numba or a layout module of it"

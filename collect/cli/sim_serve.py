@@ -145,6 +145,12 @@ def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_
         config = config.with_bilateral_joints(joints)
     arm = run_arm(config)
     offsets = parse_offsets(encoder_offsets, arm, arms=("leader", "follower") if pair else ("arm",))
+    from crane_io.jit import compile_notice
+
+    from ..kernels import compile_kernels, compile_sentence
+
+    with compile_notice(lambda: click.echo(compile_sentence(), err=True)):  # said when it compiles
+        compile_kernels()
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:

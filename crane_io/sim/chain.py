@@ -20,6 +20,9 @@ servo's silence is measured from the real time each instruction arrived, so a sl
 watchdog expire while the host keeps talking, and a host that really went silent is still caught.
 
 Hooks for fault-injection tests: `servos`, `remove_servo`/`restore_servo`, `reply_filter`, `stats`.
+
+The instructions the servos carry out are in crane_io.sim.chain_instructions, the lockstep Sync Write's
+compiled path in chain_lockstep, the plant's faster methods and the compiled calls by name in chain_paths.
 """
 
 from __future__ import annotations
@@ -27,7 +30,7 @@ from __future__ import annotations
 import os
 import threading
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,22 +39,25 @@ from crane_io.dynamixel.control_table import X_SERIES, XM430_W350, ServoModel
 from crane_io.errors import ConfigError
 from crane_io.sim import chain_kernel, lockstep_kernel
 from crane_io.sim import protocol as p
+from crane_io.sim.chain_instructions import (
+    BAUD_CODE_OF,
+    GOAL_CURRENT_ADDRESS,
+    GOAL_POSITION_ADDRESS,
+    InstructionHandlers,
+)
+from crane_io.sim.chain_lockstep import LockstepWrites
+from crane_io.sim.chain_paths import ChainCalls, LockstepCalls, PlantPaths, fast_layout, plant_paths
 from crane_io.sim.plant_api import ActuatorCommand, Plant
-from crane_io.sim.servo import _I16, _U16, BAUD_CODES, MEMORY_SIZE, S_ON_BUS, STATE_SIZE, EmulatedServo
+from crane_io.sim.servo import MEMORY_SIZE, STATE_SIZE, EmulatedServo
 
-# a write to Goal Current or Goal Position is a lockstep tick
-GOAL_CURRENT_ADDRESS = X_SERIES["goal_current"].address
-GOAL_POSITION_ADDRESS = X_SERIES["goal_position"].address
-_ID_ADDRESS = X_SERIES["id"].address
-_BAUD_ADDRESS = X_SERIES["baud_rate"].address  # right after the ID (_hearing reads both at once)
-# the items the fast path reads and writes in every servo's memory (_fast_layout checks the models')
+__all__ = ["GOAL_CURRENT_ADDRESS", "GOAL_POSITION_ADDRESS", "ChainStats", "SimulatedChain"]
+# the items the fast path reads and writes in every servo's memory (chain_paths.fast_layout checks them)
 _TORQUE_AT, _MODE_AT = X_SERIES["torque_enable"].address, X_SERIES["operating_mode"].address
 _LIMIT_AT, _HW_ERROR_AT = X_SERIES["current_limit"].address, X_SERIES["hardware_error_status"].address
 _PRESENT_AT, _TICK_AT = X_SERIES["present_current"].address, X_SERIES["realtime_tick"].address
 _SUPPLY_AT, _THRESHOLD_AT = X_SERIES["present_input_voltage"].address, X_SERIES["moving_threshold"].address
 STEP_BUDGET_S = 0.001  # wall clock: most real time spent stepping the plant per packet or touch
 MAX_LAG_S = 0.1  # wall clock: a plant further behind real time than this slips ahead to now
-_BAUD_CODE_OF = {rate: code for code, rate in BAUD_CODES.items()}  # bit/s -> Baud Rate register value
 
 
 @dataclass
@@ -72,7 +78,7 @@ class ChainStats:
     max_slip_s: float = 0.0  # the largest single jump, seconds
 
 
-class SimulatedChain:
+class SimulatedChain(InstructionHandlers, LockstepWrites):
     """Emulated servos (one per plant joint, in `plant.servo_ids` order) on one bus."""
 
     def __init__(
@@ -121,9 +127,11 @@ class SimulatedChain:
             fast = os.environ.get("CRANE_CHAIN_FAST", "1") != "0"
         # the compiled functions, loaded (or compiled) now, not at the first packet a host waits on
         # (crane_io.jit); None without numba, and then no fast path
-        self._fast_fns = chain_kernel.compiled() if fast and self._fast_layout() else None
+        fns = chain_kernel.compiled() if fast and fast_layout(self._order) else None
+        self._fast_fns = None if fns is None else ChainCalls(*fns)
         # the lockstep cycle's usual packets handled whole (crane_io.sim.lockstep_kernel; see feed)
-        self._lockstep_fns = lockstep_kernel.compiled() if self._fast_fns is not None else None
+        fns = lockstep_kernel.compiled() if self._fast_fns is not None else None
+        self._lockstep_fns = None if fns is None else LockstepCalls(*fns)
         self.fast = self._fast_fns is not None and self._lockstep_fns is not None
         self._reply_buffer = np.zeros(4096, dtype=np.uint8)  # the fast Fast Sync Read reply is built here
         self._sensed = np.zeros((3, len(self._order)))  # lockstep_kernel.sense's reading (see _read_plant)
@@ -153,7 +161,7 @@ class SimulatedChain:
         self.time = 0.0
         self._t0 = time.monotonic()
         self._lock = threading.RLock()
-        self._plant_lists_methods = (None, (None, None))  # (plant, its list methods): see _lists_of
+        self._plant_paths: tuple = (None, None)  # (plant, its PlantPaths): see _paths_of
         self._read_plant()
 
     @classmethod
@@ -162,24 +170,6 @@ class SimulatedChain:
         return cls(plant, {j.servo_id: j.model for j in arm.joints}, **kwargs)
 
     # ---- the fast path ---------------------------------------------------------------------------
-    def _fast_layout(self) -> bool:
-        """The fast path's compiled functions take every servo's items at the X series' addresses."""
-        first = self._order[0] if self._order else None
-        if first is None:
-            return False
-        names = ("present_current", "realtime_tick", "present_input_voltage", "moving_threshold",
-                 "torque_enable", "operating_mode", "goal_current", "goal_position", "current_limit",
-                 "hardware_error_status", "bus_watchdog", "id", "baud_rate", "max_position_limit",
-                 "min_position_limit")
-        for s in self._order:
-            regs = s.registers
-            if any(regs[n].address != X_SERIES[n].address or regs[n].size != X_SERIES[n].size
-                   or regs[n].signed != X_SERIES[n].signed for n in names):
-                return False
-            if any(regs[n].access != "RW" or regs[n].eeprom for n in ("goal_current", "goal_position")):
-                return False
-        return True
-
     def _fast(self):
         """The compiled functions when the fast path is on, else None."""
         return self._fast_fns if self.fast else None
@@ -285,7 +275,7 @@ class SimulatedChain:
         """The plant's reading as (position, velocity, current, voltage, temperature) lists of floats
         (None for a voltage or temperature the plant does not give)."""
         plant = self.plant
-        reader = self._lists_of(plant)[0]
+        reader = self._paths_of(plant).read_lists
         if reader is not None:
             return reader()
         reading = plant.read()
@@ -295,20 +285,13 @@ class SimulatedChain:
         return (floats(reading.position), floats(reading.velocity), floats(reading.current),
                 floats(reading.voltage), floats(reading.temperature))
 
-    def _lists_of(self, plant) -> tuple:
-        """(read_lists or None, step_lists or None) of `plant` (see _list_method), found once per plant."""
-        kept_for, methods = self._plant_lists_methods
+    def _paths_of(self, plant) -> PlantPaths:
+        """The plant's faster methods (crane_io.sim.chain_paths.plant_paths), found once per plant."""
+        kept_for, paths = self._plant_paths
         if kept_for is not plant:  # first use, or the plant was replaced
-            methods = (_list_method(plant, "read"), _list_method(plant, "step"),
-                       _list_method(plant, "read", "read_arrays"),
-                       _list_method(plant, "step", "step_command"),
-                       _list_method(plant, "read", "kernel_read_args"),
-                       _list_method(plant, "step", "kernel_step_args"))
-            # the step and the reading in one compiled call (lockstep_kernel.sync_write_read) when both fit
-            both = methods[4] is not None and methods[5] is not None
-            methods += (getattr(plant, "kernel_cycle_args", None) if both else None,)
-            self._plant_lists_methods = (plant, methods)
-        return methods
+            paths = plant_paths(plant)
+            self._plant_paths = (plant, paths)
+        return paths
 
     def _step(self, dt: float) -> None:
         now = self.time
@@ -318,14 +301,14 @@ class SimulatedChain:
             if s.watchdog_expired:
                 expired |= 1 << i
         plant = self.plant
-        methods = self._lists_of(plant)
-        step_lists = methods[1]
+        paths = self._paths_of(plant)
+        step_lists = paths.step_lists
         fast = self._fast()
-        if fast is not None and methods[3] is not None:  # the commands read out at once
+        if fast is not None and paths.step_command is not None:  # the commands read out at once
             cmds = self._commands
-            mask = fast[1](self.memories, expired, cmds, _TORQUE_AT, _MODE_AT, GOAL_CURRENT_ADDRESS,
-                           GOAL_POSITION_ADDRESS, _LIMIT_AT)
-            done = methods[3](cmds, mask, dt)
+            mask = fast.commands(self.memories, expired, cmds, _TORQUE_AT, _MODE_AT, GOAL_CURRENT_ADDRESS,
+                                 GOAL_POSITION_ADDRESS, _LIMIT_AT)
+            done = paths.step_command(cmds, mask, dt)
         else:
             done = False
         if not done:  # step_command did not step the plant (no fast path, or a case it hands back)
@@ -340,17 +323,17 @@ class SimulatedChain:
     def _read_plant(self) -> None:
         now = self.time
         fast = self._fast()
-        methods = self._lists_of(self.plant)
-        sensed = methods[4]() if fast is not None and methods[4] is not None else None
+        paths = self._paths_of(self.plant)
+        sensed = paths.kernel_read_args() if fast is not None and paths.kernel_read_args is not None else None
         if sensed is not None:  # read_arrays + sensors_into in one compiled call (lockstep_kernel.sense)
             volt, temp = self._supply(sensed[10], sensed[11])
-            done = self._lockstep_fns[1](self.memories, *sensed[:10], volt, temp, int(now * 1000) % 32768,
-                                         self._sensed)
+            done = self._lockstep_fns.sense(self.memories, *sensed[:10], volt, temp, int(now * 1000) % 32768,
+                                            self._sensed)
             if not done:
                 position, velocity, current = self._sensed.copy()
                 voltage, temperature = sensed[10], sensed[11]
         elif fast is not None:
-            reader = methods[2]
+            reader = paths.read_arrays
             if reader is not None:  # the plant's reading as arrays, into every servo's memory at once
                 position, velocity, current, voltage, temperature = reader()
             else:
@@ -359,8 +342,9 @@ class SimulatedChain:
             if reader is None:
                 position, velocity, current = (np.array(x, dtype=float)
                                                for x in (position, velocity, current))
-            done = fast[0](self.memories, position, velocity, current, volt, temp, int(now * 1000) % 32768,
-                           _PRESENT_AT, _TICK_AT, _SUPPLY_AT, _THRESHOLD_AT)
+            tick = int(now * 1000) % 32768
+            done = fast.sensors_into(self.memories, position, velocity, current, volt, temp, tick,
+                                     _PRESENT_AT, _TICK_AT, _SUPPLY_AT, _THRESHOLD_AT)
         else:
             position, velocity, current, voltage, temperature = self._plant_lists()
         if fast is None or not done:
@@ -447,61 +431,17 @@ class SimulatedChain:
         if baudrate is None:
             code = -1
         else:
-            code = _BAUD_CODE_OF.get(baudrate)
+            code = BAUD_CODE_OF.get(baudrate)
             if code is None:  # a speed no servo can be set to
                 return None
         inst = data[7]
         fns = self._lockstep_fns
         if inst == p.INST_SYNC_WRITE:
-            dt = self.period_s
-            plant = self.plant
-            methods = self._lists_of(plant)
-            cycle = methods[6]
-            args = None if cycle is None else cycle(dt)
-            if args is not None:  # written, stepped and read in one call (lockstep_kernel.sync_write_read)
-                volt, temp = self._supply(args[-2], args[-1])
-                now = self.time
-                result = fns[3](data, self.memories, self.servo_state, code, self.parser.max_length, now,
-                                self._commands, *args[:-2], volt, temp, self._sensed, self._noise_work)
-                if result < 0:
-                    return None
-                st = self.stats
-                st.bytes_received += len(data)
-                st.packets_received += 1
-                if result == 1 or result == 3:  # stepped and read: the clocks (then what sense did not write)
-                    plant.kernel_stepped(dt)
-                    self.time = now = now + dt
-                    st.plant_steps += 1
-                    if result == 3:
-                        position, velocity, current = self._sensed.tolist()
-                        self._set_sensors(position, velocity, current, args[-2], args[-1], now)
-                    self._plant_errors()
-                elif result == 2:  # written: the plant steps on the general path
-                    self._step(dt)
-                return b""
-            step_args = methods[5]
-            if step_args is not None:
-                args = step_args(dt)
-            result = fns[0](data, self.memories, self.servo_state, code,
-                            self.parser.max_length, self.time, self._commands, args is not None,
-                            *(args if args is not None else self._no_plant_args))
-            if result < 0:
-                return None
-            st = self.stats
-            st.bytes_received += len(data)
-            st.packets_received += 1
-            if result == 1:  # written and stepped: the clocks, the reading
-                plant.kernel_stepped(dt)
-                self.time += dt
-                st.plant_steps += 1
-                self._read_plant()
-            elif result == 2:  # written: the plant steps on the general path
-                self._step(dt)
-            return b""
+            return self._lockstep_sync_write(data, code)
         if inst == p.INST_FAST_SYNC_READ and self.fast_sync_read and self.reply_filter is None:
             buf = self._reply_buffer
-            result = fns[2](data, self.memories, self.servo_state, code,
-                            self.parser.max_length, self.time, buf)
+            result = fns.fast_sync_read(data, self.memories, self.servo_state, code,
+                                        self.parser.max_length, self.time, buf)
             if result < 0:
                 return None
             reply = buf[:result >> 16].tobytes()
@@ -512,190 +452,6 @@ class SimulatedChain:
             st.bytes_sent += len(reply)
             return reply
         return None
-
-    def _hearing(self, baudrate: int | None) -> list[EmulatedServo]:
-        if self.fast:  # the same list as long as the port's speed, who is on the bus, IDs and bauds are
-            key = (baudrate, self.servo_state[:, S_ON_BUS].tobytes(),
-                   self.memories[:, _ID_ADDRESS:_BAUD_ADDRESS + 1].tobytes())
-            cached = self._hearing_cache
-            if cached is not None and cached[0] == key:
-                return cached[1]
-            servos = self._hearing_of(baudrate)
-            self._hearing_cache = (key, servos, self._index_of(servos))
-            return servos
-        return self._hearing_of(baudrate)
-
-    def _hearing_of(self, baudrate: int | None) -> list[EmulatedServo]:
-        if baudrate is None:
-            return [s for s in self._order if s.on_bus]
-        code = _BAUD_CODE_OF.get(baudrate)
-        if code is None:  # a speed no servo can be set to
-            return [s for s in self._order if s.on_bus and s.baudrate == baudrate]
-        return [s for s in self._order if s.on_bus and s.memory[s.baud_address] == code]
-
-    def _handle(self, pkt: p.Packet, baudrate: int | None,
-                now: float | None = None) -> Iterable[tuple[bytes, float]]:
-        """`now`: the chain time the packet arrived at (default: the plant's time, as in lockstep)."""
-        servos = self._hearing(baudrate)
-        if not servos or pkt.instruction == p.INST_STATUS:
-            return []
-        if now is None:
-            now = self.time
-        inst, params = pkt.instruction, pkt.params
-        if pkt.id == p.BROADCAST_ID:
-            handler = self._broadcast_handlers.get(inst)
-            if handler is not None:
-                return handler(servos, params, now)
-            for s in servos:  # broadcast write, reg write, action, reboot, factory reset: no replies
-                s.contact(now)
-                self._unicast(s, inst, params, now, broadcast=True)
-            self._rekey()
-            return []
-        replies = []
-        for s in servos:
-            if s.id == pkt.id:
-                s.contact(now)
-                replies.extend(self._unicast(s, inst, params, now, broadcast=False))
-        self._rekey()
-        return replies
-
-    # ---- instructions to one servo --------------------------------------------------------------
-    def _unicast(self, s: EmulatedServo, inst: int, params: bytes, now: float,
-                 broadcast: bool) -> list[tuple[bytes, float]]:
-        level = s.read_register("status_return_level")
-        sid = s.id
-        delay = s.return_delay_s
-
-        def status(error: int, data: bytes = b"", min_level: int = 2):
-            if broadcast or level < min_level:
-                return []
-            return [(p.status_packet(sid, s.status_error(error), data), delay)]
-
-        if inst == p.INST_PING:
-            mn = s.read_register("model_number")
-            return [] if broadcast else [(p.status_packet(sid, s.status_error(), bytes(
-                (mn & 0xFF, mn >> 8, s.read_register("firmware_version")))), delay)]
-        if inst == p.INST_READ:
-            if len(params) != 4:
-                return status(p.ERR_DATA_LENGTH, b"", 1)
-            address, length = params[0] | params[1] << 8, params[2] | params[3] << 8
-            error, data = s.read(address, length)
-            return status(error, data, 1)
-        if inst in (p.INST_WRITE, p.INST_REG_WRITE):
-            if len(params) < 3:
-                return status(p.ERR_DATA_LENGTH)
-            address, data = params[0] | params[1] << 8, params[2:]
-            if inst == p.INST_WRITE:
-                error = s.write(address, data, now)
-            else:
-                error = s.reg_write(address, data)
-            return status(error)
-        if inst == p.INST_ACTION:
-            return status(s.action(now))
-        if inst == p.INST_REBOOT:
-            replies = status(p.ERR_NONE)
-            s.reboot(now)
-            return replies
-        if inst == p.INST_FACTORY_RESET:
-            if len(params) != 1:
-                return status(p.ERR_DATA_LENGTH)
-            if broadcast and params[0] == 0xFF:
-                return []  # e-manual: broadcast "reset all" is not carried out
-            replies = status(p.ERR_NONE if params[0] in (0x01, 0x02, 0xFF) else p.ERR_DATA_RANGE)
-            s.factory_reset(params[0])
-            return replies
-        if inst == p.INST_CLEAR:
-            ok = len(params) == 5 and params[0] == 0x01 and bytes(params[1:]) == b"\x44\x58\x4c\x22"
-            if ok and s.read_register("moving"):
-                return status(p.ERR_RESULT_FAIL)
-            return status(p.ERR_NONE if ok else p.ERR_DATA_RANGE)
-        return status(p.ERR_INSTRUCTION)
-
-    # ---- broadcast instructions ------------------------------------------------------------------
-    def _broadcast_ping(self, servos, params, now):
-        replies = []
-        for s in sorted(servos, key=lambda s: s.id):
-            s.contact(now)
-            replies.extend(self._unicast(s, p.INST_PING, b"", now, broadcast=False))
-        return replies
-
-    def _by_id(self, servos, sid):
-        for s in servos:
-            if s.id == sid:
-                return s
-        return None
-
-    def _index(self, servos) -> dict[int, EmulatedServo]:
-        """ID -> servo among `servos`; with duplicate IDs the first one wins (as in _by_id). Kept with the
-        list _hearing returned last (IDs and who hears have not changed since: see _hearing) when that
-        list is `servos` and no ID was written since."""
-        cached = self._hearing_cache
-        if (cached is not None and cached[1] is servos
-                and cached[0][2] == self.memories[:, _ID_ADDRESS:_BAUD_ADDRESS + 1].tobytes()):
-            return cached[2]
-        return self._index_of(servos)
-
-    @staticmethod
-    def _index_of(servos) -> dict[int, EmulatedServo]:
-        index: dict[int, EmulatedServo] = {}
-        for s in servos:
-            index.setdefault(s.id, s)
-        return index
-
-    def _sync_read(self, servos, params, now):
-        if len(params) < 5:
-            return []
-        address, length = params[0] | params[1] << 8, params[2] | params[3] << 8
-        return self._read_each(servos, [(sid, address, length) for sid in params[4:]], now)
-
-    def _read_each(self, servos, requests, now):
-        """One status packet per (id, address, length) request, in order, from the servos that answer."""
-        replies = []
-        for sid, address, length in requests:
-            s = self._by_id(servos, sid)
-            if s is None:
-                continue
-            s.contact(now)
-            if s.read_register("status_return_level") < 1:
-                continue
-            error, data = s.read(address, length)
-            replies.append((p.status_packet(sid, s.status_error(error), data), s.return_delay_s))
-        return replies
-
-    def _fast_blocks(self, servos, requests, now):
-        """(blocks, complete) of a fast read; the chain breaks at the first silent servo."""
-        blocks = []
-        index = self._index(servos)
-        for sid, address, length in requests:
-            s = index.get(sid)
-            if s is None or not s.supports_fast_sync_read:
-                return blocks, False
-            s.contact(now)
-            error, data = s.read(address, length)
-            blocks.append((s.status_error(error), sid, data))
-        return blocks, True
-
-    def _fast_sync_read(self, servos, params, now):
-        if len(params) < 5:
-            return []
-        if not self.fast_sync_read:
-            self.stats.ignored_fast_sync_reads += 1
-            return []
-        address, length = params[0] | params[1] << 8, params[2] | params[3] << 8
-        ids = list(params[4:])
-        fast = self._fast()
-        if fast is not None and length > 0 and address + length <= MEMORY_SIZE:
-            reply = self._fast_sync_reply(fast, servos, ids, address, length, now)
-            if reply is not None:
-                return reply
-        blocks, complete = self._fast_blocks(servos, [(i, address, length) for i in ids], now)
-        if not blocks:
-            return []
-        first = self._by_id(servos, ids[0])
-        delay = first.return_delay_s if first is not None else 0.0
-        if complete:
-            return [(p.fast_status_packet(blocks), delay)]
-        return [(p.fast_status_prefix(blocks, len(ids), length), delay)]
 
     def _fast_sync_reply(self, fast, servos, ids, address, length, now):
         """The fast path of a Fast Sync Read: every addressed servo answers (on the bus, supports it, its
@@ -720,101 +476,4 @@ class SimulatedChain:
                                chain_kernel.CRC_TABLE_U16)
         return [(packet.tobytes(), chosen[0].return_delay_s)]
 
-    def _bulk_requests(self, params):
-        return [(params[i], params[i + 1] | params[i + 2] << 8, params[i + 3] | params[i + 4] << 8)
-                for i in range(0, len(params) - len(params) % 5, 5)]
 
-    def _bulk_read(self, servos, params, now):
-        return self._read_each(servos, self._bulk_requests(params), now)
-
-    def _fast_bulk_read(self, servos, params, now):
-        if not self.fast_sync_read:
-            self.stats.ignored_fast_sync_reads += 1
-            return []
-        requests = self._bulk_requests(params)
-        blocks, complete = self._fast_blocks(servos, requests, now)
-        if not blocks or not complete:
-            return []
-        first = self._by_id(servos, requests[0][0])
-        return [(p.fast_status_packet(blocks), first.return_delay_s)]
-
-    def _sync_write(self, servos, params, now):
-        if len(params) < 4:
-            return []
-        address, length = params[0] | params[1] << 8, params[2] | params[3] << 8
-        body = params[4:]
-        if length == 0:
-            return []
-        writes_id = address <= _ID_ADDRESS < address + length  # IDs may change within this packet
-        index = None if writes_id else self._index(servos)
-        if address == GOAL_CURRENT_ADDRESS and length == 2 and self._fast() is not None:
-            # the fast path: EmulatedServo.write of Goal Current (2 bytes, signed) without the general
-            # checks that cannot fail for it (RW, RAM, any int16 in range): refused while the watchdog
-            # has expired, else clamped to +-Current Limit
-            for k in range(0, len(body) - len(body) % 3, 3):
-                s = index.get(body[k])
-                if s is not None:
-                    s.contact(now)
-                    if not s.watchdog_expired:
-                        value = body[k + 1] | body[k + 2] << 8
-                        if value & 0x8000:
-                            value -= 0x10000
-                        limit = _U16.unpack_from(s.memory, _LIMIT_AT)[0]
-                        _I16.pack_into(s.memory, GOAL_CURRENT_ADDRESS,
-                                       -limit if value < -limit else limit if value > limit else value)
-            self._lockstep_tick([(address, length)])
-            return []
-        for k in range(0, len(body) - len(body) % (1 + length), 1 + length):
-            s = self._by_id(servos, body[k]) if writes_id else index.get(body[k])
-            if s is not None:
-                s.contact(now)
-                s.write(address, body[k + 1:k + 1 + length], now)
-        if writes_id:
-            self._rekey()
-        self._lockstep_tick([(address, length)])
-        return []
-
-    def _bulk_write(self, servos, params, now):
-        i, spans = 0, []
-        while i + 5 <= len(params):
-            sid, address = params[i], params[i + 1] | params[i + 2] << 8
-            length = params[i + 3] | params[i + 4] << 8
-            data = params[i + 5:i + 5 + length]
-            i += 5 + length
-            if len(data) != length:
-                break
-            s = self._by_id(servos, sid)
-            if s is not None:
-                s.contact(now)
-                s.write(address, data, now)
-                spans.append((address, length))
-        self._rekey()
-        self._lockstep_tick(spans)
-        return []
-
-    def _lockstep_tick(self, spans) -> None:
-        if self.clock != "lockstep":
-            return
-        for address, length in spans:
-            if any(address <= a < address + length for a in (GOAL_CURRENT_ADDRESS, GOAL_POSITION_ADDRESS)):
-                self._step(self.period_s)
-                return
-
-
-def _list_method(plant, name: str, variant: str | None = None):
-    """`plant.<name>_lists` (the same call with lists instead of arrays; or the method named `variant`) when
-    the class whose `name` method the plant uses defines it too, else None: a subclass or a wrapper that
-    changes `read` or `step` (sensor offsets, a delegating __getattr__; or, for a variant, `<name>_lists`)
-    is never bypassed."""
-    lists = f"{name}_lists"
-    if variant is None:
-        for klass in type(plant).__mro__:
-            if name in vars(klass):
-                return getattr(plant, lists) if lists in vars(klass) else None
-        return None
-    # the fast path's variant: the first class defining any of the three must define all three
-    for klass in type(plant).__mro__:
-        found = [m in vars(klass) for m in (name, lists, variant)]
-        if any(found):
-            return getattr(plant, variant) if all(found) else None
-    return None

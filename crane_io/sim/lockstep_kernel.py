@@ -38,7 +38,7 @@ from crane_io.dynamixel.units import SECONDS_PER_WATCHDOG_LSB
 from crane_io.sim import chain_kernel, noise_kernel, plant_kernel
 from crane_io.sim.servo import MEMORY_SIZE, S_CONTACT, S_EXPIRED, S_FAST_READ, S_ON_BUS
 
-# the X-series addresses (the chain uses these kernels for servos laid out so: SimulatedChain._fast_layout)
+# the X-series addresses (the chain uses these kernels for servos laid out so: chain_paths.fast_layout)
 ID_AT, BAUD_AT = X_SERIES["id"].address, X_SERIES["baud_rate"].address
 TORQUE_AT, MODE_AT = X_SERIES["torque_enable"].address, X_SERIES["operating_mode"].address
 GC_AT, GP_AT = X_SERIES["goal_current"].address, X_SERIES["goal_position"].address
@@ -50,6 +50,11 @@ MAX_POS_AT, MIN_POS_AT = X_SERIES["max_position_limit"].address, X_SERIES["min_p
 MODE_POSITION = 3  # (crane_io.dynamixel.control_table): Goal Position is clamped to the position limits
 INST_SYNC_WRITE, INST_FAST_SYNC_READ = 0x83, 0x8A
 L_N, L_K, L_PC, L_NC, L_GEO, L_PAR, L_COG, L_SCAL, L_HPAR, L_PD0, L_IDX = range(11)
+# what sync_write_goal and sync_write_read return: nothing done (the general path takes the packet), no servo
+# hears it; written and the plant stepped (and, sync_write_read, read into every servo's memory); written, the
+# plant not stepped (the caller steps it); sync_write_read: stepped, read into scratch only (the caller sets
+# the sensors from it)
+DECLINED, UNHEARD, STEPPED, WRITTEN, STEPPED_UNSENSED = -1, 0, 1, 2, 3
 _TABLE = chain_kernel.CRC_TABLE_U16
 _MEMORY_SIZE = MEMORY_SIZE
 _WD_LSB = SECONDS_PER_WATCHDOG_LSB
@@ -148,7 +153,7 @@ def sync_write_goal(pkt, mem, sst, baud_code, max_length, now, cmds, plant_on, b
             expired |= np.int64(1) << r
     mask = chain_kernel_commands(mem, expired, cmds, TORQUE_AT, MODE_AT, GC_AT, GP_AT, LIMIT_AT)
     if not plant_on or mask & bi_mask:
-        return 2
+        return WRITTEN
     n, k = klay[L_N], klay[L_K]
     pc, nc = klay[L_PC], klay[L_NC]
     geo = kpk[klay[L_GEO]:klay[L_GEO] + n * _GEO_COLS].reshape((n, _GEO_COLS))
@@ -162,7 +167,7 @@ def sync_write_goal(pkt, mem, sst, baud_code, max_length, now, cmds, plant_on, b
                                 hext, h, n_sub, dt, hmat, geo, arm, par, cog, scal, hpar)
     for i in range(out.shape[0]):
         kst[i] = out[i]
-    return 1
+    return STEPPED
 
 
 def sense(mem, kst, klay, kt, p, raw, flips, signs, vel_sd, cur_sd, z, volt, temp, tick, scratch):
@@ -197,7 +202,7 @@ def sync_write_read(pkt, mem, sst, baud_code, max_length, now, cmds, bi_mask, ks
         return -1
     r = sync_write_goal(pkt, mem, sst, baud_code, max_length, now, cmds, True, bi_mask, kst, ext, hext, hmat,
                         arm, kpk, klay, h, n_sub, dt)
-    if r != 1:
+    if r != STEPPED:
         return r
     draws = (1 if vel_sd > 0 else 0) + (1 if cur_sd > 0 else 0)
     flips, signs, z = work[0:n], work[n:2 * n], work[2 * n:2 * n + draws * n]
@@ -206,7 +211,7 @@ def sync_write_read(pkt, mem, sst, baud_code, max_length, now, cmds, bi_mask, ks
     tick = np.int64(t * 1000.0) % 32768
     raw = np.empty(0, dtype=np.uint64)
     done = sense(mem, kst, klay, kt, p, raw, flips, signs, vel_sd, cur_sd, z, volt, temp, tick, scratch)
-    return 1 if done else 3
+    return STEPPED if done else STEPPED_UNSENSED
 
 
 def fast_sync_read(pkt, mem, sst, baud_code, max_length, now, buf):
