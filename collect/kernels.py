@@ -23,7 +23,7 @@ def compile_kernels() -> None:
 
     from . import controller_kernel
     from .bilateral_loop import _record_kernel
-    from .operator import _hand_compiled
+    from . import operator_kernel
 
     # the environment's switches to the reference paths (crane_io.sim.chain, arm_plant): not compiled
     chain_fast = os.environ.get("CRANE_CHAIN_FAST", "1") != "0"
@@ -33,7 +33,7 @@ def compile_kernels() -> None:
         chain_kernel.compiled()
         lockstep_kernel.compiled()
     noise_kernel.verified()
-    _hand_compiled()
+    operator_kernel.compiled()
     controller_kernel.compiled()
     _record_kernel()
     cycle_kernel.compiled()

@@ -87,9 +87,10 @@ def test_the_library_never_imports_its_command_line(package):
 # the compiled modules they call). A new *_kernel.py module must be listed.
 COMPILED_ANYWHERE = ("__future__", "numpy", "math", "numba", "crane_io.jit")
 COMPILED_LAYOUTS = {
-    "collect/controller_kernel.py": (),
-    "crane_io/dynamixel/cycle_kernel.py": ("crane_io.dynamixel.crc",),  # the CRC table
-    "crane_io/sim/chain_kernel.py": ("crane_io.dynamixel.crc", "crane_io.dynamixel.units"),
+    "collect/controller_kernel.py": ("collect.controller_layout",),
+    "collect/operator_kernel.py": ("collect.operator_layout",),
+    "crane_io/dynamixel/cycle_kernel.py": ("crane_io.dynamixel.crc_layout",),  # the CRC table and loop
+    "crane_io/sim/chain_kernel.py": ("crane_io.dynamixel.crc_layout", "crane_io.dynamixel.units"),
     "crane_io/sim/lockstep_kernel.py": (
         "crane_io.dynamixel.control_table",  # the X series' addresses
         "crane_io.dynamixel.units",
@@ -98,22 +99,25 @@ COMPILED_LAYOUTS = {
     ),
     # ctypes: the numpy generator's state pointer; warnings: a numba whose sampler differs is said once
     "crane_io/sim/noise_kernel.py": ("crane_io.dynamixel.units", "ctypes", "warnings"),
-    "crane_io/sim/plant_kernel.py": (),
+    "crane_io/sim/plant_kernel.py": ("crane_io.sim.plant_layout",),
 }
 
 
 def _modules_imported(path: Path) -> set[str]:
     """The modules a file imports (`from a.b import c` names module a.b.c when that is a module of the tree,
-    else a.b), anywhere in the file."""
+    else a.b; relative imports resolved against the file's package), anywhere in the file."""
     found = set()
+    package = path.relative_to(ROOT).parent.parts
     for node in ast.walk(ast.parse(path.read_text())):
         if isinstance(node, ast.Import):
             found.update(alias.name for alias in node.names)
-        elif isinstance(node, ast.ImportFrom) and node.level == 0:
+        elif isinstance(node, ast.ImportFrom):
+            base = package[:len(package) - node.level + 1] if node.level else ()
+            module = ".".join([*base, *([node.module] if node.module else [])])
             for alias in node.names:
-                sub = f"{node.module}.{alias.name}"
+                sub = f"{module}.{alias.name}"
                 is_module = (ROOT / (sub.replace(".", "/") + ".py")).exists()
-                found.add(sub if is_module else node.module)
+                found.add(sub if is_module else module)
     return found
 
 
@@ -126,6 +130,7 @@ def test_every_compiled_module_is_listed():
 def test_the_imports_of_a_compiled_module_are_resolved():  # or the next test could not fail
     found = _modules_imported(ROOT / "crane_io/sim/lockstep_kernel.py")
     assert {"numpy", "crane_io.sim.chain_kernel", "crane_io.sim.servo", "crane_io.jit"} <= found
+    assert "collect.controller_layout" in _modules_imported(ROOT / "collect/controller_kernel.py")  # relative
 
 
 @pytest.mark.parametrize("module", sorted(COMPILED_LAYOUTS))
