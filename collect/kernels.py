@@ -21,9 +21,8 @@ def compile_kernels() -> None:
     from crane_io.dynamixel import cycle_kernel
     from crane_io.sim import chain_kernel, lockstep_kernel, noise_kernel, plant_kernel
 
-    from . import controller_kernel
+    from . import controller_kernel, operator_kernel
     from .bilateral_loop import _record_kernel
-    from . import operator_kernel
 
     # the environment's switches to the reference paths (crane_io.sim.chain, arm_plant): not compiled
     chain_fast = os.environ.get("CRANE_CHAIN_FAST", "1") != "0"
