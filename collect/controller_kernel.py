@@ -72,7 +72,6 @@ from .controller_layout import (
     Commands,
     ControlLaw,
     RowCommands,
-    digest,
 )
 
 
@@ -251,7 +250,7 @@ def compiled():
 
         names = ("_prepare", "_observe", "_deadband", "step", "_outside", "_clamp", "_breached", "control",
                  "hold")
-        fns = compile_functions(globals(), names, SIGNATURES, qualname_prefix=f"controller_{digest()}.",
+        fns = compile_functions(globals(), names, SIGNATURES, qualname_prefix="controller.",
                                 error_model="numpy")
         if fns is None:
             _COMPILED = False

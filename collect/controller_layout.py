@@ -15,7 +15,6 @@ the rows `SAFETY_ROWS` names (SafetyMonitor.kernel_constants).
 from __future__ import annotations
 
 import functools
-import hashlib
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
@@ -100,13 +99,6 @@ class RowCommands(Commands):
     @functools.cached_property
     def follower_current(self) -> np.ndarray:
         return self._out[O_CUR_F]
-
-
-def digest() -> str:
-    """A short hash of this layout: the compiled functions' cache entries are named with it, so a change
-    here never reuses code compiled with the old rows (numba's cache sees only the kernel module's file)."""
-    values = {k: v for k, v in globals().items() if k.isupper() and isinstance(v, (int, tuple))}
-    return hashlib.sha256(repr(sorted(values.items())).encode()).hexdigest()[:12]
 
 
 class ControlLaw(ABC):

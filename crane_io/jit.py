@@ -10,16 +10,23 @@ which for a simulator serving a pseudo-terminal is while a host waits for a repl
 that is several seconds, and the host rightly declares the servos silent.
 Returns None when numba is not installed.
 
-numba keeps the machine code in `__pycache__` next to each kernel module (in `NUMBA_CACHE_DIR` when set; a
-module whose source changed is compiled again). Loading from the cache takes a fraction of a second per
-module; compiling them all (after an install, or after a kernel's source changed) takes about
-`COMPILE_ESTIMATE_S` on a 2-core machine. `scripts/setup.sh` compiles them once (`python -m collect.kernels`);
-a command that may compile says so while it does, with `compile_notice`.
+numba keeps the machine code in `__pycache__` next to each kernel module (in `NUMBA_CACHE_DIR` when set).
+numba itself notices only a change of the compiled module's own file; a kernel also draws on its layout
+modules and on the kernels it calls (the lockstep cycle steps the plant kernel). So every compiled
+function's cache entry is named with `sources_digest(namespace)`: a hash of the source of the module and
+of every toolkit module it imports at its top level, transitively (constants imported from a layout
+module are compiled into the machine code, so their module counts too). An edit anywhere a kernel draws on
+compiles it again instead of loading machine code built from the old source. Loading from the cache takes
+a fraction of a second per module; compiling them all (after an install, or after a kernel's source
+changed) takes about `COMPILE_ESTIMATE_S` on a 2-core machine. `scripts/setup.sh` compiles them once
+(`python -m collect.kernels`); a command that may compile says so while it does, with `compile_notice`.
 """
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
+import sys
 import threading
 import types
 
@@ -39,10 +46,11 @@ def compile_functions(namespace: dict, names: tuple[str, ...], signatures: dict[
         return None
     jit = numba.njit(cache=True, **options)
     ns = dict(namespace)  # the compiled functions call each other; the module keeps the Python ones
+    tag = f"s{sources_digest(namespace)}."
     for name in names:
         f = ns[name]
         g = types.FunctionType(f.__code__, ns, name, f.__defaults__)
-        g.__qualname__ = qualname_prefix + name if qualname_prefix else f.__qualname__
+        g.__qualname__ = tag + (qualname_prefix + name if qualname_prefix else f.__qualname__)
         ns[name] = jit(g)
     timer = _notice_timer()
     try:
@@ -53,6 +61,73 @@ def compile_functions(namespace: dict, names: tuple[str, ...], signatures: dict[
         if timer is not None:
             timer.cancel()
     return {name: ns[name] for name in names}
+
+
+_PROJECT_PACKAGES = ("crane_io", "collect", "train")
+_digests: dict[str, str] = {}
+
+
+def _imported_modules(name: str, source: bytes, path: str) -> set[str]:
+    """The toolkit modules module `name` (its `source`, from `path`) imports at its top level (relative
+    imports resolved; `from a.b import c` counts a.b and a.b.c, the latter dropped later when it is
+    not a module)."""
+    import ast
+
+    package = name.split(".") if path.endswith("__init__.py") else name.split(".")[:-1]
+    found = set()
+    for node in ast.parse(source).body:
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = package[:len(package) - node.level + 1] if node.level else []
+            module = ".".join([*base, *([node.module] if node.module else [])])
+            found.add(module)
+            found.update(f"{module}.{alias.name}" for alias in node.names)
+    return {m for m in found if m.split(".")[0] in _PROJECT_PACKAGES}
+
+
+def _source_file(name: str) -> str | None:
+    import importlib.util
+
+    module = sys.modules.get(name)
+    path = getattr(module, "__file__", None) if module is not None else None
+    if path is None:
+        try:
+            spec = importlib.util.find_spec(name)
+        except (ImportError, ValueError):
+            return None
+        path = spec.origin if spec is not None else None
+    return path if path and path.endswith(".py") else None
+
+
+def module_sources(start: str) -> dict[str, bytes]:
+    """Module name -> source bytes of `start` and of every toolkit module it imports at its top level,
+    transitively."""
+    seen, todo, sources = set(), [start], {}
+    while todo:
+        name = todo.pop()
+        if name in seen:
+            continue
+        seen.add(name)
+        path = _source_file(name)
+        if path is None:  # a name imported from a module, not a module
+            continue
+        with open(path, "rb") as fh:
+            sources[name] = fh.read()
+        todo.extend(sorted(_imported_modules(name, sources[name], path) - seen))
+    return sources
+
+
+def sources_digest(namespace: dict) -> str:
+    """A short hash of the sources (`module_sources`) of the module whose globals are `namespace`; the
+    same for the same sources, in any process."""
+    start = namespace.get("__name__")
+    if start not in _digests:
+        h = hashlib.sha256()
+        for name, source in sorted(module_sources(start).items()):
+            h.update(name.encode() + b"\0" + source)
+        _digests[start] = h.hexdigest()[:12]
+    return _digests[start]
 
 
 @contextlib.contextmanager
