@@ -452,8 +452,12 @@ def test_a_new_chain_has_its_kernels_compiled_before_the_first_packet():
         "print(json.dumps({f.__name__: len(f.signatures) for f in fns}))\n")
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
     counts = json.loads(out.stdout.strip().splitlines()[-1])
+    # sync_write_read calls sync_write_goal with a literal plant_on: compiling it (not loading it from the
+    # cache) adds that specialisation to sync_write_goal's dispatcher, still while the chain is built
+    goal = counts.pop("sync_write_goal")
+    assert 1 <= goal <= 2
     assert counts == {"sensors_into": 1, "commands": 1, "fast_status": 1, "reading": 1, "step_arm": 1,
-                      "sync_write_goal": 1, "sense": 1, "fast_sync_read": 1, "sync_write_read": 1}
+                      "sense": 1, "fast_sync_read": 1, "sync_write_read": 1}
 
 
 @pytest.mark.parametrize("joints", ["crane-x7", "crane-x7-7dof"])
