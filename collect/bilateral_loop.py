@@ -244,17 +244,10 @@ class BilateralLoop:
             self.safety.bus_ok("leader")
             self.safety.bus_ok("follower")
         else:
-            timer.add("bus_leader", bt_l)
-            timer.add("bus_follower", bt_f)
-            bt_l = bt_f = 0.0  # counted
-            failed, breach = self._transfer_faults((el, ef), t, reading=True)
-            if breach is not None:
+            ended, breach = self._read_failed((el, ef), (bt_l, bt_f), t)
+            if ended:
                 return breach, t
-            if failed:
-                if self.lockstep:  # nothing was written: let the simulated time pass anyway
-                    for sim in self.sims.values():
-                        sim.chain.advance(self.period)
-                return None, t
+            bt_l = bt_f = 0.0  # counted
         tc = time.perf_counter()
         tau_l, tau_f, breach = self._control(t, sl, sf)
         tc = time.perf_counter() - tc
@@ -280,6 +273,21 @@ class BilateralLoop:
                              self.realtime.short() if self.realtime is not None else "", self._model_tag(),
                              joints=self.arm.bilateral_joints)
         return None, t
+
+    def _read_failed(self, errors, bus_times, t: float) -> tuple[bool, Breach | None]:
+        """A read of (leader, follower) failed on some bus: count the reads' bus times and the faults;
+        (whether the cycle ends here, the breach that ends the run)."""
+        self.timer.add("bus_leader", bus_times[0])
+        self.timer.add("bus_follower", bus_times[1])
+        failed, breach = self._transfer_faults(errors, t, reading=True)
+        if breach is not None:
+            return True, breach
+        if failed:
+            if self.lockstep:  # nothing was written: let the simulated time pass anyway
+                for sim in self.sims.values():
+                    sim.chain.advance(self.period)
+            return True, None
+        return False, None
 
     def _session_time(self, k: int, leader_state) -> float:
         """Session time of cycle k: k periods in lockstep, else the leader's read time since the start."""

@@ -235,19 +235,7 @@ class SessionRecorder:
         per-joint members of one dtype, or all the scalar ones) are copied into it in one step per row, the
         others one by one."""
         keys = tuple(keys)
-        where = {key: i for i, key in enumerate(keys)}
-        blocks, used = [], set()
-        scalars = []  # blocks of scalar members: a row's values go in as one tuple
-        for block, members in self._blocks:
-            if block.ndim in (2, 3) and len(members) > 1 and all(m in where for m in members):
-                index = [where[m] for m in members]
-                columns = [(self._buf[m], where[m]) for m in members]
-                if block.ndim == 2:
-                    scalars.append((operator.itemgetter(*index), block, columns))
-                else:
-                    rows = [block[r].reshape(-1) for r in range(block.shape[0])]  # one flat view per row
-                    blocks.append((operator.itemgetter(*index), rows, columns))
-                used.update(members)
+        blocks, scalars, used = self._whole_blocks(keys)
         singles = [(self._buf[key], i) for i, key in enumerate(keys) if key not in used]
         concatenate = np.concatenate
 
@@ -270,6 +258,25 @@ class SessionRecorder:
             self._row_added(k + 1)
 
         return append
+
+    def _whole_blocks(self, keys: tuple) -> tuple[list, list, set]:
+        """(per-joint blocks, scalar blocks, members in them) of the block buffers whose members `keys`
+        all name: each block as (getter of its members' values, its rows, [(member buffer, index)]), the
+        rows of a per-joint block as one flat view each."""
+        where = {key: i for i, key in enumerate(keys)}
+        blocks, used = [], set()
+        scalars = []  # blocks of scalar members: a row's values go in as one tuple
+        for block, members in self._blocks:
+            if block.ndim in (2, 3) and len(members) > 1 and all(m in where for m in members):
+                index = [where[m] for m in members]
+                columns = [(self._buf[m], where[m]) for m in members]
+                if block.ndim == 2:
+                    scalars.append((operator.itemgetter(*index), block, columns))
+                else:
+                    rows = [block[r].reshape(-1) for r in range(block.shape[0])]  # one flat view per row
+                    blocks.append((operator.itemgetter(*index), rows, columns))
+                used.update(members)
+        return blocks, scalars, used
 
     def _row_added(self, k: int) -> None:
         self._k = k
@@ -431,31 +438,10 @@ class SessionRecorder:
         self.closed = True
         reported = self.failed  # a failure raised already is not raised again
         failed: list[str] = []
-        lost = ""
         try:
-            try:
-                self.flush()
-            except CraneError:
-                pass  # `failed`: raised below
-            except Exception as exc:  # noqa: BLE001 - reported below, the rest must still run
-                lost = f"the last {self._k} rows could not be written ({exc}); "
-                failed.append("rows")
-            if self.failed is None:
-                self._end_attrs(attrs, group_attrs, failed)
-                if complete and not failed:
-                    self._f.attrs.modify(sf.COMPLETE_ATTR, True)
-                try:  # everything written now, so that closing has nothing left to write
-                    self._f.flush()
-                except (OSError, RuntimeError) as exc:
-                    self._write_failed(exc)
+            lost = self._write_end(complete, attrs, group_attrs, failed)
         finally:
-            closed = True
-            try:
-                self._f.close()
-            except Exception:  # noqa: BLE001
-                closed = False
-            if self._lock is not None:
-                self._lock.release()
+            closed = self._let_go()
         if self.failed is not None:
             if reported is None:
                 raise self.failed
@@ -470,6 +456,39 @@ class SessionRecorder:
                                     f"attributes ({names}) could not be written, so it stays "
                                     f"complete = False; its {self._n} rows are kept")
         self._compact()
+
+    def _write_end(self, complete: bool, attrs: dict | None, group_attrs: dict | None,
+                   failed: list[str]) -> str:
+        """Write the buffered rows and the end-of-run attributes; the names of those that could not be
+        written go in `failed`, and the returned words say which rows were lost ("" for none)."""
+        lost = ""
+        try:
+            self.flush()
+        except CraneError:
+            pass  # `failed`: raised by close
+        except Exception as exc:  # noqa: BLE001 - reported by close, the rest must still run
+            lost = f"the last {self._k} rows could not be written ({exc}); "
+            failed.append("rows")
+        if self.failed is None:
+            self._end_attrs(attrs, group_attrs, failed)
+            if complete and not failed:
+                self._f.attrs.modify(sf.COMPLETE_ATTR, True)
+            try:  # everything written now, so that closing has nothing left to write
+                self._f.flush()
+            except (OSError, RuntimeError) as exc:
+                self._write_failed(exc)
+        return lost
+
+    def _let_go(self) -> bool:
+        """Close the file and release its lock; whether the file closed."""
+        closed = True
+        try:
+            self._f.close()
+        except Exception:  # noqa: BLE001
+            closed = False
+        if self._lock is not None:
+            self._lock.release()
+        return closed
 
     def _end_attrs(self, attrs: dict | None, group_attrs: dict | None, failed: list[str]) -> None:
         """The end-of-run attributes written in place; the names of those that could not be, in `failed`."""

@@ -181,6 +181,57 @@ def _drops(f: h5py.File, end_reason_written: bool) -> dict[str, set]:
     return drop
 
 
+def _check_destination(path: Path, dest: Path, backup: Path | None) -> None:
+    """In place: no earlier PATH.crashed in the way; to `dest`: a new file in an existing folder."""
+    if backup is not None:
+        if backup.exists() or backup.is_symlink():
+            raise NotRecoverableError(f"{backup} already exists (the original of an earlier recovery?); move "
+                                      f"it away or give -o for the recovered file")
+        return
+    if dest.exists() or dest.is_symlink():
+        raise NotRecoverableError(f"{dest} already exists; give -o a new file name")
+    if not dest.parent.is_dir():
+        raise NotRecoverableError(f"cannot write {dest}: folder {dest.parent} does not exist")
+
+
+def _open_crashed(path: Path, damaged_file: bool) -> h5py.File:
+    try:
+        return (h5py.File(str(path), "r") if damaged_file
+                else h5py.File(str(path), "r", libver="latest", swmr=True))
+    except (OSError, ValueError) as exc:
+        raise NotRecoverableError(f"{path} cannot be opened even as a crashed recording ({exc})") from None
+
+
+def _written_end_reason(src: h5py.File, path: Path) -> str:
+    """The end reason the recording wrote ("" for none); NotRecoverableError for a file of another format."""
+    fmt = _text(src.attrs.get(sf.FORMAT_ATTR))
+    if fmt != FORMAT:
+        raise NotRecoverableError(f"{path} is not a crane-session file (format {fmt!r}), so there "
+                                  "is nothing to recover")
+    return _text(src.attrs.get(sf.END_REASON_ATTR)) or ""
+
+
+def _publish(staged: Path, dest: Path, backup: Path | None, path: Path) -> None:
+    """Move the staged copy to `dest`; in place, the original is kept as `backup` first."""
+    if backup is not None:
+        _keep_original(path, backup)
+    try:
+        os.replace(staged, dest)
+    except OSError:
+        if backup is not None:
+            backup.unlink(missing_ok=True)
+        raise
+
+
+def _not_recovered(exc: BaseException, path: Path, dest: Path) -> Exception:
+    """The one-sentence error for a recovery that failed writing."""
+    if is_disk_full(exc):
+        return DiskFullError(f"the disk holding {dest} is full: the recovered file was not written and "
+                             f"{path} was left as it was; free some space or give -o a file on another "
+                             "disk")
+    return SessionFileError(f"could not recover {path} ({exc}); the file was left as it was")
+
+
 def recover_session(path, output=None) -> Recovery:
     """Recover the crashed session `path` into `output` (default: in place, keeping the original as
     PATH.crashed). Raises NotRecoverableError (one sentence) for a file that needs no recovery or must
@@ -190,28 +241,13 @@ def recover_session(path, output=None) -> Recovery:
     in_place = output is None or Path(output).resolve() == path.resolve()
     dest = path if in_place else Path(output)
     backup = path.with_name(path.name + BACKUP_SUFFIX) if in_place else None
-    if in_place and (backup.exists() or backup.is_symlink()):
-        raise NotRecoverableError(f"{backup} already exists (the original of an earlier recovery?); move it "
-                                  f"away or give -o for the recovered file")
-    if not in_place:
-        if dest.exists() or dest.is_symlink():
-            raise NotRecoverableError(f"{dest} already exists; give -o a new file name")
-        if not dest.parent.is_dir():
-            raise NotRecoverableError(f"cannot write {dest}: folder {dest.parent} does not exist")
+    _check_destination(path, dest, backup)
     damaged_file = _refuse_ordinary(path)
-    try:
-        src = (h5py.File(str(path), "r") if damaged_file
-               else h5py.File(str(path), "r", libver="latest", swmr=True))
-    except (OSError, ValueError) as exc:
-        raise NotRecoverableError(f"{path} cannot be opened even as a crashed recording ({exc})") from None
+    src = _open_crashed(path, damaged_file)
     staged = None
     try:
         with src:
-            fmt = _text(src.attrs.get(sf.FORMAT_ATTR))
-            if fmt != FORMAT:
-                raise NotRecoverableError(f"{path} is not a crane-session file (format {fmt!r}), so there "
-                                          "is nothing to recover")
-            written = _text(src.attrs.get(sf.END_REASON_ATTR)) or ""
+            written = _written_end_reason(src, path)
             end_reason = written or "crashed"
             damage = _damage(src)
             n, longest = _complete_rows(src, path, damage)
@@ -225,21 +261,10 @@ def recover_session(path, output=None) -> Recovery:
                        cut=cut)
         result = Recovery(path, dest, backup, n - lost, longest - n, 0.0, end_reason, damaged, lost, cut)
         result.duration_s = _finish_copy(Path(staged), path, result, damaged_file)
-        if in_place:
-            _keep_original(path, backup)
-        try:
-            os.replace(staged, dest)
-        except OSError:
-            if in_place:
-                backup.unlink(missing_ok=True)
-            raise
+        _publish(staged, dest, backup, path)
         staged = None
     except (OSError, RuntimeError) as exc:
-        if is_disk_full(exc):
-            raise DiskFullError(f"the disk holding {dest} is full: the recovered file was not written and "
-                                f"{path} was left as it was; free some space or give -o a file on another "
-                                "disk") from None
-        raise SessionFileError(f"could not recover {path} ({exc}); the file was left as it was") from None
+        raise _not_recovered(exc, path, dest) from None
     finally:
         if staged is not None:
             Path(staged).unlink(missing_ok=True)

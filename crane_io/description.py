@@ -110,34 +110,44 @@ class ArmDescription:
         for name, over in (data.get("joints") or {}).items():
             if name not in joints:
                 raise DescriptionError(f"unknown joint {name!r} in arm description")
-            fields = dict(over)
-            for key in [k for k in ("lower_deg", "upper_deg") if k in fields]:
-                value = fields.pop(key)
-                if not is_number(value):
-                    raise DescriptionError(f"{where}: joint {name} {key} must be a finite number, "
-                                           f"got {value!r}")
-                fields[key[:-4]] = value * DEG
-            unknown = set(fields) - set(Joint.__dataclass_fields__)
-            if unknown:
-                raise DescriptionError(f"unknown keys for joint {name}: {', '.join(sorted(unknown))}")
-            if "model" in fields and fields["model"] not in MODELS:
-                raise DescriptionError(f"joint {name}: unknown servo model {fields['model']!r}")
-            try:
-                joints[name] = from_table(Joint, fields, where, f"joint {name}", base=joints[name])
-            except ConfigError as exc:
-                raise DescriptionError(str(exc)) from None
+            joints[name] = _joint_with(joints[name], over, where)
         desc = replace(base, joints=tuple(joints.values()))
         if "bilateral_joints" in data:
             desc = replace(desc, bilateral_joints=tuple(data["bilateral_joints"]))
             for n in desc.bilateral_joints:
                 desc.joint(n)
         if "baudrate" in data:
-            baudrate = data["baudrate"]
-            ok = isinstance(baudrate, int) and not isinstance(baudrate, bool) and baudrate > 0
-            if not ok:
-                raise DescriptionError(f"{where}: baudrate must be a positive integer, got {baudrate!r}")
-            desc = replace(desc, baudrate=baudrate)
+            desc = replace(desc, baudrate=_checked_baudrate(data["baudrate"], where))
         return desc
+
+
+def _joint_with(joint: Joint, over: dict, where: str) -> Joint:
+    """`joint` with the fields of its description table `over` (angles in degrees as lower_deg and
+    upper_deg), each checked."""
+    name = joint.name
+    fields = dict(over)
+    for key in [k for k in ("lower_deg", "upper_deg") if k in fields]:
+        value = fields.pop(key)
+        if not is_number(value):
+            raise DescriptionError(f"{where}: joint {name} {key} must be a finite number, "
+                                   f"got {value!r}")
+        fields[key[:-4]] = value * DEG
+    unknown = set(fields) - set(Joint.__dataclass_fields__)
+    if unknown:
+        raise DescriptionError(f"unknown keys for joint {name}: {', '.join(sorted(unknown))}")
+    if "model" in fields and fields["model"] not in MODELS:
+        raise DescriptionError(f"joint {name}: unknown servo model {fields['model']!r}")
+    try:
+        return from_table(Joint, fields, where, f"joint {name}", base=joint)
+    except ConfigError as exc:
+        raise DescriptionError(str(exc)) from None
+
+
+def _checked_baudrate(baudrate, where: str) -> int:
+    ok = isinstance(baudrate, int) and not isinstance(baudrate, bool) and baudrate > 0
+    if not ok:
+        raise DescriptionError(f"{where}: baudrate must be a positive integer, got {baudrate!r}")
+    return baudrate
 
 
 _KT_XM430 = 2.20  # RT ROS 2 current_to_effort (facts section 3)

@@ -180,6 +180,17 @@ def _checked(value, tp, subject: str):
         return value
     if dataclasses.is_dataclass(tp):
         return from_table(tp, value, subject, "")
+    if tp in (bool, int, float, str):
+        return _checked_scalar(value, tp, subject)
+    if origin in (tuple, list) or tp in (tuple, list):
+        return _checked_list(value, tp, subject)
+    if origin is dict or tp is dict:
+        expect(isinstance(value, dict), subject, "a table", value)
+    return value
+
+
+def _checked_scalar(value, tp: type, subject: str):
+    """`value` checked as a bool, int, float (converted) or str."""
     if tp is bool:
         expect(isinstance(value, bool), subject, "true or false", value)
     elif tp is int:
@@ -187,19 +198,21 @@ def _checked(value, tp, subject: str):
     elif tp is float:
         expect(is_number(value), subject, "a finite number", value)
         return float(value)
-    elif tp is str:
+    else:
         expect(isinstance(value, str), subject, "a string", value)
-    elif origin in (tuple, list) or tp in (tuple, list):
-        expect(isinstance(value, (list, tuple)), subject, "a list", value)
-        if origin is tuple and args and args[-1] is not Ellipsis:
-            expect(len(value) == len(args), subject, f"a list of {len(args)} values", value)
-            items = [_checked(v, a, subject) for v, a in zip(value, args)]
-        else:
-            items = [_checked(v, args[0], subject) for v in value] if args else list(value)
-        return tuple(items) if (origin or tp) is tuple else items
-    elif origin is dict or tp is dict:
-        expect(isinstance(value, dict), subject, "a table", value)
     return value
+
+
+def _checked_list(value, tp, subject: str):
+    """`value` checked as the list or tuple annotation `tp` (a fixed-length tuple item by item)."""
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    expect(isinstance(value, (list, tuple)), subject, "a list", value)
+    if origin is tuple and args and args[-1] is not Ellipsis:
+        expect(len(value) == len(args), subject, f"a list of {len(args)} values", value)
+        items = [_checked(v, a, subject) for v, a in zip(value, args)]
+    else:
+        items = [_checked(v, args[0], subject) for v in value] if args else list(value)
+    return tuple(items) if (origin or tp) is tuple else items
 
 
 def _toml_value(value) -> str:

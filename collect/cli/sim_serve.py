@@ -118,18 +118,7 @@ def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_
         raise ConfigError(f"--period must be positive, got {period_s}")
     if clock is None:
         clock = "lockstep" if pair else "wall"
-    if pair:
-        if link is not None:
-            raise ConfigError("--pair serves two links: give --leader-link and --follower-link, not --link")
-        if leader_link is None or follower_link is None:
-            raise ConfigError("--pair needs both --leader-link and --follower-link")
-    else:
-        if link is None:
-            raise ConfigError("give --link PATH (one arm), or --pair with --leader-link and --follower-link")
-        extra = [o for o, v in (("--leader-link", leader_link), ("--follower-link", follower_link),
-                                ("--task", task), ("--config", config_path)) if v is not None]
-        if extra:
-            raise ConfigError(f"{extra[0]} goes with --pair")
+    _check_links(pair, link, leader_link, follower_link, task, config_path)
     if truth is not None:  # never an input nor a link, an existing file only with --force
         from crane_io.output_files import check_output
 
@@ -163,6 +152,22 @@ def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_
                        return_delay, truth, offsets.get("arm"))
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+def _check_links(pair, link, leader_link, follower_link, task, config_path) -> None:
+    """--pair takes a leader and a follower link (and may take --task and --config); one arm, --link."""
+    if pair:
+        if link is not None:
+            raise ConfigError("--pair serves two links: give --leader-link and --follower-link, not --link")
+        if leader_link is None or follower_link is None:
+            raise ConfigError("--pair needs both --leader-link and --follower-link")
+        return
+    if link is None:
+        raise ConfigError("give --link PATH (one arm), or --pair with --leader-link and --follower-link")
+    extra = [o for o, v in (("--leader-link", leader_link), ("--follower-link", follower_link),
+                            ("--task", task), ("--config", config_path)) if v is not None]
+    if extra:
+        raise ConfigError(f"{extra[0]} goes with --pair")
 
 
 def _write_truth(plant, truth_path) -> None:

@@ -406,6 +406,23 @@ class _Loader:
         for k in ("format_version", "method", "joint_names", "units", "source_files", "source_sha256"):
             if k not in a:
                 raise self.fail(f"has a {EXPORT_FILE} without {k!r}; {again}")
+        self._check_export_model(a, method, names, again)
+        try:
+            units = json.loads(str(a["units"]))
+        except json.JSONDecodeError:
+            units = None
+        if units != SI_UNITS:
+            raise self.fail(f"has a loop export in units {units}, not SI ({SI_UNITS}); {again}")
+        files = [str(f) for f in np.atleast_1d(a["source_files"])]
+        missing = [f for f in files if not (self.dir / f).is_file()]
+        if missing:
+            raise self.fail(f"lacks {missing[0]}, the weights its loop export was made from; fit it again")
+        if sources_sha256(self.dir, files) != str(a["source_sha256"]):
+            raise self.fail(f"has weights ({', '.join(files)}) that changed after its {EXPORT_FILE} was "
+                            f"written; {again}")
+
+    def _check_export_model(self, a: dict, method: str, names: tuple, again: str) -> None:
+        """The export's format version is known, and its method and joints are the model's."""
         try:
             version = int(a["format_version"])
         except (TypeError, ValueError):
@@ -420,19 +437,6 @@ class _Loader:
         if exported != names:
             raise self.fail(f"has a loop export for joints {', '.join(exported)} but its model.json names "
                             f"{', '.join(names)}; {again}")
-        try:
-            units = json.loads(str(a["units"]))
-        except json.JSONDecodeError:
-            units = None
-        if units != SI_UNITS:
-            raise self.fail(f"has a loop export in units {units}, not SI ({SI_UNITS}); {again}")
-        files = [str(f) for f in np.atleast_1d(a["source_files"])]
-        missing = [f for f in files if not (self.dir / f).is_file()]
-        if missing:
-            raise self.fail(f"lacks {missing[0]}, the weights its loop export was made from; fit it again")
-        if sources_sha256(self.dir, files) != str(a["source_sha256"]):
-            raise self.fail(f"has weights ({', '.join(files)}) that changed after its {EXPORT_FILE} was "
-                            f"written; {again}")
 
     def _paths(self, a: dict, method: str, names: tuple):
         again = f"export it again with `crane-train export {self.dir}`"
@@ -493,7 +497,8 @@ class _Loader:
                             f"spec; {again}")
         return effect
 
-    def _rigid(self, a: dict, names: tuple, again: str):
+    def _check_rigid_loop_ready(self, a: dict, again: str) -> None:
+        """The rigid-body part has every array, names no Python effect file and no context joint."""
         keys = ("rigid_theta_full", "rigid_locked_joints", "rigid_locked_angles", "rigid_payload_mass",
                 "rigid_effects", "rigid_effect_coefs")
         lacking = [k for k in keys if k not in a]
@@ -509,11 +514,9 @@ class _Loader:
                             f"(context joints that moved in its training data), which the control loop "
                             f"does not pass to a model; fit it with those joints among `joints`, or on "
                             f"data where they are held still")
-        locked_names = [str(n) for n in np.atleast_1d(a["rigid_locked_joints"])]
-        locked_angles = np.atleast_1d(np.asarray(a["rigid_locked_angles"], dtype=float))
-        if len(locked_names) != len(locked_angles):
-            raise self.fail(f"has an inconsistent loop export: {len(locked_names)} locked joints but "
-                            f"{len(locked_angles)} locked angles; {again}")
+
+    def _rigid_effect_lists(self, a: dict, again: str) -> tuple[list, list | None]:
+        """(effect terms, recorded effect specs or None) of the rigid-body part."""
         try:
             specs = json.loads(str(a["rigid_effects"]))
             recorded = json.loads(str(a["rigid_effect_specs"])) if "rigid_effect_specs" in a else None
@@ -521,8 +524,12 @@ class _Loader:
             raise self.fail(f"has a loop export whose effect list is not readable; {again}") from None
         if not isinstance(specs, list) or not all(isinstance(s, dict) for s in specs):
             raise self.fail(f"has a loop export whose effect list is not a list of tables; {again}")
-        table = self._effects(recorded, again)
-        coefs = np.atleast_1d(np.asarray(a["rigid_effect_coefs"], dtype=float))
+        return specs, recorded
+
+    def _rigid_terms(self, specs: list, table, recorded, coefs: np.ndarray, names: tuple,
+                     again: str) -> tuple[list, list]:
+        """(terms (effect, joint, shape, coefficients), labels) of the effect specs, which use every
+        coefficient."""
         terms, labels, k = [], [], 0
         for spec in specs:
             name, joint, shape = spec.get("name"), spec.get("joint"), spec.get("shape")
@@ -540,6 +547,19 @@ class _Loader:
         if k != coefs.size:
             raise self.fail(f"has an inconsistent loop export: {coefs.size} effect coefficients for effect "
                             f"terms with {k}; {again}")
+        return terms, labels
+
+    def _rigid(self, a: dict, names: tuple, again: str):
+        self._check_rigid_loop_ready(a, again)
+        locked_names = [str(n) for n in np.atleast_1d(a["rigid_locked_joints"])]
+        locked_angles = np.atleast_1d(np.asarray(a["rigid_locked_angles"], dtype=float))
+        if len(locked_names) != len(locked_angles):
+            raise self.fail(f"has an inconsistent loop export: {len(locked_names)} locked joints but "
+                            f"{len(locked_angles)} locked angles; {again}")
+        specs, recorded = self._rigid_effect_lists(a, again)
+        table = self._effects(recorded, again)
+        coefs = np.atleast_1d(np.asarray(a["rigid_effect_coefs"], dtype=float))
+        terms, labels = self._rigid_terms(specs, table, recorded, coefs, names, again)
         theta = np.asarray(a["rigid_theta_full"], dtype=float)
         if not np.all(np.isfinite(theta)) or not np.all(np.isfinite(coefs)):
             raise self.fail(f"has a loop export whose rigid-body parameters are not all finite; {again}")

@@ -111,16 +111,20 @@ def scales_problem(x_std, y_std, what: str = "") -> str | None:
     return None
 
 
+def _member_problem(name: str, a) -> str | None:
+    """What is wrong with one member of a loop export as the kind of array its name says, or None."""
+    if name in NUMERIC_EXPORT:
+        return array_problem(name, a, NUMERIC_EXPORT[name])
+    if name in TEXT_EXPORT or np.asarray(a).dtype.kind not in NUMBER_KINDS:
+        return array_problem(name, a, text=True)
+    return array_problem(name, a)  # a member of numbers this module does not name: finite and bounded
+
+
 def export_problem(arrays: dict) -> str | None:
     """What is wrong with the members of a loop export (their kinds, finiteness, sizes), or None; which
     members a method needs and how they fit together is loop_model's to check."""
     for name, a in arrays.items():
-        if name in NUMERIC_EXPORT:
-            problem = array_problem(name, a, NUMERIC_EXPORT[name])
-        elif name in TEXT_EXPORT or np.asarray(a).dtype.kind not in NUMBER_KINDS:
-            problem = array_problem(name, a, text=True)
-        else:  # a member of numbers this module does not name: finite and bounded all the same
-            problem = array_problem(name, a)
+        problem = _member_problem(name, a)
         if problem is not None:
             return problem
     for name in arrays.get("source_files", np.array([], dtype=str)).ravel().tolist():

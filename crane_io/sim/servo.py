@@ -442,29 +442,41 @@ class EmulatedServo:
             self._apply(r.name, value, now)
         return p.ERR_NONE
 
+    def _set_operating_mode(self, value: int) -> None:
+        """A new operating mode resets the mode's goals and limits to their defaults."""
+        if value != self.read_register("operating_mode"):
+            self.write_register("operating_mode", value)
+            defaults = self.model.defaults()
+            for item in MODE_RESET_ITEMS:
+                self.write_register(item, defaults.get(item, 0))
+            self.write_register("goal_pwm", self.read_register("pwm_limit"))
+            self.write_register("goal_current", self.read_register("current_limit"))
+
+    def _set_torque_enable(self, value: int, now: float) -> None:
+        """Torque on holds the present position (refused while a shutdown is latched)."""
+        if value == 1 and self.shutdown_latched:
+            return  # refused until reboot; the status packet carries the alert bit
+        if value == 1 and not self.torque_enabled:
+            self.write_register("goal_position", self.read_register("present_position"))
+            self.last_contact = now
+        self.write_register("torque_enable", value)
+
+    def _set_bus_watchdog(self, value: int, now: float) -> None:
+        """Writing the watchdog restarts it; 0 also clears an expiry."""
+        self.write_register("bus_watchdog", value)
+        if value == 0:
+            self.watchdog_expired = False
+        self.last_contact = now
+
     def _apply(self, name: str, value: int, now: float) -> None:
         if name == "operating_mode":
-            if value != self.read_register("operating_mode"):
-                self.write_register("operating_mode", value)
-                defaults = self.model.defaults()
-                for item in MODE_RESET_ITEMS:
-                    self.write_register(item, defaults.get(item, 0))
-                self.write_register("goal_pwm", self.read_register("pwm_limit"))
-                self.write_register("goal_current", self.read_register("current_limit"))
+            self._set_operating_mode(value)
             return
         if name == "torque_enable":
-            if value == 1 and self.shutdown_latched:
-                return  # refused until reboot; the status packet carries the alert bit
-            if value == 1 and not self.torque_enabled:
-                self.write_register("goal_position", self.read_register("present_position"))
-                self.last_contact = now
-            self.write_register("torque_enable", value)
+            self._set_torque_enable(value, now)
             return
         if name == "bus_watchdog":
-            self.write_register("bus_watchdog", value)
-            if value == 0:
-                self.watchdog_expired = False
-            self.last_contact = now
+            self._set_bus_watchdog(value, now)
             return
         if name == "goal_current":
             limit = self.read_register("current_limit")

@@ -58,16 +58,9 @@ def _params_text(params: dict) -> str:
 def diagnose(model_dir, sessions, as_json, json_out, folds, min_reduction, top, effect_files, discover,
              discover_all, effect_out, force):
     """Rank the library's effects by how much of MODEL_DIR's error on SESSION(s) each one removes."""
-    from crane_io.output_files import check_output, write_text_atomic
+    from crane_io.output_files import write_text_atomic
 
-    if effect_out:
-        from ..diagnosis.effect_writer import check_suffix
-
-        check_suffix(effect_out)
-    inputs = [model_dir, *sessions, *effect_files]
-    for out, what, other in ((json_out, "JSON file", effect_out), (effect_out, "effect-spec file", json_out)):
-        if out is not None:
-            check_output(out, inputs=inputs, force=force, what=what, others=[other], make_folders=True)
+    _check_outputs(json_out, effect_out, [model_dir, *sessions, *effect_files], force)
 
     from ..api import diagnosis_inputs
     from ..diagnosis.diagnose import diagnose as run_diagnosis
@@ -79,28 +72,60 @@ def diagnose(model_dir, sessions, as_json, json_out, folds, min_reduction, top, 
     result.settings["judged_on"] = judged
     found, written = None, None
     if discover or discover_all or effect_out:
-        from ..diagnosis.discovery import discover as run_discovery
-
-        found = run_discovery(model, ds, result, every_joint=discover_all, folds=folds,
-                              min_reduction=min_reduction, progress=show_progress(not as_json))
-        if effect_out and any(d.significant for d in found.discovered):
-            from ..diagnosis.effect_writer import write_effect_file
-
-            written = write_effect_file(effect_out, found, model_dir, sessions)
+        found, written = _discover(model, ds, result, discover_all, folds, min_reduction, effect_out,
+                                   model_dir, sessions, show_progress(not as_json))
     if as_json or json_out is not None:
-        doc = result.to_json()
-        doc.update(model=str(model_dir), sessions=list(sessions))
-        if found is not None:
-            disc = found.to_json()
-            doc.update(discovered=disc["discovered"], discovery={"summary": disc["summary"],
-                                                                 "settings": disc["settings"]},
-                       effect_file=None if written is None else str(written[0]))
-        text = json.dumps(doc, indent=2)
+        text = json.dumps(_json_doc(result, model_dir, sessions, found, written), indent=2)
         if json_out is not None:
             write_text_atomic(json_out, text + "\n", "JSON file")
         if as_json:
             click.echo(text)
             return
+    _echo_ranking(result, model, model_dir, sessions, judged, folds, top)
+    if found is not None:
+        _echo_discovery(found, written, effect_out)
+
+
+def _check_outputs(json_out, effect_out, inputs, force) -> None:
+    """The JSON and effect-spec outputs are usable paths, neither an input nor the other."""
+    from crane_io.output_files import check_output
+
+    if effect_out:
+        from ..diagnosis.effect_writer import check_suffix
+
+        check_suffix(effect_out)
+    for out, what, other in ((json_out, "JSON file", effect_out), (effect_out, "effect-spec file", json_out)):
+        if out is not None:
+            check_output(out, inputs=inputs, force=force, what=what, others=[other], make_folders=True)
+
+
+def _discover(model, ds, result, discover_all, folds, min_reduction, effect_out, model_dir, sessions,
+              progress):
+    """(discovery, (path, added effects) of the written effect-spec file or None)."""
+    from ..diagnosis.discovery import discover as run_discovery
+
+    found = run_discovery(model, ds, result, every_joint=discover_all, folds=folds,
+                          min_reduction=min_reduction, progress=progress)
+    written = None
+    if effect_out and any(d.significant for d in found.discovered):
+        from ..diagnosis.effect_writer import write_effect_file
+
+        written = write_effect_file(effect_out, found, model_dir, sessions)
+    return found, written
+
+
+def _json_doc(result, model_dir, sessions, found, written) -> dict:
+    doc = result.to_json()
+    doc.update(model=str(model_dir), sessions=list(sessions))
+    if found is not None:
+        disc = found.to_json()
+        doc.update(discovered=disc["discovered"], discovery={"summary": disc["summary"],
+                                                             "settings": disc["settings"]},
+                   effect_file=None if written is None else str(written[0]))
+    return doc
+
+
+def _echo_ranking(result, model, model_dir, sessions, judged, folds, top) -> None:
     click.echo(f"Diagnosis of {model_dir} ({model.method}) on {judged} of {', '.join(sessions)}; "
                f"{folds}-fold cross-validation over contiguous time blocks of each joint's moving samples.")
     for joint in result.joints:
@@ -114,8 +139,6 @@ def diagnose(model_dir, sessions, as_json, json_out, folds, min_reduction, top, 
     click.echo("")
     click.echo("* significant. Add an effect with: crane-train fit SESSION... --model rigid-body "
                "--effect NAME:joint=JOINT -o NEW_MODEL_DIR")
-    if found is not None:
-        _echo_discovery(found, written, effect_out)
 
 
 def _echo_discovery(found, written, effect_out) -> None:

@@ -89,10 +89,8 @@ class ImportMap:
         return json.dumps({"t": self.time, "joints": self.joints}, sort_keys=True)
 
 
-def parse_map(mapping: Iterable[str], joint_names: Sequence[str] | None = None) -> ImportMap:
-    """ImportMap from `KEY=COLUMN` strings (several per string, comma-separated, are allowed)."""
-    known = tuple(joint_names or default_arm().joint_names)
-    time_col, joints, seen = None, {}, {}
+def _map_pairs(mapping: Iterable[str]):
+    """(key, column) of each non-empty `KEY=COLUMN` pair, in order."""
     for item in mapping:
         for pair in str(item).split(","):
             pair = pair.strip()
@@ -103,35 +101,54 @@ def parse_map(mapping: Iterable[str], joint_names: Sequence[str] | None = None) 
             if not sep or not key or not col:
                 raise ImportMapError(f"`mapping` {pair!r} is not KEY=COLUMN (e.g. t=time, joint1.q=q1, "
                                      f"joint1.current=i1)")
-            if key in seen:
-                raise ImportMapError(f"`mapping` names {key} twice ({seen[key]!r} and {col!r})")
-            seen[key] = col
-            if key == "t":
-                time_col = col
-                continue
-            joint, dot, sig = key.rpartition(".")
-            if not dot or not joint:
-                raise ImportMapError(f"`mapping` key {key!r} is neither t nor JOINT.SIGNAL (e.g. joint1.q)")
-            if joint not in known:
-                raise ImportMapError(f"`mapping` {key}: unknown joint {joint!r}; joints are "
-                                     f"{', '.join(known)}")
-            if sig not in JOINT_SIGNALS:
-                raise ImportMapError(f"`mapping` {key}: unknown signal {sig!r}; use q (angle), tau (torque) "
-                                     f"or current (made torque with the torque constant)")
-            joints.setdefault(joint, {})[sig] = col
+            yield key, col
+
+
+def _joint_signal(key: str, known: Sequence[str]) -> tuple[str, str]:
+    """(joint, signal) of a `JOINT.SIGNAL` key, both checked."""
+    joint, dot, sig = key.rpartition(".")
+    if not dot or not joint:
+        raise ImportMapError(f"`mapping` key {key!r} is neither t nor JOINT.SIGNAL (e.g. joint1.q)")
+    if joint not in known:
+        raise ImportMapError(f"`mapping` {key}: unknown joint {joint!r}; joints are "
+                             f"{', '.join(known)}")
+    if sig not in JOINT_SIGNALS:
+        raise ImportMapError(f"`mapping` {key}: unknown signal {sig!r}; use q (angle), tau (torque) "
+                             f"or current (made torque with the torque constant)")
+    return joint, sig
+
+
+def _check_joint_signals(joint: str, sigs: dict[str, str]) -> None:
+    """A mapped joint has an angle and exactly one of a torque and a current."""
+    if "tau" in sigs and "current" in sigs:
+        raise ImportMapError(f"`mapping` gives {joint} both a torque and a current; map one of them")
+    if "q" not in sigs:
+        raise ImportMapError(f"`mapping` gives no angle for {joint}; add {joint}.q=COLUMN")
+    if "tau" not in sigs and "current" not in sigs:
+        raise ImportMapError(f"`mapping` gives no torque for {joint}; add {joint}.tau=COLUMN or "
+                             f"{joint}.current=COLUMN")
+
+
+def parse_map(mapping: Iterable[str], joint_names: Sequence[str] | None = None) -> ImportMap:
+    """ImportMap from `KEY=COLUMN` strings (several per string, comma-separated, are allowed)."""
+    known = tuple(joint_names or default_arm().joint_names)
+    time_col, joints, seen = None, {}, {}
+    for key, col in _map_pairs(mapping):
+        if key in seen:
+            raise ImportMapError(f"`mapping` names {key} twice ({seen[key]!r} and {col!r})")
+        seen[key] = col
+        if key == "t":
+            time_col = col
+            continue
+        joint, sig = _joint_signal(key, known)
+        joints.setdefault(joint, {})[sig] = col
     if time_col is None:
         raise ImportMapError("`mapping` names no time column; add t=COLUMN")
     if not joints:
         raise ImportMapError("`mapping` names no joint; add JOINT.q=COLUMN and JOINT.tau=COLUMN (or "
                              "JOINT.current=COLUMN) for each joint")
     for joint, sigs in joints.items():
-        if "tau" in sigs and "current" in sigs:
-            raise ImportMapError(f"`mapping` gives {joint} both a torque and a current; map one of them")
-        if "q" not in sigs:
-            raise ImportMapError(f"`mapping` gives no angle for {joint}; add {joint}.q=COLUMN")
-        if "tau" not in sigs and "current" not in sigs:
-            raise ImportMapError(f"`mapping` gives no torque for {joint}; add {joint}.tau=COLUMN or "
-                                 f"{joint}.current=COLUMN")
+        _check_joint_signals(joint, sigs)
     order = [n for n in known if n in joints]
     return ImportMap(time_col, {n: joints[n] for n in order})
 
@@ -266,11 +283,8 @@ class ImportedSession:
     t_offset_s: float  # the input's first time, s (subtracted)
 
 
-def convert(columns: dict[str, np.ndarray], spec: ImportMap, units: ImportUnits = ImportUnits(),
-            torque_constants: dict[str, float] | None = None, rate_hz: float | None = None,
-            source_name: str = "the input") -> ImportedSession:
-    """Input columns -> SI session arrays, checked (ImportMapError, one sentence, for what is unusable)."""
-    kt_given = dict(torque_constants or {})
+def _check_torque_constants(kt_given: dict[str, float], spec: ImportMap) -> None:
+    """Given torque constants belong to imported joints and are positive."""
     unknown = [n for n in kt_given if n not in spec.joints]
     if unknown:
         raise ImportMapError(f"a torque constant is given for {', '.join(unknown)}, which `mapping` does not "
@@ -279,11 +293,20 @@ def convert(columns: dict[str, np.ndarray], spec: ImportMap, units: ImportUnits 
         if not (np.isfinite(value) and value > 0):
             raise ImportMapError(f"the torque constant of {name} must be a positive number of N m/A, got "
                                  f"{value}")
+
+
+def _check_finite(columns: dict[str, np.ndarray], spec: ImportMap, source_name: str) -> None:
+    """Every mapped column holds finite numbers only."""
     for name in spec.columns():
         bad = ~np.isfinite(columns[name])
         if bad.any():
             raise ImportMapError(f"{source_name}: column {name!r} has {int(bad.sum())} missing, NaN or "
                                  f"infinite values (first in data row {int(np.argmax(bad)) + 1})")
+
+
+def _checked_time(columns: dict[str, np.ndarray], spec: ImportMap, units: ImportUnits,
+                  source_name: str) -> np.ndarray:
+    """The time column in s: long enough and strictly increasing."""
     t_raw = columns[spec.time] * TIME_UNITS[units.time]
     n = len(t_raw)
     if n < MIN_ROWS:
@@ -294,6 +317,12 @@ def convert(columns: dict[str, np.ndarray], spec: ImportMap, units: ImportUnits 
         raise ImportMapError(f"{source_name}: time column {spec.time!r} does not increase at data row "
                              f"{row + 1} ({t_raw[row - 1]:.9g} s, then {t_raw[row]:.9g} s); a session needs "
                              f"strictly increasing time")
+    return t_raw
+
+
+def _session_rate(rate_hz: float | None, t_raw: np.ndarray, spec: ImportMap, source_name: str) -> float:
+    """The given rate, checked against the time column, or the time column's own (whole Hz when it is)."""
+    step = np.diff(t_raw)
     if rate_hz is None:
         rate_hz = 1.0 / float(np.median(step))
         if abs(rate_hz - round(rate_hz)) < 1e-6 * rate_hz:
@@ -308,6 +337,26 @@ def convert(columns: dict[str, np.ndarray], spec: ImportMap, units: ImportUnits 
             raise ImportMapError(f"the rate {rate_hz:g} Hz disagrees with the time column {spec.time!r} of "
                                  f"{source_name}, which advances by {float(np.median(step)):.6g} s a row "
                                  f"({1 / float(np.median(step)):.6g} Hz)") from None
+    return rate_hz
+
+
+def _joint_angle(raw_q: np.ndarray, units: ImportUnits) -> np.ndarray:
+    """An angle column in rad."""
+    if units.angle == "pulse":
+        return (raw_q - POSITION_CENTER) * RAD_PER_PULSE
+    return raw_q * ANGLE_UNITS[units.angle]
+
+
+def convert(columns: dict[str, np.ndarray], spec: ImportMap, units: ImportUnits = ImportUnits(),
+            torque_constants: dict[str, float] | None = None, rate_hz: float | None = None,
+            source_name: str = "the input") -> ImportedSession:
+    """Input columns -> SI session arrays, checked (ImportMapError, one sentence, for what is unusable)."""
+    kt_given = dict(torque_constants or {})
+    _check_torque_constants(kt_given, spec)
+    _check_finite(columns, spec, source_name)
+    t_raw = _checked_time(columns, spec, units, source_name)
+    rate_hz = _session_rate(rate_hz, t_raw, spec, source_name)
+    n = len(t_raw)
     arm = default_arm()
     names = tuple(spec.joints)
     j = len(names)
@@ -315,12 +364,9 @@ def convert(columns: dict[str, np.ndarray], spec: ImportMap, units: ImportUnits 
     current = np.full((n, j), np.nan)
     kt = np.array([kt_given.get(name, arm.joint(name).torque_constant) for name in names])
     source = []
-    any_current = False
     for c, name in enumerate(names):
         sigs = spec.joints[name]
-        raw_q = columns[sigs["q"]]
-        q[:, c] = (raw_q - POSITION_CENTER) * RAD_PER_PULSE if units.angle == "pulse" else \
-            raw_q * ANGLE_UNITS[units.angle]
+        q[:, c] = _joint_angle(columns[sigs["q"]], units)
         if "tau" in sigs:
             tau[:, c] = columns[sigs["tau"]]
             source.append("imported_torque")
@@ -328,7 +374,7 @@ def convert(columns: dict[str, np.ndarray], spec: ImportMap, units: ImportUnits 
             current[:, c] = columns[sigs["current"]] * CURRENT_UNITS[units.current]
             tau[:, c] = current[:, c] * kt[c]
             source.append("imported_current")
-            any_current = True
+    any_current = "imported_current" in source
     return ImportedSession(t_raw - t_raw[0], q, tau, names, float(rate_hz), current if any_current else None,
                            kt, tuple(source), float(t_raw[0]))
 

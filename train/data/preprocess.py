@@ -130,67 +130,93 @@ def filter_signals(q: np.ndarray, tau: np.ndarray, rate_hz: float, config: Prepr
     return qf, dq, ddq, tauf
 
 
+def _with_all_joints(config: PreprocessConfig, sessions: list[RawSession]) -> PreprocessConfig:
+    """`joints` all made the arm joints every session records."""
+    values = config.to_dict()
+    values["joints"] = tuple(n for n in ARM_JOINTS if all(n in s.joint_names for s in sessions))
+    if not values["joints"]:
+        raise ConfigError("`joints` all: the sessions have no arm joint (joint1..joint7) in common")
+    return PreprocessConfig.from_dict(values)
+
+
+def _check_session(s: RawSession, config: PreprocessConfig) -> None:
+    """The session is of the configured arm and records the configured joints."""
+    if s.arm != config.arm:
+        raise ConfigError(f"{s.path or 'the session'} was read from the {s.arm}'s data but the "
+                          f"preprocessing settings are for the {config.arm}'s")
+    missing = [n for n in config.joints if n not in s.joint_names]
+    if missing:
+        raise ConfigError(f"{s.path or 'the session'} has no joint(s) {', '.join(missing)} "
+                          f"(it has {', '.join(s.joint_names)})")
+
+
+def _filtered_piece(s: RawSession, piece, cols: list[int], ccols: list[int], settle: int,
+                    config: PreprocessConfig) -> tuple:
+    """(t, q, dq, ddq, tau, cq, cdq, cddq) of one continuous piece: filtered, settled, down-sampled, the
+    learning joints' columns apart from the context joints'."""
+    J = len(cols)
+    t, q, tau = s.t[piece], s.q[piece][:, cols + ccols], s.tau[piece][:, cols]
+    q, dq, ddq, tau = filter_signals(q, tau, s.rate_hz, config)
+    keep = slice(settle, None)
+    t, (q, dq, ddq, tau) = _downsample(t[keep], [q[keep], dq[keep], ddq[keep], tau[keep]],
+                                       s.rate_hz, config.downsample_hz)
+    return t, q[:, :J], dq[:, :J], ddq[:, :J], tau, q[:, J:], dq[:, J:], ddq[:, J:]
+
+
+def _too_short(sessions: list[RawSession], config: PreprocessConfig, longest: float) -> ConfigError:
+    need = config.settle_s + 2.0 / config.downsample_hz
+    names = ", ".join(str(x.path or "the session") for x in sessions)
+    verb, its = ("is", "its") if len(sessions) == 1 else ("are", "their")
+    return ConfigError(f"{names} {verb} too short to preprocess: {its} longest continuous piece lasts "
+                       f"{longest:.2g} s, and more than {need:.2g} s are needed (the "
+                       f"{config.settle_s:g} s the filters settle in, plus two output samples)")
+
+
+def _check_travel(q: np.ndarray, joints: Sequence[str]) -> None:
+    """Every learning joint moves beyond MIN_TRAVEL_RAD in the data."""
+    for name, span in zip(joints, np.ptp(q, axis=0)):
+        if span < MIN_TRAVEL_RAD:  # its velocity is jitter, which the mask would call motion
+            raise DeadZoneError(f"{name} never moves in the data (its angle stays within "
+                                f"{np.degrees(span):.2g} deg), so it cannot be learned; record motion of it "
+                                f"or leave it out with `joints`")
+
+
 def preprocess(sessions: list[RawSession] | RawSession, config: PreprocessConfig | None = None) -> Dataset:
     """Filter, down-sample, concatenate (with segment ids) and mask one or more sessions."""
     config = config or PreprocessConfig()
     if isinstance(sessions, RawSession):
         sessions = [sessions]
     if config.joints == ("all",):  # every arm joint all the sessions record
-        values = config.to_dict()
-        values["joints"] = tuple(n for n in ARM_JOINTS if all(n in s.joint_names for s in sessions))
-        if not values["joints"]:
-            raise ConfigError("`joints` all: the sessions have no arm joint (joint1..joint7) in common")
-        config = PreprocessConfig.from_dict(values)
+        config = _with_all_joints(config, sessions)
+    keys = ("t", "q", "dq", "ddq", "tau", "cq", "cdq", "cddq")
     parts = {k: [] for k in ("t", "q", "dq", "ddq", "tau", "segment", "cq", "cdq", "cddq")}
     # context joints: the other arm joints every session records (their recorded angles enter the
     # rigid-body model's kinematics); filtered together with the learning joints, column by column
     context = [n for n in ARM_JOINTS if n not in config.joints
                and all(n in s.joint_names for s in sessions)]
-    J = len(config.joints)
     seg = 0
     dropped = 0
     longest = 0.0  # s, of the pieces too short to use
     for s in sessions:
-        if s.arm != config.arm:
-            raise ConfigError(f"{s.path or 'the session'} was read from the {s.arm}'s data but the "
-                              f"preprocessing settings are for the {config.arm}'s")
-        missing = [n for n in config.joints if n not in s.joint_names]
-        if missing:
-            raise ConfigError(f"{s.path or 'the session'} has no joint(s) {', '.join(missing)} "
-                              f"(it has {', '.join(s.joint_names)})")
+        _check_session(s, config)
         cols = [s.joint_names.index(n) for n in config.joints]
         ccols = [s.joint_names.index(n) for n in context]
         settle = int(round(config.settle_s * s.rate_hz))
         for piece in _pieces(s.t, config.split_gap_s):
-            t, q, tau = s.t[piece], s.q[piece][:, cols + ccols], s.tau[piece][:, cols]
-            if len(t) <= settle + 2 * s.rate_hz / config.downsample_hz:
+            n = len(s.t[piece])
+            if n <= settle + 2 * s.rate_hz / config.downsample_hz:
                 dropped += 1
-                longest = max(longest, len(t) / s.rate_hz)
+                longest = max(longest, n / s.rate_hz)
                 continue
-            q, dq, ddq, tau = filter_signals(q, tau, s.rate_hz, config)
-            keep = slice(settle, None)
-            t, (q, dq, ddq, tau) = _downsample(t[keep], [q[keep], dq[keep], ddq[keep], tau[keep]],
-                                               s.rate_hz, config.downsample_hz)
-            q, cq, dq, cdq, ddq, cddq = q[:, :J], q[:, J:], dq[:, :J], dq[:, J:], ddq[:, :J], ddq[:, J:]
-            for k, v in zip(("t", "q", "dq", "ddq", "tau", "cq", "cdq", "cddq"),
-                            (t, q, dq, ddq, tau, cq, cdq, cddq)):
+            values = _filtered_piece(s, piece, cols, ccols, settle, config)
+            for k, v in zip(keys, values):
                 parts[k].append(v)
-            parts["segment"].append(np.full(len(t), seg, dtype=int))
+            parts["segment"].append(np.full(len(values[0]), seg, dtype=int))
             seg += 1
     if not parts["t"]:
-        need = config.settle_s + 2.0 / config.downsample_hz
-        names = ", ".join(str(x.path or "the session") for x in sessions)
-        verb, its = ("is", "its") if len(sessions) == 1 else ("are", "their")
-        raise ConfigError(f"{names} {verb} too short to preprocess: {its} longest continuous piece lasts "
-                          f"{longest:.2g} s, and more than {need:.2g} s are needed (the "
-                          f"{config.settle_s:g} s the filters settle in, plus two output samples)")
+        raise _too_short(sessions, config, longest)
     cat = {k: np.concatenate(v) for k, v in parts.items()}
-    travel = np.ptp(cat["q"], axis=0)
-    for name, span in zip(config.joints, travel):
-        if span < MIN_TRAVEL_RAD:  # its velocity is jitter, which the mask would call motion
-            raise DeadZoneError(f"{name} never moves in the data (its angle stays within "
-                                f"{np.degrees(span):.2g} deg), so it cannot be learned; record motion of it "
-                                f"or leave it out with `joints`")
+    _check_travel(cat["q"], config.joints)
     moving, sigma = dead_zone_mask(cat["dq"], config.alpha, joint_names=config.joints)
     rate = min(config.downsample_hz, min(s.rate_hz for s in sessions))
     meta = {"preprocessing": config.to_dict(), "sigma": sigma.tolist(), "alpha": config.alpha,

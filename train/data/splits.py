@@ -114,24 +114,19 @@ def eval_fraction(ds: Dataset, mode: str) -> float:
     return float(ds.all_moving.mean()) if mode == "all-moving" else float(ds.moving.mean(axis=0).min())
 
 
-def _try_split(ds: Dataset, config: SplitConfig, rng, mode: str = "all-moving") -> tuple[dict, str | None]:
-    rate = ds.rate_hz
-    n_win = int(round(config.window_s * rate))
-    gap = int(round(config.gap_s * rate))
-    block = max(int(round(config.block_s * rate)), 1)
-    runs = _runs(ds.segment)
-    long_runs = [r for r in runs if r[1] - r[0] >= n_win]
-    if not long_runs:
-        return {}, f"no continuous piece holds a {config.window_s:g} s plot window"
-    wa, wb = long_runs[rng.integers(len(long_runs))]
-    w0 = int(rng.integers(wa, wb - n_win + 1))
-    window = np.arange(w0, w0 + n_win)
+def _free_spans(runs: list, window_run: tuple, w0: int, n_win: int, gap: int) -> list[tuple[int, int]]:
+    """The continuous pieces, the plot window (and a gap each side of it) cut out of its own."""
     free = []
     for a, b in runs:
-        if (a, b) == (wa, wb):
+        if (a, b) == window_run:
             free += [(a, w0 - gap), (w0 + n_win + gap, b)]
         else:
             free.append((a, b))
+    return free
+
+
+def _blocks(free: list[tuple[int, int]], block: int, gap: int) -> list[np.ndarray]:
+    """Row blocks of `block` rows (a last one of at least a quarter block) with `gap` rows between."""
     blocks = []
     for a, b in free:
         s = a
@@ -139,10 +134,13 @@ def _try_split(ds: Dataset, config: SplitConfig, rng, mode: str = "all-moving") 
             e = min(s + block, b)
             blocks.append(np.arange(s, e))
             s = e + gap
-    order = rng.permutation(len(blocks))
-    all_moving = ds.all_moving
-    # rows that count towards an evaluation set: (N, 1) all-moving, or (N, J) each joint's moving rows
-    counts = all_moving[:, None] if mode == "all-moving" else ds.moving
+    return blocks
+
+
+def _deal_blocks(blocks: list, order, counts: np.ndarray,
+                 config: SplitConfig) -> tuple[list, list, list] | None:
+    """(val, test, pool) blocks dealt in `order` until each set holds its size; None when the blocks run
+    out first. `counts`: (N, K) rows that count towards an evaluation set's size."""
     val, test, pool = [], [], []
     n_val = np.zeros(counts.shape[1], int)
     n_test = np.zeros(counts.shape[1], int)
@@ -159,19 +157,43 @@ def _try_split(ds: Dataset, config: SplitConfig, rng, mode: str = "all-moving") 
             pool.append(blk)
             n_pool += len(blk)
     if n_val.min() < config.n_val or n_test.min() < config.n_test or n_pool < config.n_pool:
+        return None
+    return val, test, pool
+
+
+def _take_moving(ds: Dataset, mode: str, blks: list, n: int) -> np.ndarray:
+    """The first rows of the blocks that give an evaluation set its n counted rows."""
+    rows = np.sort(np.concatenate(blks))
+    if mode == "all-moving":
+        return rows[ds.all_moving[rows]][:n]
+    rows = rows[ds.moving[rows].any(axis=1)]  # per-joint: rows where some joint moves, until each
+    reached = np.cumsum(ds.moving[rows], axis=0) >= n  # joint has n moving rows
+    return rows[:int(max(np.argmax(reached[:, j]) for j in range(reached.shape[1]))) + 1]
+
+
+def _try_split(ds: Dataset, config: SplitConfig, rng, mode: str = "all-moving") -> tuple[dict, str | None]:
+    rate = ds.rate_hz
+    n_win = int(round(config.window_s * rate))
+    gap = int(round(config.gap_s * rate))
+    block = max(int(round(config.block_s * rate)), 1)
+    runs = _runs(ds.segment)
+    long_runs = [r for r in runs if r[1] - r[0] >= n_win]
+    if not long_runs:
+        return {}, f"no continuous piece holds a {config.window_s:g} s plot window"
+    wa, wb = long_runs[rng.integers(len(long_runs))]
+    w0 = int(rng.integers(wa, wb - n_win + 1))
+    window = np.arange(w0, w0 + n_win)
+    blocks = _blocks(_free_spans(runs, (wa, wb), w0, n_win, gap), block, gap)
+    order = rng.permutation(len(blocks))
+    # rows that count towards an evaluation set: (N, 1) all-moving, or (N, J) each joint's moving rows
+    counts = ds.all_moving[:, None] if mode == "all-moving" else ds.moving
+    dealt = _deal_blocks(blocks, order, counts, config)
+    if dealt is None:
         return {}, "short"
-
-    def take_moving(blks, n):
-        rows = np.sort(np.concatenate(blks))
-        if mode == "all-moving":
-            return rows[all_moving[rows]][:n]
-        rows = rows[ds.moving[rows].any(axis=1)]  # per-joint: rows where some joint moves, until each
-        reached = np.cumsum(ds.moving[rows], axis=0) >= n  # joint has n moving rows
-        return rows[:int(max(np.argmax(reached[:, j]) for j in range(reached.shape[1]))) + 1]
-
+    val, test, pool = dealt
     pool_rows = np.concatenate(pool)[:config.n_pool]
-    return {"pool": np.sort(pool_rows), "val": take_moving(val, config.n_val),
-            "test": take_moving(test, config.n_test), "window": window}, None
+    return {"pool": np.sort(pool_rows), "val": _take_moving(ds, mode, val, config.n_val),
+            "test": _take_moving(ds, mode, test, config.n_test), "window": window}, None
 
 
 def make_splits(ds: Dataset, config: SplitConfig | None = None, seed: int = 0,

@@ -72,73 +72,100 @@ def _mul(a: tuple, b: tuple, family: str, unit: str) -> tuple:
     return (f"{a[0]}·{b[0]}", a[1] + b[1], unit, family, a[2] | b[2], a[3] + b[3])
 
 
-def generate(joint_names: Sequence[str], j: int, library: bool = True) -> list[Term]:
-    """Every candidate term for joint index `j` of `joint_names` (before dropping duplicates)."""
-    labels = [joint_label(n, i) for i, n in enumerate(joint_names)]
-    out: list[tuple] = []
+class _Pieces:
+    """One-factor pieces of the joints' signals, named after the joints."""
 
-    def piece(expr, *variables):
-        return _piece(expr, joint_names, variables)
+    def __init__(self, joint_names: Sequence[str]):
+        self.joint_names = joint_names
+        self.labels = [joint_label(n, i) for i, n in enumerate(joint_names)]
 
-    def q(k):
-        return piece([["q", k]], f"q{labels[k]}")
+    def piece(self, expr, *variables):
+        return _piece(expr, self.joint_names, variables)
 
-    def dq(k):
-        return piece([["dq", k]], f"dq{labels[k]}")
+    def q(self, k):
+        return self.piece([["q", k]], f"q{self.labels[k]}")
 
-    def sgn(k):
-        return piece([["sign", k]], f"dq{labels[k]}")
+    def dq(self, k):
+        return self.piece([["dq", k]], f"dq{self.labels[k]}")
 
-    def trig(fn, n, k):
-        return piece([[fn, n, [k]]], f"q{labels[k]}")
+    def sgn(self, k):
+        return self.piece([["sign", k]], f"dq{self.labels[k]}")
 
-    def add(p, unit, family):
-        out.append(p[:2] + (unit, family) + p[2:])
+    def trig(self, fn, n, k):
+        return self.piece([[fn, n, [k]]], f"q{self.labels[k]}")
 
-    L = labels[j]
-    add(piece([["1"]]), "N m", "constant")
-    add(sgn(j), "N m", "velocity sign")
+
+def _single(p: tuple, unit: str, family: str) -> tuple:
+    """A one-factor piece as a term tuple."""
+    return p[:2] + (unit, family) + p[2:]
+
+
+def _own_terms(P: _Pieces, j: int) -> list[tuple]:
+    """The joint's own signals: constant, velocity signs, velocity, acceleration, powers and harmonics of
+    its angle."""
+    L = P.labels[j]
+    out = [_single(P.piece([["1"]]), "N m", "constant"), _single(P.sgn(j), "N m", "velocity sign")]
     for v in SMOOTH_SIGN_VELOCITIES:
-        add(piece([["tanh", j, v]], f"dq{L}"), "N m", "velocity sign")
-    add(dq(j), "N m s/rad", "velocity")
-    add(piece([["abs", "dq", j], ["dq", j]], f"dq{L}"), "N m s^2/rad^2", "velocity")
-    add(piece([["pow", "dq", j, 3]], f"dq{L}"), "N m s^3/rad^3", "velocity")
-    add(piece([["ddq", j]], f"ddq{L}"), "N m s^2/rad", "acceleration")
-    add(q(j), "N m/rad", "angle")
-    add(piece([["pow", "q", j, 2]], f"q{L}"), "N m/rad^2", "angle")
-    add(piece([["pow", "q", j, 3]], f"q{L}"), "N m/rad^3", "angle")
-    add(piece([["q", j], ["abs", "q", j]], f"q{L}"), "N m/rad^2", "angle")
-    for n in (1, 2, 3):
-        for fn in ("sin", "cos"):
-            add(trig(fn, n, j), "N m", "angle")
-    out.append(_mul(sgn(j), q(j), "velocity sign x angle", "N m/rad"))
-    out.append(_mul(dq(j), q(j), "velocity x angle", "N m s/rad^2"))
+        out.append(_single(P.piece([["tanh", j, v]], f"dq{L}"), "N m", "velocity sign"))
+    out += [
+        _single(P.dq(j), "N m s/rad", "velocity"),
+        _single(P.piece([["abs", "dq", j], ["dq", j]], f"dq{L}"), "N m s^2/rad^2", "velocity"),
+        _single(P.piece([["pow", "dq", j, 3]], f"dq{L}"), "N m s^3/rad^3", "velocity"),
+        _single(P.piece([["ddq", j]], f"ddq{L}"), "N m s^2/rad", "acceleration"),
+        _single(P.q(j), "N m/rad", "angle"),
+        _single(P.piece([["pow", "q", j, 2]], f"q{L}"), "N m/rad^2", "angle"),
+        _single(P.piece([["pow", "q", j, 3]], f"q{L}"), "N m/rad^3", "angle"),
+        _single(P.piece([["q", j], ["abs", "q", j]], f"q{L}"), "N m/rad^2", "angle"),
+    ]
+    out += [_single(P.trig(fn, n, j), "N m", "angle") for n in (1, 2, 3) for fn in ("sin", "cos")]
+    return out
+
+
+def _position_dependent_terms(P: _Pieces, j: int) -> list[tuple]:
+    """Friction and damping of joint j whose level changes with its angle."""
+    out = [_mul(P.sgn(j), P.q(j), "velocity sign x angle", "N m/rad"),
+           _mul(P.dq(j), P.q(j), "velocity x angle", "N m s/rad^2")]
     for n in (1, 2):
         for fn in ("sin", "cos"):
-            out.append(_mul(sgn(j), trig(fn, n, j), "velocity sign x angle", "N m"))
-            out.append(_mul(dq(j), trig(fn, n, j), "velocity x angle", "N m s/rad"))
-    for k in range(len(joint_names)):
-        if k == j:
-            continue
-        K = labels[k]
-        add(sgn(k), "N m", "coupling")
-        add(piece([["tanh", k, 0.25]], f"dq{K}"), "N m", "coupling")
-        add(dq(k), "N m s/rad", "coupling")
-        add(piece([["abs", "dq", k], ["dq", k]], f"dq{K}"), "N m s^2/rad^2", "coupling")
-        add(piece([["ddq", k]], f"ddq{K}"), "N m s^2/rad", "coupling")
-        for n in (1, 2):
-            for fn in ("sin", "cos"):
-                add(trig(fn, n, k), "N m", "coupling")
-        for fn in ("sin", "cos"):
-            out.append(_mul(sgn(j), trig(fn, 1, k), "coupling", "N m"))
-        out.append(_mul(dq(j), dq(k), "coupling", "N m s^2/rad^2"))
-    n_j = len(joint_names)
+            out.append(_mul(P.sgn(j), P.trig(fn, n, j), "velocity sign x angle", "N m"))
+            out.append(_mul(P.dq(j), P.trig(fn, n, j), "velocity x angle", "N m s/rad"))
+    return out
+
+
+def _coupling_terms(P: _Pieces, j: int, k: int) -> list[tuple]:
+    """Torque on joint j from another joint k's motion and pose."""
+    K = P.labels[k]
+    out = [
+        _single(P.sgn(k), "N m", "coupling"),
+        _single(P.piece([["tanh", k, 0.25]], f"dq{K}"), "N m", "coupling"),
+        _single(P.dq(k), "N m s/rad", "coupling"),
+        _single(P.piece([["abs", "dq", k], ["dq", k]], f"dq{K}"), "N m s^2/rad^2", "coupling"),
+        _single(P.piece([["ddq", k]], f"ddq{K}"), "N m s^2/rad", "coupling"),
+    ]
+    out += [_single(P.trig(fn, n, k), "N m", "coupling") for n in (1, 2) for fn in ("sin", "cos")]
+    out += [_mul(P.sgn(j), P.trig(fn, 1, k), "coupling", "N m") for fn in ("sin", "cos")]
+    out.append(_mul(P.dq(j), P.dq(k), "coupling", "N m s^2/rad^2"))
+    return out
+
+
+def _angle_sum_terms(P: _Pieces) -> list[tuple]:
+    """sin/cos of the sum of every pair of angles, and of all of them (more than two joints)."""
+    n_j = len(P.joint_names)
     groups = [(a, b) for a in range(n_j) for b in range(a + 1, n_j)]
     if n_j > 2:
         groups.append(tuple(range(n_j)))
-    for g in groups:
-        for fn in ("sin", "cos"):
-            add(piece([[fn, 1, list(g)]], *(f"q{labels[k]}" for k in g)), "N m", "sum of angles")
+    return [_single(P.piece([[fn, 1, list(g)]], *(f"q{P.labels[k]}" for k in g)), "N m", "sum of angles")
+            for g in groups for fn in ("sin", "cos")]
+
+
+def generate(joint_names: Sequence[str], j: int, library: bool = True) -> list[Term]:
+    """Every candidate term for joint index `j` of `joint_names` (before dropping duplicates)."""
+    P = _Pieces(joint_names)
+    out = _own_terms(P, j) + _position_dependent_terms(P, j)
+    for k in range(len(joint_names)):
+        if k != j:
+            out += _coupling_terms(P, j, k)
+    out += _angle_sum_terms(P)
     terms = [Term(*t) for t in out]
     if library:
         terms += library_terms(joint_names, j)

@@ -167,13 +167,73 @@ def _near_contact(t: np.ndarray, contact: np.ndarray, guard_s: float) -> np.ndar
     return nearest <= guard_s + 1e-12
 
 
-def measure_fidelity(session: Path | str, truth_trace: Path | str | None = None, settle_s: float = 1.0,
-                     contact_guard_s: float = 0.3) -> Fidelity:
-    """The force-channel metrics of one bilateral session (see the module docstring)."""
+def _check_times(settle_s: float, contact_guard_s: float) -> None:
     if not (np.isfinite(settle_s) and settle_s >= 0):
         raise FidelityError(f"the settle time must be a number of seconds >= 0, got {settle_s!r}")
     if not (np.isfinite(contact_guard_s) and contact_guard_s >= 0):
         raise FidelityError(f"the contact guard must be a number of seconds >= 0, got {contact_guard_s!r}")
+
+
+def _aligned_trace(tpath: Path, path: Path, names, t: np.ndarray, notes: list) -> tuple[_Trace, int]:
+    """The truth trace and the number of rows it shares with the session (whose times it must match)."""
+    n = len(t)
+    trace = _read_trace(tpath, names)
+    m = min(n, len(trace.t))
+    if len(trace.t) != n:
+        notes.append(f"the truth trace has {len(trace.t)} rows and the session {n}: the first {m} "
+                     f"(the common part) are used.")
+    off = np.abs(trace.t[:m] - t[:m]) > T_TOLERANCE_S
+    if off.any():
+        row = int(np.argmax(off))
+        raise FidelityError(f"{tpath} is not the truth trace of {path}: its t differs from the "
+                            f"session's follower/t (first at row {row}: {trace.t[row]:.6g} s against "
+                            f"{t[row]:.6g} s)")
+    return trace, m
+
+
+def _sample_classes(trace: _Trace | None, keep: np.ndarray, t: np.ndarray, contact_guard_s: float,
+                    notes: list) -> tuple:
+    """(contact, free, tau_ext, leader tau_ext): the samples in contact and in free motion, and the true
+    external torques (None where unknown)."""
+    n = len(t)
+    if trace is None:
+        notes.append("no truth trace: every sample counts as free motion (contact, if any, is not told "
+                     "apart) and the estimates' errors against the true torques are not measured.")
+        return np.zeros(n, bool), keep, None, None
+    contact = keep & trace.in_contact[:n]
+    free = keep & ~_near_contact(t, trace.in_contact[:n], contact_guard_s)
+    ext_l = trace.leader_tau_ext[:n] if trace.leader_tau_ext is not None else None
+    if ext_l is None:
+        notes.append("the truth trace has no /leader/tau_ext: the hand-torque error is not measured.")
+    return contact, free, trace.tau_ext[:n], ext_l
+
+
+def _joint_metrics(j: int, keep, free, contact, r_l, r_f, q_l, q_f, dq_f, ext, ext_l) -> dict:
+    """The force-channel metrics of joint column j."""
+    v = dq_f[keep, j]
+    moving = np.abs(dq_f[:, j]) > DEAD_ZONE_ALPHA * (np.std(v) if len(v) else 0.0)
+    m = {"follower_false_rms": _rms(r_f[free, j]),
+         "follower_false_rms_moving": _rms(r_f[free & moving, j]),
+         "follower_false_rms_still": _rms(r_f[free & ~moving, j]),
+         "moving_fraction": float(moving[free].mean()) if free.any() else None,
+         "leader_rms": _rms(r_l[free, j])}
+    if ext_l is not None:
+        m["leader_hand_error_rms"] = _rms(r_l[free, j] + ext_l[free, j])
+        m["hand_true_rms"] = _rms(ext_l[free, j])
+    if ext is not None:
+        err, true = _rms(r_f[contact, j] + ext[contact, j]), _rms(ext[contact, j])
+        m.update(contact_error_rms=err, contact_true_rms=true,
+                 contact_error_ratio=err / true if err is not None and true else None)
+    track = _rms(q_l[keep, j] - q_f[keep, j])
+    m.update(force_sum_rms=_rms(r_l[keep, j] + r_f[keep, j]), tracking_rms=track,
+             tracking_rms_deg=float(np.degrees(track)))
+    return m
+
+
+def measure_fidelity(session: Path | str, truth_trace: Path | str | None = None, settle_s: float = 1.0,
+                     contact_guard_s: float = 0.3) -> Fidelity:
+    """The force-channel metrics of one bilateral session (see the module docstring)."""
+    _check_times(settle_s, contact_guard_s)
     path = Path(session)
     fol = read_session(path, "follower")
     lead = read_session(path, "leader")
@@ -188,19 +248,8 @@ def measure_fidelity(session: Path | str, truth_trace: Path | str | None = None,
     t = fol.t[:n]
     trace = None
     if truth_trace is not None:
-        tpath = Path(truth_trace)
-        trace = _read_trace(tpath, names)
-        m = min(n, len(trace.t))
-        if len(trace.t) != n:
-            notes.append(f"the truth trace has {len(trace.t)} rows and the session {n}: the first {m} "
-                         f"(the common part) are used.")
-        off = np.abs(trace.t[:m] - t[:m]) > T_TOLERANCE_S
-        if off.any():
-            row = int(np.argmax(off))
-            raise FidelityError(f"{tpath} is not the truth trace of {path}: its t differs from the "
-                                f"session's follower/t (first at row {row}: {trace.t[row]:.6g} s against "
-                                f"{t[row]:.6g} s)")
-        n, t = m, t[:m]
+        trace, n = _aligned_trace(Path(truth_trace), path, names, t, notes)
+        t = t[:n]
     keep = t >= t[0] + settle_s
     if not keep.any():
         raise FidelityError(f"{path} lasts {t[-1] - t[0]:.3g} s, not more than the {settle_s:g} s settle "
@@ -211,40 +260,10 @@ def measure_fidelity(session: Path | str, truth_trace: Path | str | None = None,
     if not bilateral.any():
         raise FidelityError(f"{path} has no bilateral joint (no joint's reaction-force observer ran on both "
                             f"arms through the session), so there is no force channel to measure")
-    if trace is not None:
-        contact = keep & trace.in_contact[:n]
-        free = keep & ~_near_contact(t, trace.in_contact[:n], contact_guard_s)
-        ext, ext_l = trace.tau_ext[:n], (trace.leader_tau_ext[:n] if trace.leader_tau_ext is not None
-                                         else None)
-        if ext_l is None:
-            notes.append("the truth trace has no /leader/tau_ext: the hand-torque error is not measured.")
-    else:
-        contact = np.zeros(n, bool)
-        free = keep
-        ext = ext_l = None
-        notes.append("no truth trace: every sample counts as free motion (contact, if any, is not told "
-                     "apart) and the estimates' errors against the true torques are not measured.")
-    joints = {}
+    contact, free, ext, ext_l = _sample_classes(trace, keep, t, contact_guard_s, notes)
     dq_f = dq_f[:n]
-    for j in np.flatnonzero(bilateral):
-        v = dq_f[keep, j]
-        moving = np.abs(dq_f[:, j]) > DEAD_ZONE_ALPHA * (np.std(v) if len(v) else 0.0)
-        m = {"follower_false_rms": _rms(r_f[free, j]),
-             "follower_false_rms_moving": _rms(r_f[free & moving, j]),
-             "follower_false_rms_still": _rms(r_f[free & ~moving, j]),
-             "moving_fraction": float(moving[free].mean()) if free.any() else None,
-             "leader_rms": _rms(r_l[free, j])}
-        if ext_l is not None:
-            m["leader_hand_error_rms"] = _rms(r_l[free, j] + ext_l[free, j])
-            m["hand_true_rms"] = _rms(ext_l[free, j])
-        if ext is not None:
-            err, true = _rms(r_f[contact, j] + ext[contact, j]), _rms(ext[contact, j])
-            m.update(contact_error_rms=err, contact_true_rms=true,
-                     contact_error_ratio=err / true if err is not None and true else None)
-        track = _rms(q_l[keep, j] - q_f[keep, j])
-        m.update(force_sum_rms=_rms(r_l[keep, j] + r_f[keep, j]), tracking_rms=track,
-                 tracking_rms_deg=float(np.degrees(track)))
-        joints[names[j]] = m
+    joints = {names[j]: _joint_metrics(j, keep, free, contact, r_l, r_f, q_l, q_f, dq_f, ext, ext_l)
+              for j in np.flatnonzero(bilateral)}
     models = {arm: _model_attr(fol.attrs, arm) for arm in ("leader", "follower")}
     return Fidelity(session=str(path), truth_trace=None if truth_trace is None else str(truth_trace),
                     settle_s=float(settle_s), contact_guard_s=float(contact_guard_s), joints=joints,

@@ -217,17 +217,9 @@ def run_mlps(splits: Splits, subsets: dict, sizes: Sequence[int], trials: int, m
     return results, window_pred
 
 
-def run_sweep(dataset: Dataset, sizes: Sequence[int], trials: int = 10,
-              methods: Sequence[str] = SWEEP_METHODS, seed: int = 0,
-              progress: bool | ProgressLines = True, split_config: SplitConfig | None = None,
-              scale_to_data: bool = False, mlp_settings: MLPSettings | None = None, threads: int | None = 1,
-              notify: Callable[[str | None], object] | None = None) -> SweepResult:
-    """Run the experiment; see the module docstring. `threads` sets torch's intra-op threads
-    (1 is fastest for these tiny networks; None leaves torch's setting alone). `progress`: True for
-    tqdm bars, False for nothing, a train.progress.ProgressLines for plain lines (a log). `notify`:
-    callable(str) told, before any training, when scale_to_data changed the sizes (one sentence)."""
-    lines = progress if isinstance(progress, ProgressLines) else None
-    bars = bool(progress) and lines is None
+def _checked_request(methods: Sequence[str], trials: int,
+                     sizes: Sequence[int]) -> tuple[list[str], list[int]]:
+    """The methods (each once, in order) and sorted distinct sizes asked for, checked."""
     methods = list(dict.fromkeys(methods))
     unknown = [m for m in methods if m not in SWEEP_METHODS]
     if unknown:
@@ -240,35 +232,36 @@ def run_sweep(dataset: Dataset, sizes: Sequence[int], trials: int = 10,
     sizes = sorted({int(s) for s in sizes})
     if not sizes or sizes[0] < 1:
         raise SweepError("sample sizes must be positive integers")
-    requested = list(sizes)
-    settings = mlp_settings or MLPSettings()
-    if threads is not None:
-        torch.set_num_threads(threads)
-    t0 = time.perf_counter()
-    splits = make_splits(dataset, split_config, seed=seed, scale_to_data=scale_to_data)
-    pool_n = len(splits.pool)
-    if sizes[-1] > pool_n:
-        if not scale_to_data:
-            raise SweepError(f"the largest sample size {sizes[-1]} exceeds the training pool of "
-                             f"{pool_n} samples")
-        scaled = (max(1, int(round(s * splits.scale))) for s in sizes)
-        sizes = sorted({s for s in scaled if s <= pool_n})
-        if not sizes:
-            raise SweepError(f"no sample size fits the training pool of {pool_n} samples, even scaled "
-                             f"to the data (x{splits.scale:.3g}); ask for smaller sizes")
-    sizes_scaled = sizes != requested
-    if sizes_scaled and notify is not None:
-        notify(scaled_sizes_sentence({"sizes": sizes, "sizes_requested": requested, "sizes_scaled": True,
-                                      "meta": {"splits": {"pool": pool_n}, "split_scale": splits.scale}}))
-    subsets = draw_subsets(pool_n, sizes, trials, seed)
-    if lines is not None:
-        mlp_n = sum(m.startswith("mlp-") for m in methods) * len(sizes) * trials
-        plan = [f"{len(sizes) * trials} rigid-body fits"] if "rigid-body" in methods else []
-        plan += [f"{mlp_n} networks trained together for {settings.epochs} epochs"] if mlp_n else []
-        plural = lambda n, word: f"{n} {word}" + ("s" if n != 1 else "")  # noqa: E731
-        lines(f"{plural(len(methods), 'method')} x {plural(len(sizes), 'size')} ({_span(sizes)} samples) x "
-              f"{plural(trials, 'trial')}: " + ", then ".join(plan), force=True)
-    test_var = torque_variance(splits.test.tau, eval_mask(splits.test))
+    return methods, sizes
+
+
+def _sizes_in_pool(sizes: list[int], pool_n: int, scale: float, scale_to_data: bool) -> list[int]:
+    """The sizes, scaled to the data (with `scale_to_data`) when the largest exceeds the training pool."""
+    if sizes[-1] <= pool_n:
+        return sizes
+    if not scale_to_data:
+        raise SweepError(f"the largest sample size {sizes[-1]} exceeds the training pool of "
+                         f"{pool_n} samples")
+    scaled = (max(1, int(round(s * scale))) for s in sizes)
+    sizes = sorted({s for s in scaled if s <= pool_n})
+    if not sizes:
+        raise SweepError(f"no sample size fits the training pool of {pool_n} samples, even scaled "
+                         f"to the data (x{scale:.3g}); ask for smaller sizes")
+    return sizes
+
+
+def _plan_line(methods: list[str], sizes: list[int], trials: int, settings: MLPSettings) -> str:
+    """One line saying what the sweep is about to fit and train."""
+    mlp_n = sum(m.startswith("mlp-") for m in methods) * len(sizes) * trials
+    plan = [f"{len(sizes) * trials} rigid-body fits"] if "rigid-body" in methods else []
+    plan += [f"{mlp_n} networks trained together for {settings.epochs} epochs"] if mlp_n else []
+    plural = lambda n, word: f"{n} {word}" + ("s" if n != 1 else "")  # noqa: E731
+    return (f"{plural(len(methods), 'method')} x {plural(len(sizes), 'size')} ({_span(sizes)} samples) x "
+            f"{plural(trials, 'trial')}: " + ", then ".join(plan))
+
+
+def _run_methods(splits, subsets, sizes, trials, methods, settings, seed, bars, lines, test_var):
+    """Each method's summary, its predictions on the window and the seconds each family took."""
     out_methods, predictions, timing = {}, {}, {}
     if "rigid-body" in methods:
         t = time.perf_counter()
@@ -285,6 +278,39 @@ def run_sweep(dataset: Dataset, sizes: Sequence[int], trials: int = 10,
             out_methods[m] = _summarise(res[m][0], test_var, sizes, res[m][1])
         predictions.update(wpred)
         timing["mlp_s"] = time.perf_counter() - t
+    return out_methods, predictions, timing
+
+
+def run_sweep(dataset: Dataset, sizes: Sequence[int], trials: int = 10,
+              methods: Sequence[str] = SWEEP_METHODS, seed: int = 0,
+              progress: bool | ProgressLines = True, split_config: SplitConfig | None = None,
+              scale_to_data: bool = False, mlp_settings: MLPSettings | None = None, threads: int | None = 1,
+              notify: Callable[[str | None], object] | None = None) -> SweepResult:
+    """Run the experiment; see the module docstring. `threads` sets torch's intra-op threads
+    (1 is fastest for these tiny networks; None leaves torch's setting alone). `progress`: True for
+    tqdm bars, False for nothing, a train.progress.ProgressLines for plain lines (a log). `notify`:
+    callable(str) told, before any training, when scale_to_data changed the sizes (one sentence)."""
+    lines = progress if isinstance(progress, ProgressLines) else None
+    bars = bool(progress) and lines is None
+    methods, sizes = _checked_request(methods, trials, sizes)
+    requested = list(sizes)
+    settings = mlp_settings or MLPSettings()
+    if threads is not None:
+        torch.set_num_threads(threads)
+    t0 = time.perf_counter()
+    splits = make_splits(dataset, split_config, seed=seed, scale_to_data=scale_to_data)
+    pool_n = len(splits.pool)
+    sizes = _sizes_in_pool(sizes, pool_n, splits.scale, scale_to_data)
+    sizes_scaled = sizes != requested
+    if sizes_scaled and notify is not None:
+        notify(scaled_sizes_sentence({"sizes": sizes, "sizes_requested": requested, "sizes_scaled": True,
+                                      "meta": {"splits": {"pool": pool_n}, "split_scale": splits.scale}}))
+    subsets = draw_subsets(pool_n, sizes, trials, seed)
+    if lines is not None:
+        lines(_plan_line(methods, sizes, trials, settings), force=True)
+    test_var = torque_variance(splits.test.tau, eval_mask(splits.test))
+    out_methods, predictions, timing = _run_methods(splits, subsets, sizes, trials, methods, settings, seed,
+                                                    bars, lines, test_var)
     timing["total_s"] = time.perf_counter() - t0
     out_methods = {m: out_methods[m] for m in methods if m in out_methods}
     win = splits.window

@@ -154,24 +154,8 @@ def _check_preprocessing(path: Path, pre: dict, joints: int) -> None:
     cfg = pre.get("preprocessing", pre)
     if not isinstance(cfg, dict):
         raise ModelFileError(f"{path} has a preprocessing record of {_shown(cfg)}, not an object of settings")
-    for key in _PREPROCESS_NUMBERS:
-        if key in cfg and not _number(0)[0](cfg[key]):
-            raise ModelFileError(f"{path} has the preprocessing setting {key} = {_shown(cfg[key])}; it must "
-                                 f"be a finite number >= 0")
-    checks = {"zero_phase": _BOOL, "arm": _choice(("leader", "follower")),
-              "joints": ((lambda v: _names_ok(v)), "a list of distinct joint names"),
-              "extra": ((lambda v: isinstance(v, dict)), "an object")}
-    for key, (check, what) in checks.items():
-        if key in cfg and not check(cfg[key]):
-            raise ModelFileError(f"{path} has the preprocessing setting {key} = {_shown(cfg[key])}; it must "
-                                 f"be {what}")
-    splits = pre.get("splits")
-    if splits is not None and not isinstance(splits, dict):
-        raise ModelFileError(f"{path} has splits settings of {_shown(splits)}, not an object of settings")
-    for key, (check, what) in _SPLIT_TYPES.items():
-        if splits and key in splits and not check(splits[key]):
-            raise ModelFileError(f"{path} has the split setting {key} = {_shown(splits[key])}; it must be "
-                                 f"{what}")
+    _check_preprocess_settings(path, cfg)
+    _check_split_settings(path, pre.get("splits"))
     if "seed" in pre and not _int(0, MAX_SEED)[0](pre["seed"]):
         raise ModelFileError(f"{path} has the seed {_shown(pre['seed'])}; it must be a whole number from 0 "
                              f"to {MAX_SEED}")
@@ -184,42 +168,82 @@ def _check_preprocessing(path: Path, pre: dict, joints: int) -> None:
         raise ModelFileError(f"{path} records an unusable preprocessing setting: {problem}")
 
 
+def _check_preprocess_settings(path: Path, cfg: dict) -> None:
+    """Each recorded preprocessing setting is of its type."""
+    for key in _PREPROCESS_NUMBERS:
+        if key in cfg and not _number(0)[0](cfg[key]):
+            raise ModelFileError(f"{path} has the preprocessing setting {key} = {_shown(cfg[key])}; it must "
+                                 f"be a finite number >= 0")
+    checks = {"zero_phase": _BOOL, "arm": _choice(("leader", "follower")),
+              "joints": ((lambda v: _names_ok(v)), "a list of distinct joint names"),
+              "extra": ((lambda v: isinstance(v, dict)), "an object")}
+    for key, (check, what) in checks.items():
+        if key in cfg and not check(cfg[key]):
+            raise ModelFileError(f"{path} has the preprocessing setting {key} = {_shown(cfg[key])}; it must "
+                                 f"be {what}")
+
+
+def _check_split_settings(path: Path, splits) -> None:
+    """The recorded split settings (if any) are an object of settings, each of its type."""
+    if splits is not None and not isinstance(splits, dict):
+        raise ModelFileError(f"{path} has splits settings of {_shown(splits)}, not an object of settings")
+    for key, (check, what) in _SPLIT_TYPES.items():
+        if splits and key in splits and not check(splits[key]):
+            raise ModelFileError(f"{path} has the split setting {key} = {_shown(splits[key])}; it must be "
+                                 f"{what}")
+
+
 def _numbers(value, n: int) -> bool:
     return isinstance(value, list) and len(value) == n and all(_number(-MAX_ABS)[0](v) for v in value)
 
 
 def _check_state(path: Path, method: str, state: dict, joints: int) -> None:
     if method in ("mlp-mse", "mlp-masked"):
-        norm = state.get("norm")
-        if not isinstance(norm, dict):
-            raise ModelFileError(f"{path} lacks the network's normalisation (state.norm); fit the model "
-                                 f"again")
-        for key, n in (("x_mean", 3 * joints), ("x_std", 3 * joints), ("y_mean", joints), ("y_std", joints)):
-            if not _numbers(norm.get(key), n):
-                raise ModelFileError(f"{path} has a normalisation {key} of {_shown(norm.get(key))}, not {n} "
-                                     f"finite numbers")
-        problem = scales_problem(norm["x_std"], norm["y_std"])
-        if problem is not None:
-            raise ModelFileError(f"{path} has an unusable normalisation: {problem}")
+        _check_network_state(path, state, joints)
     elif method == "hybrid":
-        parts = state.get("parts", {})
-        if not isinstance(parts, dict) or not all(
-                isinstance(parts.get(k, k), str) and _plain_name(parts.get(k, k)) for k in ("rigid", "mlp")):
-            raise ModelFileError(f"{path} names its parts {_shown(parts)}, not folders inside the model "
-                                 f"directory")
-        weights = state.get("network_weight") or {}
-        if not isinstance(weights, dict) or not all(
-                isinstance(k, str) and _number(0)[0](v) and v <= 1 for k, v in weights.items()):
-            raise ModelFileError(f"{path} has network weights {_shown(weights)}, not a number in [0, 1] per "
-                                 f"joint")
+        _check_hybrid_state(path, state)
     elif method == "rigid-body":
-        for key in ("names", "context_joints"):
-            value = state.get(key)
-            if value is not None and not (isinstance(value, list) and all(isinstance(v, str) for v in value)):
-                raise ModelFileError(f"{path} has a state {key} of {_shown(value)}, not a list of names")
-        lr = state.get("locked_resolved")
-        if lr is not None and not _ANGLES[0](lr):
-            raise ModelFileError(f"{path} has locked angles {_shown(lr)}, not joint names with finite angles")
+        _check_rigid_state(path, state)
+
+
+def _check_network_state(path: Path, state: dict, joints: int) -> None:
+    """A network's normalisation: finite means and usable scales of the right sizes."""
+    norm = state.get("norm")
+    if not isinstance(norm, dict):
+        raise ModelFileError(f"{path} lacks the network's normalisation (state.norm); fit the model "
+                             f"again")
+    for key, n in (("x_mean", 3 * joints), ("x_std", 3 * joints), ("y_mean", joints), ("y_std", joints)):
+        if not _numbers(norm.get(key), n):
+            raise ModelFileError(f"{path} has a normalisation {key} of {_shown(norm.get(key))}, not {n} "
+                                 f"finite numbers")
+    problem = scales_problem(norm["x_std"], norm["y_std"])
+    if problem is not None:
+        raise ModelFileError(f"{path} has an unusable normalisation: {problem}")
+
+
+def _check_hybrid_state(path: Path, state: dict) -> None:
+    """A hybrid's part folders and its per-joint network weights."""
+    parts = state.get("parts", {})
+    if not isinstance(parts, dict) or not all(
+            isinstance(parts.get(k, k), str) and _plain_name(parts.get(k, k)) for k in ("rigid", "mlp")):
+        raise ModelFileError(f"{path} names its parts {_shown(parts)}, not folders inside the model "
+                             f"directory")
+    weights = state.get("network_weight") or {}
+    if not isinstance(weights, dict) or not all(
+            isinstance(k, str) and _number(0)[0](v) and v <= 1 for k, v in weights.items()):
+        raise ModelFileError(f"{path} has network weights {_shown(weights)}, not a number in [0, 1] per "
+                             f"joint")
+
+
+def _check_rigid_state(path: Path, state: dict) -> None:
+    """A rigid-body model's joint name lists and locked angles."""
+    for key in ("names", "context_joints"):
+        value = state.get(key)
+        if value is not None and not (isinstance(value, list) and all(isinstance(v, str) for v in value)):
+            raise ModelFileError(f"{path} has a state {key} of {_shown(value)}, not a list of names")
+    lr = state.get("locked_resolved")
+    if lr is not None and not _ANGLES[0](lr):
+        raise ModelFileError(f"{path} has locked angles {_shown(lr)}, not joint names with finite angles")
 
 
 def _plain_name(name: str) -> bool:

@@ -303,7 +303,24 @@ class RigidBodyModel(Model):
         self._resolve_context(train)
         terms = self._resolve_terms()
         n_par = self.n_base + sum(self.effect_by_name(t["name"]).n_columns() for t in terms)
-        need = n_par // len(self.joint_names) + 1
+        self._check_enough_rows(train, rows, per_joint, n_par // len(self.joint_names) + 1)
+        fit_ds = train.subset(rows)
+        val_ds = _validation_rows(val, per_joint, fit_ds)
+        for term in terms:
+            if term["shape"] is not None:
+                self._check_given_shape(term, fit_ds)
+        tuned = self._tune_shapes(terms, fit_ds, val_ds, per_joint)
+        self.terms = terms
+        self.theta, self.stderr, s2 = self._solve(fit_ds, terms, per_joint)
+        self.names = self._parameter_names(terms)
+        self.fit_info = {"rows": int(len(rows)), "residual_variance": s2, "shape_search": tuned,
+                         "rows_used": "per-joint" if per_joint else "all-moving"}
+        if not self.preprocessing:
+            self.preprocessing = dict(train.meta.get("preprocessing", {}))
+        return self
+
+    def _check_enough_rows(self, train: Dataset, rows: np.ndarray, per_joint: bool, need: int) -> None:
+        """The fit's rows hold at least `need` samples (per joint, where each joint moves, when per-joint)."""
         if per_joint:
             counts = train.moving.sum(axis=0)
             if counts.min() < need:
@@ -314,42 +331,33 @@ class RigidBodyModel(Model):
         elif len(rows) < need:
             raise CraneError(f"the rigid-body fit needs at least {need} samples with every joint moving; "
                              f"the training data has {len(rows)}")
-        fit_ds = train.subset(rows)
-        if per_joint:
-            val_ds = val.subset(np.flatnonzero(val.moving.any(axis=1))) if val is not None else fit_ds
-        else:
-            val_ds = val.subset(np.flatnonzero(val.all_moving)) if val is not None else fit_ds
-        if len(val_ds) == 0:  # a per-joint validation set (train.data.splits) may hold no all-moving row
-            val_ds = fit_ds
-        for term in terms:
-            if term["shape"] is not None:
-                self._check_given_shape(term, fit_ds)
+
+    def _tune_shapes(self, terms: list[dict], fit_ds: Dataset, val_ds: Dataset,
+                     per_joint: bool) -> list[dict]:
+        """Give each term without a shape the best of its effect's shape options on the validation rows
+        (in place); the record of each search."""
         tuned = []
         for i, term in enumerate(terms):
             effect = self.effect_by_name(term["name"])
             options = effect.shape_options()
             if term["shape"] is not None or len(options) <= 1:
                 continue
-            scores = []
-            for shape in options:
-                trial = [dict(t) for t in terms]
-                trial[i]["shape"] = shape
-                theta, _, _ = self._solve(fit_ds, trial, per_joint)
-                pred = self.regressor(val_ds.q, val_ds.dq, val_ds.ddq, trial, val_ds.context) @ theta
-                err = (val_ds.tau - pred) ** 2
-                scores.append(float(err[val_ds.moving].mean() if per_joint else err.mean()))
+            scores = [self._shape_score(terms, i, shape, fit_ds, val_ds, per_joint) for shape in options]
             best = int(np.argmin(scores))
             terms[i]["shape"] = options[best]
             tuned.append({"effect": term["name"], "joint": term["joint"], "shape": options[best],
                           "val_mse": scores[best], "grid": options, "grid_val_mse": scores})
-        self.terms = terms
-        self.theta, self.stderr, s2 = self._solve(fit_ds, terms, per_joint)
-        self.names = self._parameter_names(terms)
-        self.fit_info = {"rows": int(len(rows)), "residual_variance": s2, "shape_search": tuned,
-                         "rows_used": "per-joint" if per_joint else "all-moving"}
-        if not self.preprocessing:
-            self.preprocessing = dict(train.meta.get("preprocessing", {}))
-        return self
+        return tuned
+
+    def _shape_score(self, terms: list[dict], i: int, shape, fit_ds: Dataset, val_ds: Dataset,
+                     per_joint: bool) -> float:
+        """Validation mean squared error of the fit with term i given `shape`."""
+        trial = [dict(t) for t in terms]
+        trial[i]["shape"] = shape
+        theta, _, _ = self._solve(fit_ds, trial, per_joint)
+        pred = self.regressor(val_ds.q, val_ds.dq, val_ds.ddq, trial, val_ds.context) @ theta
+        err = (val_ds.tau - pred) ** 2
+        return float(err[val_ds.moving].mean() if per_joint else err.mean())
 
     def _rows_mode(self, val: Dataset | None) -> str:
         """Which torque equations the fit uses: "all-moving" (the paper's: every joint's, of the samples
@@ -436,3 +444,15 @@ class RigidBodyModel(Model):
         for term in self.terms if isinstance(self.terms, list) else ():
             if isinstance(term, dict):
                 self.effect_by_name(term.get("name"))
+
+
+def _validation_rows(val: Dataset | None, per_joint: bool, fit_ds: Dataset) -> Dataset:
+    """The validation rows the shape search scores on: the fit's own rows without a validation set or
+    where the validation set has none."""
+    if per_joint:
+        val_ds = val.subset(np.flatnonzero(val.moving.any(axis=1))) if val is not None else fit_ds
+    else:
+        val_ds = val.subset(np.flatnonzero(val.all_moving)) if val is not None else fit_ds
+    if len(val_ds) == 0:  # a per-joint validation set (train.data.splits) may hold no all-moving row
+        val_ds = fit_ds
+    return val_ds

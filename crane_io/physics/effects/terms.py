@@ -73,6 +73,31 @@ def _column(k, n_joints: int, what: str) -> int:
     return k
 
 
+def _distinct_columns(ks, n_joints: int, what: str) -> list[int]:
+    """The joint columns of a sum of angles, each named once."""
+    cols = [_column(k, n_joints, what) for k in ks]
+    if len(set(cols)) != len(cols):
+        raise ConfigError(f"{what} names a joint column twice: {list(ks)!r}")
+    return cols
+
+
+def _library_args(args: list, n_joints: int, what: str) -> list:
+    """[effect name, joint column, effect column, shape] of a library factor, checked against the effect."""
+    effect = library_effect(args[0])
+    k = _column(args[1], n_joints, what)
+    if not _is_int(args[2]) or not 0 <= args[2] < effect.n_columns():
+        raise ConfigError(f"the built-in effect {args[0]!r} has {effect.n_columns()} column(s), a term "
+                          f"names column {args[2]!r}")
+    known = {p.name for p in effect.shape_params}
+    shape = {}
+    for key, v in args[3].items():
+        if key not in known or not _is_number(v):
+            raise ConfigError(f"the built-in effect {args[0]!r} in a term has no shape {key!r} = {v!r} "
+                              f"(its shape parameters: {', '.join(sorted(known)) or 'none'})")
+        shape[key] = float(v)
+    return [args[0], k, args[2], shape]
+
+
 def check_factor(f, n_joints: int) -> list:
     """The factor as canonical plain data (lists, floats); ConfigError for anything outside the grammar."""
     if not isinstance(f, (list, tuple)) or not f or not isinstance(f[0], str):
@@ -92,24 +117,9 @@ def check_factor(f, n_joints: int) -> list:
         return [op, args[0], _column(args[1], n_joints, what), args[2]]
     if (op in ("sin", "cos") and len(args) == 2 and _is_int(args[0]) and 1 <= args[0] <= MAX_HARMONIC
             and isinstance(args[1], (list, tuple)) and args[1]):
-        ks = [_column(k, n_joints, what) for k in args[1]]
-        if len(set(ks)) != len(ks):
-            raise ConfigError(f"{what} names a joint column twice: {list(args[1])!r}")
-        return [op, args[0], ks]
+        return [op, args[0], _distinct_columns(args[1], n_joints, what)]
     if op == "library" and len(args) == 4 and isinstance(args[0], str) and isinstance(args[3], dict):
-        effect = library_effect(args[0])
-        k = _column(args[1], n_joints, what)
-        if not _is_int(args[2]) or not 0 <= args[2] < effect.n_columns():
-            raise ConfigError(f"the built-in effect {args[0]!r} has {effect.n_columns()} column(s), a term "
-                              f"names column {args[2]!r}")
-        known = {p.name for p in effect.shape_params}
-        shape = {}
-        for key, v in args[3].items():
-            if key not in known or not _is_number(v):
-                raise ConfigError(f"the built-in effect {args[0]!r} in a term has no shape {key!r} = {v!r} "
-                                  f"(its shape parameters: {', '.join(sorted(known)) or 'none'})")
-            shape[key] = float(v)
-        return [op, args[0], k, args[2], shape]
+        return [op, *_library_args(args, n_joints, what)]
     raise ConfigError(f"{str(f)[:80]} is not a factor of the basis grammar (1, q, dq, ddq, sign, tanh, abs, "
                       f"pow, sin, cos, library, each with its arguments)")
 
