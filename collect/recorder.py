@@ -55,7 +55,6 @@ from __future__ import annotations
 import contextlib
 import operator
 import time
-import zlib
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -67,6 +66,7 @@ from crane_io.errors import CraneError, SessionCloseError, SessionFileError
 from crane_io.output_files import DiskFullError, is_disk_full
 from crane_io.session_format import EVENT_DTYPE, FILTERS, FORMAT, FORMAT_VERSION  # noqa: F401 - re-exported
 
+from . import chunk_filter
 from .session_detach import detach
 from .session_values import attr_value, event_row, placeholder, read_events, set_end_attr  # noqa: F401
 
@@ -182,9 +182,9 @@ class SessionRecorder:
             self._add(key, group, name, dtype, row_shape)
         self._buf, self._blocks = _block_buffers(members, self._cap)
         self._row_shapes = {key: tuple(row_shape) for key, _g, _n, _d, row_shape in members}
-        # whole chunks filtered here when that gives HDF5's own bytes (see chunk_bytes)
-        self._direct = _filters_match_hdf5(tuple((np.dtype(d).str, tuple(r)) for _k, _g, _n, d, r in members),
-                                           self.chunk_rows)
+        # whole chunks filtered here when that gives HDF5's own bytes (collect/chunk_filter.py)
+        kinds = tuple((np.dtype(d).str, tuple(r)) for _k, _g, _n, d, r in members)
+        self._direct = chunk_filter.filters_match_hdf5(kinds, self.chunk_rows)
         self._events = f.create_dataset(sf.EVENTS, shape=(0,), maxshape=(None,), dtype=EVENT_DTYPE,
                                         chunks=(sf.EVENT_CHUNK_ROWS,), fletcher32=True)
         for group, keys in (DEFAULT_END_ATTRS if end_attrs is None else end_attrs).items():
@@ -347,14 +347,14 @@ class SessionRecorder:
             row_shape = self._row_shapes[key]
             try:
                 ds.id.set_extent((n1,) + row_shape)
-                ds.id.write_direct_chunk((n0,) + (0,) * len(row_shape), chunk_bytes(rows))
+                ds.id.write_direct_chunk((n0,) + (0,) * len(row_shape), chunk_filter.chunk_bytes(rows))
                 return
             except Exception as exc:  # noqa: BLE001 - HDF5 refused a chunk: it writes them itself from now on
                 if is_disk_full(exc):
                     raise
                 self._direct = False
         if partial:  # the chunk on disk is superseded by the one written now
-            self.waste_bytes += _chunk_size(ds, n0 - partial)
+            self.waste_bytes += chunk_filter.chunk_size(ds, n0 - partial)
         ds.resize(n1, axis=0)
         ds[n0:n1] = np.ascontiguousarray(rows)
 
@@ -547,77 +547,3 @@ def _block_buffers(members, rows: int) -> tuple[dict[str, np.ndarray], list[tupl
             buffers[key] = block[:, i]
         blocks.append((block, tuple(keys)))
     return buffers, blocks
-
-
-def chunk_bytes(data: np.ndarray) -> bytes:
-    """One chunk as the datasets' filter pipeline stores it (`FILTERS`: shuffle, deflate, fletcher32, in
-    HDF5's order): the bytes regrouped by significance (byte 0 of every value, then byte 1, ...), zlib at
-    FILTERS' level, then the Fletcher-32 checksum of that (HDF5's variant) as 4 bytes, little-endian."""
-    return _checksummed(zlib.compress(_shuffled(data), FILTERS["compression_opts"]))
-
-
-def _shuffled(data: np.ndarray) -> bytes:
-    a = np.ascontiguousarray(data)
-    return a.view(np.uint8).reshape(-1, a.itemsize).T.tobytes() if a.itemsize > 1 else a.tobytes()
-
-
-def _checksummed(packed: bytes) -> bytes:
-    return packed + _fletcher32(packed).to_bytes(4, "little")
-
-
-def _fletcher32(data: bytes) -> int:
-    """HDF5's H5_checksum_fletcher32: sums of the big-endian 16-bit words (an odd last byte as the high
-    byte of a word) and of the running sums, each folded into 1..65535 (0 only when it is 0)."""
-    n = len(data) // 2
-    words = np.frombuffer(data, dtype=">u2", count=n).astype(np.int64)
-    s1 = int(words.sum())
-    s2 = int(words @ np.arange(n, 0, -1, dtype=np.int64))  # word i is in n - i of the running sums
-    if len(data) % 2:
-        s1 += data[-1] << 8
-        s2 += s1
-    return (_fold(s2) << 16) | _fold(s1)
-
-
-def _fold(total: int) -> int:
-    return (total - 1) % 65535 + 1 if total else 0
-
-
-_FILTER_CHECKS: dict[tuple, bool] = {}
-
-
-def _filters_match_hdf5(members: tuple, rows: int) -> bool:
-    """Does `chunk_bytes` give, byte for byte, the chunks HDF5 stores for datasets of these (dtype, row
-    shape) members with `FILTERS` and `rows`-row chunks? Tried once per process on a file in memory, with
-    values like a session's (quantised, NaN); False also when anything about it fails."""
-    key = (tuple(sorted(set(members))), rows)
-    known = _FILTER_CHECKS.get(key)
-    if known is not None:
-        return known
-    ok = FILTERS == {"compression": "gzip", "compression_opts": 1, "shuffle": True, "fletcher32": True}
-    rng = np.random.default_rng(0)
-    try:
-        with h5py.File(f"crane-filter-check-{id(key)}", "w", driver="core", backing_store=False) as f:
-            for i, (dtype, row_shape) in enumerate(key[0] if ok else ()):
-                shape = (rows,) + tuple(row_shape)
-                data = (np.round(rng.normal(0, 500, shape)) * 1.5e-3).astype(dtype)
-                if data.dtype.kind == "f":
-                    data.flat[::7] = np.nan
-                ds = f.create_dataset(str(i), shape=shape, dtype=dtype, chunks=shape,
-                                      fillvalue=sf.fill_value(np.dtype(dtype)), **FILTERS)
-                ds[...] = data
-                f.flush()
-                _mask, stored = ds.id.read_direct_chunk((0,) * len(shape))
-                ok = ok and _mask == 0 and stored == chunk_bytes(data)
-    except Exception:  # noqa: BLE001 - then HDF5 filters every chunk itself, as it always did
-        ok = False
-    _FILTER_CHECKS[key] = ok
-    return ok
-
-
-def _chunk_size(ds: h5py.Dataset, row: int) -> int:
-    """Stored bytes of the chunk starting at `row` (0 if it is not on disk)."""
-    try:
-        info = ds.id.get_chunk_info_by_coord((row,) + (0,) * (ds.ndim - 1))
-    except (OSError, ValueError, AttributeError):
-        return 0
-    return int(info.size or 0) if info.byte_offset is not None else 0

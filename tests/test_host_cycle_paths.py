@@ -226,10 +226,10 @@ def test_whole_chunks_are_stored_as_hdf5_stores_them(tmp_path):
 
 
 def test_a_filter_that_does_not_give_hdf5s_bytes_is_not_used(tmp_path, monkeypatch):
-    from collect import recorder
+    from collect import chunk_filter
 
-    monkeypatch.setattr(recorder, "_FILTER_CHECKS", {})
-    monkeypatch.setattr(recorder, "chunk_bytes", lambda data: b"not a chunk")
+    monkeypatch.setattr(chunk_filter, "FILTER_CHECKS", {})
+    monkeypatch.setattr(chunk_filter, "chunk_bytes", lambda data: b"not a chunk")
     rec = SessionRecorder(tmp_path / "s.h5", joint_names=NAMES, rate_hz=500.0, source="sim", lockstep=True)
     assert not rec._direct
     write = rec.row_writer(KEYS)
@@ -242,7 +242,7 @@ def test_a_filter_that_does_not_give_hdf5s_bytes_is_not_used(tmp_path, monkeypat
 
 
 def test_fletcher32_folds_like_hdf5():
-    from collect.recorder import _fletcher32
+    from crane_io.h5check import fletcher32 as _fletcher32
 
     assert _fletcher32(b"") == 0 and _fletcher32(b"\x00\x00\x00") == 0
     assert _fletcher32(b"\xff\xff") == (0xFFFF << 16) | 0xFFFF  # 65535: folded to 65535, not 0
@@ -315,14 +315,14 @@ def test_the_goal_position_packet_and_values_are_the_group_sync_writes(sim):
 
 
 def test_a_chunk_hdf5_refuses_is_written_by_hdf5_and_the_rest_too(tmp_path, monkeypatch):
-    from collect import recorder
+    from collect import chunk_filter
 
     rec = SessionRecorder(tmp_path / "s.h5", joint_names=NAMES, rate_hz=500.0, source="sim", lockstep=True)
     if not rec._direct:
         rec.close(complete=False)
         pytest.skip("chunk_bytes does not give HDF5's bytes here: HDF5 filters every chunk itself")
     calls = []
-    original = recorder.chunk_bytes
+    original = chunk_filter.chunk_bytes
 
     def refused(data):
         calls.append(1)
@@ -330,7 +330,7 @@ def test_a_chunk_hdf5_refuses_is_written_by_hdf5_and_the_rest_too(tmp_path, monk
             raise OSError("no direct chunk writes here")
         return original(data)
 
-    monkeypatch.setattr(recorder, "chunk_bytes", refused)
+    monkeypatch.setattr(chunk_filter, "chunk_bytes", refused)
     write = rec.row_writer(KEYS)
     rng = np.random.default_rng(1)
     rows = [_values(rng, k) for k in range(800)]
