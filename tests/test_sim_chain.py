@@ -410,7 +410,12 @@ def test_return_delay_is_honoured_on_the_wall_clock(tmp_path):
         t0 = arm.chain.time
         time.sleep(0.05)
         assert ph.ping(port, 2)[1] == COMM_SUCCESS
-        assert arm.chain.time - t0 >= 0.05  # the plant follows the wall clock
+        # the plant follows the wall clock (on a busy machine it catches up within its step budget per
+        # packet or idle touch, so it may take a few more packets)
+        give_up = time.monotonic() + 20.0
+        while arm.chain.time - t0 < 0.05 and time.monotonic() < give_up:
+            assert ph.ping(port, 2)[1] == COMM_SUCCESS
+        assert arm.chain.time - t0 >= 0.05
     finally:
         _close(arm, server, port)
 
