@@ -8,6 +8,17 @@ from pathlib import Path
 
 import h5py
 
+# a quiet in-process run with a short alignment (the simple plant starts at 0)
+TEST_CONFIG = """
+[loop]
+status_hz = 0
+status_log_s = 10
+[operator.start_deg]
+joint2 = 0.0
+joint4 = -20.0
+"""
+
+
 
 def recorded_rows(out: Path) -> int:
     """Rows recorded so far in a session file being written (0 while it does not exist yet)."""

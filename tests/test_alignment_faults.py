@@ -13,16 +13,7 @@ from collect.alignment import SETTLE_S, SafetyStop
 from collect.arm_pair import ArmPair
 from collect.runner import RunOptions, run_session
 from tests.fakes.faults import DropReplies
-from tests.recording import torque_off_everywhere
-
-TEST_CONFIG = """
-[loop]
-status_hz = 0
-status_log_s = 10
-[operator.start_deg]
-joint2 = 0.0
-joint4 = -20.0
-"""
+from tests.recording import TEST_CONFIG, torque_off_everywhere
 
 
 def _which_read(caller) -> str:

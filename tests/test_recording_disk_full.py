@@ -21,20 +21,12 @@ from collect.recorder import SessionRecorder
 from collect.recovery import recover_session
 from collect.runner import RunOptions, run_session
 from crane_io.output_files import DiskFullError
-from tests.recording import torque_off_everywhere
+from tests.recording import TEST_CONFIG, torque_off_everywhere
 
 ROOT = Path(__file__).parents[1]
 CHUNK = 250  # rows of one chunk at 500 Hz (0.5 s)
 DATASETS = 26  # per-cycle datasets written per chunk
 
-TEST_CONFIG = """
-[loop]
-status_hz = 0
-status_log_s = 10
-[operator.start_deg]
-joint2 = 0.0
-joint4 = -20.0
-"""
 
 HDF5_FULL = ("Unable to synchronously flush file (file write failed: errno = 28, error message = "
              "'No space left on device', total write size = 1695)")

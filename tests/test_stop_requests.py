@@ -17,16 +17,7 @@ from collect.recorder import read_events
 from collect.runner import RunOptions, SafetyStop, run_session
 from crane_io.dynamixel.bus import DynamixelBus
 from crane_io.shutdown import Terminated, handle_termination
-from tests.recording import torque_off_everywhere
-
-TEST_CONFIG = """
-[loop]
-status_hz = 0
-status_log_s = 10
-[operator.start_deg]
-joint2 = 0.0
-joint4 = -20.0
-"""
+from tests.recording import TEST_CONFIG, torque_off_everywhere
 
 
 def _kill_self(sig=signal.SIGINT):
