@@ -54,12 +54,8 @@ def check_options(opts: RunOptions, period_s: float) -> None:
         raise ConfigError("`realtime` only applies to `sim` (hardware always runs in real time)")
     if opts.truth is not None and not opts.sim:
         raise ConfigError("`truth` only applies to `sim` (real arms have no truth to write)")
-    if opts.truth_trace is not None:
-        if not opts.sim:
-            raise ConfigError("`truth_trace` only applies to `sim` (real arms have no truth to write)")
-        from .truth_trace import check_truth_trace_path
-
-        check_truth_trace_path(opts.truth_trace, opts.force)
+    if opts.truth_trace is not None and not opts.sim:  # its path: run_options.check_run_outputs
+        raise ConfigError("`truth_trace` only applies to `sim` (real arms have no truth to write)")
     if opts.task is not None and not opts.sim:
         raise ConfigError("`task` only applies to `sim` (it sets what the simulated operator does)")
     if opts.hand_on not in ARMS:

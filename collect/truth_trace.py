@@ -38,18 +38,6 @@ SIGN = ("world on the arm: a positive value pushes the joint positive; a reactio
         "tau_res estimates -tau_ext")
 
 
-def check_truth_trace_path(path: str | Path, force: bool) -> Path:
-    """One sentence (ConfigError) for a truth-trace path that cannot be written; nothing is created."""
-    path = Path(path)
-    if path.is_dir():
-        raise ConfigError(f"the truth trace {path} is a directory; give a file name")
-    if path.exists() and not force:
-        raise ConfigError(f"the truth trace {path} already exists; pass `force` to overwrite it")
-    if not path.parent.exists() and path.parent != Path(""):
-        raise ConfigError(f"the folder of the truth trace {path} does not exist")
-    return path
-
-
 class TruthTraceWriter:
     """`append(t, tau_ext_follower, tau_ext_leader, in_contact)` once per recorded row; `close()`."""
 
