@@ -3,7 +3,7 @@ achieved rate and jitter in real-time simulation, and the wall time of a lockste
 
     python benchmarks/run_all.py collect [--quick]      or      python benchmarks/bench_collect.py
 
-Lockstep speed alone, and a before/after comparison on a shared machine (issue 13): each session runs in
+Lockstep speed alone, and a before/after comparison on a shared machine: each session runs in
 its own process, the trees alternate, and the best of `--repeat` runs of each is compared:
 
     python benchmarks/bench_collect.py --lockstep 60 --repeat 3
@@ -138,7 +138,7 @@ def run(quick: bool = False) -> list[dict]:
     note = (f"{lock:g} s session, two arms, --sim lockstep, default plant, incl. start-up and alignment, "
             f"{load}{s['note']}")
     rows += [_row("lockstep session wall time", s["wall"], "s", note),
-             _row("lockstep speed", lock / s["wall"], "x real time", f"{note}; goal (issue 13) >= 10x"),
+             _row("lockstep speed", lock / s["wall"], "x real time", f"{note}; goal >= 10x"),
              _row("lockstep speed per CPU s", lock / s["cpu"], "x real time",
                   f"simulated s per CPU s of this process (less inflated by other jobs); {load}"),
              _row("lockstep session CPU time", s["cpu"], "s",

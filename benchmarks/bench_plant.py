@@ -4,9 +4,9 @@
    that makes the joints move, stop and stick (preset crane-x7).
 2. The plant behind the simulated servo chain in lockstep mode, driven through the real client
    (crane_io.dynamixel.bus.DynamixelBus: one fast sync read + one Goal Current sync write per 2 ms cycle, real
-   Protocol 2.0 bytes through dxlsim://). Goal (issue 3): at least 5x real time, i.e. < 0.4 ms a cycle.
+   Protocol 2.0 bytes through dxlsim://). Goal: at least 5x real time, i.e. < 0.4 ms a cycle.
 3. Two such arms (leader and follower, as in a bilateral session) stepped alternately in one thread.
-4. The same with all seven joints integrated (preset crane-x7-7dof, issue 11): the plant alone and two
+4. The same with all seven joints integrated (preset crane-x7-7dof): the plant alone and two
    arms in lockstep.
 5. The compiled substep kernel (crane_io.sim.plant_kernel, the default) against the reference path
    (`ArmPlant(kernel=False)`: pinocchio and Python floats per substep), 3 and 7 joints, the plant alone:
@@ -37,7 +37,7 @@ PERIOD = 0.002
 # and stick (joints 1, 2, 4 as before the plant took any joint set)
 AMPLITUDE = {"joint1": 0.35, "joint2": 0.5, "joint3": 0.3, "joint4": 0.3, "joint5": 0.25, "joint6": 0.25,
              "joint7": 0.2}
-GOAL = 5.0  # x real time, one arm through the chain in lockstep (issue 3)
+GOAL = 5.0  # x real time, one arm through the chain in lockstep
 REPEATS = 5
 
 

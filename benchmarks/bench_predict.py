@@ -24,7 +24,7 @@ import numpy as np
 
 JOINTS = ("joint1", "joint2", "joint4")
 LOOP_METHODS = ("mlp-masked", "rigid-body", "hybrid")  # timed as the control loop loads them
-GOAL_US = 20.0  # per call: a small part of the 2 ms cycle (issue 10)
+GOAL_US = 20.0  # per call: a small part of the 2 ms cycle
 EFFECTS = [["coulomb", None, None], ["viscous", None, None],
            ["stribeck", "joint2", {"stribeck_velocity": 0.05}]]
 

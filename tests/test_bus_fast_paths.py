@@ -1,4 +1,4 @@
-"""The bus's fast packet paths (issue 13) give the verdicts and bytes of the dynamixel-sdk paths they
+"""The bus's fast packet paths give the verdicts and bytes of the dynamixel-sdk paths they
 replace: the Fast Sync Read reply read whole and parsed in one step, and the Goal Current Sync Write
 built directly. The reference is the SDK's own code (rxPacket and GroupSyncWrite), run on the same
 bytes."""

@@ -1,4 +1,4 @@
-"""In lockstep the bus measures host pauses on the simulated chain's clock (issue 13): a wall-clock
+"""In lockstep the bus measures host pauses on the simulated chain's clock: a wall-clock
 pause of a lockstep simulated arm cannot reach its servos' watchdog, so it costs no extra
 error-register read; a pause in simulated time (the chain advanced without a write) is still caught."""
 

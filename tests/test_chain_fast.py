@@ -1,4 +1,4 @@
-"""The simulated chain's fast path (issue 13: crane_io.sim.chain_kernel, SimulatedChain(fast=True)) against
+"""The simulated chain's fast path (crane_io.sim.chain_kernel, SimulatedChain(fast=True)) against
 its general path (fast=False, the reference): the same packet streams, faults included, give the same reply
 bytes, the same control-table memories and the same plant state; and the compiled functions compute what
 their Python source computes."""

@@ -1,4 +1,4 @@
-"""Any bilateral joint set (issue 11): the set as configuration and on the command line, seven-joint
+"""Any bilateral joint set: the set as configuration and on the command line, seven-joint
 bilateral control in simulation, held joints held, and the simulated operator's moving fractions.
 
 The simulated runs are lockstep: their simulated time does not depend on the machine's load, and

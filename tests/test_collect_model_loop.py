@@ -1,4 +1,4 @@
-"""A learned model in the loop's reaction-force observers, end to end in simulation (issue 10): a rigid-body
+"""A learned model in the loop's reaction-force observers, end to end in simulation: a rigid-body
 model fitted on a recorded session lowers the free-motion false reaction torque, its loop prediction is
 train's `predict` on the training's causal filters, the session records it, bad models are refused before
 torque-on, absurd predictions fall back to the nominal observer, and the truth trace of a contact run is

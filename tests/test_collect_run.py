@@ -97,7 +97,7 @@ def test_sim_session_tracks_the_leader_and_meets_the_format(tmp_path, cfg):
         states = [e["message"] for e in read_events(f) if e["kind"] == "torque_state"]
         assert states == ["leader: torque off on 8 of 8 servos", "follower: torque off on 8 of 8 servos"]
         # every attribute and member written is documented in the session format
-        doc = (Path(__file__).parents[1] / "README.md").read_text()
+        doc = (Path(__file__).parents[1] / "docs" / "file-formats.md").read_text()
         written = set(f.attrs) | set(f["timing"].attrs)
         f.visit(lambda name: written.add(name.split("/")[-1]))
         assert not {w for w in written if f"`{w}`" not in doc and f"`/{w}" not in doc}

@@ -1,5 +1,5 @@
 """A lockstep `--sim` session is pinned bit for bit: the speed work on the bus layer, the simulated chain
-and the plant (issue 13) must not change one recorded number for a given seed.
+and the plant must not change one recorded number for a given seed.
 
 The digests below were computed with the code before that work (commit 74d912e) on x86_64 Linux
 (numpy 2, pinocchio 3). They hash every /leader/* and /follower/* dataset (dtype, shape and bytes),

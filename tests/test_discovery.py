@@ -1,4 +1,4 @@
-"""Discover the missing term (`crane-train diagnose --discover`, train/diagnosis/discovery.py, issue 12).
+"""Discover the missing term (`crane-train diagnose --discover`, train/diagnosis/discovery.py).
 
 Four effects whose form the effects library lacks are planted, each hidden on a stated joint of the
 baseline plant (tests/fakes/planted-*.toml, effects as data in tests/fakes/planted_effects.json): a

@@ -1,4 +1,4 @@
-"""`crane-train fidelity` (issue 10, "Measure what it buys"): the force-channel metrics of a bilateral
+"""`crane-train fidelity`: the force-channel metrics of a bilateral
 session against hand computations on a synthetic session and truth trace with known tau_res and tau_ext,
 the observer's sign convention (tau_res = -tau_ext is no error), the settle time and the contact guard,
 the JSON keys, and the one-sentence refusals."""

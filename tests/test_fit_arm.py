@@ -1,4 +1,4 @@
-"""`crane-train fit --arm leader|follower` (issue 10): the arm the operator's hand moved (root attribute
+"""`crane-train fit --arm leader|follower`: the arm the operator's hand moved (root attribute
 `hand_on`, "leader" when absent) holds the hand's force in its torque and is refused; the model records
 the arm it was fitted on, and report/compare/diagnose evaluate on that arm."""
 

@@ -1,4 +1,4 @@
-"""The simulated operator's contact task (issue 10): free motion alternating with presses against the
+"""The simulated operator's contact task: free motion alternating with presses against the
 follower plant's [[environment]] objects; config keys; determinism; the free task unchanged."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Contact in the simulated arm (issue 10): [[environment]] joint walls and planes in the plant TOML,
+"""Contact in the simulated arm: [[environment]] joint walls and planes in the plant TOML,
 their physics (crane_io.sim.environment) and the plant's contact API (crane_io.sim.arm_plant)."""
 
 from __future__ import annotations

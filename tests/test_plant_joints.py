@@ -1,4 +1,4 @@
-"""The simulated arm integrates any set of joints (issue 11): ArmPlant(joints=...) and the plant
+"""The simulated arm integrates any set of joints: ArmPlant(joints=...) and the plant
 configuration's `joints` key. With the default three joints the plant computes the same bits as before
 the generalisation (hashes below were computed with the 3-joint code of commit 64ad013) on its reference
 path (`kernel=False`: pinocchio per substep); the compiled kernel, the default where it applies, is

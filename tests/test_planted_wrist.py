@@ -1,6 +1,6 @@
 """Planted effects on the wrist joints: the diagnosis names them first and adding them halves the error.
 
-Issue 11 ("Seven joints"): what tests/test_diagnose.py checks for the three paper joints, on a 7-joint
+Seven joints: what tests/test_diagnose.py checks for the three paper joints, on a 7-joint
 arm. For the presets `hidden-wrist-coulomb` (joint6's 0.12 N m Coulomb friction hidden) and
 `hidden-wrist-spring` (a 0.3 N m/rad spring on joint5, relaxed at 0.5 rad, hidden): a simulated session
 with all seven joints driven (tests/planted.py, joints="all", 90 simulated seconds, seeded), a baseline

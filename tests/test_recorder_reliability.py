@@ -60,7 +60,7 @@ def _record(path, seconds: float, *, lockstep: bool, speed: float = 1.0, check=N
 
 
 def _runner_end(lockstep: bool) -> dict:
-    """close() arguments as collect/runner.py passes them, plus keys the lead may add."""
+    """close() arguments as collect/runner.py passes them, plus keys a caller may add."""
     timing = dict.fromkeys(SUMMARY_KEYS, 0.002)
     timing.update(lockstep=lockstep, sim_slip_s=0.25, realtime_scheduling="SCHED_FIFO 50")
     return {"attrs": {"rate_hz_achieved": 499.5, "end_reason": "duration"}, "group_attrs": {"timing": timing}}

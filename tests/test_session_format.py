@@ -1,4 +1,4 @@
-"""The docs test of the session format: README.md's section "The session file" lists exactly what
+"""The docs test of the session format: docs/file-formats.md, section "The session file", lists exactly what
 crane_io/session_format.py declares (both ways: a member added to the module and not documented fails,
 and so does one documented and not declared), and the recorder writes what the module declares."""
 
@@ -13,12 +13,12 @@ import pytest
 
 from crane_io import session_format as sf
 
-README = Path(__file__).parents[1] / "README.md"
+FORMATS = Path(__file__).parents[1] / "docs" / "file-formats.md"
 TICKED = re.compile(r"`([A-Za-z_][A-Za-z0-9_]*)`")  # `name` (not `"value"`, not `/path`)
 
 
 def _section() -> str:
-    text = README.read_text()
+    text = FORMATS.read_text()
     start = text.index("## The session file")
     end = text.index("\n## ", start + 1)
     return text[start:end]
@@ -117,15 +117,15 @@ def test_events_are_the_modules(optional):
 
 def test_optional_root_attributes_are_the_modules(optional):
     """Every optional root attribute the module declares is documented, and every attribute name the
-    README's optional part gives is declared (or is a documented key inside a JSON attribute)."""
+    documentation's optional part gives is declared (or is a documented key inside a JSON attribute)."""
     listed = _between(optional, "Root attributes:", "Per arm (")
     further = _between(optional, "Further optional members", "`/timing` attributes")
     documented = set(TICKED.findall(listed)) | set(TICKED.findall(further))
     json_keys = {k for a in sf.OPTIONAL_ROOT for k in a.json_keys}
     declared = set(sf.OPTIONAL_ATTRS)
-    assert declared - documented == set(), "declared in crane_io/session_format.py, not in the README"
+    assert declared - documented == set(), "declared, not documented"
     members = {m.name for m in sf.ARM_MEMBERS}  # datasets the attributes' meanings refer to
-    assert documented - declared - json_keys - members == set(), "in the README, not in the module"
+    assert documented - declared - json_keys - members == set(), "in docs/file-formats.md, not in the module"
     assert not set(sf.REQUIRED_ATTRS) & declared
     for value in sf.TAU_SOURCES:
         assert f'`"{value}"`' in listed

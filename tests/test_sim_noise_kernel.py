@@ -1,5 +1,5 @@
 """crane_io.sim.noise_kernel: the sensor noise drawn in compiled code from the plant's numpy Generator gives
-numpy's numbers in numpy's order and leaves the generator in numpy's state (issue 13: sessions stay the same
+numpy's numbers in numpy's order and leaves the generator in numpy's state (sessions stay the same
 bit for bit with the noise drawn inside the lockstep kernel)."""
 
 from __future__ import annotations

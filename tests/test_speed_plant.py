@@ -1,4 +1,4 @@
-"""The arm plant's fast paths (issue 13) compute what the array forms they replaced computed, bit for bit:
+"""The arm plant's fast paths compute what the array forms they replaced computed, bit for bit:
 the sensor reading (scalar Python instead of numpy fancy indexing, the position-noise signs read from the
 bit generator's raw outputs instead of Generator.integers) and the substep's small linear solves."""
 

@@ -1,4 +1,4 @@
-"""Learning and diagnosis for any joint subset (issue 11): context joints in the rigid-body kinematics,
+"""Learning and diagnosis for any joint subset: context joints in the rigid-body kinematics,
 per-joint evaluation sets at many joints, `--joints all` through the command line, planted wrist effects.
 
 The sessions are synthetic and made here WITHOUT the simulated plant: every arm joint (joint1..joint7)

@@ -1,4 +1,4 @@
-"""Compiled pieces of the simulated chain's lockstep cycle (issue 13): the plant's reading quantised into
+"""Compiled pieces of the simulated chain's lockstep cycle: the plant's reading quantised into
 every servo's Present items at once, the servos' commands read out at once, and the Fast Sync Read
 status packet built with its CRCs in one call.
 

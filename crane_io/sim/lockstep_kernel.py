@@ -1,4 +1,4 @@
-"""The simulated chain's lockstep cycle in three compiled calls (issue 13): the two packets a control loop
+"""The simulated chain's lockstep cycle in three compiled calls: the two packets a control loop
 sends an arm every cycle, each handled whole by one call instead of the parser, the chain's handlers and
 one compiled call per stage.
 

@@ -1,4 +1,4 @@
-"""The arm plant's sensor noise drawn in compiled code from the plant's own numpy Generator (issue 13): the
+"""The arm plant's sensor noise drawn in compiled code from the plant's own numpy Generator: the
 same numbers, in the same order, from the same bit generator state as ArmPlant._noise draws them with
 numpy's methods, so a session is the same bit for bit either way.
 

@@ -1,4 +1,4 @@
-"""How faithful was a bilateral session's force channel? (`crane-train fidelity`, issue 10.)
+"""How faithful was a bilateral session's force channel? (`crane-train fidelity`.)
 
 The reaction-force observer of each arm estimates the torque the world puts on it with the observer's
 sign (a hand pushing a joint positive gives tau_res < 0: tau_res estimates -tau_ext). What it gets
