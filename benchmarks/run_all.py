@@ -4,6 +4,7 @@
     .venv/bin/python benchmarks/run_all.py bus        # only bench_bus.py (names with or without bench_)
     .venv/bin/python benchmarks/run_all.py --quick    # a smoke run: small sizes, seconds not minutes
     .venv/bin/python benchmarks/run_all.py --json out/bench.json
+    .venv/bin/python benchmarks/run_all.py --markdown out/bench.md   # the table with its conditions
 
 Each benchmarks/bench_NAME.py exposes `run(quick: bool) -> list[dict]`; every row has the keys
 benchmark, metric, value, unit, note. A benchmark that raises is reported as a FAILED row and makes the
@@ -83,12 +84,47 @@ def table(rows: list[dict]) -> str:
     return "\n".join([fmt(head), line] + [fmt(c) for c in cells])
 
 
+def conditions(start_load: tuple[float, float, float]) -> list[str]:
+    """What a reader needs to weigh the figures: date, commit, machine, load before and after."""
+    import os
+    import platform
+    import subprocess
+
+    try:
+        commit = subprocess.run(["git", "-C", str(HERE), "rev-parse", "--short", "HEAD"], capture_output=True,
+                                text=True, timeout=10).stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        commit = "unknown"
+    end_load = os.getloadavg()
+    return [f"- date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; commit {commit}",
+            f"- machine: {platform.machine()}, {os.cpu_count()} logical CPUs, {platform.system()} "
+            f"{platform.release()}, Python {platform.python_version()}",
+            f"- load average (1, 5, 15 min): {', '.join(f'{x:.1f}' for x in start_load)} before, "
+            f"{', '.join(f'{x:.1f}' for x in end_load)} after"]
+
+
+def markdown(rows: list[dict], start_load: tuple[float, float, float], quick: bool) -> str:
+    """The rows as a Markdown table under the conditions they were measured in."""
+    command = ".venv/bin/python benchmarks/run_all.py" + (" --quick" if quick else "")
+    lines = [f"Measured with `{command}`:", "", *conditions(start_load), "",
+             "| benchmark | metric | value | unit | note |", "|---|---|---:|---|---|"]
+    for r in rows:
+        cells = [str(r["benchmark"]), str(r["metric"]), fmt_value(r["value"]), str(r["unit"]), str(r["note"])]
+        lines.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description="Run benchmarks/bench_*.py and print one table.")
     parser.add_argument("names", nargs="*", help="benchmarks to run (default: all), e.g. bus")
     parser.add_argument("--quick", action="store_true", help="small sizes: a smoke run")
     parser.add_argument("--json", metavar="FILE", help="also write the rows as JSON to FILE")
+    parser.add_argument("--markdown", metavar="FILE", help="also write the rows as a Markdown table with the "
+                        "date, commit, machine and load to FILE")
     args = parser.parse_args(argv)
+    import os
+
+    start_load = os.getloadavg()
 
     found = discover()
     wanted = [n[len("bench_"):] if n.startswith("bench_") else n for n in args.names]
@@ -107,6 +143,10 @@ def main(argv=None) -> int:
         out = Path(args.json)
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(rows, indent=2, default=float))
+    if args.markdown:
+        out = Path(args.markdown)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(markdown(rows, start_load, args.quick))
     return 1 if any(r["metric"] == "FAILED" for r in rows) else 0
 
 
