@@ -22,7 +22,7 @@ from collect.runner import RunOptions, run_session
 DURATION_S = 1.0
 SEED = 3
 PINNED_DIGEST = "2dcaab95ef7736147deca9b5f310944a5d7eb73cb454e74f9f709356c12e6250"
-PINNED_SUMS = {  # dataset -> (sum, sum of |x|) ignoring NaN, from the code before the change
+PINNED_SUMS = {  # dataset -> (sum, sum of |x|) ignoring NaN, as recorded when pinned
     'leader/current': (455.56763904588297, 464.19177913246676),
     'leader/dq': (-203.7849384434453, 213.7093514119656),
     'leader/dq_servo': (-246.30704639665782, 257.19434061832726),
