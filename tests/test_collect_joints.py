@@ -218,7 +218,8 @@ def test_the_restricted_preset_keeps_only_the_integrated_joints_effects():
 
 
 def test_all_eight_servos_bilateral_with_the_gripper(tmp_path):
-    # no held joint: the alignment sends no goal position (an empty sync write would be refused as a bus error)
+    # no held joint: the alignment sends no goal position (an empty sync write would be refused as a bus
+    # error)
     result, out = _run(tmp_path, "all,gripper", 0, duration=1.0)
     assert result.end_reason == "duration" and tuple(result.tracking_rms) == SEVEN + ("gripper",)
     assert np.degrees(max(result.tracking_rms.values())) < 2.0

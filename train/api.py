@@ -95,10 +95,11 @@ class FitResult:
     metrics: dict  # the test metrics document (fit_metrics.json): mse, rmse, nmse per joint, sizes, seed
     dataset: Dataset = field(repr=False)
     splits: Splits = field(repr=False)
+    documents: dict = field(default_factory=dict, repr=False)  # more JSON files of the folder: name -> object
 
     def save(self, out_dir: PathLike, *, force: bool = False) -> Path:
-        """Write the model (and fit_metrics.json) to `out_dir`, whole or not at all; returns its path.
-        An existing model folder is replaced only with `force` (check_model_output)."""
+        """Write the model (fit_metrics.json and any other `documents`) to `out_dir`, whole or not at all;
+        returns its path. An existing model folder is replaced only with `force` (check_model_output)."""
         from crane_io.output_files import atomic_directory
 
         inputs = [*self.metrics.get("sources", ()), *self.model.options.get("effect_files", ())]
@@ -106,6 +107,8 @@ class FitResult:
         with atomic_directory(path, "model folder") as tmp:
             self.model.save(tmp)
             (tmp / "fit_metrics.json").write_text(json.dumps(self.metrics, indent=2))
+            for name, doc in self.documents.items():
+                (tmp / name).write_text(json.dumps(doc, indent=2))
         return path
 
 
@@ -143,8 +146,7 @@ def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = ()
     epochs: of the network (default from the settings, 100); progress(done, total): called per epoch."""
     import numpy as np
 
-    from .data.splits import eval_mask, make_splits
-    from .evaluation.metrics import metrics_table
+    from .data.splits import make_splits
     from .models.registry import make_model
 
     if (effects or effect_files) and method not in ("rigid-body", "hybrid"):
@@ -178,31 +180,40 @@ def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = ()
         import torch  # only the networks need it (a rigid-body fit starts ~1.5 s sooner without it)
 
         torch.set_num_threads(1)
-    # the dead-zone velocity alpha sigma_j of the training data: where the loop's model treats a joint as
-    # standing still (collect/model_reaction.py)
-    dead_zone = [float(ds.meta["alpha"]) * float(s) for s in ds.meta["sigma"]]
-    # the poses the model saw: the loop trusts it only there (collect/model_reaction.py)
-    q_range = {"q_min": ds.q.min(axis=0).tolist(), "q_max": ds.q.max(axis=0).tolist()}
-    # the kind of evaluation sets (train.data.splits), so report, compare and diagnose split alike (heldout)
-    eval_set = {"eval_set": splits.test.meta.get("eval_set", "all-moving")}
-    model = make_model(method, ds.joint_names, preprocessing={**ds.meta["preprocessing"],
-                                                              "dead_zone_rad_s": dead_zone,
-                                                              "input_range": q_range, "splits": eval_set},
-                       **options)
+    model = make_model(method, ds.joint_names, preprocessing=model_preprocessing(ds, splits), **options)
     if has_net and progress is not None:
         model.fit(pool, splits.val, progress=progress)
     else:
         model.fit(pool, splits.val)
+    return FitResult(model, test_metrics(model, ds, splits, pool, method, seed), ds, splits)
+
+
+def model_preprocessing(ds: Dataset, splits: Splits) -> dict:
+    """What a model records of its data besides the preprocessing: the dead-zone velocity alpha sigma_j of
+    the training data (where the loop's model treats a joint as standing still, collect/model_reaction.py),
+    the poses the model saw (the loop trusts it only there) and the kind of evaluation sets
+    (train.data.splits, so report, compare and diagnose split alike: heldout)."""
+    dead_zone = [float(ds.meta["alpha"]) * float(s) for s in ds.meta["sigma"]]
+    q_range = {"q_min": ds.q.min(axis=0).tolist(), "q_max": ds.q.max(axis=0).tolist()}
+    eval_set = {"eval_set": splits.test.meta.get("eval_set", "all-moving")}
+    return {**ds.meta["preprocessing"], "dead_zone_rad_s": dead_zone, "input_range": q_range,
+            "splits": eval_set}
+
+
+def test_metrics(model: Model, ds: Dataset, splits: Splits, pool: Dataset, method: str, seed: int) -> dict:
+    """The fit_metrics.json document: the held-out test error per joint, the sizes, the seed, the sources."""
+    from .data.splits import eval_mask
+    from .evaluation.metrics import metrics_table
+
     test = splits.test
-    metrics = {"method": method, "arm": ds.meta["arm"], "joints": list(ds.joint_names),
-               "train_samples": len(pool),
-               "train_samples_all_moving": int(pool.all_moving.sum()), "test_samples": len(test),
-               "seed": seed,
-               "test": metrics_table(test.tau, model.predict_dataset(test), ds.joint_names, eval_mask(test)),
-               "eval_set": test.meta.get("eval_set", "all-moving"),
-               "usable_fraction": ds.meta["usable_fraction"],
-               "sources": [str(Path(f).resolve()) for f in ds.meta["sources"]]}  # found from any directory
-    return FitResult(model, metrics, ds, splits)
+    return {"method": method, "arm": ds.meta["arm"], "joints": list(ds.joint_names),
+            "train_samples": len(pool),
+            "train_samples_all_moving": int(pool.all_moving.sum()), "test_samples": len(test),
+            "seed": seed,
+            "test": metrics_table(test.tau, model.predict_dataset(test), ds.joint_names, eval_mask(test)),
+            "eval_set": test.meta.get("eval_set", "all-moving"),
+            "usable_fraction": ds.meta["usable_fraction"],
+            "sources": [str(Path(f).resolve()) for f in ds.meta["sources"]]}  # found from any directory
 
 
 def _define_effects(effect_files: Sequence[PathLike]) -> None:

@@ -316,6 +316,19 @@ class ArmDynamics:
         """Indices of the standard parameters that are the base parameters of `rows` (their leading ones)."""
         return self._base_decomposition_rows(rows)[0]
 
+    def base_map_rows(self, rows) -> np.ndarray:
+        """(B_rows, 10 nbodies) matrix K of the base parameters of `rows` as combinations of the standard
+        parameters: base_parameters_rows(rows) = K @ standard_parameters() (model order)."""
+        indep, dep, beta = self._base_decomposition_rows(rows)
+        k = np.zeros((len(indep), 10 * self.nbodies))
+        k[np.arange(len(indep)), indep] = 1.0
+        k[:, dep] = beta
+        return k
+
+    def body_names(self) -> list[str]:
+        """The name of each body's joint, in the order of standard_parameters()."""
+        return [self.model.names[i] for i in range(1, self.model.njoints)]
+
     # ---- payload -------------------------------------------------------------------------------------
     def payload_torque(self, q, dq, ddq, mass: float = 1.0) -> np.ndarray:
         """(N, J) extra motor torque caused by a point mass (kg) at the tool frame; linear in mass."""

@@ -1,4 +1,5 @@
-"""The `crane-train` command line, the edge of train: one module per subcommand (info, fit, sweep, report,
+"""The `crane-train` command line, the edge of train: one module per subcommand (info, fit, identify, sweep,
+report,
 diagnose, compare, effects, export, fidelity, view, importing) and the options fit and sweep share
 (options); each is a thin wrapper over the library (train.api and the subpackages). This file only wires
 them into one click group. Bad input ends with one sentence on stderr and a non-zero exit."""
@@ -19,6 +20,7 @@ one_blas_thread()  # before numpy is imported (the subcommands import it)
 COMMANDS = {
     "info": ("train.cli.info", "info"),
     "fit": ("train.cli.fit", "fit"),
+    "identify": ("train.cli.identify", "identify"),
     "sweep": ("train.cli.sweep", "sweep"),
     "report": ("train.cli.report", "report"),
     "diagnose": ("train.cli.diagnose", "diagnose"),

@@ -1,0 +1,143 @@
+"""Identify the arm's rigid-body and friction parameters from sessions (excitation or bilateral data):
+weighted least squares with honest uncertainties (estimate.py), the physically consistent projection
+(consistency.py) and a verdict against the user's thresholds (verdict.py). The result is a rigid-body model
+like `crane-train fit --model rigid-body` makes (compare, report, diagnose and the control loop read it),
+with identification.json beside it.
+
+The data are split as `fit` splits them (training pool, validation, test blocks); the parameters are
+estimated on the pool and judged on the test blocks.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .consistency import Projection, project
+from .estimate import DEFAULT_BLOCKS, Estimate, weighted_least_squares
+from .verdict import Check, Thresholds, checks, parameter_contribution, to_json
+
+DEFAULT_EFFECTS = ("viscous", "coulomb")
+# friction coefficients a real joint cannot have negative
+NONNEGATIVE = ("viscous.viscous", "coulomb.coulomb")
+IDENTIFICATION_JSON = "identification.json"
+
+
+@dataclass
+class Identification:
+    fit: object  # train.api.FitResult: the model (consistent parameters) and its test metrics
+    names: list[str]
+    estimate: Estimate
+    projection: Projection
+    checks: list[Check]
+    thresholds: Thresholds
+    n_base: int
+    fit_mse: np.ndarray
+    heldout_mse: np.ndarray
+    share: np.ndarray = field(repr=False)
+
+    @property
+    def passed(self) -> bool:
+        return all(c.passed for c in self.checks)
+
+    def to_json(self) -> dict:
+        est, se = self.estimate.theta, self.estimate.stderr
+        params = [{"name": n, "kind": "base" if k < self.n_base else "other", "estimate": float(est[k]),
+                   "stderr": float(se[k]),
+                   "rel_stderr": float(se[k] / abs(est[k])) if est[k] != 0 else None,
+                   "consistent": float(self.projection.theta[k]), "torque_share": float(self.share[k])}
+                  for k, n in enumerate(self.names)]
+        joints = list(self.fit.model.joint_names)
+        return {"format": "crane-identification", "format_version": 1,
+                "joints": joints, "rows": self.estimate.rows, "condition_number": self.estimate.condition,
+                "residual_std": dict(zip(joints, self.estimate.sigma.tolist())),
+                "parameters": params,
+                "correlated_pairs": [{"a": self.names[i], "b": self.names[k], "r": r}
+                                     for i, k, r in self.estimate.correlated],
+                "consistency": {"as_estimated": self.projection.as_estimated,
+                                "within_uncertainty": self.projection.within_uncertainty,
+                                "chi2": self.projection.chi2, "dof": self.projection.dof,
+                                "bodies": self.projection.bodies},
+                "fit_mse": dict(zip(joints, self.fit_mse.tolist())),
+                "heldout_mse": dict(zip(joints, self.heldout_mse.tolist())),
+                "verdict": to_json(self.thresholds, self.checks)}
+
+    def save(self, out_dir, *, force: bool = False) -> Path:
+        """The model folder with identification.json in it, whole or not at all."""
+        self.fit.documents[IDENTIFICATION_JSON] = self.to_json()
+        return self.fit.save(out_dir, force=force)
+
+
+def _mse_where_moving(tau: np.ndarray, pred: np.ndarray, moving: np.ndarray) -> np.ndarray:
+    err = (tau - pred) ** 2
+    return np.array([err[moving[:, j], j].mean() if moving[:, j].any() else np.nan
+                     for j in range(tau.shape[1])])
+
+
+def identify(data, *, effects: Sequence[str] = DEFAULT_EFFECTS, seed: int = 0, scale_to_data: bool = False,
+             config=None, arm: str | None = None, joints=None, thresholds: Thresholds | None = None,
+             blocks: int = DEFAULT_BLOCKS) -> Identification:
+    """Identify from `data` (a Dataset, or session file(s) read as train.api.load_sessions reads them)."""
+    from ..api import FitResult, load_sessions, load_settings, model_preprocessing, test_metrics
+    from ..data.splits import make_splits
+    from ..models.registry import make_model
+
+    thresholds = thresholds or Thresholds()
+    if not hasattr(data, "tau"):
+        data = load_sessions(data, arm=arm, joints=joints, config=config)
+    ds = data
+    splits = make_splits(ds, load_settings(config)["splits"], seed=seed, scale_to_data=scale_to_data)
+    pool = splits.pool
+    effect_list = [[str(e), None, None] for e in effects]
+    model = make_model("rigid-body", ds.joint_names, preprocessing=model_preprocessing(ds, splits),
+                       effects=effect_list, rows="per-joint")
+    model.fit(pool, splits.val)  # resolves the context joints and the effect terms
+    phi = model.regressor(pool.q, pool.dq, pool.ddq, context=pool.context)
+    est = weighted_least_squares(phi, pool.tau, pool.moving, blocks=blocks)
+    dyn = model.dynamics
+    names = list(model.names)
+    n_base = model.n_base
+    nonneg = np.array([n.split("@")[0] in NONNEGATIVE for n in names[n_base:]], dtype=bool)
+    proj = project(est.theta, est.cov, dyn.base_map_rows(model.joint_names), dyn.standard_parameters(),
+                   dyn.body_names(), nonneg)
+    model.theta, model.stderr = proj.theta.copy(), est.stderr.copy()
+    model.fit_info = {**model.fit_info, "estimator": "weighted least squares, consistent projection",
+                      "condition_number": est.condition}
+    fit_mse = _mse_where_moving(pool.tau, phi @ proj.theta, pool.moving)
+    test = splits.test
+    heldout_mse = _mse_where_moving(test.tau, model.predict_dataset(test), test.moving)
+    share = parameter_contribution(phi, est.theta, pool.tau)
+    found = checks(est.condition, names, est.theta, est.stderr, share, proj, fit_mse, heldout_mse,
+                   model.joint_names, thresholds)
+    fit = FitResult(model, test_metrics(model, ds, splits, pool, "rigid-body", seed), ds, splits)
+    return Identification(fit=fit, names=names, estimate=est, projection=proj, checks=found,
+                          thresholds=thresholds, n_base=n_base, fit_mse=fit_mse, heldout_mse=heldout_mse,
+                          share=share)
+
+
+def text(result: Identification) -> str:
+    """The identification as a person reads it: parameters with sigma %, bodies, checks, verdict."""
+    doc = result.to_json()
+    lines = [f"identified {len(doc['parameters'])} parameters of {', '.join(doc['joints'])} from "
+             f"{doc['rows']} torque equations; condition number {doc['condition_number']:.3g}",
+             "", f"{'parameter':32s} {'estimate':>12s} {'sigma %':>8s} {'consistent':>12s} {'torque %':>8s}"]
+    for p in doc["parameters"]:
+        rel = "-" if p["rel_stderr"] is None else f"{100 * p['rel_stderr']:.3g}"
+        lines.append(f"{p['name']:32s} {p['estimate']:12.5g} {rel:>8s} {p['consistent']:12.5g} "
+                     f"{100 * p['torque_share']:8.3g}")
+    if doc["correlated_pairs"]:
+        lines += ["", "strongly correlated: " + "; ".join(f"{c['a']} ~ {c['b']} (r = {c['r']:+.3f})"
+                                                         for c in doc["correlated_pairs"][:8])]
+    lines += ["", "bodies (consistent):"]
+    for b in doc["consistency"]["bodies"]:
+        moments = ", ".join(f"{x:.3g}" for x in b["principal_moments"])
+        lines.append(f"  {b['body']}: mass {b['mass']:.4g} kg, principal moments about the centre of mass "
+                     f"{moments} kg m^2")
+    lines.append("")
+    for c in result.checks:
+        lines.append(f"{'PASS' if c.passed else 'FAIL'}  {c.name}: {c.sentence}")
+    lines.append(f"verdict: {'PASS' if result.passed else 'FAIL'}")
+    return "\n".join(lines)
