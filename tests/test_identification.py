@@ -10,9 +10,10 @@ import pytest
 from click.testing import CliRunner
 
 from crane_io.physics.dynamics import ArmDynamics
+from crane_io.physics.identified_model import IdentifiedArm, pseudo_inertia
 from tests.sessions import write_synthetic_session
 from train.cli import main as train_main
-from train.identification.consistency import body_summary, project, pseudo_inertia
+from train.identification.consistency import body_summary, project
 from train.identification.estimate import IdentificationError, weighted_least_squares
 
 pytest.importorskip("cvxpy")
@@ -125,6 +126,13 @@ def test_identify_writes_a_model_with_its_identification_and_a_verdict(session, 
     names = [c["name"] for c in doc["verdict"]["checks"]]
     assert names == ["condition number", "parameter uncertainty", "physical consistency", "held-out error"]
     assert r.exit_code == (0 if doc["verdict"]["passed"] else 1)
+    # the identified bodies as an arm model the dynamics read: its torques are the model's rigid-body part
+    arm_model = IdentifiedArm.from_toml(out / "arm_model.toml")
+    assert arm_model.free == ("joint1", "joint2", "joint4") and set(arm_model.friction) == set(arm_model.free)
+    dyn = ArmDynamics(locked=arm_model.locked, identified=arm_model)  # the session held joint3 at 0.2 rad
+    q, dq, ddq = np.array([[0.2, 0.7, -1.1]]), np.array([[0.3, -0.2, 0.1]]), np.array([[1.0, -2.0, 0.5]])
+    base = np.array([p["consistent"] for p in doc["parameters"] if p["kind"] == "base"])
+    assert np.allclose(dyn.inverse_dynamics(q, dq, ddq), dyn.base_regressor(q, dq, ddq) @ base, atol=1e-6)
     # the model folder is an ordinary rigid-body model: compare reads it
     r = CliRunner().invoke(train_main, ["compare", str(out), "--session", str(session)])
     assert r.exit_code == 0, r.output

@@ -95,7 +95,7 @@ class FitResult:
     metrics: dict  # the test metrics document (fit_metrics.json): mse, rmse, nmse per joint, sizes, seed
     dataset: Dataset = field(repr=False)
     splits: Splits = field(repr=False)
-    documents: dict = field(default_factory=dict, repr=False)  # more JSON files of the folder: name -> object
+    documents: dict = field(default_factory=dict, repr=False)  # more files: name -> text or a JSON object
 
     def save(self, out_dir: PathLike, *, force: bool = False) -> Path:
         """Write the model (fit_metrics.json and any other `documents`) to `out_dir`, whole or not at all;
@@ -107,8 +107,8 @@ class FitResult:
         with atomic_directory(path, "model folder") as tmp:
             self.model.save(tmp)
             (tmp / "fit_metrics.json").write_text(json.dumps(self.metrics, indent=2))
-            for name, doc in self.documents.items():
-                (tmp / name).write_text(json.dumps(doc, indent=2))
+            for name, doc in self.documents.items():  # text as it is, anything else as JSON
+                (tmp / name).write_text(doc if isinstance(doc, str) else json.dumps(doc, indent=2))
         return path
 
 

@@ -50,11 +50,13 @@ def _as_batch(x, j: int, what: str) -> tuple[np.ndarray, bool]:
 class ArmDynamics:
     """Rigid-body dynamics of the free `joints`; the rest locked at `locked` angles (rad, default 0).
 
-    payload_mass (kg) is a point mass at the tool frame (0.08 m beyond the gripper base).
+    payload_mass (kg) is a point mass at the tool frame (0.08 m beyond the gripper base). `identified`: an
+    IdentifiedArm (crane_io.physics.identified_model) whose bodies replace the description's; it must
+    have been identified for these free joints locked at these angles.
     """
 
     def __init__(self, joints=("joint1", "joint2", "joint4"), locked: dict[str, float] | None = None,
-                 payload_mass: float = 0.0, gravity: float = GRAVITY):
+                 payload_mass: float = 0.0, gravity: float = GRAVITY, identified=None):
         joints = tuple(joints)
         self.locked = {k: float(v) for k, v in (locked or {}).items()}
         clash = [n for n in self.locked if n in joints]
@@ -63,6 +65,10 @@ class ArmDynamics:
         self.payload_mass = float(payload_mass)
         self.gravity = float(gravity)
         self.model = reduced_model(joints, self.locked, self.payload_mass, self.gravity)
+        if identified is not None:  # crane_io.physics.identified_model.IdentifiedArm: its bodies
+            identified.check_configuration(joints, self.locked)
+            for name, v in identified.bodies.items():
+                self.model.inertias[self.model.getJointId(name)] = pin.Inertia.FromDynamicParameters(v)
         self.data = self.model.createData()
         model_order = [self.model.names[i] for i in range(1, self.model.njoints)]
         self.joint_names: tuple[str, ...] = joints

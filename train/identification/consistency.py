@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from crane_io.errors import ConfigError
+from crane_io.physics.identified_model import pseudo_inertia
 
 from .estimate import IdentificationError
 
@@ -50,17 +51,6 @@ class Projection:
     as_estimated: bool  # the estimate itself is consistent
     within_uncertainty: bool  # the projection moved it less than its uncertainty explains
     bodies: list[dict]  # per body: name, mass, com, principal moments, smallest pseudo-inertia eigenvalue
-
-
-def pseudo_inertia(phi10: np.ndarray) -> np.ndarray:
-    """The 4 x 4 pseudo-inertia of one body's standard parameters (numpy)."""
-    m, hx, hy, hz, ixx, ixy, iyy, ixz, iyz, izz = phi10
-    inertia = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
-    out = np.zeros((4, 4))
-    out[:3, :3] = 0.5 * np.trace(inertia) * np.eye(3) - inertia
-    out[:3, 3] = out[3, :3] = (hx, hy, hz)
-    out[3, 3] = m
-    return out
 
 
 def _cvx_pseudo_inertia(cp, v):

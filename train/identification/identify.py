@@ -24,6 +24,7 @@ DEFAULT_EFFECTS = ("viscous", "coulomb")
 # friction coefficients a real joint cannot have negative
 NONNEGATIVE = ("viscous.viscous", "coulomb.coulomb")
 IDENTIFICATION_JSON = "identification.json"
+ARM_MODEL_TOML = "arm_model.toml"  # the identified bodies for the dynamics, the controller and the plant
 
 
 @dataclass
@@ -65,9 +66,27 @@ class Identification:
                 "heldout_mse": dict(zip(joints, self.heldout_mse.tolist())),
                 "verdict": to_json(self.thresholds, self.checks)}
 
+    def arm_model(self):
+        """The consistent bodies and friction as an IdentifiedArm (crane_io.physics.identified_model)."""
+        from crane_io.physics.arm_model import JOINT_NAMES
+        from crane_io.physics.identified_model import IdentifiedArm
+
+        dyn = self.fit.model.dynamics
+        phi = self.projection.phi
+        bodies = {name: phi[10 * b:10 * b + 10].copy() for b, name in enumerate(dyn.body_names())}
+        locked = {n: float(dyn.locked.get(n, 0.0)) for n in JOINT_NAMES if n not in dyn.joint_names}
+        friction: dict[str, dict[str, float]] = {}
+        for k, name in enumerate(self.names[self.n_base:], start=self.n_base):
+            column, _, joint = name.partition("@")
+            if column in NONNEGATIVE and joint:
+                value = max(float(self.projection.theta[k]), 0.0)
+                friction.setdefault(joint, {})[column.split(".")[0]] = value
+        return IdentifiedArm(tuple(dyn.joint_names), locked, bodies, float(dyn.payload_mass), friction)
+
     def save(self, out_dir, *, force: bool = False) -> Path:
-        """The model folder with identification.json in it, whole or not at all."""
+        """The model folder with identification.json and arm_model.toml in it, whole or not at all."""
         self.fit.documents[IDENTIFICATION_JSON] = self.to_json()
+        self.fit.documents[ARM_MODEL_TOML] = self.arm_model().to_toml()
         return self.fit.save(out_dir, force=force)
 
 

@@ -1,0 +1,67 @@
+"""An identified arm model file (crane_io/physics/identified_model.py): read as data, checked (physically
+consistent bodies, the configuration it was identified for), and used by the dynamics."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from crane_io.errors import ConfigError
+from crane_io.physics.dynamics import ArmDynamics
+from crane_io.physics.identified_model import IdentifiedArm
+
+
+@pytest.fixture(scope="module")
+def nominal():
+    dyn = ArmDynamics()
+    phi = dyn.standard_parameters()
+    bodies = {n: phi[10 * b:10 * b + 10].copy() for b, n in enumerate(dyn.body_names())}
+    locked = {"joint3": 0.0, "joint5": 0.0, "joint6": 0.0, "joint7": 0.0, "gripper": 0.0}
+    return dyn, IdentifiedArm(("joint1", "joint2", "joint4"), locked, bodies, 0.0,
+                              {"joint2": {"viscous": 0.05, "coulomb": 0.24}})
+
+
+def test_the_file_round_trips_and_the_nominal_bodies_give_the_nominal_dynamics(nominal, tmp_path):
+    dyn, arm = nominal
+    path = tmp_path / "arm.toml"
+    path.write_text(arm.to_toml())
+    back = IdentifiedArm.from_toml(path)
+    assert back.free == arm.free and back.friction == arm.friction
+    assert all(np.array_equal(back.bodies[n], arm.bodies[n]) for n in arm.free)
+    q = np.array([[0.3, 0.8, -1.0], [-0.5, -0.2, -0.4]])
+    dq, ddq = np.ones_like(q) * 0.4, np.ones_like(q) * -1.5
+    expected = dyn.inverse_dynamics(q, dq, ddq)
+    assert np.allclose(ArmDynamics(identified=back).inverse_dynamics(q, dq, ddq), expected)
+
+
+def test_a_heavier_forearm_changes_the_gravity_torque(nominal):
+    dyn, arm = nominal
+    heavy = IdentifiedArm(arm.free, arm.locked, {**arm.bodies, "joint4": arm.bodies["joint4"] * 1.5})
+    q = np.array([0.0, 0.8, -1.0])
+    assert abs(ArmDynamics(identified=heavy).gravity_torque(q)[2]) > 1.4 * abs(dyn.gravity_torque(q)[2])
+
+
+def test_another_configuration_is_refused_in_one_sentence(nominal):
+    _, arm = nominal
+    with pytest.raises(ConfigError, match="identified for the free joints joint1, joint2, joint4"):
+        ArmDynamics(joints=("joint1", "joint2"), identified=arm)
+    with pytest.raises(ConfigError, match="joint3 held at 0 rad, not 0.5 rad"):
+        ArmDynamics(locked={"joint3": 0.5}, identified=arm)
+
+
+@pytest.mark.parametrize(("edit", "message"), [
+    (lambda t: t.replace("format_version = 1", "format_version = 9"), "format_version 9"),
+    (lambda t: t.replace('free = ["joint1", "joint2", "joint4"]', 'free = ["joint1", "wrist"]'), "`free`"),
+    (lambda t: t + "\n[identified.extra]\nx = 1\n", "unknown key 'extra'"),
+    (lambda t: t.replace("parameters = [0.253", "parameters = [-0.253"), "not physically consistent"),
+    (lambda t: t.replace("viscous = 0.05", "viscous = -0.05"), "non-negative"),
+    (lambda t: t.replace("[identified]", "[identified"), "not valid TOML"),
+])
+def test_a_damaged_file_is_refused_in_one_sentence(nominal, tmp_path, edit, message):
+    _, arm = nominal
+    text = arm.to_toml()
+    path = tmp_path / "arm.toml"
+    path.write_text(edit(text))
+    assert edit(text) != text
+    with pytest.raises(ConfigError, match=message):
+        IdentifiedArm.from_toml(path)
