@@ -111,7 +111,8 @@ class BilateralLoop:
 
     def __init__(self, config: Config, arm: ArmDescription, sims: dict, out, stop=None, *,
                  models: dict | None = None, hand_on: str = "leader", realtime: bool = False,
-                 status: bool = True, on_cycle: Callable[[int, RunContext], None] | None = None):
+                 status: bool = True, on_cycle: Callable[[int, RunContext], None] | None = None,
+                 arm_model=None):
         self.on_cycle = on_cycle
         self.stop = stop  # crane_io.shutdown.StopRequest: checked at the top of every cycle
         self.config = config
@@ -124,7 +125,8 @@ class BilateralLoop:
         self.realtime: RealtimeState | None = None  # what the OS granted the paced loop
         self.period = config.loop.period_s
         self.models = models or {}  # learned models in the observers
-        self.ctl = BilateralController(config, arm, models=reaction_factories(self.models, arm, config))
+        self.ctl = BilateralController(config, arm, models=reaction_factories(self.models, arm, config),
+                                       arm_model=arm_model)
         self.fallback_on = {name: None for name in self.models}  # joints on the nominal model now
         self.fallback_events = 0
         self.hand_arm = hand_on  # the arm the simulated operator's hand moves

@@ -68,7 +68,7 @@ __all__ = ["ArmEstimates", "ArmSignals", "BilateralController", "Commands", "Gra
 class GravityModel:
     """Motor torque (n,) needed to hold the arm against gravity, for the RFOB."""
 
-    def __init__(self, kind: str, config: Config, arm: ArmDescription):
+    def __init__(self, kind: str, config: Config, arm: ArmDescription, identified=None):
         self.kind = kind
         self.arm = arm
         self.n = len(arm.joints)
@@ -91,7 +91,7 @@ class GravityModel:
             else:
                 joints = tuple(arm.bilateral_joints)
                 locked = {n: config.held.get(n, 0.0) for n in names if n not in joints}
-                self._dyn = ArmDynamics(joints=joints, locked=locked)
+                self._dyn = ArmDynamics(joints=joints, locked=locked, identified=identified)
                 self._dyn_idx = np.array([names.index(n) for n in self._dyn.joint_names])
                 if self._dyn._identity:  # the joints in the model's order: gravity_torque's one-pose call
                     import pinocchio
@@ -134,7 +134,8 @@ class InertiaModel:
     grows about 60x from upright to arm outstretched; a constant J then makes the DOB loop ring.
     """
 
-    def __init__(self, kind: str, config: Config, arm: ArmDescription, J: np.ndarray, every: int):
+    def __init__(self, kind: str, config: Config, arm: ArmDescription, J: np.ndarray, every: int,
+                 identified=None):
         self.kind = kind
         self.J = J
         self.every = max(1, int(every))
@@ -151,7 +152,7 @@ class InertiaModel:
                 names = arm.joint_names
                 joints = tuple(arm.bilateral_joints)
                 locked = {n: config.held.get(n, 0.0) for n in names if n not in joints}
-                self._dyn = ArmDynamics(joints=joints, locked=locked)
+                self._dyn = ArmDynamics(joints=joints, locked=locked, identified=identified)
                 self._idx = np.array([names.index(n) for n in self._dyn.joint_names])
                 self._m0 = np.diag(self._dyn.mass_matrix(np.zeros(len(joints))))
                 if self._dyn._identity:  # mass_matrix_diagonal's one-pose call (crba) without its checks
@@ -202,7 +203,7 @@ class BilateralController:
     arms never imports numba for it."""
 
     def __init__(self, config: Config, arm: ArmDescription | None = None, models: dict | None = None,
-                 compiled: bool | None = None):
+                 compiled: bool | None = None, arm_model=None):
         self.config = config
         # arm name ("leader", "follower") -> a factory of its ModelReaction (a fresh one per reset)
         self.models = dict(models or {})
@@ -223,9 +224,18 @@ class BilateralController:
         self.bil_mask = self.bil.astype(bool)
         self.kt = np.array([j.torque_constant for j in self.arm.joints])
         self.deadband = config.controller.position_deadband
-        self.gravity = GravityModel(config.controller.gravity_model, config, self.arm)
+        # an identified arm model (crane_io.physics.identified_model): its bodies in the gravity and inertia
+        # models and its viscous friction as the nominal D of the joints it covers
+        self.arm_model = arm_model
+        if arm_model is not None:
+            if config.controller.gravity_model != "dynamics":
+                raise ConfigError("an identified arm model needs controller.gravity_model = \"dynamics\"")
+            for joint, friction in arm_model.friction.items():
+                if "viscous" in friction and joint in names:
+                    self.D[names.index(joint)] = friction["viscous"]
+        self.gravity = GravityModel(config.controller.gravity_model, config, self.arm, arm_model)
         self.inertia = InertiaModel(config.controller.inertia_model, config, self.arm, self.J,
-                                    config.controller.inertia_update_cycles)
+                                    config.controller.inertia_update_cycles, arm_model)
         self.held = np.where(self.bil_mask, 0.0, np.nan)  # NaN on the held joints (their estimates)
         self._decay = (None, None, None)  # (g, dt, exp(-g dt)) of the last step (decay)
         c = config.controller

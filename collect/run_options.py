@@ -40,6 +40,7 @@ class RunOptions:
     truth_trace: str | Path | None = None  # sim only: the plants' true external torques per row (HDF5)
     model: str | Path | None = None  # learned model directory for the follower's reaction-force observer
     leader_model: str | Path | None = None  # ... for the leader's
+    arm_model: str | Path | None = None  # an identified arm model (TOML): both arms' nominal observer model
     hand_on: str = "leader"  # the arm the operator's hand moves ("follower": leader data free of a hand)
     task: str | None = None  # sim only: the simulated operator's task ("free", "contact"); None: config's
     joints: str | list | tuple | None = None  # bilateral joints ("joint1,joint2" or names); None: config's
@@ -58,7 +59,8 @@ def run_inputs(opts: RunOptions) -> list:
     files (given, or the stored ones' folder on hardware) and, on hardware, the two ports."""
     from crane_io.dynamixel.calibration import config_dir
 
-    inputs = [opts.config, opts.model, opts.leader_model, opts.leader_calibration, opts.follower_calibration]
+    inputs = [opts.config, opts.model, opts.leader_model, opts.arm_model, opts.leader_calibration,
+              opts.follower_calibration]
     if opts.plant is not None and Path(opts.plant).exists():  # a TOML path, not a preset's name
         inputs.append(opts.plant)
     if not opts.sim:  # a port is a device file (a folder given as one is refused when it is opened)

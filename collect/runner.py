@@ -131,6 +131,11 @@ class BilateralRun:
         check_run_outputs(opts)  # no output is an input or another output
         check_output(self.output, opts.force)
         check_ports(opts.sim, opts.leader_port, opts.follower_port)
+        self.arm_model = None  # an identified arm model for the nominal observers: data, checked now
+        if opts.arm_model is not None:
+            from crane_io.physics.identified_model import IdentifiedArm
+
+            self.arm_model = IdentifiedArm.from_toml(opts.arm_model)
         self.stop: StopRequest | None = None  # while entered: what the stop signals said
         self._signals = contextlib.ExitStack()  # the stop handling, left last
         self.sims: dict = {}  # arm name -> crane_io.sim.SimulatedArm (sim only)
@@ -215,9 +220,11 @@ class BilateralRun:
         # learned models in the observers (the dynamics model: ~0.4 s), loaded and checked here
         set_activity("loading the learned models")
         models = load_reaction_models({"leader": opts.leader_model, "follower": opts.model}, arm)
+        arm_model = self.arm_model
         set_activity("compiling the control kernels")
         loop = BilateralLoop(config, arm, self.sims, self.out, stop, models=models, hand_on=opts.hand_on,
-                             realtime=opts.realtime, status=opts.status, on_cycle=opts.on_cycle)
+                             realtime=opts.realtime, status=opts.status, on_cycle=opts.on_cycle,
+                             arm_model=arm_model)
         self.loop = loop
         if opts.view or opts.view_save is not None:
             loop.open_view(save=opts.view_save, every=opts.view_every)
@@ -235,6 +242,8 @@ class BilateralRun:
             loop.status.say(loop.realtime.sentence())
         if loop.models:
             loop.status.say(observer_sentence(loop.models, arm))
+        if self.arm_model is not None:
+            loop.status.say(f"nominal observers: the identified arm model {opts.arm_model}")
         if not opts.sim or any(self.calibrations.values()):
             loop.status.say(calibration_sentence(self.calibrations))
 
@@ -253,7 +262,8 @@ class BilateralRun:
             loop.operator.start(states[ARMS.index(loop.hand_arm)].position, 0.0)
         loop.recorder = make_recorder(self.output, config, arm, self.hw, simulated=opts.sim,
                                       lockstep=not loop.paced, seed=opts.seed, hand_on=opts.hand_on,
-                                      force=opts.force, models=loop.models, calibrations=self.calibrations)
+                                      force=opts.force, models=loop.models, calibrations=self.calibrations,
+                                      arm_model_toml=self.arm_model.to_toml() if self.arm_model else "")
         if opts.truth_trace is not None:
             loop.truth_trace = TruthTraceWriter(opts.truth_trace, arm.joint_names, self.output.name)
         loop.ctx.recorder = loop.recorder

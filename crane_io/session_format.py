@@ -102,6 +102,7 @@ BILATERAL_JOINTS_ATTR, SOFTWARE_VERSION_ATTR, START_TIME_ATTR = (
     "bilateral_joints", "software_version", "start_time")
 CONFIG_TOML_ATTR, SEED_ATTR, GRAVITY_MODEL_ATTR, LOCKSTEP_ATTR = (
     "config_toml", "seed", "gravity_model", "lockstep")
+ARM_MODEL_TOML_ATTR = "arm_model_toml"
 
 
 def model_attr(arm: str) -> str:
@@ -131,6 +132,7 @@ OPTIONAL_ROOT = (
     Attribute(SOFTWARE_VERSION_ATTR, "str", "the crane-x7 version that wrote the file"),
     Attribute(START_TIME_ATTR, "str", "ISO 8601, UTC"),
     Attribute(CONFIG_TOML_ATTR, "str", "the complete configuration used, as TOML"),
+    Attribute(ARM_MODEL_TOML_ATTR, "str", '"" or the identified arm model of the nominal observers, as TOML'),
     Attribute(RATE_ACHIEVED_ATTR, "float", "NaN until the recording ends", "Hz"),
     Attribute(COMPLETE_ATTR, "bool", "False while recording, True after a clean end"),
     Attribute(SEED_ATTR, "int", "the simulation's seed (sim only)"),

@@ -9,6 +9,7 @@ import pytest
 from crane_io.errors import ConfigError
 from crane_io.physics.dynamics import ArmDynamics
 from crane_io.physics.identified_model import IdentifiedArm
+from crane_io.toml_config import read_toml
 
 
 @pytest.fixture(scope="module")
@@ -65,3 +66,45 @@ def test_a_damaged_file_is_refused_in_one_sentence(nominal, tmp_path, edit, mess
     assert edit(text) != text
     with pytest.raises(ConfigError, match=message):
         IdentifiedArm.from_toml(path)
+
+
+def test_the_controller_takes_the_identified_gravity_and_viscous_friction(nominal):
+    from collect.config import load_config
+    from collect.controller import BilateralController
+
+    dyn, arm = nominal
+    config = load_config()
+    heavy = IdentifiedArm(arm.free, arm.locked, {**arm.bodies, "joint4": arm.bodies["joint4"] * 1.5},
+                          friction={"joint2": {"viscous": 0.123}})
+    stock = BilateralController(config, compiled=False)
+    ident = BilateralController(config, compiled=False, arm_model=heavy)
+    names = stock.arm.joint_names
+    q = np.zeros(len(names))
+    q[names.index("joint2")], q[names.index("joint4")] = 0.8, -1.0
+    j4 = names.index("joint4")
+    assert abs(ident.gravity(q)[j4]) > 1.4 * abs(stock.gravity(q)[j4])
+    assert ident.D[names.index("joint2")] == 0.123
+    assert ident.D[names.index("joint1")] == stock.D[names.index("joint1")]
+
+
+def test_run_records_the_arm_model_and_refuses_a_bad_one(nominal, tmp_path):
+    import h5py
+    from click.testing import CliRunner
+
+    from collect.cli import main as collect_main
+
+    _, arm = nominal
+    path = tmp_path / "arm.toml"
+    path.write_text(arm.to_toml())
+    out = tmp_path / "s.h5"
+    r = CliRunner().invoke(collect_main, ["run", "--sim", "--plant", "simple", "--duration", "0.2",
+                                          "-o", str(out), "--arm-model", str(path)])
+    assert r.exit_code == 0, r.output
+    with h5py.File(out, "r") as f:
+        recorded = read_toml(text=f.attrs["arm_model_toml"])["identified"]
+    assert IdentifiedArm.from_dict(recorded, "the session's arm model").free == arm.free
+    path.write_text(arm.to_toml().replace("parameters = [0.253", "parameters = [-0.253"))
+    r = CliRunner().invoke(collect_main, ["run", "--sim", "--plant", "simple", "--duration", "0.2",
+                                          "-o", str(tmp_path / "t.h5"), "--arm-model", str(path)])
+    assert r.exit_code == 2 and "not physically consistent" in r.output and "Traceback" not in r.output
+    assert not (tmp_path / "t.h5").exists()

@@ -49,6 +49,9 @@ from ..config import MAX_RATE_HZ, MIN_RATE_HZ
               metavar="MODEL_DIR",
               help="The same for the leader's observer: a model fitted on leader data (crane-train fit "
                    "--arm leader).")
+@click.option("--arm-model", "arm_model", type=click.Path(dir_okay=False), default=None, metavar="TOML",
+              help="An identified arm model (arm_model.toml of `crane-train identify`) as both arms' nominal "
+                   "observer model: its bodies in the gravity and inertia terms, its viscous friction as D.")
 @click.option("--seed", type=SEED, default=0, show_default=True,
               help="Seed of the simulated operator and plants (--sim).")
 @click.option("--duration", type=Number(float, 0, low_open=True, what="a positive number of seconds"),
@@ -83,7 +86,7 @@ from ..config import MAX_RATE_HZ, MIN_RATE_HZ
               metavar="N", help="The view samples every N-th control cycle (50 samples a second at 500 Hz).")
 @cli_errors
 def run(output, sim, plant, truth, truth_trace, task, joints, hand_on, model_dir, leader_model_dir,
-        seed,
+        arm_model, seed,
         duration, rate, config_path, realtime, leader_port, follower_port, leader_calibration,
         follower_calibration, no_calibration, force, quiet, view, view_save, view_every):
     """Drive leader and follower under 4-channel bilateral control and record a session.
@@ -105,6 +108,6 @@ def run(output, sim, plant, truth, truth_trace, task, joints, hand_on, model_dir
                            follower_port=follower_port, force=force, status=not quiet, truth=truth,
                            truth_trace=truth_trace, task=task, joints=joints, hand_on=hand_on,
                            model=model_dir,
-                           leader_model=leader_model_dir, view=view, view_save=view_save,
+                           leader_model=leader_model_dir, arm_model=arm_model, view=view, view_save=view_save,
                            view_every=view_every, leader_calibration=leader_calibration,
                            follower_calibration=follower_calibration, calibrate=not no_calibration))

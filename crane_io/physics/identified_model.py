@@ -33,7 +33,7 @@ from crane_io.errors import ConfigError
 from crane_io.toml_config import check_keys, dump_toml, is_number, read_toml
 
 FORMAT_VERSION = 1
-LOCK_TOLERANCE = 1e-3  # rad
+LOCK_TOLERANCE = 0.02  # rad: a held joint sags a little under its position controller
 CONSISTENCY_TOLERANCE = 1e-9  # smallest pseudo-inertia eigenvalue allowed, in the body's own units
 WHAT = "identified arm model"
 
