@@ -57,6 +57,7 @@ from .kernels import compile_kernels, compile_sentence
 from .loop_models import load_reaction_models, observer_sentence
 from .realtime import enter_realtime
 from .run_options import RunOptions, RunResult, check_run_outputs
+from .selftest_record import require_selftest
 from .sim_arms import make_operator, make_sim_arms, write_truth
 from .startup import check_options, check_output, check_ports, make_recorder, open_buses
 from .status import print_summary
@@ -208,6 +209,9 @@ class BilateralRun:
         files = {"leader": opts.leader_calibration, "follower": opts.follower_calibration}
         set_activity("reading the calibrations")
         self.calibrations = resolve_calibrations(ports, files, lookup=opts.calibrate and not opts.sim)
+        if not opts.sim and not opts.skip_selftest:  # hardware: each arm self-tested with its calibration
+            for name in ARMS:
+                require_selftest(name, ports[name], self.calibrations[name])
         stop.check()
         if opts.truth is not None:  # its own file, asked for; before any torque is on
             set_activity("writing the truth file")

@@ -222,6 +222,20 @@ class ServoRegisters:
             out[j] = raw
         return out
 
+    def limit_motion(self, velocity_rads: float) -> None:
+        """Velocity Limit and Profile Velocity of every servo to `velocity_rads` (rad/s, at least one
+        LSB; torque must be off): position moves then never go faster. Read back and verified."""
+        self.require_open()
+        raw = max(1, int(units.rads_to_velocity(velocity_rads)))
+        for joint, sid in zip(self.joint_names, self.ids):
+            for reg in ("velocity_limit", "profile_velocity"):
+                self._write(sid, reg, raw, joint)
+                got = self._read(sid, reg, joint)
+                if got != raw:
+                    raise ConfigurationMismatchError(
+                        f"servo {servo_label(joint, sid)} on {self.port_name} holds {reg} = {got} after "
+                        f"{raw} was written; is its torque on?")
+
     # ---- torque --------------------------------------------------------------------------------
     def torque_on(self) -> None:
         """Hold the held joints where they are (goal position = present), zero the goal current of the
