@@ -2,9 +2,10 @@
 
 The record sits beside the calibration it was made with: `KEY.selftest.toml` next to `KEY.toml` in the
 calibration folder (crane_io.dynamixel.calibration), or `NAME.selftest.toml` next to a calibration file
-given by name. It holds the SHA-256 of that calibration file's bytes, so a changed calibration (the arm
-calibrated again, the file edited) needs a new self-test; an arm tested without a calibration records
-an empty digest, and only counts while it runs without one.
+given by name. It holds the SHA-256 of that calibration's content (arm, adapter, date, every joint's
+offset and range), so a changed calibration (the arm calibrated again, the file edited) needs a new
+self-test; an arm tested without a calibration records an empty digest, and only counts while it runs
+without one.
 
     [selftest]
     arm = "follower"
@@ -24,6 +25,7 @@ an empty digest, and only counts while it runs without one.
 from __future__ import annotations
 
 import hashlib
+import json
 import time
 from pathlib import Path
 
@@ -38,10 +40,13 @@ class SelftestMissingError(ConfigError):
 
 
 def calibration_digest(calibration) -> str:
-    """SHA-256 of the calibration's file ("" for no calibration, or one that was never saved)."""
-    if calibration is None or not calibration.path:
+    """SHA-256 of the calibration's content: its arm, adapter, date and every joint's offset and range
+    ("" for no calibration)."""
+    if calibration is None:
         return ""
-    return hashlib.sha256(Path(calibration.path).read_bytes()).hexdigest()
+    content = {"name": calibration.name, "key": calibration.key, "created": calibration.created,
+               "joints": {n: [j.offset_rad, j.min_rad, j.max_rad] for n, j in calibration.joints.items()}}
+    return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
 
 
 def record_path(port: str, calibration=None, comports=None) -> Path:

@@ -72,7 +72,7 @@ def parse_model_entry(text: str) -> tuple[int, str]:
     """"5=XM540-W270" -> (5, "XM540-W270"); ConfigError (one sentence) for anything else."""
     sid, sep, model = str(text).partition("=")
     if not sep or not sid.strip().isdigit() or model.strip() not in MODELS:
-        raise ConfigError(f"`wrong_model` takes ID=MODEL with MODEL one of {', '.join(MODELS)}, got {text!r}")
+        raise ConfigError(f"`wrong_models` takes ID=MODEL with MODEL one of {', '.join(MODELS)}, got {text!r}")
     return int(sid), model.strip()
 
 
@@ -85,9 +85,9 @@ def _check(faults: WiringFaults, arm) -> None:
         arm.joint(name)  # DescriptionError naming the joints for an unknown one
     for sid, model in faults.wrong_models:
         if sid not in ids:
-            raise ConfigError(f"`wrong_model` names servo ID {sid}, which the arm does not have")
+            raise ConfigError(f"`wrong_models` names servo ID {sid}, which the arm does not have")
         if model not in MODELS:
-            raise ConfigError(f"`wrong_model` names unknown servo model {model!r} "
+            raise ConfigError(f"`wrong_models` names unknown servo model {model!r} "
                               f"(models: {', '.join(MODELS)})")
     for what, value in (("current_sign", faults.current_sign), ("current_scale", faults.current_scale)):
         if not (np.isfinite(value) and value != 0):
