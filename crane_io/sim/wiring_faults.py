@@ -72,7 +72,8 @@ def parse_model_entry(text: str) -> tuple[int, str]:
     """"5=XM540-W270" -> (5, "XM540-W270"); ConfigError (one sentence) for anything else."""
     sid, sep, model = str(text).partition("=")
     if not sep or not sid.strip().isdigit() or model.strip() not in MODELS:
-        raise ConfigError(f"`wrong_models` takes ID=MODEL with MODEL one of {', '.join(MODELS)}, got {text!r}")
+        raise ConfigError(f"`wrong_models` takes ID=MODEL with MODEL one of {', '.join(MODELS)}, "
+                          f"got {text!r}")
     return int(sid), model.strip()
 
 
