@@ -204,23 +204,29 @@ def run_selftest(port: str, arm, calibration=None, *, period_s: float = 0.01, pa
     arm = selftest_arm(arm)
     offsets = calibration.offsets(arm.joint_names) if calibration is not None else np.zeros(len(arm.joints))
     with DynamixelBus(port, arm, name=name) as bus:
-        findings = identity_findings(bus.servo_report())
+        report = bus.servo_report()
+        findings = identity_findings(report)
         if any(f.failed for f in findings):
             return SelftestResult(findings, 0.0)
         findings += encoder_findings(arm, bus.read_state(check_faults=False).position - offsets, calibration)
         if any(f.failed for f in findings):
             return SelftestResult(findings, 0.0)
         gravity = gravity_model(arm)
+        kept_limits = np.array([r["current_limit_a"] for r in report])
         bus.configure(watchdog_s=WATCHDOG_S, current_limits=current_limits(arm, gravity))
-        bus.limit_motion(VELOCITY_LIMIT_RADS)
-        bus.torque_on()
-        d = _Driver(bus, offsets, period_s, paced)
-        poses, t0 = [], time.monotonic()
+        kept_velocities = bus.limit_motion(VELOCITY_LIMIT_RADS, VELOCITY_LIMIT_RADS)
+        poses, t0, d = [], time.monotonic(), None
         try:
+            bus.torque_on()
+            d = _Driver(bus, offsets, period_s, paced)
             poses = _motion(d, arm, gravity, findings)
         except (SelftestAborted, ServoFaultError) as exc:
             findings.append(Finding("motion", "arm", FAIL, f"{str(exc).rstrip('.')}."))
         finally:
             bus.safe_stop()
+            # the servos' own limits back (Current Limit and Velocity Limit are kept through a power cycle)
+            bus.configure(watchdog_s=None, current_limits=kept_limits)
+            bus.limit_motion(*kept_velocities)
     # paced: the wall clock's seconds (a busy host stretches the plan); else the simulated arm's time
-    return SelftestResult(findings, time.monotonic() - t0 if paced else d.cycles * period_s, poses)
+    cycles = d.cycles if d is not None else 0
+    return SelftestResult(findings, time.monotonic() - t0 if paced else cycles * period_s, poses)

@@ -32,9 +32,19 @@ FAULTS = {
 }
 
 
+KEPT = ("current_limit", "velocity_limit", "profile_velocity")  # what the test sets low, then restores
+
+
 def _selftest(faults: WiringFaults, seed: int = 0):
     with simulated_selftest_arm(ARM, seed, faults) as sim:
-        return run_selftest(sim.url, ARM, None, period_s=SIM_PERIOD_S, paced=False)
+        def registers():
+            return {(sid, r): s.read_register(r) for sid, s in sim.chain.servos.items() for r in KEPT}
+
+        before = registers()
+        result = run_selftest(sim.url, ARM, None, period_s=SIM_PERIOD_S, paced=False)
+        result.restored = registers() == before
+        result.torque_off = all(s.read_register("torque_enable") == 0 for s in sim.chain.servos.values())
+        return result
 
 
 @pytest.fixture(scope="module")
@@ -58,6 +68,11 @@ def test_healthy_arm_passes_every_check(results, name):
     gravity = [f for f in r.findings if f.check == "gravity"]
     assert len(gravity) == 7 and all(f.status == PASS for f in gravity)
     assert 0 < r.duration_s < 60  # the arm's own time
+
+
+@pytest.mark.parametrize("name", ["healthy0", "sign", "swap"])
+def test_the_arm_is_left_with_torque_off_and_its_own_limits(results, name):
+    assert results[name].torque_off and results[name].restored
 
 
 def test_swapped_ids_fail_on_the_model_numbers_before_torque(results):

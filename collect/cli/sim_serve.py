@@ -276,7 +276,7 @@ def _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, c
                        f"{server.slave_path}")
         click.echo(f"The simulated hand is on the {hand_on}; it takes hold {hand_delay_s:g} s after the "
                    f"arm's torque comes on. Record with `crane-collect run --leader-port {leader_link} "
-                   f"--follower-port {follower_link}{joints} -o SESSION.h5`"
+                   f"--follower-port {follower_link}{joints} --skip-selftest -o SESSION.h5`"
                    + (" --hand-on follower" if hand_on == "follower" else "") + ". Ctrl+C stops.")
         _wait(stop, lab.error, lambda: pair_status_line(lab))
     finally:

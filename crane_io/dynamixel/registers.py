@@ -222,19 +222,27 @@ class ServoRegisters:
             out[j] = raw
         return out
 
-    def limit_motion(self, velocity_rads: float) -> None:
-        """Velocity Limit and Profile Velocity of every servo to `velocity_rads` (rad/s, at least one
-        LSB; torque must be off): position moves then never go faster. Read back and verified."""
+    def limit_motion(self, velocity_limit, profile_velocity) -> tuple[np.ndarray, np.ndarray]:
+        """Velocity Limit and Profile Velocity of every servo (rad/s: one value or one per servo; a
+        Profile Velocity of 0 is no profile), torque off. Returns the values they held before, to
+        restore them with the same call (Velocity Limit is kept through a power cycle). Read back and
+        verified."""
         self.require_open()
-        raw = max(1, int(units.rads_to_velocity(velocity_rads)))
-        for joint, sid in zip(self.joint_names, self.ids):
-            for reg in ("velocity_limit", "profile_velocity"):
+        n = len(self.ids)
+        wanted = {"velocity_limit": np.broadcast_to(np.asarray(velocity_limit, dtype=float), (n,)),
+                  "profile_velocity": np.broadcast_to(np.asarray(profile_velocity, dtype=float), (n,))}
+        before = {reg: np.zeros(n) for reg in wanted}
+        for j, (joint, sid) in enumerate(zip(self.joint_names, self.ids)):
+            for reg, values in wanted.items():
+                before[reg][j] = float(units.velocity_to_rads(self._read(sid, reg, joint)))
+                raw = int(units.rads_to_velocity(values[j]))
                 self._write(sid, reg, raw, joint)
                 got = self._read(sid, reg, joint)
                 if got != raw:
                     raise ConfigurationMismatchError(
                         f"servo {servo_label(joint, sid)} on {self.port_name} holds {reg} = {got} after "
                         f"{raw} was written; is its torque on?")
+        return before["velocity_limit"], before["profile_velocity"]
 
     # ---- torque --------------------------------------------------------------------------------
     def torque_on(self) -> None:
