@@ -209,9 +209,6 @@ class BilateralRun:
         files = {"leader": opts.leader_calibration, "follower": opts.follower_calibration}
         set_activity("reading the calibrations")
         self.calibrations = resolve_calibrations(ports, files, lookup=opts.calibrate and not opts.sim)
-        if not opts.sim and not opts.skip_selftest:  # hardware: each arm self-tested with its calibration
-            for name in ARMS:
-                require_selftest(name, ports[name], self.calibrations[name])
         stop.check()
         if opts.truth is not None:  # its own file, asked for; before any torque is on
             set_activity("writing the truth file")
@@ -233,7 +230,7 @@ class BilateralRun:
             stop.check()
         set_activity("opening the ports and configuring the servos")
         self.buses, self.hw = open_buses(arm, config, ports, self.out, simulated=opts.sim,
-                                         checkpoint=stop.check, torque_going_on=self._torque_going_on)
+                                         checkpoint=stop.check, torque_going_on=self._before_torque)
         loop.attach(self.buses)
         if loop.realtime is not None:  # said once the arms answered (a missing port stays one line)
             loop.status.say(loop.realtime.sentence())
@@ -311,6 +308,16 @@ class BilateralRun:
     def _say_compiling(self) -> None:
         if self.options.status and self.out is not None:
             print(compile_sentence(), file=self.out, flush=True)
+
+    def _before_torque(self) -> None:
+        """Hardware arms (found and configured, torque off) must each have passed a self-test with the
+        calibration they run with (collect/selftest_record.py), unless `skip_selftest`."""
+        opts = self.options
+        if not opts.sim and not opts.skip_selftest:
+            ports = {"leader": opts.leader_port, "follower": opts.follower_port}
+            for name in ARMS:
+                require_selftest(name, ports[name], self.calibrations[name])
+        self._torque_going_on()
 
     def _torque_going_on(self) -> None:
         """From the first torque on, a stop is taken between two steps (the safe stop then runs)."""

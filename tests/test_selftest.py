@@ -148,16 +148,31 @@ def test_record_counts_only_for_its_calibration(tmp_path):
         require_selftest("leader", "/dev/ttyUSB9", load_calibration(cal_file))
 
 
-def test_run_refuses_hardware_arms_without_a_self_test(tmp_path):
+def test_run_refuses_hardware_arms_without_a_self_test_before_torque_on(tmp_path, monkeypatch):
+    """The hardware path (two simulated arms on pseudo-terminals): found and configured, then refused."""
+    import crane_io.dynamixel.port
     from collect.runner import RunOptions, run_session
+    from crane_io.sim.chain import SimulatedChain
+    from crane_io.sim.simple_plant import SimplePlant
+    from crane_io.sim.transport import PtyServer
 
-    for name in ("leader", "follower"):
-        (tmp_path / name).write_text("")
-    options = RunOptions(output=tmp_path / "s.h5", leader_port=str(tmp_path / "leader"),
-                         follower_port=str(tmp_path / "follower"), duration=0.5, status=False)
-    with pytest.raises(SelftestMissingError, match=r"leader arm .*`crane-collect selftest --port .*skip_sel"):
-        run_session(options)
+    # the pty servers' threads may wait for a core on a busy machine
+    monkeypatch.setattr(crane_io.dynamixel.port, "SDK_LATENCY_MS", 250.0)
+    servers, chains = [], []
+    try:
+        for name in ("leader", "follower"):
+            chains.append(SimulatedChain.for_arm(ARM, SimplePlant.from_arm(ARM), return_delay_time=0))
+            servers.append(PtyServer(chains[-1], link=tmp_path / name).start())
+        options = RunOptions(output=tmp_path / "s.h5", leader_port=str(tmp_path / "leader"),
+                             follower_port=str(tmp_path / "follower"), duration=0.5, status=False)
+        with pytest.raises(SelftestMissingError, match=r"leader arm .*`crane-collect selftest --port .*skip"):
+            run_session(options)
+    finally:
+        for server in servers:
+            server.stop()
     assert not (tmp_path / "s.h5").exists()
+    assert all(s.read_register("torque_enable") == 0 for c in chains for s in c.servos.values())
+    assert all(c.stats.packets_received > 0 for c in chains)  # both arms were found first
 
 
 def test_cli_reports_failing_findings_with_exit_1():
