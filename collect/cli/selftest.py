@@ -90,6 +90,10 @@ def selftest(port, sim, arm_name, calibration_path, no_calibration, seed, swap_i
                           "`crane-collect sim-serve` takes them)")
     if no_calibration and calibration_path is not None:
         raise ConfigError("--calibration and --no-calibration exclude each other")
+    if arm_name is not None:
+        from crane_io.dynamixel.calibration import check_arm_name
+
+        check_arm_name(arm_name)  # stored in the record and shown on terminals
     arm = default_arm()
     cal = _calibration(port, calibration_path, no_calibration or sim)
     if sim:
