@@ -14,8 +14,8 @@ Velocity (torque is off while they are written), and its torque goes off at the 
   4. at the first pose each joint is moved a few degrees up and back, then down and back: position,
      velocity and current must go the way of the command.
 Identity or encoder failures end the test before torque goes on. A joint that falls more than
-RUNAWAY_RAD behind its goal, or a hardware error, ends it at once (torque off) with a failing finding.
-The conclusions are collect/selftest_checks.py's; the record, collect/selftest_record.py's.
+RUNAWAY_RAD behind its goal, a hardware error or a link that stops answering ends it at once (torque off)
+with a failing finding. The conclusions are collect/selftest_checks.py's; the record, collect/selftest_record.py's.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from crane_io.errors import CraneError
+from crane_io.errors import CraneError, HardwareError
 
 from .selftest_checks import (
     FAIL,
@@ -199,7 +199,6 @@ def run_selftest(port: str, arm, calibration=None, *, period_s: float = 0.01, pa
     waited for on the wall clock when `paced` (hardware, a served link), not when the arm is a lockstep
     simulator whose time is the goals sent. Bus errors before torque on propagate (one sentence)."""
     from crane_io.dynamixel.bus import DynamixelBus
-    from crane_io.dynamixel.faults import ServoFaultError
 
     arm = selftest_arm(arm)
     offsets = calibration.offsets(arm.joint_names) if calibration is not None else np.zeros(len(arm.joints))
@@ -220,13 +219,17 @@ def run_selftest(port: str, arm, calibration=None, *, period_s: float = 0.01, pa
             bus.torque_on()
             d = _Driver(bus, offsets, period_s, paced)
             poses = _motion(d, arm, gravity, findings)
-        except (SelftestAborted, ServoFaultError) as exc:
+        except (SelftestAborted, HardwareError) as exc:  # a runaway, a servo fault, a link that fails
             findings.append(Finding("motion", "arm", FAIL, f"{str(exc).rstrip('.')}."))
         finally:
             bus.safe_stop()
-            # the servos' own limits back (Current Limit and Velocity Limit are kept through a power cycle)
-            bus.configure(watchdog_s=None, current_limits=kept_limits)
-            bus.limit_motion(*kept_velocities)
+            try:  # the servos' own limits back (Current Limit and Velocity Limit survive a power cycle)
+                bus.configure(watchdog_s=None, current_limits=kept_limits)
+                bus.limit_motion(*kept_velocities)
+            except HardwareError as exc:
+                why = str(exc).rstrip(".")
+                findings.append(Finding("motion", "arm", FAIL, "the servos' Current Limit and Velocity Limit "
+                                        f"could not be restored ({why}); run the test again"))
     # paced: the wall clock's seconds (a busy host stretches the plan); else the simulated arm's time
     cycles = d.cycles if d is not None else 0
     return SelftestResult(findings, time.monotonic() - t0 if paced else cycles * period_s, poses)
