@@ -15,7 +15,8 @@ Velocity (torque is off while they are written), and its torque goes off at the 
      velocity and current must go the way of the command.
 Identity or encoder failures end the test before torque goes on. A joint that falls more than
 RUNAWAY_RAD behind its goal, a hardware error or a link that stops answering ends it at once (torque off)
-with a failing finding. The conclusions are collect/selftest_checks.py's; the record, collect/selftest_record.py's.
+with a failing finding. The conclusions are collect/selftest_checks.py's; the record,
+collect/selftest_record.py's.
 """
 
 from __future__ import annotations
