@@ -50,6 +50,7 @@ class RunOptions:
     leader_calibration: str | Path | None = None  # the leader's calibration file (crane_io.dynamixel)
     follower_calibration: str | Path | None = None  # ... for the follower
     calibrate: bool = True  # hardware: use each adapter's stored calibration (False: none)
+    skip_selftest: bool = False  # hardware: run without a passing self-test on record (selftest_record)
     # test hook: called every bilateral cycle with (cycle index, RunContext) before the bus reads
     on_cycle: Callable[[int, RunContext], None] | None = None
 

@@ -57,6 +57,7 @@ from .kernels import compile_kernels, compile_sentence
 from .loop_models import load_reaction_models, observer_sentence
 from .realtime import enter_realtime
 from .run_options import RunOptions, RunResult, check_run_outputs
+from .selftest_record import require_selftest
 from .sim_arms import make_operator, make_sim_arms, write_truth
 from .startup import check_options, check_output, check_ports, make_recorder, open_buses
 from .status import print_summary
@@ -236,7 +237,7 @@ class BilateralRun:
             stop.check()
         set_activity("opening the ports and configuring the servos")
         self.buses, self.hw = open_buses(arm, config, ports, self.out, simulated=opts.sim,
-                                         checkpoint=stop.check, torque_going_on=self._torque_going_on)
+                                         checkpoint=stop.check, torque_going_on=self._before_torque)
         loop.attach(self.buses)
         if loop.realtime is not None:  # said once the arms answered (a missing port stays one line)
             loop.status.say(loop.realtime.sentence())
@@ -317,6 +318,16 @@ class BilateralRun:
     def _say_compiling(self) -> None:
         if self.options.status and self.out is not None:
             print(compile_sentence(), file=self.out, flush=True)
+
+    def _before_torque(self) -> None:
+        """Hardware arms (found and configured, torque off) must each have passed a self-test with the
+        calibration they run with (collect/selftest_record.py), unless `skip_selftest`."""
+        opts = self.options
+        if not opts.sim and not opts.skip_selftest:
+            ports = {"leader": opts.leader_port, "follower": opts.follower_port}
+            for name in ARMS:
+                require_selftest(name, ports[name], self.calibrations[name])
+        self._torque_going_on()
 
     def _torque_going_on(self) -> None:
         """From the first torque on, a stop is taken between two steps (the safe stop then runs)."""

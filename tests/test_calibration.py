@@ -170,7 +170,7 @@ def _record(tmp_path, name: str, offsets: dict | None, calibrations: dict | None
         run_session(RunOptions(output=tmp_path / f"{name}.h5", leader_port=str(links["leader"]),
                                follower_port=str(links["follower"]), duration=1.5, status=True, stream=out,
                                leader_calibration=files.get("leader"),
-                               follower_calibration=files.get("follower")))
+                               follower_calibration=files.get("follower"), skip_selftest=True))
     finally:
         lab.stop()
     with h5py.File(tmp_path / f"{name}.h5") as f:

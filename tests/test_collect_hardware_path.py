@@ -73,7 +73,7 @@ def _start(tmp_path, arms):
     out = tmp_path / "s.h5"
     proc = subprocess.Popen([CLI, "run", "--leader-port", str(tmp_path / "leader"),
                              "--follower-port", str(tmp_path / "follower"), "--duration", "60",
-                             "--config", str(cfg), "-o", str(out)],
+                             "--config", str(cfg), "-o", str(out), "--skip-selftest"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     wait_for_rows(proc, out, 50)
     load = np.zeros(8)
@@ -133,7 +133,8 @@ def test_start_refuses_a_missing_or_wrong_servo_on_real_ports(tmp_path, fault, w
             servers.append(PtyServer(chain, link=tmp_path / name).start())
         with pytest.raises(CraneError, match=words.replace("(", r"\(").replace(")", r"\)")) as info:
             run_session(RunOptions(output=tmp_path / "s.h5", leader_port=str(tmp_path / "leader"),
-                                   follower_port=str(tmp_path / "follower"), duration=1.0, status=False))
+                                   follower_port=str(tmp_path / "follower"), duration=1.0, status=False,
+                                   skip_selftest=True))
         assert "follower" in str(info.value) and "\n" not in str(info.value)
     finally:
         for s in servers:

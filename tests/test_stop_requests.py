@@ -221,7 +221,7 @@ def test_events_after_a_safety_stop_come_after_it_on_the_hardware_path(tmp_path,
         with pytest.raises(SafetyStop):
             run_session(RunOptions(output=tmp_path / "s.h5", leader_port=str(tmp_path / "leader"),
                                    follower_port=str(tmp_path / "follower"), duration=60.0, config=cfg,
-                                   status=False, on_cycle=hook))
+                                   status=False, on_cycle=hook, skip_selftest=True))
     finally:
         for server in servers:
             server.stop()

@@ -20,6 +20,7 @@ COMMANDS = {
     "check": ("collect.cli.check", "check"),
     "ports": ("collect.cli.ports", "ports"),
     "calibrate": ("collect.cli.calibrate", "calibrate"),
+    "selftest": ("collect.cli.selftest", "selftest"),
     "sim-serve": ("collect.cli.sim_serve", "sim_serve"),
     "recover": ("collect.cli.recover", "recover"),
 }

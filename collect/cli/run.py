@@ -73,6 +73,9 @@ from ..config import MAX_RATE_HZ, MIN_RATE_HZ
               help="The same for the follower.")
 @click.option("--no-calibration", is_flag=True,
               help="Use the angles as the servos read them, not the adapters' stored calibrations.")
+@click.option("--skip-selftest", is_flag=True,
+              help="Hardware ports: run even though an arm has no passing `crane-collect selftest` on record "
+                   "for the calibration it runs with.")
 @click.option("--force", is_flag=True,
               help="Overwrite the output files that exist (-o, --truth, --truth-trace, --view-save).")
 @click.option("--quiet", is_flag=True, help="No live status line and no summary.")
@@ -88,7 +91,7 @@ from ..config import MAX_RATE_HZ, MIN_RATE_HZ
 def run(output, sim, plant, truth, truth_trace, task, joints, hand_on, model_dir, leader_model_dir,
         arm_model, seed,
         duration, rate, config_path, realtime, leader_port, follower_port, leader_calibration,
-        follower_calibration, no_calibration, force, quiet, view, view_save, view_every):
+        follower_calibration, no_calibration, skip_selftest, force, quiet, view, view_save, view_every):
     """Drive leader and follower under 4-channel bilateral control and record a session.
 
     Start-up checks both ports, every servo's model and the latency timers, brings the arms into
@@ -110,4 +113,5 @@ def run(output, sim, plant, truth, truth_trace, task, joints, hand_on, model_dir
                            model=model_dir,
                            leader_model=leader_model_dir, arm_model=arm_model, view=view, view_save=view_save,
                            view_every=view_every, leader_calibration=leader_calibration,
-                           follower_calibration=follower_calibration, calibrate=not no_calibration))
+                           follower_calibration=follower_calibration, calibrate=not no_calibration,
+                           skip_selftest=skip_selftest))

@@ -21,6 +21,7 @@ from crane_io.cli_support import SEED, Number, cli_errors, plant_presets
 from crane_io.errors import ConfigError, HardwareError
 
 from ..config import MAX_RATE_HZ, MIN_RATE_HZ
+from .selftest import wiring_fault_options, wiring_faults
 
 
 def status_line(chain) -> str:
@@ -108,10 +109,11 @@ def slip_summary(chain) -> str:
                    "follower's) to this file (not overwritten without --force). Nothing else ever records "
                    "it.")
 @click.option("--force", is_flag=True, help="Overwrite the --truth file if it exists.")
+@wiring_fault_options
 @cli_errors
 def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_s, config_path,
               encoder_offsets, joints, plant, clock, period_s, seed, no_fast_sync_read, return_delay,
-              truth, force):
+              truth, force, swap_ids, reverse_joints, wrong_models, current_sign, current_scale):
     """Serve a simulated CRANE-X7 (or, with --pair, a leader and a follower with a simulated hand) on
     pseudo-terminals until Ctrl+C or SIGTERM."""
     if not period_s > 0:
@@ -119,6 +121,9 @@ def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_
     if clock is None:
         clock = "lockstep" if pair else "wall"
     _check_links(pair, link, leader_link, follower_link, task, config_path)
+    faults = wiring_faults(swap_ids, reverse_joints, wrong_models, current_sign, current_scale)
+    if faults.any and pair:
+        raise ConfigError("the wiring-fault options serve one arm (--link), not --pair")
     if truth is not None:  # never an input nor a link, an existing file only with --force
         from crane_io.output_files import check_output
 
@@ -149,7 +154,7 @@ def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_
                         offsets)
         else:
             _serve_one(stop, link, arm, plant, clock, period_s, seed, not no_fast_sync_read,
-                       return_delay, truth, offsets.get("arm"))
+                       return_delay, truth, offsets.get("arm"), faults)
     finally:
         signal.signal(signal.SIGTERM, previous)
 
@@ -206,10 +211,11 @@ def _wait(stop: threading.Event, errors, status) -> None:
 
 
 def _serve_one(stop, link, arm, plant_name, clock, period_s, seed, fast_sync_read, return_delay, truth_path,
-               offsets=None):
+               offsets=None, faults=None):
     from crane_io.dynamixel.link_registry import withdraw
     from crane_io.sim.chain import SimulatedChain
     from crane_io.sim.transport import PtyServer
+    from crane_io.sim.wiring_faults import apply_wiring_faults
 
     from ..sim_arms import default_plant, make_plant
     from ..sim_lab import OffsetPlant
@@ -220,8 +226,11 @@ def _serve_one(stop, link, arm, plant_name, clock, period_s, seed, fast_sync_rea
     kind = type(plant).__name__ + (", encoders off" if offsets is not None else "")
     if offsets is not None:
         plant = OffsetPlant(plant, offsets)
-    chain = SimulatedChain.for_arm(arm, plant, clock=clock, period_s=period_s,
-                                   fast_sync_read=fast_sync_read, return_delay_time=return_delay)
+    if faults is not None and faults.any:
+        kind += f", {faults.describe()}"
+    plant, models = apply_wiring_faults(plant, arm, faults)
+    chain = SimulatedChain(plant, models, clock=clock, period_s=period_s, fast_sync_read=fast_sync_read,
+                           return_delay_time=return_delay)
     server = PtyServer(chain, link)
     entry = None
     try:
@@ -267,7 +276,7 @@ def _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, c
                        f"{server.slave_path}")
         click.echo(f"The simulated hand is on the {hand_on}; it takes hold {hand_delay_s:g} s after the "
                    f"arm's torque comes on. Record with `crane-collect run --leader-port {leader_link} "
-                   f"--follower-port {follower_link}{joints} -o SESSION.h5`"
+                   f"--follower-port {follower_link}{joints} --skip-selftest -o SESSION.h5`"
                    + (" --hand-on follower" if hand_on == "follower" else "") + ". Ctrl+C stops.")
         _wait(stop, lab.error, lambda: pair_status_line(lab))
     finally:

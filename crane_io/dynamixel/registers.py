@@ -222,6 +222,28 @@ class ServoRegisters:
             out[j] = raw
         return out
 
+    def limit_motion(self, velocity_limit, profile_velocity) -> tuple[np.ndarray, np.ndarray]:
+        """Velocity Limit and Profile Velocity of every servo (rad/s: one value or one per servo; a
+        Profile Velocity of 0 is no profile), torque off. Returns the values they held before, to
+        restore them with the same call (Velocity Limit is kept through a power cycle). Read back and
+        verified."""
+        self.require_open()
+        n = len(self.ids)
+        wanted = {"velocity_limit": np.broadcast_to(np.asarray(velocity_limit, dtype=float), (n,)),
+                  "profile_velocity": np.broadcast_to(np.asarray(profile_velocity, dtype=float), (n,))}
+        before = {reg: np.zeros(n) for reg in wanted}
+        for j, (joint, sid) in enumerate(zip(self.joint_names, self.ids)):
+            for reg, values in wanted.items():
+                before[reg][j] = float(units.velocity_to_rads(self._read(sid, reg, joint)))
+                raw = int(units.rads_to_velocity(values[j]))
+                self._write(sid, reg, raw, joint)
+                got = self._read(sid, reg, joint)
+                if got != raw:
+                    raise ConfigurationMismatchError(
+                        f"servo {servo_label(joint, sid)} on {self.port_name} holds {reg} = {got} after "
+                        f"{raw} was written; is its torque on?")
+        return before["velocity_limit"], before["profile_velocity"]
+
     # ---- torque --------------------------------------------------------------------------------
     def torque_on(self) -> None:
         """Hold the held joints where they are (goal position = present), zero the goal current of the

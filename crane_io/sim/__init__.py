@@ -38,7 +38,7 @@ class SimulatedArm:
 
 
 def simulated_arm(name=None, plant=None, clock="lockstep", period_s=0.002, arm=None,
-                  fast_sync_read=True, return_delay_time=None) -> SimulatedArm:
+                  fast_sync_read=True, return_delay_time=None, wiring=None) -> SimulatedArm:
     """A simulated CRANE-X7 on dxlsim://NAME: servos with the arm's IDs and models at 3 Mbps.
 
     plant: any crane_io.sim.plant_api.Plant for the arm's servo IDs (default: SimplePlant).
@@ -46,15 +46,18 @@ def simulated_arm(name=None, plant=None, clock="lockstep", period_s=0.002, arm=N
     arm: an ArmDescription (default crane_io.description.default_arm()).
     fast_sync_read: False makes the servos ignore Fast Sync Read (to exercise the fallback).
     return_delay_time: raw Return Delay Time of every servo (default: the factory 250 = 500 us).
+    wiring: a crane_io.sim.wiring_faults.WiringFaults planted in the arm (default: healthy wiring).
     """
     from crane_io.description import default_arm
     from crane_io.sim.chain import SimulatedChain
     from crane_io.sim.simple_plant import SimplePlant
+    from crane_io.sim.wiring_faults import apply_wiring_faults
 
     arm = default_arm() if arm is None else arm
     plant = SimplePlant.from_arm(arm) if plant is None else plant
-    chain = SimulatedChain.for_arm(arm, plant, clock=clock, period_s=period_s,
-                                   fast_sync_read=fast_sync_read, return_delay_time=return_delay_time)
+    plant, models = apply_wiring_faults(plant, arm, wiring)
+    chain = SimulatedChain(plant, models, clock=clock, period_s=period_s,
+                           fast_sync_read=fast_sync_read, return_delay_time=return_delay_time)
     if name is None:
         from crane_io.sim import transport
 
