@@ -235,7 +235,7 @@ def test_the_lockstep_cycle_takes_one_compiled_call_per_packet_and_agrees_throug
         c.plant.q = c.plant.q.copy()
         c.plant.motor_torque = c.plant.motor_torque + 0.0
     _cycle(chains, [2, 3, 5], [-100, 50, 0])
-    # Sync Writes of Goal Position (a lockstep tick too): clamped to the position limits in Position mode
+    # Sync Writes of Goal Position (a lockstep tick too): refused outside the position limits (Position mode)
     def sync_write_position(values):
         body = b"".join(bytes((i,)) + int(v).to_bytes(4, "little", signed=True) for i, v in values)
         return p.instruction_packet(p.BROADCAST_ID, p.INST_SYNC_WRITE, bytes((GOAL_POSITION, 0, 4, 0)) + body)
@@ -243,7 +243,7 @@ def test_the_lockstep_cycle_takes_one_compiled_call_per_packet_and_agrees_throug
     for sid, address, value in ((9, TORQUE, 0), (9, 48, 3000), (9, 52, 1000), (9, TORQUE, 1)):
         _feed(chains, _write(sid, address, value, 4 if address in (48, 52) else 1))
     for values in ([(9, 2048)], [(9, 5000), (8, -7), (6, 2**31 - 1)], [(9, -5), (4, 100)],
-                   [(9, 999), (99, 1)]):
+                   [(9, 1000), (99, 1)], [(9, 999)]):
         _feed(chains, sync_write_position(values))
         _cycle(chains, [2, 3, 5], [1, 1, 1])
     assert chains[0].servos[9].read_register("goal_position") == 1000

@@ -9,7 +9,7 @@ import serial
 from dynamixel_sdk import (
     COMM_RX_TIMEOUT,
     COMM_SUCCESS,
-    GroupFastSyncRead,
+    GroupSyncRead,
     GroupSyncWrite,
     PacketHandler,
     PortHandler,
@@ -230,11 +230,12 @@ def test_status_return_level_0_answers_ping_only(rig):
     assert rig.ph.read1ByteTxRx(rig.port, SID, SRL)[1] == COMM_RX_TIMEOUT
     assert rig.ph.write1ByteTxRx(rig.port, SID, 65, 1)[0] == COMM_RX_TIMEOUT
     assert rig.chain.servos[SID].read_register("led") == 1  # carried out all the same
-    fast = GroupFastSyncRead(rig.port, rig.ph, PRESENT_CURRENT, 10)
-    fast.addParam(SID + 1)
-    assert fast.txRxPacket() == COMM_SUCCESS
-    fast.addParam(SID)
-    assert fast.txRxPacket() != COMM_SUCCESS  # the combined reply breaks at the silent servo
+    group = GroupSyncRead(rig.port, rig.ph, PRESENT_CURRENT, 10)
+    group.addParam(SID + 1)
+    assert group.fastSyncRead() == COMM_SUCCESS
+    group.addParam(SID)
+    assert group.fastSyncRead() != COMM_SUCCESS  # the combined reply breaks at the silent servo
+    assert group.txRxPacket() != COMM_SUCCESS  # a Sync Read gets no reply from it either
 
 
 def test_an_instruction_with_a_wrong_crc_gets_crc_error_and_is_not_carried_out(rig):
