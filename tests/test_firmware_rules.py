@@ -4,6 +4,7 @@ in-process dxlsim:// port."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import serial
 from dynamixel_sdk import (
@@ -287,3 +288,27 @@ def test_factory_reset_with_an_unknown_option_is_a_data_range_error(rig):
     assert rig.ph.factoryReset(rig.port, SID, 0x03) == (COMM_SUCCESS, p.ERR_DATA_RANGE)
     assert rig.ph.factoryReset(rig.port, SID, 0x02) == (COMM_SUCCESS, 0)
     assert rig.ph.ping(rig.port, SID)[1] == COMM_SUCCESS  # ID and baud rate kept
+
+
+# ---- the toolkit's bus sends no goal the firmware would refuse --------------------------------------------
+
+def test_the_bus_clamps_goals_to_the_limits_the_servos_refuse_beyond():
+    from crane_io.dynamixel.bus import DynamixelBus
+
+    arm = simulated_arm()
+    try:
+        held = arm.chain.servos[4]  # joint3, held in Position mode
+        held.write_register("max_position_limit", 2100)  # narrower than the joint limit
+        with DynamixelBus(arm.url) as bus:
+            bus.ping_all()
+            bus.configure(watchdog_s=None, current_limits={"joint1": 0.5})
+            bus.torque_on()
+            j = bus.joint_names.index("joint3")
+            assert bus.upper[j] == pytest.approx((2100 - 2048) * RAD_PER_PULSE)
+            bus.write_goal_position(np.full(8, 3.0))
+            assert held.read_register("goal_position") == 2100  # clamped by the host, not refused
+            bus.write_goal_current(np.full(8, 100.0))
+            limit = arm.chain.servos[2].read_register("current_limit")
+            assert arm.chain.servos[2].read_register("goal_current") == limit  # joint1 at its limit
+    finally:
+        arm.close()
