@@ -312,3 +312,27 @@ def test_the_bus_clamps_goals_to_the_limits_the_servos_refuse_beyond():
             assert arm.chain.servos[2].read_register("goal_current") == limit  # joint1 at its limit
     finally:
         arm.close()
+
+
+# ---- Secondary ID (12), value ranges ---------------------------------------------------------------------
+
+def test_secondary_id_groups_servos_without_status_packets(rig):
+    for sid in (SID, SID + 1):
+        assert rig.w(12, 100, 1, sid=sid) == OK
+    assert rig.raw(p.instruction_packet(100, p.INST_WRITE, bytes((65, 0, 1)))) is None  # LED on, no reply
+    assert [rig.chain.servos[s].read_register("led") for s in (SID, SID + 1, SID + 2)] == [1, 1, 0]
+    assert rig.raw(p.instruction_packet(100, p.INST_WRITE, bytes((9, 0, 7)))) is None  # EEPROM: refused
+    assert rig.r(9, 1) == 0  # Return Delay Time kept
+    # the ID comes first: the servo whose ID it is answers, the group member carries it out silently
+    assert rig.w(12, SID + 1, 1) == OK
+    assert rig.w(65, 0, 1, sid=SID + 1) == OK
+    assert [rig.chain.servos[s].read_register("led") for s in (SID, SID + 1)] == [0, 0]
+    assert rig.w(12, 253, 1) == OK  # 253..255: off
+    assert rig.raw(p.instruction_packet(253, p.INST_WRITE, bytes((65, 0, 1)))) is None
+    assert rig.chain.servos[SID].read_register("led") == 0
+
+
+def test_value_ranges_of_limit_items(rig):
+    for address, size, bad in ((32, 2, 161), (34, 2, 94), (40, 4, 32768), (VELOCITY_LIMIT, 4, 1024),
+                               (65, 1, 2)):
+        assert rig.w(address, bad, size) == RANGE, address

@@ -94,6 +94,11 @@ def _clear(s, inst, params, now, reply):
     return reply(p.ERR_NONE if ok else p.ERR_DATA_RANGE)
 
 
+def _eeprom_write(inst, params) -> bool:
+    """A Write or Reg Write into the EEPROM area (address < 64)."""
+    return inst in (p.INST_WRITE, p.INST_REG_WRITE) and len(params) >= 2 and (params[0] | params[1] << 8) < 64
+
+
 _UNICAST = {p.INST_PING: _ping, p.INST_READ: _read, p.INST_WRITE: _write, p.INST_REG_WRITE: _write,
             p.INST_ACTION: _action, p.INST_REBOOT: _reboot, p.INST_FACTORY_RESET: _factory_reset,
             p.INST_CLEAR: _clear}
@@ -158,6 +163,12 @@ class InstructionHandlers:
             if s.id == pkt.id:
                 s.contact(now)
                 replies.extend(self._unicast(s, inst, params, now, broadcast=False))
+            elif (pkt.id <= p.MAX_ID and s.memory[s.secondary_address] == pkt.id
+                  and not _eeprom_write(inst, params)):
+                # Secondary ID (e-manual, Secondary(Shadow) ID (12)): carried out without a status packet
+                # (the ID takes precedence; 253..255 switch it off; the EEPROM area cannot be written)
+                s.contact(now)
+                self._unicast(s, inst, params, now, broadcast=True)
         self._rekey()
         self._booting = self._booting or inst == p.INST_REBOOT
         return replies

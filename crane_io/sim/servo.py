@@ -90,6 +90,12 @@ _RANGES = {
     "status_return_level": (0, 2),
     "bus_watchdog": (0, 127),
     "protocol_type": (1, 2),
+    "secondary_id": (0, 255),
+    "led": (0, 1),
+    "max_voltage_limit": (95, 160),
+    "min_voltage_limit": (95, 160),
+    "acceleration_limit": (0, 32767),
+    "velocity_limit": (0, 1023),
     "temperature_limit": (0, 100),
     "pwm_limit": (0, 885),
     "moving_threshold": (0, 1023),
@@ -149,6 +155,7 @@ class EmulatedServo:
         self._srl_at, self._id_at = at["status_return_level"], at["id"]
         self.baud_address = self._baud_at  # memory[baud_address] is the Baud Rate code (BAUD_CODES)
         self.srl_address = self._srl_at  # memory[srl_address] is the Status Return Level
+        self.secondary_address = at["secondary_id"]  # memory[secondary_address] is the Secondary ID
         self._command_at = tuple(at[n] for n in (
             "torque_enable", "operating_mode", "goal_current", "goal_position", "position_d_gain",
             "current_limit"))
