@@ -62,8 +62,8 @@ from crane_io.sim.servo_rules import (
 S_CONTACT, S_EXPIRED, S_ON_BUS, S_FAST_READ, S_BOOT = range(5)
 STATE_SIZE = 5
 # a rebooting servo answers the Reboot instruction, then hears nothing for this long (chain seconds). The
-# e-manual gives no figure; an X-series servo was measured at about 0.4 s (github.com/ROBOTIS-GIT/emanual/issues/1698), and
-# the longer value is the stricter one for a host.
+# e-manual gives no figure; an X-series servo was measured at about 0.4 s
+# (github.com/ROBOTIS-GIT/emanual/issues/1698), and the longer value is the stricter one for a host.
 REBOOT_SILENCE_S = 0.5
 MEMORY_SIZE = CONTROL_TABLE_SIZE  # the whole X-series control table, Indirect Data included
 BAUD_CODES = {0: 9600, 1: 57600, 2: 115200, 3: 1_000_000, 4: 2_000_000, 5: 3_000_000, 6: 4_000_000,
