@@ -60,6 +60,11 @@ def _fast_read(ids, address=PRESENT, length=10):
                                 bytes((address & 0xFF, address >> 8, length, 0)) + bytes(ids))
 
 
+def _sync_write_position(ids, values):
+    body = b"".join(bytes((i,)) + int(v).to_bytes(4, "little", signed=True) for i, v in zip(ids, values))
+    return p.instruction_packet(p.BROADCAST_ID, p.INST_SYNC_WRITE, bytes((GOAL_POSITION, 0, 4, 0)) + body)
+
+
 def _sync_write_torque(ids, value):
     body = b"".join(bytes((i, value)) for i in ids)
     return p.instruction_packet(p.BROADCAST_ID, p.INST_SYNC_WRITE, bytes((TORQUE, 0, 1, 0)) + body)
@@ -90,7 +95,7 @@ def test_the_fast_path_answers_and_steps_as_the_general_path_does_through_faults
             _cycle(chains, cur_ids, rng.integers(-scale, scale, len(cur_ids)), read_ids)
 
     run(20)
-    # out-of-range goal currents: clamped to +-Current Limit
+    # out-of-limit goal currents: refused beyond +-Current Limit
     run(5, scale=30000)
     # CRC errors: a corrupted Sync Write and a corrupted Fast Sync Read are dropped
     bad = bytearray(_sync_write_current(cur_ids, [100] * 7))
@@ -112,6 +117,9 @@ def test_the_fast_path_answers_and_steps_as_the_general_path_does_through_faults
     assert reply and reply[9 + 4 * 12] & 0x80  # the fourth block (ID 5) carries the alert bit
     run(3)
     _feed(chains, p.instruction_packet(5, p.INST_REBOOT))
+    run(3)  # ID 5 restarting: silent
+    for c in chains:
+        c.advance(0.5)
     _feed(chains, _write(5, MODE, 0, 1))
     _feed(chains, _write(5, TORQUE, 1, 1))
     run(3)
@@ -166,7 +174,7 @@ def test_the_fast_path_answers_and_steps_as_the_general_path_does_through_faults
     # the present block of every servo but the ones written, and status return level 0 on one servo
     _feed(chains, _write(4, 68, 0, 1))
     run(3, read_ids=new_ids)
-    # a lower Current Limit (EEPROM) clamps the goal currents written after it
+    # a lower Current Limit (EEPROM) refuses the goal currents written beyond it
     _feed(chains, _write(3, TORQUE, 0, 1))
     _feed(chains, _write(3, CURRENT_LIMIT, 100, 2))
     _feed(chains, _write(3, TORQUE, 1, 1))
@@ -178,6 +186,16 @@ def test_the_fast_path_answers_and_steps_as_the_general_path_does_through_faults
                                        + body[:-1]))
     _feed(chains, _sync_write_current([2, 20], [7, -7]) + _fast_read(new_ids) + _fast_read(new_ids[:3]))
     run(5)
+    # Drive Mode reverse and a Homing Offset on an integrated joint's servo and a held one (EEPROM)
+    for sid, drive, homing in ((2, 1, 300), (9, 1, -700), (3, 0, 2000)):
+        _feed(chains, _write(sid, TORQUE, 0, 1))
+        _feed(chains, _write(sid, 10, drive, 1))
+        _feed(chains, _write(sid, 20, homing, 4))
+        _feed(chains, _write(sid, TORQUE, 1, 1))
+    run(5, read_ids=new_ids)
+    _feed(chains, _sync_write_position([9], [-5000]))  # outside the position limits: refused
+    _feed(chains, _sync_write_position([9], [2100]))
+    run(3, read_ids=new_ids)
 
 
 def test_the_lockstep_cycle_takes_one_compiled_call_per_packet_and_agrees_through_odd_packets():
@@ -217,7 +235,7 @@ def test_the_lockstep_cycle_takes_one_compiled_call_per_packet_and_agrees_throug
         c.plant.q = c.plant.q.copy()
         c.plant.motor_torque = c.plant.motor_torque + 0.0
     _cycle(chains, [2, 3, 5], [-100, 50, 0])
-    # Sync Writes of Goal Position (a lockstep tick too): clamped to the position limits in Position mode
+    # Sync Writes of Goal Position (a lockstep tick too): refused outside the position limits (Position mode)
     def sync_write_position(values):
         body = b"".join(bytes((i,)) + int(v).to_bytes(4, "little", signed=True) for i, v in values)
         return p.instruction_packet(p.BROADCAST_ID, p.INST_SYNC_WRITE, bytes((GOAL_POSITION, 0, 4, 0)) + body)
@@ -225,7 +243,7 @@ def test_the_lockstep_cycle_takes_one_compiled_call_per_packet_and_agrees_throug
     for sid, address, value in ((9, TORQUE, 0), (9, 48, 3000), (9, 52, 1000), (9, TORQUE, 1)):
         _feed(chains, _write(sid, address, value, 4 if address in (48, 52) else 1))
     for values in ([(9, 2048)], [(9, 5000), (8, -7), (6, 2**31 - 1)], [(9, -5), (4, 100)],
-                   [(9, 999), (99, 1)]):
+                   [(9, 1000), (99, 1)], [(9, 999)]):
         _feed(chains, sync_write_position(values))
         _cycle(chains, [2, 3, 5], [1, 1, 1])
     assert chains[0].servos[9].read_register("goal_position") == 1000
@@ -313,6 +331,10 @@ def test_sensors_into_compiled_equals_python_and_set_sensors():
         for s in servos:
             s.write_register("moving_threshold", int(rng.integers(0, 20)))
             s.write_register("present_velocity", int(rng.integers(-50, 50)))
+            # the servo's frame: Drive Mode reverse, a Homing Offset (ignored beyond +-1024 in Position mode)
+            s.write_register("drive_mode", int(rng.integers(0, 2)))
+            s.write_register("homing_offset", int(rng.choice([0, 5, -1024, 1025, -400000])))
+            s.write_register("operating_mode", int(rng.choice([0, 3, 4])))
         mem = np.array([np.frombuffer(bytes(s.memory), dtype=np.uint8) for s in servos])
         mem_py = mem.copy()
         volt = np.array([120, -1, 0, 65535, 120, 121, -1, 3], dtype=np.int64)
@@ -346,6 +368,8 @@ def test_commands_compiled_equals_python_and_command():
         s.write_register("goal_current", int(rng.integers(-32768, 32768)))
         s.write_register("goal_position", int(rng.integers(-2**31, 2**31)))
         s.write_register("current_limit", int(rng.integers(0, 2**16)))
+        s.write_register("drive_mode", int(rng.integers(0, 2)))
+        s.write_register("homing_offset", int(rng.choice([0, 5, -1024, 1025, -400000])))
     servos[2].watchdog_expired = True
     expired = 1 << 2
     mem = np.array([np.frombuffer(bytes(s.memory), dtype=np.uint8) for s in servos])

@@ -90,11 +90,13 @@ COMPILED_LAYOUTS = {
     "collect/controller_kernel.py": ("collect.controller_layout",),
     "collect/operator_kernel.py": ("collect.operator_layout",),
     "crane_io/dynamixel/cycle_kernel.py": ("crane_io.dynamixel.crc_layout",),  # the CRC table and loop
-    "crane_io/sim/chain_kernel.py": ("crane_io.dynamixel.crc_layout", "crane_io.dynamixel.units"),
+    "crane_io/sim/chain_kernel.py": ("crane_io.dynamixel.crc_layout", "crane_io.dynamixel.units",
+                                     "crane_io.dynamixel.control_table"),  # the X series' addresses
     "crane_io/sim/lockstep_kernel.py": (
         "crane_io.dynamixel.control_table",  # the X series' addresses
         "crane_io.dynamixel.units",
         "crane_io.sim.servo",  # the servo memory's size and the servo state's columns
+        "crane_io.sim.servo_rules",  # the goal ranges
         "crane_io.sim.chain_kernel", "crane_io.sim.noise_kernel", "crane_io.sim.plant_kernel",  # it calls
     ),
     # ctypes: the numpy generator's state pointer; warnings: a numba whose sampler differs is said once

@@ -24,6 +24,7 @@ from crane_io.dynamixel.control_table import MODE_CURRENT, MODE_POSITION
 from crane_io.dynamixel.units import position_to_rad
 from crane_io.sim import protocol as p
 from crane_io.sim import simulated_arm
+from crane_io.sim.servo import REBOOT_SILENCE_S
 from crane_io.sim.transport import PtyServer
 
 IDS = list(range(2, 10))
@@ -219,6 +220,7 @@ def test_reboot_clears_a_hardware_error(rig):
     assert ph.write1ByteTxRx(port, 7, TORQUE, 1)[1] & p.ERR_ALERT
     assert ph.read1ByteTxRx(port, 7, TORQUE)[0] == 0  # refused until reboot
     assert ph.reboot(port, 7) == (COMM_SUCCESS, p.ERR_ALERT)  # answered before rebooting
+    rig.chain.advance(REBOOT_SILENCE_S)  # silent while it restarts
     assert ph.read1ByteTxRx(port, 7, ADDR_HW_ERROR) == (0, COMM_SUCCESS, 0)
     assert ph.write1ByteTxRx(port, 7, TORQUE, 1) == (COMM_SUCCESS, 0)
 
@@ -265,14 +267,14 @@ def test_read_only_items_range_and_length_errors(sim):
     assert ph.read4ByteTxRx(port, 2, GOAL_POSITION)[0] == 2048  # nothing was written
 
 
-def test_goal_current_is_clamped_to_current_limit(sim):
+def test_goal_current_beyond_current_limit_is_refused(sim):
     ph, port = sim.ph, sim.port
     ph.write1ByteTxRx(port, 2, MODE, MODE_CURRENT)
-    assert ph.write2ByteTxRx(port, 2, GOAL_CURRENT, 5000) == (COMM_SUCCESS, 0)
-    assert ph.read2ByteTxRx(port, 2, GOAL_CURRENT)[0] == 1193
-    ph.write2ByteTxRx(port, 2, GOAL_CURRENT, (-5000) & 0xFFFF)
+    assert ph.write2ByteTxRx(port, 2, GOAL_CURRENT, 5000) == (COMM_SUCCESS, p.ERR_DATA_LIMIT)
+    assert ph.read2ByteTxRx(port, 2, GOAL_CURRENT)[0] == 1193  # the mode change set it to the limit
+    assert ph.write2ByteTxRx(port, 2, GOAL_CURRENT, (-1193) & 0xFFFF) == (COMM_SUCCESS, 0)
     assert sim.s16(ph.read2ByteTxRx(port, 2, GOAL_CURRENT)[0]) == -1193
-    ph.write2ByteTxRx(port, 2, 38, 300)  # lowering the limit clamps the goal too
+    ph.write2ByteTxRx(port, 2, 38, 300)  # lowering the limit clamps the goal
     assert sim.s16(ph.read2ByteTxRx(port, 2, GOAL_CURRENT)[0]) == -300
     assert sim.chain.servos[3].read_register("current_limit") == 2047  # XM540-W270 default
 
@@ -302,7 +304,7 @@ def test_bus_watchdog_stops_a_silent_host(sim):
     assert ph.read1ByteTxRx(port, 2, ADDR_WATCHDOG)[0] == 5
     chain.advance(0.15)  # the host stalls for 150 ms
     assert ph.read1ByteTxRx(port, 2, ADDR_WATCHDOG)[0] == 0xFF  # reads -1
-    assert ph.write2ByteTxRx(port, 2, GOAL_CURRENT, 0) == (COMM_SUCCESS, p.ERR_ACCESS)
+    assert ph.write2ByteTxRx(port, 2, GOAL_CURRENT, 0) == (COMM_SUCCESS, p.ERR_DATA_RANGE)
     assert not chain.actuator_command().torque_enabled[0]  # the plant sees the servo stopped
     chain.advance(1.0)
     assert chain.plant.dq[0] == 0.0  # no more drive: friction stopped the joint
@@ -449,10 +451,10 @@ def test_reply_filter_drop_corrupt_and_vanishing_servo(sim):
     assert chain.stats.packets_received > 0 and chain.stats.replies_sent > 0
 
 
-def test_corrupted_instruction_is_counted_and_unanswered(sim):
+def test_corrupted_instruction_is_counted_and_answered_with_crc_error(sim):
     bad = bytearray(p.instruction_packet(2, p.INST_PING))
     bad[-2] ^= 0x55
-    assert sim.chain.feed(bytes(bad)) == b""
+    assert sim.chain.feed(bytes(bad)) == p.status_packet(2, p.ERR_CRC)
     assert sim.chain.stats.crc_errors == 1
     assert sim.chain.feed(p.instruction_packet(2, p.INST_PING)) == p.status_packet(2, 0, bytes((0xFC, 3, 52)))
 

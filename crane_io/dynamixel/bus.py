@@ -97,9 +97,6 @@ class DynamixelBus(ServoRegisters):
         super().__init__(port, arm, name, retries, error_budget, stats)
         self.latency_ms = latency_ms
         self.stop_failures: dict[str, str] = {}
-        joints = self.arm.joints
-        self.lower = np.array([j.lower for j in joints])
-        self.upper = np.array([j.upper for j in joints])
         self._present_all = struct.Struct("<" + _PRESENT.format.lstrip("<") * len(self.ids))  # every servo's
         self._n_servos = len(self.ids)
         self._limits_seen: list | None = None  # current_limits as write_goal_current last saw them

@@ -87,6 +87,10 @@ class ServoRegisters:
         self.current_joints = tuple(i for i, m in enumerate(self.modes) if m == MODE_CURRENT)
         self.position_joints = tuple(i for i, m in enumerate(self.modes) if m == MODE_POSITION)
         self.current_limits = np.array([j.current_limit for j in joints])  # A; read back in configure
+        # rad, what a goal position is clamped to: the joint limits, in configure narrowed to the servos'
+        # position limits (a servo refuses a Goal Position outside them)
+        self.lower = np.array([j.lower for j in joints])
+        self.upper = np.array([j.upper for j in joints])
 
     @property
     def retries(self) -> int:
@@ -185,6 +189,10 @@ class ServoRegisters:
                         f"servo {servo_label(joint, sid)} on {self.port_name} holds {reg} = {got} after "
                         f"{value} was written; is its torque on or its firmware too old?")
             self.current_limits[j] = float(units.current_to_ampere(self._read(sid, "current_limit", joint)))
+            if j in self.position_joints:  # the servo refuses a Goal Position outside its position limits
+                low = float(units.position_to_rad(self._read(sid, "min_position_limit", joint)))
+                high = float(units.position_to_rad(self._read(sid, "max_position_limit", joint)))
+                self.lower[j], self.upper[j] = max(self.lower[j], low), min(self.upper[j], high)
         self.watchdog_s = float(units.watchdog_to_seconds(watchdog_raw)) if watchdog_raw else None
 
     def _set_up(self, j: int, joint: str, sid: int, limit_raw: int | None, watchdog_raw: int) -> None:

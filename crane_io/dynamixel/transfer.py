@@ -14,7 +14,7 @@ import time
 from dataclasses import dataclass, field
 
 import serial
-from dynamixel_sdk import COMM_SUCCESS, COMM_TX_FAIL
+from dynamixel_sdk import COMM_RX_CORRUPT, COMM_SUCCESS, COMM_TX_FAIL
 from dynamixel_sdk.protocol2_packet_handler import PKT_ID, PKT_LENGTH_H, PKT_LENGTH_L
 
 from crane_io.dynamixel import units
@@ -22,6 +22,8 @@ from crane_io.dynamixel.control_table import Register
 from crane_io.dynamixel.faults import CommunicationError, ServoRejectedError, decode_status_error, servo_label
 from crane_io.dynamixel.packets import CranePacketHandler
 from crane_io.dynamixel.port import CranePortHandler
+
+_ERR_CRC = 0x03  # a status packet's error number: the instruction arrived with a wrong CRC
 
 # what a transfer whose port failed returns, in the shape of the SDK call: a result code, (data or
 # model number, result, error), (result, error)
@@ -145,8 +147,10 @@ class Link:
 
     def ping_once(self, sid: int) -> int | None:
         """Ping: the model number."""
-        number, result, _error = self.transfer(self.ph.ping, self.port, sid, failed=_NO_READ)
-        if result == COMM_SUCCESS:
+        number, result, error = self.transfer(self.ph.ping, self.port, sid, failed=_NO_READ)
+        if result == COMM_SUCCESS and error & 0x7F == _ERR_CRC:
+            result = COMM_RX_CORRUPT  # the servo received a corrupted instruction: a failed try
+        elif result == COMM_SUCCESS:
             return number
         self.last_result = result
         return None
@@ -163,7 +167,9 @@ class Link:
         """Write (acknowledged): the status error byte."""
         result, error = self.transfer(self.ph.writeTxRx, self.port, sid, address, size, payload,
                                       failed=_NO_WRITE)
-        if result == COMM_SUCCESS:
+        if result == COMM_SUCCESS and error & 0x7F == _ERR_CRC:
+            result = COMM_RX_CORRUPT  # the servo received a corrupted instruction: a failed try
+        elif result == COMM_SUCCESS:
             return error
         self.last_result = result
         return None

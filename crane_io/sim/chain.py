@@ -67,7 +67,7 @@ class ChainStats:
     packets_received: int = 0  # instruction packets with a good CRC
     replies_sent: int = 0  # reply chunks (status packets) that went on the wire
     replies_dropped: int = 0  # reply chunks the reply_filter dropped
-    crc_errors: int = 0  # packets whose CRC did not match (discarded, no reply)
+    crc_errors: int = 0  # packets whose CRC did not match (not carried out; see _crc_replies)
     bytes_received: int = 0
     bytes_sent: int = 0
     plant_steps: int = 0
@@ -144,6 +144,7 @@ class SimulatedChain(InstructionHandlers, LockstepWrites):
         self._supply_raw = (None, None)
         self._hearing_cache = None  # (key, servos, index): see _hearing
         self._fast_read_kept = None  # see _fast_sync_reply
+        self._booting = False  # a servo is restarting after a Reboot (the lockstep fast path waits)
         self.servos: dict[int, EmulatedServo] = {}
         self._rekey()
         self.reply_filter: Callable[[bytes], bytes | None] | None = None
@@ -386,7 +387,7 @@ class SimulatedChain(InstructionHandlers, LockstepWrites):
         rate do not understand the host (and stay silent)."""
         with self._lock:
             if (self.fast and self.clock == "lockstep" and type(data) is bytes and len(data) > 7
-                    and not self.parser.buffer):
+                    and not self.parser.buffer and not self._booting):
                 reply = self._lockstep_packet(data, baudrate)
                 if reply is not None:
                     return reply
@@ -403,21 +404,25 @@ class SimulatedChain(InstructionHandlers, LockstepWrites):
             self.stats.crc_errors += self.parser.crc_errors - crc_before
             out = bytearray()
             due = wall  # Return Delay Times count from the instruction's arrival, one reply after another
+            replies = []
             for pkt in packets:
                 self.stats.packets_received += 1
-                for chunk, delay in self._handle(pkt, baudrate, now):
-                    if self.clock == "wall" and delay > 0:
-                        due += delay
-                        wait = due - time.monotonic()
-                        if wait > 0:
-                            time.sleep(wait)
-                    if self.reply_filter is not None:
-                        chunk = self.reply_filter(chunk)
-                        if chunk is None:
-                            self.stats.replies_dropped += 1
-                            continue
-                    out += chunk
-                    self.stats.replies_sent += 1
+                replies.extend(self._handle(pkt, baudrate, now))
+            if self.parser.crc_failed:
+                replies.extend(self._crc_replies(baudrate, now))
+            for chunk, delay in replies:
+                if self.clock == "wall" and delay > 0:
+                    due += delay
+                    wait = due - time.monotonic()
+                    if wait > 0:
+                        time.sleep(wait)
+                if self.reply_filter is not None:
+                    chunk = self.reply_filter(chunk)
+                    if chunk is None:
+                        self.stats.replies_dropped += 1
+                        continue
+                out += chunk
+                self.stats.replies_sent += 1
             self.stats.bytes_sent += len(out)
             return bytes(out)
 
@@ -468,7 +473,7 @@ class SimulatedChain(InstructionHandlers, LockstepWrites):
             id_array = np.array(ids, dtype=np.int64)
             self._fast_read_kept = (index, ids, chosen, rows, id_array)
         for s in chosen:
-            if not s.supports_fast_sync_read or s.watchdog_expired:
+            if not s.supports_fast_sync_read or s.watchdog_expired or s.memory[s.srl_address] == 0:
                 return None
         for s in chosen:
             s.contact(now)

@@ -15,7 +15,7 @@ from collections.abc import Iterable
 
 from crane_io.dynamixel.control_table import X_SERIES
 from crane_io.sim import protocol as p
-from crane_io.sim.servo import _I16, _U16, BAUD_CODES, MEMORY_SIZE, S_ON_BUS, EmulatedServo
+from crane_io.sim.servo import _I16, _U16, BAUD_CODES, MEMORY_SIZE, S_BOOT, S_ON_BUS, EmulatedServo
 
 # a write to Goal Current or Goal Position is a lockstep tick
 GOAL_CURRENT_ADDRESS = X_SERIES["goal_current"].address
@@ -94,6 +94,11 @@ def _clear(s, inst, params, now, reply):
     return reply(p.ERR_NONE if ok else p.ERR_DATA_RANGE)
 
 
+def _eeprom_write(inst, params) -> bool:
+    """A Write or Reg Write into the EEPROM area (address < 64)."""
+    return inst in (p.INST_WRITE, p.INST_REG_WRITE) and len(params) >= 2 and (params[0] | params[1] << 8) < 64
+
+
 _UNICAST = {p.INST_PING: _ping, p.INST_READ: _read, p.INST_WRITE: _write, p.INST_REG_WRITE: _write,
             p.INST_ACTION: _action, p.INST_REBOOT: _reboot, p.INST_FACTORY_RESET: _factory_reset,
             p.INST_CLEAR: _clear}
@@ -105,7 +110,7 @@ class InstructionHandlers:
     # ---- who hears a packet, and what it does ------------------------------------------------------
     def _hearing(self, baudrate: int | None) -> list[EmulatedServo]:
         if self.fast:  # the same list as long as the port's speed, who is on the bus, IDs and bauds are
-            key = (baudrate, self.servo_state[:, S_ON_BUS].tobytes(),
+            key = (baudrate, self.servo_state[:, S_ON_BUS:S_BOOT + 1].tobytes(),
                    self.memories[:, ID_ADDRESS:BAUD_ADDRESS + 1].tobytes())
             cached = self._hearing_cache
             if cached is not None and cached[0] == key:
@@ -116,21 +121,32 @@ class InstructionHandlers:
         return self._hearing_of(baudrate)
 
     def _hearing_of(self, baudrate: int | None) -> list[EmulatedServo]:
+        # a servo restarting after a Reboot hears nothing (booting_until: see _restarts)
+        present = [s for s in self._order if s.on_bus and not s.booting_until]
         if baudrate is None:
-            return [s for s in self._order if s.on_bus]
+            return present
         code = BAUD_CODE_OF.get(baudrate)
         if code is None:  # a speed no servo can be set to
-            return [s for s in self._order if s.on_bus and s.baudrate == baudrate]
-        return [s for s in self._order if s.on_bus and s.memory[s.baud_address] == code]
+            return [s for s in present if s.baudrate == baudrate]
+        return [s for s in present if s.memory[s.baud_address] == code]
+
+    def _restarts(self, now: float) -> None:
+        """Servos whose reboot is over by `now` hear the bus again; `_booting`: one is still restarting."""
+        if self.servo_state[:, S_BOOT].any():
+            for s in self._order:
+                if s.booting_until and now >= s.booting_until - 1e-9:
+                    s.booting_until = 0.0
+        self._booting = bool(self.servo_state[:, S_BOOT].any())
 
     def _handle(self, pkt: p.Packet, baudrate: int | None,
                 now: float | None = None) -> Iterable[tuple[bytes, float]]:
         """`now`: the chain time the packet arrived at (default: the plant's time, as in lockstep)."""
+        if now is None:
+            now = self.time
+        self._restarts(now)
         servos = self._hearing(baudrate)
         if not servos or pkt.instruction == p.INST_STATUS:
             return []
-        if now is None:
-            now = self.time
         inst, params = pkt.instruction, pkt.params
         if pkt.id == p.BROADCAST_ID:
             handler = self._broadcast_handlers.get(inst)
@@ -140,13 +156,39 @@ class InstructionHandlers:
                 s.contact(now)
                 self._unicast(s, inst, params, now, broadcast=True)
             self._rekey()
+            self._booting = self._booting or inst == p.INST_REBOOT
             return []
         replies = []
         for s in servos:
             if s.id == pkt.id:
                 s.contact(now)
                 replies.extend(self._unicast(s, inst, params, now, broadcast=False))
+            elif (pkt.id <= p.MAX_ID and s.memory[s.secondary_address] == pkt.id
+                  and not _eeprom_write(inst, params)):
+                # Secondary ID (e-manual, Secondary(Shadow) ID (12)): carried out without a status packet
+                # (the ID takes precedence; 253..255 switch it off; the EEPROM area cannot be written)
+                s.contact(now)
+                self._unicast(s, inst, params, now, broadcast=True)
         self._rekey()
+        self._booting = self._booting or inst == p.INST_REBOOT
+        return replies
+
+    def _crc_replies(self, baudrate: int | None, now: float | None) -> list[tuple[bytes, float]]:
+        """The status packets (CRC Error 0x03, e-manual Protocol 2.0 "Status Packet") of the servos that
+        heard an instruction with a wrong CRC addressed to their ID; nothing is carried out, and a
+        broadcast one gets no reply. Drains the parser's `crc_failed`."""
+        failed, self.parser.crc_failed = self.parser.crc_failed, []
+        if now is None:
+            now = self.time
+        self._restarts(now)
+        replies = []
+        for sid, inst in failed:
+            if sid == p.BROADCAST_ID or inst == p.INST_STATUS:
+                continue
+            for s in self._hearing(baudrate):
+                if s.id == sid:
+                    min_level = 0 if inst == p.INST_PING else 1 if inst == p.INST_READ else 2
+                    replies.extend(_Reply(s, False)(p.ERR_CRC, b"", min_level))
         return replies
 
     # ---- instructions to one servo --------------------------------------------------------------
@@ -215,7 +257,8 @@ class InstructionHandlers:
         index = self._index(servos)
         for sid, address, length in requests:
             s = index.get(sid)
-            if s is None or not s.supports_fast_sync_read:
+            # Status Return Level 0: no reply but to Ping (e-manual, Status Return Level (68))
+            if s is None or not s.supports_fast_sync_read or s.memory[s.srl_address] == 0:
                 return blocks, False
             s.contact(now)
             error, data = s.read(address, length)
@@ -274,7 +317,7 @@ class InstructionHandlers:
         if address == GOAL_CURRENT_ADDRESS and length == 2 and self._fast() is not None:
             # the fast path: EmulatedServo.write of Goal Current (2 bytes, signed) without the general
             # checks that cannot fail for it (RW, RAM, any int16 in range): refused while the watchdog
-            # has expired, else clamped to +-Current Limit
+            # has expired or beyond +-Current Limit (Data Limit Error; a Sync Write has no reply)
             for k in range(0, len(body) - len(body) % 3, 3):
                 s = index.get(body[k])
                 if s is not None:
@@ -284,8 +327,8 @@ class InstructionHandlers:
                         if value & 0x8000:
                             value -= 0x10000
                         limit = _U16.unpack_from(s.memory, _LIMIT_AT)[0]
-                        _I16.pack_into(s.memory, GOAL_CURRENT_ADDRESS,
-                                       -limit if value < -limit else limit if value > limit else value)
+                        if -limit <= value <= limit:
+                            _I16.pack_into(s.memory, GOAL_CURRENT_ADDRESS, value)
             self._lockstep_tick([(address, length)])
             return []
         for k in range(0, len(body) - len(body) % (1 + length), 1 + length):

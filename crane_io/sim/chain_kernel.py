@@ -16,6 +16,7 @@ import math
 
 import numpy as np
 
+from crane_io.dynamixel.control_table import X_SERIES
 from crane_io.dynamixel.crc_layout import byte_table, crc_step
 from crane_io.dynamixel.units import (
     AMPERE_PER_CURRENT_LSB,
@@ -30,6 +31,21 @@ _crc_byte = crc_step
 _I32_MIN, _I32_MAX = -(2**31), 2**31 - 1
 _BIG = 2.0**40  # beyond this a rounded value is clamped anyway (and stays exact below it)
 _TWO_TO_MINUS_53 = 1.0 / 9007199254740992.0
+# the frame of the Present and Goal items (crane_io.sim.servo_rules): Drive Mode's reverse bit, Homing Offset
+# (ignored outside +-1024 in Position Control Mode)
+_DRIVE_AT, _HOMING_AT = X_SERIES["drive_mode"].address, X_SERIES["homing_offset"].address
+_MODE_AT = X_SERIES["operating_mode"].address
+_MODE_POSITION, _POSITION_MODE_HOMING = 3, 1024
+
+
+def _frame(m):
+    """(direction +-1.0, effective Homing Offset) of the servo memory row m (servo_rules.direction and
+    effective_homing)."""
+    sign = -1.0 if m[_DRIVE_AT] & 1 else 1.0
+    homing = _get_s(m, _HOMING_AT, 4)
+    if m[_MODE_AT] == _MODE_POSITION and (homing < -_POSITION_MODE_HOMING or homing > _POSITION_MODE_HOMING):
+        homing = np.int64(0)
+    return sign, homing
 
 
 def _quantise(x, scale, offset, lo, hi):
@@ -77,9 +93,10 @@ def sensors_into(mem, pos, vel, cur, volt, temp, tick, present_at, tick_at, supp
         m = mem[i]
         p, v, c = pos[i], vel[i], cur[i]
         if math.isfinite(p) and math.isfinite(v) and math.isfinite(c):
-            qp = _quantise(p, RAD_PER_PULSE, POSITION_CENTER, _I32_MIN, _I32_MAX)
-            qv = _quantise(v, RADS_PER_VELOCITY_LSB, 0, _I32_MIN, _I32_MAX)
-            qc = _quantise(c, AMPERE_PER_CURRENT_LSB, 0, -32768, 32767)
+            sign, homing = _frame(m)
+            qp = _quantise(sign * p, RAD_PER_PULSE, POSITION_CENTER + homing, _I32_MIN, _I32_MAX)
+            qv = _quantise(sign * v, RADS_PER_VELOCITY_LSB, 0, _I32_MIN, _I32_MAX)
+            qc = _quantise(sign * c, AMPERE_PER_CURRENT_LSB, 0, -32768, 32767)
             _put(m, present_at, qc, 2)
             _put(m, present_at + 2, qv, 4)
             _put(m, present_at + 6, qp, 4)
@@ -105,8 +122,9 @@ def commands(mem, expired, out, torque_at, mode_at, gc_at, gp_at, lim_at):
         mode = m[mode_at]
         out[0, i] = 1.0 if driving else 0.0
         out[1, i] = mode
-        out[2, i] = _get_s(m, gc_at, 2) * AMPERE_PER_CURRENT_LSB
-        out[3, i] = (_get_s(m, gp_at, 4) - POSITION_CENTER) * RAD_PER_PULSE
+        sign, homing = _frame(m)
+        out[2, i] = sign * (_get_s(m, gc_at, 2) * AMPERE_PER_CURRENT_LSB)
+        out[3, i] = sign * ((_get_s(m, gp_at, 4) - POSITION_CENTER - homing) * RAD_PER_PULSE)
         out[4, i] = _get_u(m, lim_at, 2) * AMPERE_PER_CURRENT_LSB
         if driving and mode != 0:
             mask |= 1 << i
@@ -213,7 +231,7 @@ def compiled():
     if _COMPILED is None:
         from crane_io.jit import compile_functions
 
-        fns = compile_functions(globals(), ("_quantise", "_put", "_get_u", "_get_s", "_crc_byte",
+        fns = compile_functions(globals(), ("_quantise", "_put", "_get_u", "_get_s", "_crc_byte", "_frame",
                                             "sensors_into", "commands", "fast_status", "reading"), SIGNATURES)
         _COMPILED = False if fns is None else (fns["sensors_into"], fns["commands"], fns["fast_status"],
                                                fns["reading"])

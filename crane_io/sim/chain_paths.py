@@ -74,7 +74,7 @@ def list_method(plant, name: str, variant: str | None = None):
 _FAST_ITEMS = ("present_current", "realtime_tick", "present_input_voltage", "moving_threshold",
                "torque_enable", "operating_mode", "goal_current", "goal_position", "current_limit",
                "hardware_error_status", "bus_watchdog", "id", "baud_rate", "max_position_limit",
-               "min_position_limit")
+               "min_position_limit", "drive_mode", "homing_offset", "status_return_level")
 
 
 def fast_layout(servos) -> bool:

@@ -3,9 +3,9 @@ sends an arm every cycle, each handled whole by one call instead of the parser, 
 one compiled call per stage.
 
 - `sync_write_goal`: a Sync Write of Goal Current (or Goal Position), checked (header, length, CRC, no byte
-  stuffing, address and size) and written into the servo memories of the servos that hear it (clamped to
-  each one's Current Limit, or position limits in Position mode; refused while its Bus Watchdog has
-  expired), then the lockstep tick: every servo's watchdog, the
+  stuffing, address and size) and written into the servo memories of the servos that hear it (refused
+  beyond each one's Current Limit, or outside the position limits in Position mode, as servo_rules refuses
+  them, and while its Bus Watchdog has expired), then the lockstep tick: every servo's watchdog, the
   servos' commands (chain_kernel.commands) and, when the plant's compiled kernel takes them as they are,
   the whole plant step (plant_kernel.step_arm) on the plant's packed state;
 - `sense`: the plant's reading (chain_kernel.reading, from the noise the plant drew) quantised into every
@@ -37,6 +37,7 @@ from crane_io.dynamixel.control_table import X_SERIES
 from crane_io.dynamixel.units import SECONDS_PER_WATCHDOG_LSB
 from crane_io.sim import chain_kernel, noise_kernel, plant_kernel
 from crane_io.sim.servo import MEMORY_SIZE, S_CONTACT, S_EXPIRED, S_FAST_READ, S_ON_BUS
+from crane_io.sim.servo_rules import EXTENDED_GOAL_RANGE
 
 # the X-series addresses (the chain uses these kernels for servos laid out so: chain_paths.fast_layout)
 ID_AT, BAUD_AT = X_SERIES["id"].address, X_SERIES["baud_rate"].address
@@ -45,9 +46,11 @@ GC_AT, GP_AT = X_SERIES["goal_current"].address, X_SERIES["goal_position"].addre
 LIMIT_AT, HW_AT = X_SERIES["current_limit"].address, X_SERIES["hardware_error_status"].address
 WD_AT, PRESENT_AT = X_SERIES["bus_watchdog"].address, X_SERIES["present_current"].address
 TICK_AT, SUPPLY_AT = X_SERIES["realtime_tick"].address, X_SERIES["present_input_voltage"].address
-THRESHOLD_AT = X_SERIES["moving_threshold"].address
+THRESHOLD_AT, SRL_AT = X_SERIES["moving_threshold"].address, X_SERIES["status_return_level"].address
 MAX_POS_AT, MIN_POS_AT = X_SERIES["max_position_limit"].address, X_SERIES["min_position_limit"].address
-MODE_POSITION = 3  # (crane_io.dynamixel.control_table): Goal Position is clamped to the position limits
+# (crane_io.dynamixel.control_table) the modes whose Goal Position range servo_rules.goal_error checks
+MODE_POSITION, MODE_EXTENDED, MODE_CURRENT_BASED = 3, 4, 5
+EXTENDED_GOAL = EXTENDED_GOAL_RANGE
 INST_SYNC_WRITE, INST_FAST_SYNC_READ = 0x83, 0x8A
 L_N, L_K, L_PC, L_NC, L_GEO, L_PAR, L_COG, L_SCAL, L_HPAR, L_PD0, L_IDX = range(11)
 # what sync_write_goal and sync_write_read return: nothing done (the general path takes the packet), no servo
@@ -124,24 +127,28 @@ def sync_write_goal(pkt, mem, sst, baud_code, max_length, now, cmds, plant_on, b
         if sst[r, S_EXPIRED] != 0.0:  # refused while the watchdog has expired
             continue
         m = mem[r]
-        if size == 2:  # Goal Current: clamped to +-Current Limit
+        if size == 2:  # Goal Current: refused beyond +-Current Limit (Data Limit Error)
             value = np.int64(pkt[k + 1]) | (np.int64(pkt[k + 2]) << 8)
             if value & 0x8000:
                 value -= 0x10000
             limit = chain_kernel_get_u(m, LIMIT_AT, 2)
-            value = -limit if value < -limit else limit if value > limit else value
-            chain_kernel_put(m, GC_AT, value, 2)
-        else:  # Goal Position: in Position mode clamped to the position limits
+            if -limit <= value <= limit:
+                chain_kernel_put(m, GC_AT, value, 2)
+        else:  # Goal Position: refused outside the position limits in Position mode (Data Limit Error),
+            # outside +-EXTENDED_GOAL in the extended position modes (Data Range Error)
             value = (np.int64(pkt[k + 1]) | (np.int64(pkt[k + 2]) << 8) | (np.int64(pkt[k + 3]) << 16)
                      | (np.int64(pkt[k + 4]) << 24))
             if value & 0x80000000:
                 value -= 0x100000000
-            if m[MODE_AT] == MODE_POSITION:
-                hi = chain_kernel_get_u(m, MAX_POS_AT, 4)
-                lo = chain_kernel_get_u(m, MIN_POS_AT, 4)
-                value = hi if value > hi else value  # max(lo, min(hi, value))
-                value = lo if lo > value else value
-            chain_kernel_put(m, GP_AT, value & 0xFFFFFFFF, 4)
+            mode = m[MODE_AT]
+            if mode == MODE_POSITION:
+                ok = chain_kernel_get_u(m, MIN_POS_AT, 4) <= value <= chain_kernel_get_u(m, MAX_POS_AT, 4)
+            elif mode == MODE_EXTENDED or mode == MODE_CURRENT_BASED:
+                ok = -EXTENDED_GOAL <= value <= EXTENDED_GOAL
+            else:
+                ok = True
+            if ok:
+                chain_kernel_put(m, GP_AT, value & 0xFFFFFFFF, 4)
     # the lockstep tick: the watchdogs at the chain's time, the commands, the plant
     expired = np.int64(0)
     for r in range(mem.shape[0]):
@@ -234,7 +241,7 @@ def fast_sync_read(pkt, mem, sst, baud_code, max_length, now, buf):
     for j in range(n_ids):
         sid = pkt[12 + j]
         r = _row_of(mem, sst, baud_code, sid)
-        if r < 0 or sst[r, S_FAST_READ] == 0.0 or sst[r, S_EXPIRED] != 0.0:
+        if r < 0 or sst[r, S_FAST_READ] == 0.0 or sst[r, S_EXPIRED] != 0.0 or mem[r, SRL_AT] == 0:
             return -1
         rows[j] = r
         ids[j] = sid
@@ -290,8 +297,8 @@ def compiled():
         if plant is not None and noise is not None:
             ns["plant_kernel_step_arm"] = plant[0]
             ns["noise_kernel_draw"] = noise["draw"]
-            names = ("_quantise", "_put", "_get_u", "_get_s", "_crc_byte", *_ALIASES[:-1], "_params_end",
-                     "_row_of", "_anyone_hears", "sync_write_goal", "sense", "fast_sync_read",
+            names = ("_quantise", "_put", "_get_u", "_get_s", "_crc_byte", "_frame", *_ALIASES[:-1],
+                     "_params_end", "_row_of", "_anyone_hears", "sync_write_goal", "sense", "fast_sync_read",
                      "sync_write_read")
             fns = compile_functions(ns, names, SIGNATURES, qualname_prefix="lockstep_kernel.",
                                     error_model="numpy")

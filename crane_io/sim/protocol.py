@@ -165,7 +165,8 @@ class PacketParser:
     Feed it bytes as they arrive; it returns every complete packet whose CRC matches. It never
     raises on any input and never waits forever: garbage is skipped byte by byte until a header is
     found, a LEN that is impossible is skipped, a packet with a wrong CRC is counted in
-    `crc_errors` and skipped, and a partial packet that has waited longer than `stale_after_s`
+    `crc_errors` and skipped (its ID and instruction kept in `crc_failed` for whoever answers them),
+    and a partial packet that has waited longer than `stale_after_s`
     (on the caller's clock, passed as `now`) is abandoned when new bytes arrive (a servo's receive
     timeout), so a corrupted LEN cannot swallow the packets that follow it.
     """
@@ -175,6 +176,7 @@ class PacketParser:
         self.max_length = max_length
         self.buffer = bytearray()
         self.crc_errors = 0
+        self.crc_failed: list[tuple[int, int]] = []  # (ID, instruction) of each packet with a wrong CRC
         self.discarded_bytes = 0
         self._partial_since: float | None = None
 
@@ -249,6 +251,7 @@ class PacketParser:
             crc = raw[-2] | (raw[-1] << 8)
             if crc16(raw[:-2]) != crc:
                 self.crc_errors += 1
+                self.crc_failed.append((raw[4], raw[7]))
                 del buf[:1]
                 self.discarded_bytes += 1
                 continue

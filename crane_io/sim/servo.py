@@ -7,7 +7,9 @@ little-endian bytes. Rules follow the ROBOTIS e-manual (see shared/crane_x7_fact
   < 64) while Torque Enable is 1. A write that covers only part of an item is a Data Length Error
   (0x05); a value outside an item's range is a Data Range Error (0x04). A rejected write changes
   nothing.
-- Goal Current is clamped to +-Current Limit; Goal Position to the position limits in Position mode.
+- A goal beyond its limit item (Goal Current beyond +-Current Limit, Goal Position outside the position
+  limits in Position mode, ...) is refused with Data Limit Error (0x06); the frame of the position,
+  velocity and current items follows Drive Mode and Homing Offset (crane_io.sim.servo_rules).
 - Changing Operating Mode resets the gains, sets Profile Velocity/Acceleration to 0, Goal PWM to PWM
   Limit and Goal Current to Current Limit.
 - Torque Enable 1 sets Goal Position to Present Position (the servo holds where it is) and is refused
@@ -15,8 +17,8 @@ little-endian bytes. Rules follow the ROBOTIS e-manual (see shared/crane_x7_fact
 - Hardware Error Status bits that are in the Shutdown mask turn torque off; every status packet then
   carries the alert bit 0x80.
 - Bus Watchdog (address 98, 20 ms/LSB): with torque on and a non-zero value, no instruction for that
-  long makes the servo stop (the plant sees it as torque off), the item reads -1 and the goal items
-  become read-only until 0 is written to it.
+  long makes the servo stop (the plant sees it as torque off), the item reads -1 and a write to a goal
+  item is refused with Data Range Error (0x04) until 0 is written to it.
 
 Time comes from the chain (`now`, seconds of simulated or wall time); this class never sleeps.
 """
@@ -48,17 +50,28 @@ from crane_io.dynamixel.units import (
     to_signed,
 )
 from crane_io.sim import protocol as p
+from crane_io.sim.servo_rules import (
+    DRIVE_MODE_AT,
+    HOMING_OFFSET_AT,
+    HOMING_RANGE,
+    effective_homing,
+    goal_error,
+)
 
 # a servo's state outside its control table: one float64 per column (EmulatedServo's `state`)
-S_CONTACT, S_EXPIRED, S_ON_BUS, S_FAST_READ = range(4)
-STATE_SIZE = 4
+S_CONTACT, S_EXPIRED, S_ON_BUS, S_FAST_READ, S_BOOT = range(5)
+STATE_SIZE = 5
+# a rebooting servo answers the Reboot instruction, then hears nothing for this long (chain seconds). The
+# e-manual gives no figure; an X-series servo was measured at about 0.4 s
+# (github.com/ROBOTIS-GIT/emanual/issues/1698), and the longer value is the stricter one for a host.
+REBOOT_SILENCE_S = 0.5
 MEMORY_SIZE = CONTROL_TABLE_SIZE  # the whole X-series control table, Indirect Data included
 BAUD_CODES = {0: 9600, 1: 57600, 2: 115200, 3: 1_000_000, 4: 2_000_000, 5: 3_000_000, 6: 4_000_000,
               7: 4_500_000}
 VALID_MODES = (0, 1, 3, 4, 5, 16)
 POSITION_MODES = (MODE_POSITION, MODE_EXTENDED_POSITION, MODE_CURRENT_BASED_POSITION)
-GOAL_ITEMS = ("goal_pwm", "goal_current", "goal_velocity", "goal_position", "profile_acceleration",
-              "profile_velocity")
+# the items a Bus Watchdog error makes read-only (e-manual, Bus Watchdog (98))
+GOAL_ITEMS = ("goal_pwm", "goal_current", "goal_velocity", "goal_position")
 _I16, _U16, _I32, _U32 = struct.Struct("<h"), struct.Struct("<H"), struct.Struct("<i"), struct.Struct("<I")
 # (size, signed) -> how a register is stored
 _STRUCTS = {(1, False): struct.Struct("<B"), (1, True): struct.Struct("<b"), (2, False): _U16,
@@ -77,11 +90,18 @@ _RANGES = {
     "status_return_level": (0, 2),
     "bus_watchdog": (0, 127),
     "protocol_type": (1, 2),
+    "secondary_id": (0, 255),
+    "led": (0, 1),
+    "max_voltage_limit": (95, 160),
+    "min_voltage_limit": (95, 160),
+    "acceleration_limit": (0, 32767),
+    "velocity_limit": (0, 1023),
     "temperature_limit": (0, 100),
     "pwm_limit": (0, 885),
     "moving_threshold": (0, 1023),
     "max_position_limit": (0, 4095),
     "min_position_limit": (0, 4095),
+    "homing_offset": (-HOMING_RANGE, HOMING_RANGE),
 }
 _GAIN_ITEMS = ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "position_i_gain", "position_p_gain")
 _I32_MIN, _I32_MAX = -(2**31), 2**31 - 1
@@ -110,7 +130,8 @@ class EmulatedServo:
     ):
         """`memory`: a writable buffer of MEMORY_SIZE bytes to hold the control table (the simulated chain
         gives each servo a row of one array); default a bytearray of its own. `state`: a float64 array of
-        STATE_SIZE holding `last_contact`, `watchdog_expired`, `on_bus` and `supports_fast_sync_read` (the
+        STATE_SIZE holding `last_contact`, `watchdog_expired`, `on_bus`, `supports_fast_sync_read` and
+        `booting_until` (the
         chain gives each servo a row of one array, which its compiled lockstep path reads and writes);
         default an array of its own."""
         self.model = MODELS[model] if isinstance(model, str) else model
@@ -133,6 +154,8 @@ class EmulatedServo:
         self._watchdog_at, self._baud_at = at["bus_watchdog"], at["baud_rate"]
         self._srl_at, self._id_at = at["status_return_level"], at["id"]
         self.baud_address = self._baud_at  # memory[baud_address] is the Baud Rate code (BAUD_CODES)
+        self.srl_address = self._srl_at  # memory[srl_address] is the Status Return Level
+        self.secondary_address = at["secondary_id"]  # memory[secondary_address] is the Secondary ID
         self._command_at = tuple(at[n] for n in (
             "torque_enable", "operating_mode", "goal_current", "goal_position", "position_d_gain",
             "current_limit"))
@@ -203,6 +226,15 @@ class EmulatedServo:
     @on_bus.setter
     def on_bus(self, value: bool) -> None:
         self._state[S_ON_BUS] = 1.0 if value else 0.0
+
+    @property
+    def booting_until(self) -> float:
+        """The chain time a reboot ends (0: not rebooting); until then the servo hears nothing."""
+        return float(self._state[S_BOOT])
+
+    @booting_until.setter
+    def booting_until(self, now: float) -> None:
+        self._state[S_BOOT] = now
 
     @property
     def supports_fast_sync_read(self) -> bool:
@@ -284,11 +316,14 @@ class EmulatedServo:
         m = self.memory
         torque, mode, goal_cur, goal_pos, gains, limit = self._command_at
         kd, ki, kp = _GAINS.unpack_from(m, gains)
+        # the goals in the servo's frame (Drive Mode direction, Homing Offset) back in the actual frame
+        sign = -1.0 if m[DRIVE_MODE_AT] & 1 else 1.0
+        homing = effective_homing(m[mode], _I32.unpack_from(m, HOMING_OFFSET_AT)[0])
         return (
             m[torque] == 1 and not self.watchdog_expired,
             m[mode],
-            _I16.unpack_from(m, goal_cur)[0] * AMPERE_PER_CURRENT_LSB,
-            (_I32.unpack_from(m, goal_pos)[0] - POSITION_CENTER) * RAD_PER_PULSE,
+            sign * (_I16.unpack_from(m, goal_cur)[0] * AMPERE_PER_CURRENT_LSB),
+            sign * ((_I32.unpack_from(m, goal_pos)[0] - POSITION_CENTER - homing) * RAD_PER_PULSE),
             (kp, ki, kd),
             _U16.unpack_from(m, limit)[0] * AMPERE_PER_CURRENT_LSB,
         )
@@ -299,10 +334,12 @@ class EmulatedServo:
         m = self.memory
         if math.isfinite(position) and math.isfinite(velocity) and math.isfinite(current):
             # the Present block, quantised like crane_io.dynamixel.units (rad_to_position etc.),
-            # in scalar arithmetic
-            pos = round(position / RAD_PER_PULSE) + POSITION_CENTER
-            vel = round(velocity / RADS_PER_VELOCITY_LSB)
-            cur = round(current / AMPERE_PER_CURRENT_LSB)
+            # in scalar arithmetic, in the servo's frame (Drive Mode direction, Homing Offset)
+            sign = -1.0 if m[DRIVE_MODE_AT] & 1 else 1.0
+            homing = effective_homing(m[self._command_at[1]], _I32.unpack_from(m, HOMING_OFFSET_AT)[0])
+            pos = round(sign * position / RAD_PER_PULSE) + POSITION_CENTER + homing
+            vel = round(sign * velocity / RADS_PER_VELOCITY_LSB)
+            cur = round(sign * current / AMPERE_PER_CURRENT_LSB)
             pos = _I32_MIN if pos < _I32_MIN else _I32_MAX if pos > _I32_MAX else pos
             vel = _I32_MIN if vel < _I32_MIN else _I32_MAX if vel > _I32_MAX else vel
             cur = -32768 if cur < -32768 else 32767 if cur > 32767 else cur
@@ -402,10 +439,10 @@ class EmulatedServo:
         if r.eeprom and torque:
             return p.ERR_ACCESS
         if self.watchdog_expired and r.name in GOAL_ITEMS:
-            return p.ERR_ACCESS
+            return p.ERR_DATA_RANGE  # the goal items are read-only after a Bus Watchdog error
         if not self._in_range(r.name, value):
             return p.ERR_DATA_RANGE
-        return p.ERR_NONE
+        return goal_error(self, r.name, value)
 
     def _in_range(self, name: str, value: int) -> bool:
         if name == "operating_mode":
@@ -478,13 +515,7 @@ class EmulatedServo:
         if name == "bus_watchdog":
             self._set_bus_watchdog(value, now)
             return
-        if name == "goal_current":
-            limit = self.read_register("current_limit")
-            value = max(-limit, min(limit, value))
-        elif name == "goal_position" and self.read_register("operating_mode") == MODE_POSITION:
-            value = max(self.read_register("min_position_limit"),
-                        min(self.read_register("max_position_limit"), value))
-        elif name == "current_limit":
+        if name == "current_limit":
             goal = self.read_register("goal_current")
             self.write_register("goal_current", max(-value, min(value, goal)))
         self.write_register(name, value)
@@ -506,7 +537,8 @@ class EmulatedServo:
         return self.write(address, data, now)
 
     def reboot(self, now: float = 0.0) -> None:
-        """RAM (address >= 64) back to defaults, errors cleared, EEPROM kept; holds where it is."""
+        """RAM (address >= 64) back to defaults (torque off), errors cleared, EEPROM kept; the servo hears
+        nothing for REBOOT_SILENCE_S (`booting_until`)."""
         eeprom = bytes(self.memory[:EEPROM_END])
         present = {n: self.read_register(n) for n in ("present_position", "present_velocity",
                                                       "present_current", "present_input_voltage",
@@ -521,6 +553,7 @@ class EmulatedServo:
         self.registered = None
         self.watchdog_expired = False
         self.last_contact = now
+        self.booting_until = now + REBOOT_SILENCE_S
         self.reboots += 1
 
     def factory_reset(self, option: int) -> int:
