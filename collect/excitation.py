@@ -75,7 +75,8 @@ def design_space(config, arm, joints, duration: float):
     margin = s.limit_margin + LIMIT_CLEARANCE
     lower = np.array([arm.joint(n).lower for n in joints]) + margin
     upper = np.array([arm.joint(n).upper for n in joints]) - margin
-    vmax = np.array([min(VELOCITY_FRACTION * s.velocity_limit[n], arm.joint(n).velocity_limit) for n in joints])
+    vmax = np.array([min(VELOCITY_FRACTION * s.velocity_limit[n], arm.joint(n).velocity_limit)
+                     for n in joints])
     periods = max(1, round(duration / NOMINAL_PERIOD_S))
     return DesignSpace(tuple(joints), lower, upper, vmax, np.full(len(joints), MAX_ACCELERATION),
                        period=duration / periods, harmonics=HARMONICS), periods

@@ -161,7 +161,7 @@ EXCITATION_ATTR, EXCITATION_ARM_ATTR, EXCITATION_TRAJECTORY_ATTR, EXCITATION_STA
 EXCITATION_ROOT = (  # written by `crane-collect excite` (docs/excitation.md)
     Attribute(EXCITATION_ATTR, "bool", "True: excitation data (one arm ran an exciting trajectory alone)"),
     Attribute(EXCITATION_ARM_ATTR, "str", '"leader" or "follower": the arm that ran the trajectory'),
-    Attribute(EXCITATION_TRAJECTORY_ATTR, "str", "the trajectory's JSON (crane_io.physics.excitation_trajectory)"),
+    Attribute(EXCITATION_TRAJECTORY_ATTR, "str", "the trajectory's JSON (physics/excitation_trajectory)"),
     Attribute(EXCITATION_START_ATTR, "float", "session time the trajectory starts (after the approach)", "s"),
 )
 

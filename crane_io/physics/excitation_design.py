@@ -11,7 +11,8 @@ harmonic is a_j1 = -sum_{l>1} a_jl, b_j1 = -sum_{l>1} l b_jl, so every trajector
 period at rest (dq = ddq = 0). Every vector of variables maps to a trajectory within the limits
 (`trajectory`): on a grid of GRID samples per period each joint's harmonics are scaled down until its
 peak speed and acceleration on the grid fill at most GRID_FILL of vmax, amax and its swing at most
-GRID_FILL of [lower, upper], then q0 is clipped so the swing lies inside (the grid's peaks are within a
+GRID_FILL of [lower, upper], then q0 is clipped so the swing lies inside with the rest of the range
+shared out on both sides (the grid's peaks are within a
 fraction of a percent of the true ones for up to 20 harmonics, so the true peaks stay within the limits).
 
 The cost is log10 of the regressor's condition number over SAMPLES samples of one period, plus a
@@ -103,8 +104,9 @@ def trajectory(x: np.ndarray, space: DesignSpace, periods: int = 1) -> FourierTr
         ratios = GRID_FILL * np.stack([space.vmax / np.abs(dq).max(axis=0),
                                        space.amax / np.abs(ddq).max(axis=0), span / swing])
     scale = np.minimum(1.0, np.nan_to_num(ratios, nan=1.0, posinf=1.0).min(axis=0))
-    lo = space.lower - scale * p.min(axis=0)
-    hi = space.upper - scale * p.max(axis=0)
+    room = 0.5 * (1.0 - GRID_FILL) * span  # what the swing leaves free on each side, for the true peaks
+    lo = space.lower + room - scale * p.min(axis=0)
+    hi = space.upper - room - scale * p.max(axis=0)
     q0 = np.clip(q0, lo, np.maximum(lo, hi))
     return FourierTrajectory(space.joints, space.w_f, q0, a * scale[:, None], b * scale[:, None], periods)
 

@@ -39,9 +39,10 @@ _KEYS = ("format", "version", "joints", "w_f", "q0", "a", "b", "periods", "condi
 _MAX_HARMONICS = 50
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class FourierTrajectory:
-    """The series of the module docstring over `joints` (names, in the order of the rows of a, b)."""
+    """The series of the module docstring over `joints` (names, in the order of the rows of a, b). Two are
+    equal when they describe the same motion (joints, w_f, q0, a, b, periods; not the condition number)."""
 
     joints: tuple[str, ...]
     w_f: float  # rad/s, the fundamental angular frequency
@@ -50,6 +51,15 @@ class FourierTrajectory:
     b: np.ndarray  # (J, L) rad/s
     periods: int = 1  # how many periods a run plays
     condition_number: float = field(default=float("nan"), compare=False)
+
+    def __eq__(self, other) -> bool:
+        if not isinstance(other, FourierTrajectory):
+            return NotImplemented
+        return (self.joints == other.joints and self.w_f == other.w_f and self.periods == other.periods
+                and all(np.array_equal(x, y) for x, y in ((self.q0, other.q0), (self.a, other.a),
+                                                          (self.b, other.b))))
+
+    __hash__ = None
 
     @property
     def period(self) -> float:
@@ -202,3 +212,18 @@ def regressor_condition(dynamics, q, dq, ddq) -> float:
     """The 2-norm condition number of `identification_regressor` (inf when it is rank-deficient)."""
     s = np.linalg.svd(identification_regressor(dynamics, q, dq, ddq), compute_uv=False)
     return float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
+
+
+def recording_condition(dynamics, q, rate_hz: float, every: int = 10, window_s: float = 0.1) -> float:
+    """`regressor_condition` over a recording of angles q (N, J) sampled at `rate_hz`: dq and ddq from a
+    Savitzky-Golay filter (cubic, `window_s` long) of q, then every `every`-th sample."""
+    from scipy.signal import savgol_filter
+
+    q = np.asarray(q, dtype=float)
+    dt = 1.0 / rate_hz
+    window = max(5, int(round(window_s * rate_hz)) | 1)
+    if len(q) < window:
+        raise ConfigError(f"a recording of {len(q)} samples is shorter than the {window}-sample filter")
+    dq = savgol_filter(q, window, 3, deriv=1, delta=dt, axis=0)
+    ddq = savgol_filter(q, window, 3, deriv=2, delta=dt, axis=0)
+    return regressor_condition(dynamics, q[::every], dq[::every], ddq[::every])
