@@ -4,9 +4,10 @@ against a bilateral session of the same length (`crane-collect run --sim`), and 
 Both sessions are measured the same way (crane_io.physics.excitation_trajectory.recording_condition):
 the follower's recorded angles, dq and ddq from a Savitzky-Golay filter, every 10th sample, the
 base-parameter regressor of the session's joints (the others locked at [held]) plus viscous and Coulomb
-columns per joint. The goal: the excitation's condition number at least 10 times lower. Safety: the
-excitation session's recorded angles stay within the joint limits and clear of the table and the arm's
-own links (crane_io.physics.arm_clearance) at every row, and it ends by its duration.
+columns per joint; also with every column scaled to unit norm ("normalised", free of the parameters'
+units). The goal: the excitation's condition number at least 10 times lower. Safety: the excitation
+session's recorded angles (of its joints) stay within the joint limits and clear of the table and the
+arm's own links (crane_io.physics.arm_clearance) at every row, and it ends by its duration.
 
     .venv/bin/python benchmarks/bench_excitation.py [--duration 20] [--joints joint1,joint2,joint4]
 """
@@ -51,7 +52,8 @@ def measure(path: Path, config) -> dict:
     qj = q[:, cols]
     out = {"rows": len(q), "seconds": len(q) / rate, "end": end, "joints": joints,
            "condition": recording_condition(dynamics, qj, rate),
-           "limit_margin_deg": float(np.degrees(np.min(np.minimum(q - lower, upper - q)))),
+           "normalised": recording_condition(dynamics, qj, rate, normalised=True),
+           "limit_margin_deg": float(np.degrees(np.min(np.minimum(q - lower, upper - q)[:, cols]))),
            "clearance_cm": 100.0 * float(np.min(clearance.clearance(qj[::5])))}
     if traj is not None:
         k0 = int(round(start * rate))
@@ -85,9 +87,11 @@ def main() -> None:
         ex, bil = measure(ex_path, config), measure(bil_path, config)
     print(f"joints {', '.join(ex['joints'])}; {ex['seconds']:.1f} s each (excitation run {t_ex:.0f} s wall, "
           f"budget {args.budget} evaluations)")
-    print(f"{'session':<12} {'cond':>10} {'limit margin':>14} {'clearance':>10}  end")
+    print(f"{'session':<12} {'cond':>8} {'normalised':>11} {'limit margin':>14} {'clearance':>10}  "
+          "end")
     for name, m in (("excitation", ex), ("bilateral", bil)):
-        print(f"{name:<12} {m['condition']:>10.1f} {m['limit_margin_deg']:>10.1f} deg "
+        print(f"{name:<12} {m['condition']:>8.1f} {m['normalised']:>11.1f} "
+              f"{m['limit_margin_deg']:>10.1f} deg "
               f"{m['clearance_cm']:>7.1f} cm  {m['end']}")
     print(f"designed trajectory: condition number {ex['designed_condition']:.1f}; recorded trajectory part "
           f"{ex['condition_trajectory_part']:.1f}")

@@ -16,11 +16,11 @@ shared out on both sides (the grid's peaks are within a
 fraction of a percent of the true ones for up to 20 harmonics, so the true peaks stay within the limits).
 
 The cost is log10 of the regressor's condition number over SAMPLES samples of one period, plus a
-penalty of 100 per metre that the clearance falls short of `min_clearance` at any of them.
-The start is seeded: q0 at the middle of each range (or `start`), the harmonics drawn small and halved
-until the start is clear. scipy.optimize.minimize (Powell: derivative-free, the clip and scale make the cost only piecewise
-smooth) runs until `evaluations` cost evaluations or `seconds` have passed; the best trajectory whose
-clearance held is the result. `progress` gets a line every `progress_every` evaluations.
+penalty of 100 per metre that the clearance falls short of `min_clearance` at any of them. The start
+is seeded: q0 at the middle of each range (or `start`), the harmonics drawn small and halved until the
+start is clear. scipy.optimize.minimize (Powell: derivative-free, the clip and scale make the cost only
+piecewise smooth) runs until `evaluations` cost evaluations or `seconds` have passed; the best
+trajectory whose clearance held is the result. `progress` gets a line every `progress_every` evaluations.
 """
 
 from __future__ import annotations

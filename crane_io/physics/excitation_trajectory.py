@@ -208,13 +208,19 @@ def identification_regressor(dynamics, q, dq, ddq) -> np.ndarray:
     return w.reshape(-1, w.shape[2])
 
 
-def regressor_condition(dynamics, q, dq, ddq) -> float:
-    """The 2-norm condition number of `identification_regressor` (inf when it is rank-deficient)."""
-    s = np.linalg.svd(identification_regressor(dynamics, q, dq, ddq), compute_uv=False)
+def regressor_condition(dynamics, q, dq, ddq, normalised: bool = False) -> float:
+    """The 2-norm condition number of `identification_regressor` (inf when it is rank-deficient);
+    `normalised`: of the regressor with every column scaled to unit norm (free of the parameters' units)."""
+    w = identification_regressor(dynamics, q, dq, ddq)
+    if normalised:
+        norms = np.linalg.norm(w, axis=0)
+        w = w / np.where(norms > 0, norms, 1.0)
+    s = np.linalg.svd(w, compute_uv=False)
     return float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
 
 
-def recording_condition(dynamics, q, rate_hz: float, every: int = 10, window_s: float = 0.1) -> float:
+def recording_condition(dynamics, q, rate_hz: float, every: int = 10, window_s: float = 0.1,
+                        normalised: bool = False) -> float:
     """`regressor_condition` over a recording of angles q (N, J) sampled at `rate_hz`: dq and ddq from a
     Savitzky-Golay filter (cubic, `window_s` long) of q, then every `every`-th sample."""
     from scipy.signal import savgol_filter
@@ -226,4 +232,4 @@ def recording_condition(dynamics, q, rate_hz: float, every: int = 10, window_s: 
         raise ConfigError(f"a recording of {len(q)} samples is shorter than the {window}-sample filter")
     dq = savgol_filter(q, window, 3, deriv=1, delta=dt, axis=0)
     ddq = savgol_filter(q, window, 3, deriv=2, delta=dt, axis=0)
-    return regressor_condition(dynamics, q[::every], dq[::every], ddq[::every])
+    return regressor_condition(dynamics, q[::every], dq[::every], ddq[::every], normalised)
