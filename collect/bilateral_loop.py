@@ -445,10 +445,12 @@ class BilateralLoop:
         return self.safety.bus_error(name, t, exc)
 
     def summary_lines(self) -> list[str]:
-        """The summary's lines on the learned models in the observers (none without a model)."""
+        """The summary's lines on the reference motion (its own `summary_lines`) and on the learned models
+        in the observers (none without a model)."""
+        lines = list(self.reference.summary_lines()) if self.reference is not None else []
         if not self.models:
-            return []
-        lines = [observer_sentence(self.models, self.arm)]
+            return lines
+        lines.append(observer_sentence(self.models, self.arm))
         for name, m in self.models.items():
             reaction = self.ctl.reaction(name)
             if reaction is None:

@@ -45,6 +45,8 @@ class ExcitationMotion:
         self.hold: np.ndarray | None = None  # (n,) the other arm's
         self._first = np.zeros(len(arm.joint_names))
         self._zero = np.zeros(len(arm.joint_names))
+        self._err_sq = np.zeros(len(self.cols))  # the driven arm's tracking error, summed over the cycles
+        self._cycles = 0
 
     @property
     def duration(self) -> float:
@@ -81,6 +83,9 @@ class ExcitationMotion:
         """A cycle: both arms' position control to their references, the safety clamps, the observers
         told what was applied, the safety checks: (tau_leader, tau_follower, breach or None)."""
         ref = self.reference(t)
+        e = ((sf if self.driven == "follower" else sl).position - ref[0])[self.cols]
+        self._err_sq += e * e
+        self._cycles += 1
         other = (self.hold, self._zero)
         ref_l, ref_f = (other, ref) if self.driven == "follower" else (ref, other)
         cmd = ctl.hold(ArmSignals(sl.position, sl.velocity, sl.current),
@@ -92,3 +97,11 @@ class ExcitationMotion:
         if breach is None:
             breach = safety.check("follower", sf.position, sf.velocity)
         return tau_l, tau_f, breach
+
+    def summary_lines(self) -> list[str]:
+        """The summary's line on how closely the driven arm followed its reference."""
+        if not self._cycles:
+            return []
+        rms = np.degrees(np.sqrt(self._err_sq / self._cycles))
+        return [f"excitation: the {self.driven} followed its reference within "
+                + ", ".join(f"{n} {x:.2f}" for n, x in zip(self.trajectory.joints, rms)) + " deg rms"]

@@ -113,7 +113,7 @@ def test_excite_sim_records_a_session_marked_as_excitation(excitation_session):
     from train.data.session import read_session
 
     out, text = excitation_session
-    assert "condition number" in text and "saved to" in text
+    assert "condition number" in text and "saved to" in text and "followed its reference within" in text
     with h5py.File(out, "r") as f:
         attrs = dict(f.attrs)
         q = f["follower/q"][:]
