@@ -68,7 +68,7 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=20.0, help="s of trajectory")
     ap.add_argument("--joints", default=None)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--budget", type=int, default=400)
+    ap.add_argument("--budget", type=int, default=1000)
     args = ap.parse_args()
     from collect.config import load_config
 

@@ -54,7 +54,7 @@ class ExcitationOptions:
     arm: str = "follower"  # the arm that runs the trajectory
     trajectory: str | Path | None = None  # a saved trajectory to replay (None: design one)
     save: str | Path | None = None  # where the trajectory's JSON goes (None: next to the session)
-    evaluations: int = 400  # the optimiser's budget in cost evaluations
+    evaluations: int = 1000  # the optimiser's budget in cost evaluations
     seconds: float | None = None  # ... and in seconds (None: no time limit)
     say: object = None  # where the design's progress lines go (None: the run's status stream)
 

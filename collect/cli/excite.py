@@ -29,7 +29,7 @@ from ..config import MAX_RATE_HZ, MIN_RATE_HZ
                    "--trajectory). The approach before and a short rest after are recorded too.")
 @click.option("--seed", type=SEED, default=0, show_default=True,
               help="Seed of the optimiser's start and of the simulated plants.")
-@click.option("--budget", type=Number(int, 1), default=400, show_default=True, metavar="N",
+@click.option("--budget", type=Number(int, 1), default=1000, show_default=True, metavar="N",
               help="The optimiser's budget in cost evaluations.")
 @click.option("--budget-seconds", type=Number(float, 0, low_open=True, unit="s"), default=None, metavar="S",
               help="Also stop the optimiser after this many seconds.")

@@ -17,8 +17,8 @@ fraction of a percent of the true ones for up to 20 harmonics, so the true peaks
 
 The cost is log10 of the regressor's condition number over SAMPLES samples of one period, plus a
 penalty of 100 per metre that the clearance falls short of `min_clearance` at any of them. The start
-is seeded: q0 at the middle of each range (or `start`), the harmonics drawn small and halved until the
-start is clear. scipy.optimize.minimize (Powell: derivative-free, the clip and scale make the cost only
+is seeded: q0 at the middle of each range (or `start`), the harmonics drawn at random; when it is not
+clear, its harmonics halved until they are give a first clear trajectory to fall back on. scipy.optimize.minimize (Powell: derivative-free, the clip and scale make the cost only
 piecewise smooth) runs until `evaluations` cost evaluations or `seconds` have passed; the best
 trajectory whose clearance held is the result. `progress` gets a line every `progress_every` evaluations.
 """
@@ -186,14 +186,16 @@ def optimise(space: DesignSpace, dynamics, clearance, *, seed: int = 0, evaluati
     if evaluations < 1:
         raise ConfigError(f"the optimiser's budget must be at least 1 evaluation, got {evaluations}")
     cost = _Cost(space, dynamics, clearance, evaluations, seconds, progress, max(1, progress_every))
-    x0 = initial(space, seed, start).reshape(len(space.joints), -1)
-    for _ in range(_SHRINK_STEPS):  # a start clear of the table and the links: smaller swings
-        first_cond, margin = cost.measure(trajectory(x0.ravel(), space))
-        if margin >= space.min_clearance:
-            break
-        x0[:, 1:] *= 0.5
-    x0 = x0.ravel()
+    x0 = initial(space, seed, start)
+    first_cond, margin = cost.measure(trajectory(x0, space))
     try:
+        if margin < space.min_clearance:  # a fallback clear of the table and the links: smaller swings
+            fallback = x0.reshape(len(space.joints), -1).copy()
+            for _ in range(_SHRINK_STEPS):
+                fallback[:, 1:] *= 0.5
+                if cost.measure(trajectory(fallback.ravel(), space))[1] >= space.min_clearance:
+                    cost(fallback.ravel())
+                    break
         minimize(cost, x0, method="Powell", options={"maxfev": evaluations, "xtol": 1e-4, "ftol": 1e-6})
     except _Budget:
         pass
