@@ -19,6 +19,7 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy: the regressor's SVDs are small
 
 import argparse  # noqa: E402
+import json  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -57,9 +58,10 @@ def measure(path: Path, config) -> dict:
            "clearance_cm": 100.0 * float(np.min(clearance.clearance(qj[::5])))}
     if traj is not None:
         k0 = int(round(start * rate))
-        k1 = k0 + int(round(from_dict(__import__("json").loads(traj)).duration * rate))
+        designed = from_dict(json.loads(traj))
+        k1 = k0 + int(round(designed.duration * rate))
         out["condition_trajectory_part"] = recording_condition(dynamics, qj[k0:k1], rate)
-        out["designed_condition"] = from_dict(__import__("json").loads(traj)).condition_number
+        out["designed_condition"] = designed.condition_number
     return out
 
 
@@ -75,18 +77,20 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         ex_path, bil_path = Path(tmp) / "excite.h5", Path(tmp) / "bilateral.h5"
         t0 = time.perf_counter()
-        res = run_excitation(RunOptions(output=ex_path, sim=True, duration=args.duration, seed=args.seed,
-                                        joints=args.joints, status=False),
-                             ExcitationOptions(evaluations=args.budget, say=lambda _line: None))
+        run_excitation(RunOptions(output=ex_path, sim=True, duration=args.duration, seed=args.seed,
+                              joints=args.joints, status=False),
+                   ExcitationOptions(evaluations=args.budget, say=lambda _line: None))
         t_ex = time.perf_counter() - t0
-        run_session(RunOptions(output=bil_path, sim=True, duration=res.duration_s, seed=args.seed,
+        with h5py.File(ex_path, "r") as f:  # the trajectory's whole periods: the bilateral session's length
+            length = from_dict(json.loads(f.attrs[sf.EXCITATION_TRAJECTORY_ATTR])).duration
+        run_session(RunOptions(output=bil_path, sim=True, duration=length, seed=args.seed,
                                joints=args.joints, status=False))
         config = load_config(None)
         if args.joints is not None:
             config = config.with_bilateral_joints(args.joints)
         ex, bil = measure(ex_path, config), measure(bil_path, config)
-    print(f"joints {', '.join(ex['joints'])}; {ex['seconds']:.1f} s each (excitation run {t_ex:.0f} s wall, "
-          f"budget {args.budget} evaluations)")
+    print(f"joints {', '.join(ex['joints'])}; excitation session {ex['seconds']:.1f} s (approach, trajectory, "
+          f"rest; {t_ex:.0f} s wall, budget {args.budget} evaluations), bilateral {bil['seconds']:.1f} s")
     print(f"{'session':<12} {'cond':>8} {'normalised':>11} {'limit margin':>14} {'clearance':>10}  "
           "end")
     for name, m in (("excitation", ex), ("bilateral", bil)):
@@ -95,9 +99,11 @@ def main() -> None:
               f"{m['clearance_cm']:>7.1f} cm  {m['end']}")
     print(f"designed trajectory: condition number {ex['designed_condition']:.1f}; recorded trajectory part "
           f"{ex['condition_trajectory_part']:.1f}")
-    ratio = bil["condition"] / ex["condition"]
-    print(f"bilateral / excitation condition number: {ratio:.1f}x (goal >= 10x: "
-          f"{'met' if ratio >= 10 else 'NOT met'})")
+    for what, value in (("designed trajectory", ex["designed_condition"]),
+                        ("recorded trajectory part", ex["condition_trajectory_part"]),
+                        ("whole excitation session", ex["condition"])):
+        ratio = bil["condition"] / value
+        print(f"bilateral / {what}: {ratio:.2f}x (goal >= 10x: {'met' if ratio >= 10 else 'NOT met'})")
 
 
 if __name__ == "__main__":

@@ -18,8 +18,9 @@ fraction of a percent of the true ones for up to 20 harmonics, so the true peaks
 The cost is log10 of the regressor's condition number over SAMPLES samples of one period, plus a
 penalty of 100 per metre that the clearance falls short of `min_clearance` at any of them. The start
 is seeded: q0 at the middle of each range (or `start`), the harmonics drawn at random; when it is not
-clear, its harmonics halved until they are give a first clear trajectory to fall back on. scipy.optimize.minimize (Powell: derivative-free, the clip and scale make the cost only
-piecewise smooth) runs until `evaluations` cost evaluations or `seconds` have passed; the best
+clear, its harmonics halved until they are give a first clear trajectory to fall back on.
+scipy.optimize.minimize (Powell: derivative-free, the clip and scale make the cost only piecewise
+smooth) runs from the start until `evaluations` cost evaluations or `seconds` have passed; the best
 trajectory whose clearance held is the result. `progress` gets a line every `progress_every` evaluations.
 """
 
