@@ -78,8 +78,8 @@ def main() -> None:
         ex_path, bil_path = Path(tmp) / "excite.h5", Path(tmp) / "bilateral.h5"
         t0 = time.perf_counter()
         run_excitation(RunOptions(output=ex_path, sim=True, duration=args.duration, seed=args.seed,
-                              joints=args.joints, status=False),
-                   ExcitationOptions(evaluations=args.budget, say=lambda _line: None))
+                                  joints=args.joints, status=False),
+                       ExcitationOptions(evaluations=args.budget, say=lambda _line: None))
         t_ex = time.perf_counter() - t0
         with h5py.File(ex_path, "r") as f:  # the trajectory's whole periods: the bilateral session's length
             length = from_dict(json.loads(f.attrs[sf.EXCITATION_TRAJECTORY_ATTR])).duration
@@ -89,8 +89,8 @@ def main() -> None:
         if args.joints is not None:
             config = config.with_bilateral_joints(args.joints)
         ex, bil = measure(ex_path, config), measure(bil_path, config)
-    print(f"joints {', '.join(ex['joints'])}; excitation session {ex['seconds']:.1f} s (approach, trajectory, "
-          f"rest; {t_ex:.0f} s wall, budget {args.budget} evaluations), bilateral {bil['seconds']:.1f} s")
+    print(f"joints {', '.join(ex['joints'])}; excitation session {ex['seconds']:.1f} s (approach, "
+          f"trajectory, rest; {t_ex:.0f} s wall, budget {args.budget} evaluations), bilateral {bil['seconds']:.1f} s")
     print(f"{'session':<12} {'cond':>8} {'normalised':>11} {'limit margin':>14} {'clearance':>10}  "
           "end")
     for name, m in (("excitation", ex), ("bilateral", bil)):
