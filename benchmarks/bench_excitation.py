@@ -90,7 +90,8 @@ def main() -> None:
             config = config.with_bilateral_joints(args.joints)
         ex, bil = measure(ex_path, config), measure(bil_path, config)
     print(f"joints {', '.join(ex['joints'])}; excitation session {ex['seconds']:.1f} s (approach, "
-          f"trajectory, rest; {t_ex:.0f} s wall, budget {args.budget} evaluations), bilateral {bil['seconds']:.1f} s")
+          f"trajectory, rest; {t_ex:.0f} s wall, budget {args.budget} evaluations), "
+          f"bilateral {bil['seconds']:.1f} s")
     print(f"{'session':<12} {'cond':>8} {'normalised':>11} {'limit margin':>14} {'clearance':>10}  "
           "end")
     for name, m in (("excitation", ex), ("bilateral", bil)):
