@@ -53,12 +53,15 @@ def checked(results, what: str) -> list:
     return [value for value, _, _ in results]
 
 
-def _targets(q_l0, q_f0, config: Config, arm: ArmDescription, simulated: bool):
-    """Where both arms go: the leader's pose (hardware) or operator.start (simulation) on the bilateral
-    joints, the held pose on the others. Hardware arms too far apart are refused."""
+def _targets(q_l0, q_f0, config: Config, arm: ArmDescription, simulated: bool, own_pose: bool = False):
+    """Where (leader, follower) go: the leader's pose (hardware) or operator.start (simulation) on the
+    bilateral joints, the held pose on the others; with `own_pose` each arm stays where it is on the
+    bilateral joints. Hardware arms too far apart are refused (not with `own_pose`)."""
     bil = np.array([n in arm.bilateral_joints for n in arm.joint_names])
     held_goal = np.array([config.held.get(n, 0.0) for n in arm.joint_names])
     s = config.safety
+    if own_pose:
+        return np.where(bil, q_l0, held_goal), np.where(bil, q_f0, held_goal)
     if simulated:
         start = config.operator.start
         target = np.array([start.get(n, 0.0) for n in arm.joint_names])
@@ -71,12 +74,14 @@ def _targets(q_l0, q_f0, config: Config, arm: ArmDescription, simulated: bool):
                 f"leader and follower {arm.joint_names[i]} differ by {np.degrees(diff[i]):.0f} deg, "
                 f"more than the {np.degrees(s.max_start_difference):.0f} deg allowed at start; bring the "
                 "arms closer by hand (torque is off) and start again")
-    return np.where(bil, target, held_goal)
+    target = np.where(bil, target, held_goal)
+    return target, target.copy()
 
 
 def align(pair: ArmPair, ctl: BilateralController, safety: SafetyMonitor, config: Config,
           arm: ArmDescription, *, simulated: bool, lockstep: bool, say: Callable[[str], None],
-          paced: bool | None = None, between_cycles: Callable[[], None] | None = None) -> str:
+          paced: bool | None = None, between_cycles: Callable[[], None] | None = None,
+          own_pose: bool = False) -> str:
     """Bring both arms to their start pose; returns the sentence for the session's start event.
     Raises StartRefused, or SafetyStop for a breach or a failed transfer (read or write) while aligning.
 
@@ -85,14 +90,15 @@ def align(pair: ArmPair, ctl: BilateralController, safety: SafetyMonitor, config
     paced: wait for the wall clock between cycles (default: not lockstep). Lockstep arms can be paced
     too (`--sim --realtime`): the cycles then come every two periods of real time.
     between_cycles: called after the writes, outside the timed part of the cycle (e.g. a small
-    garbage collection)."""
+    garbage collection).
+    own_pose: each arm keeps its own pose on the bilateral joints (no start difference is refused); only
+    the held joints move to their held pose."""
     s = config.safety
     kt = np.array([j.torque_constant for j in arm.joints])
     bil = np.array([n in arm.bilateral_joints for n in arm.joint_names])
     first_l, first_f = checked(pair.read_both(), READING)
     q_l0, q_f0 = first_l.position, first_f.position
-    target_l = _targets(q_l0, q_f0, config, arm, simulated)
-    target_f = target_l.copy()
+    target_l, target_f = _targets(q_l0, q_f0, config, arm, simulated, own_pose)
     dist = max(np.abs(target_l - q_l0).max(), np.abs(target_f - q_f0).max())
     move_s = max(0.5, 1.875 * dist / s.homing_speed) if dist > s.agree_tolerance else 0.0
     say(f"aligning the arms: {np.degrees(dist):.1f} deg at most, {move_s + SETTLE_S:.1f} s")
@@ -138,5 +144,7 @@ def align(pair: ArmPair, ctl: BilateralController, safety: SafetyMonitor, config
         t += dt
     final_l, final_f = checked(pair.read_both(), READING)
     ql, qf = final_l.position, final_f.position
+    if own_pose:
+        return f"arms held at their own poses for {t:.1f} s"
     gap = float(np.abs(ql - qf)[bil].max())
     return f"arms aligned in {t:.1f} s; largest leader-follower difference {np.degrees(gap):.2f} deg"

@@ -143,6 +143,9 @@ class BilateralLoop:
         self.recorder: SessionRecorder | None = None
         self._columns: tuple = (None, None)  # (the recorder, its row_writer of _ROW_KEYS)
         self.operator: SimulatedOperator | None = None
+        # a reference motion that takes the place of the bilateral law: `control(t, sl, sf, dt, ctl, safety)`
+        # gives (tau_l, tau_f, breach) as BilateralController.control does (collect/excitation_motion.py)
+        self.reference = None
         self.timer = CycleTimer(config.loop.rate_hz, lockstep=not self.paced, spin_s=config.loop.spin_s)
         self.cycles = 0
         self.t_session = 0.0
@@ -198,10 +201,10 @@ class BilateralLoop:
         elif reason == "error" and exc is not None:
             self.event(self.now(), "error", f"{exc.__class__.__name__}: {exc}")
 
-    def align(self) -> str:
+    def align(self, own_pose: bool = False) -> str:
         return align(self.pair, self.ctl, self.safety, self.config, self.arm, simulated=bool(self.sims),
                      lockstep=self.lockstep, paced=self.paced, say=self.status.say,
-                     between_cycles=self.between_cycles)
+                     between_cycles=self.between_cycles, own_pose=own_pose)
 
     def between_cycles(self) -> None:
         """After a cycle's writes, before the wait: the small garbage collection kept out of the cycle,
@@ -317,6 +320,10 @@ class BilateralLoop:
 
     def _control(self, t: float, sl, sf):
         """The simulated operator's push, the controller and the safety clamps: (tau_l, tau_f, breach)."""
+        dt = self.period if (self.lockstep or self.last_t is None) else max(t - self.last_t, 1e-4)
+        self.last_t = t
+        if self.reference is not None:
+            return self.reference.control(t, sl, sf, dt, self.ctl, self.safety)
         ql, qf = sl.position, sf.position
         sim_hand = self.sims.get(self.hand_arm)
         if sim_hand is not None:
@@ -325,8 +332,6 @@ class BilateralLoop:
                 self._hand_torque = plant.external_torque()
             s = sl if self.hand_arm == "leader" else sf
             plant.set_external_torque(self.operator.torque(t, s.position, s.velocity))
-        dt = self.period if (self.lockstep or self.last_t is None) else max(t - self.last_t, 1e-4)
-        self.last_t = t
         # step, both safety clamps, applied, both checks: one compiled call where it can be
         # (BilateralController.control); the breach is logged by the caller, after the model's events
         leader, follower = ArmSignals(ql, sl.velocity, sl.current), ArmSignals(qf, sf.velocity, sf.current)
@@ -442,10 +447,12 @@ class BilateralLoop:
         return self.safety.bus_error(name, t, exc)
 
     def summary_lines(self) -> list[str]:
-        """The summary's lines on the learned models in the observers (none without a model)."""
+        """The summary's lines on the reference motion (its own `summary_lines`) and on the learned models
+        in the observers (none without a model)."""
+        lines = list(self.reference.summary_lines()) if self.reference is not None else []
         if not self.models:
-            return []
-        lines = [observer_sentence(self.models, self.arm)]
+            return lines
+        lines.append(observer_sentence(self.models, self.arm))
         for name, m in self.models.items():
             reaction = self.ctl.reaction(name)
             if reaction is None:

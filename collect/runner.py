@@ -64,7 +64,7 @@ from .status import print_summary
 from .truth_trace import TruthTraceWriter
 
 __all__ = ["BilateralRun", "RunContext", "RunOptions", "RunResult", "SafetyStop", "StartRefused", "run_arm",
-           "run_session"]
+           "run_session", "run_with"]
 
 _STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP", "SIGINT") if hasattr(signal, n))
 
@@ -80,7 +80,11 @@ def run_session(opts: RunOptions) -> RunResult:
     taken at the next checkpoint (between the start-up's steps, between two cycles of the alignment and
     the loop); the clean-up (safe stop, torque read-back, file close, summary) always runs to its end, and
     a signal meanwhile only prints that the stop is in progress."""
-    run = BilateralRun(opts)
+    return run_with(BilateralRun(opts))
+
+
+def run_with(run: BilateralRun) -> RunResult:
+    """`run` (a BilateralRun or a subclass, constructed) through its phases, as `run_session` does."""
     try:
         with run:
             run.start()
@@ -145,6 +149,7 @@ class BilateralRun:
         self.hw: dict = {"infos": {}, "warnings": []}  # what start-up learned from the servos
         self.loop: BilateralLoop | None = None
         self.align_message = ""
+        self.duration: float | None = opts.duration  # s to record (`start_motion`); None: until a stop
         self.end_reason: str | None = None  # set by the loop when it ends by itself
         self.exc: BaseException | None = None  # what ended the phases by raising
         self.result: RunResult | None = None
@@ -257,14 +262,12 @@ class BilateralRun:
         """The session file opened (with the truth trace and the live view), then the bilateral loop
         until the duration is over, a stop is requested or a breach stops both arms."""
         opts, config, arm, loop = self.options, self.config, self.arm, self.loop
-        if self.sims:
-            loop.operator = make_operator(opts.seed, config, arm, self.sims)
-            states = checked(loop.pair.read_both(), "reading the arms before recording")
-            loop.operator.start(states[ARMS.index(loop.hand_arm)].position, 0.0)
+        self.duration = self.start_motion()
         loop.recorder = make_recorder(self.output, config, arm, self.hw, simulated=opts.sim,
                                       lockstep=not loop.paced, seed=opts.seed, hand_on=opts.hand_on,
                                       force=opts.force, models=loop.models, calibrations=self.calibrations,
-                                      arm_model_toml=self.arm_model.to_toml() if self.arm_model else "")
+                                      arm_model_toml=self.arm_model.to_toml() if self.arm_model else "",
+                                      extra_attrs=self.session_attrs())
         if opts.truth_trace is not None:
             loop.truth_trace = TruthTraceWriter(opts.truth_trace, arm.joint_names, self.output.name)
         loop.ctx.recorder = loop.recorder
@@ -276,7 +279,21 @@ class BilateralRun:
         mode = "lockstep simulation" if not loop.paced else "real time"
         loop.status.say(f"recording to {self.output} ({mode}, {config.loop.rate_hz:g} Hz); "
                         "Ctrl+C ends the session")
-        self.end_reason = loop.run(opts.duration)
+        self.end_reason = loop.run(self.duration)
+
+    def start_motion(self) -> float | None:
+        """What moves the arms while recording, set up right before the session file opens: the
+        simulated operator's hand (sim only). Returns the seconds to record (None: until a stop)."""
+        loop = self.loop
+        if self.sims:
+            loop.operator = make_operator(self.options.seed, self.config, self.arm, self.sims)
+            states = checked(loop.pair.read_both(), "reading the arms before recording")
+            loop.operator.start(states[ARMS.index(loop.hand_arm)].position, 0.0)
+        return self.options.duration
+
+    def session_attrs(self) -> dict:
+        """Root attributes of the session file beyond the run's own (none for a bilateral run)."""
+        return {}
 
     def safe_stop(self) -> None:
         """Both arms stopped (goal current 0, torque off), the event that says why the run ended, the
@@ -288,7 +305,7 @@ class BilateralRun:
         loop, reason = self.loop, self._reason()
         if loop is not None:
             self._step(loop.pair.safe_stop)
-            self._step(loop.end_event, reason, self.exc, self.options.duration)
+            self._step(loop.end_event, reason, self.exc, self.duration)
             if loop.recorder is not None:
                 for _name, msg in self._step(loop.pair.torque_report) or []:
                     self._step(loop.event, loop.now(), "torque_state", msg)

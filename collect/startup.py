@@ -154,13 +154,13 @@ def open_buses(arm: ArmDescription, config: Config, ports: dict, out, *, simulat
 def make_recorder(output: Path, config: Config, arm: ArmDescription, hw: dict, *, simulated: bool,
                   lockstep: bool, seed: int, hand_on: str = "leader", force: bool = False,
                   models: dict | None = None, calibrations: dict | None = None,
-                  arm_model_toml: str = "") -> SessionRecorder:
+                  arm_model_toml: str = "", extra_attrs: dict | None = None) -> SessionRecorder:
     """The session file, with the run's attributes (never the simulated plants' truth): also the arm
     the hand moved (`hand_on`), the model in each arm's observer (`leader_model`, `follower_model`) and
     each arm's calibration (`leader_calibration`, `follower_calibration`), and the identified arm model of
     the nominal observers (`arm_model_toml`, "" for the description's). `simulated`: the arms are
     simulated (source "sim", the `seed` recorded); `lockstep`: the rows carry simulated time; `force`:
-    an existing file is overwritten."""
+    an existing file is overwritten; `extra_attrs`: further root attributes (an excitation's)."""
     from .arm_calibration import calibration_attrs
     from .loop_models import session_attrs
 
@@ -180,6 +180,7 @@ def make_recorder(output: Path, config: Config, arm: ArmDescription, hw: dict, *
         sf.ARM_MODEL_TOML_ATTR: arm_model_toml,
         sf.GRAVITY_MODEL_ATTR: config.controller.gravity_model,
         sf.LOCKSTEP_ATTR: bool(lockstep),
+        **(extra_attrs or {}),
     }
     for name in ARMS:
         by_id = infos.get(name, {})

@@ -158,6 +158,15 @@ IMPORT_ROOT = (  # written by `crane-train import` (docs/train.md)
     Attribute("import_time_offset_s", "float", "the input's first time (subtracted)", "s"),
 )
 
+EXCITATION_ATTR, EXCITATION_ARM_ATTR, EXCITATION_TRAJECTORY_ATTR, EXCITATION_START_ATTR = (
+    "excitation", "excitation_arm", "excitation_trajectory", "excitation_start_s")
+EXCITATION_ROOT = (  # written by `crane-collect excite` (docs/excitation.md)
+    Attribute(EXCITATION_ATTR, "bool", "True: excitation data (one arm ran an exciting trajectory alone)"),
+    Attribute(EXCITATION_ARM_ATTR, "str", '"leader" or "follower": the arm that ran the trajectory'),
+    Attribute(EXCITATION_TRAJECTORY_ATTR, "str", "the trajectory's JSON (physics/excitation_trajectory)"),
+    Attribute(EXCITATION_START_ATTR, "float", "session time the trajectory starts (after the approach)", "s"),
+)
+
 # -- per-arm members (creation order is the order here) --------------------------------------------------
 T, Q, TAU, CURRENT, DQ, TAU_RES = "t", "q", "tau", "current", "dq", "tau_res"
 DQ_SERVO, GOAL_CURRENT, TAU_DIS, Q_GOAL = "dq_servo", "goal_current", "tau_dis", "q_goal"

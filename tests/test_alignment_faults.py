@@ -18,7 +18,7 @@ from tests.recording import TEST_CONFIG, torque_off_everywhere
 
 def _which_read(caller) -> str:
     """Which read of both arms `caller` (a frame) is doing: first, during, last (alignment) or start."""
-    if caller.f_code.co_name == "record":
+    if caller.f_code.co_name == "start_motion":  # the read before the session file opens
         return "start"
     if caller.f_code.co_name != "align":
         return "loop"

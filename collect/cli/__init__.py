@@ -17,6 +17,7 @@ one_blas_thread()  # before numpy is imported (the subcommands import it)
 # (module, attribute) of every subcommand; imported lazily so `--help` stays fast.
 COMMANDS = {
     "run": ("collect.cli.run", "run"),
+    "excite": ("collect.cli.excite", "excite"),
     "check": ("collect.cli.check", "check"),
     "ports": ("collect.cli.ports", "ports"),
     "calibrate": ("collect.cli.calibrate", "calibrate"),
@@ -27,7 +28,7 @@ COMMANDS = {
 
 
 @click.group(cls=LazyGroup, commands=COMMANDS, interrupt_note="no torque was on",
-             prompt_exit=("run",))
+             prompt_exit=("run", "excite"))
 @click.version_option(package_name="crane-x7")
 def main():
     """Drive a leader and a follower CRANE-X7 (or two simulated ones) and record sessions."""

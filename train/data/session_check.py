@@ -28,6 +28,7 @@ import numpy as np
 from crane_io.errors import SessionFileError
 from crane_io.h5check import damaged_dataset, member, missing_filter
 from crane_io.session_format import (
+    EXCITATION_ROOT,
     FORMAT_ATTR,
     IMPORT_ROOT,
     JOINT_NAMES_ATTR,
@@ -41,7 +42,7 @@ MAX_NAME_CHARS = 64  # a joint name longer than this is no joint name
 MAX_MEMORY_FRACTION = 0.5  # what one read may take of this computer's memory
 RATE_TOLERANCE = 2.0  # rate_hz and the median step of t agree within this factor
 NUMBER_KINDS = "fiu"  # numpy dtype kinds a signal may be stored as: float, signed and unsigned integer
-DECLARED = {a.name: a.kind for a in OPTIONAL_ROOT + IMPORT_ROOT}
+DECLARED = {a.name: a.kind for a in OPTIONAL_ROOT + IMPORT_ROOT + EXCITATION_ROOT}
 
 
 def decode(value):
