@@ -8,11 +8,14 @@
    paper's network with the masked loss (train.models.mlp, "mlp-masked") learns that residual: each
    joint's error counts only where the joint moves, so dead-zone samples are kept for the other joints.
 
-3. The network's share is chosen on the validation data, per joint: its output is scaled by the weight
-   w in [0, 1] that minimises the validation MSE of physics + w x network on the samples where the joint
-   moves (least squares, clipped). w = 0 falls back to the physics alone, so on the validation data the
-   hybrid is never worse than its physics part (a network that learnt noise, or too little, cannot make
-   it worse there). The weight is folded into the network's output scaling (its `y_mean`, `y_std`), so
+3. The network's share is chosen per joint by cross-validation over contiguous time blocks of the
+   validation data (train.models.hybrid_share): its output is scaled by a weight w in [0, 1], the
+   least-squares weight of physics + w x network on the samples where the joint moves, shrunk by the
+   share of its gain that survives leaving each block out, and 0 unless the held-out gain over the
+   blocks is positive by more than one standard error (or with fewer than 50 validation samples).
+   w = 0 falls back to the physics alone, so a network that learnt noise, or too little, does not make
+   the hybrid worse than its physics part on held-out data. The weight is folded into the network's
+   output scaling (its `y_mean`, `y_std`), so
    the saved network part, the loop export and the numpy fast path all predict physics + w x network.
 
 The physics carries what it can explain (and extrapolates outside the training range); the network
@@ -29,6 +32,7 @@ import numpy as np
 
 from ..data.dataset import Dataset
 from .base import Model, ModelFileError
+from .hybrid_share import block_cv_share, time_order
 from .recorded_effects import refuse_effect_files, specs_for
 
 if TYPE_CHECKING:
@@ -135,27 +139,32 @@ class HybridModel(Model):
 
 
 def _choose_weight(rigid, mlp, val: Dataset | None) -> tuple[dict[str, float], dict]:
-    """Per joint, the network's weight w in [0, 1] minimising the validation MSE of physics + w x network
-    on the validation samples where the joint moves (the masked loss's samples), and the validation
-    MSEs of the physics alone, the unweighted sum and the weighted hybrid. Without validation data the
-    network counts fully (w = 1)."""
+    """Per joint, the network's share w in [0, 1] chosen by cross-validation over time blocks of the
+    validation samples where the joint moves (train.models.hybrid_share), and the validation MSEs of the
+    physics alone, the unweighted sum and the weighted hybrid. Without validation data the network
+    counts fully (w = 1)."""
     names = list(rigid.joint_names)
     if val is None or len(val) == 0:
         return {n: 1.0 for n in names}, {"chosen_on": "no validation data: network weight 1"}
-    r = val.tau - rigid.predict_dataset(val)
-    m = mlp.predict(val.q, val.dq, val.ddq)
-    weights, info = {}, {"chosen_on": f"{len(val)} validation samples (each joint where it moves)",
-                         "val_mse_physics": {}, "val_mse_sum": {}, "val_mse_hybrid": {}}
+    order = time_order(val)
+    r = (val.tau - rigid.predict_dataset(val))[order]
+    m = mlp.predict(val.q, val.dq, val.ddq)[order]
+    moving = val.moving[order] if getattr(val, "moving", None) is not None else np.ones(r.shape, bool)
+    weights, info = {}, {"chosen_on": f"{len(val)} validation samples (each joint where it moves), "
+                                      "cross-validated over contiguous time blocks",
+                         "val_mse_physics": {}, "val_mse_sum": {}, "val_mse_hybrid": {}, "share": {}}
     for j, name in enumerate(names):
-        rows = val.moving[:, j] if getattr(val, "moving", None) is not None else np.ones(len(val), bool)
+        rows = moving[:, j]
         rj, mj = r[rows, j], m[rows, j]
-        mm = float(mj @ mj)
-        w = 1.0 if not rows.any() else (0.0 if mm <= 0 else float(np.clip((rj @ mj) / mm, 0.0, 1.0)))
-        weights[name] = w
+        share = block_cv_share(rj, mj, float(val.rate_hz))
+        weights[name] = share.weight
+        info["share"][name] = {"weight_all": share.weight_all, "blocks": share.blocks,
+                               "cv_gain": share.cv_gain, "cv_gain_se": share.cv_gain_se,
+                               "in_sample_gain": share.in_sample_gain, "reason": share.reason}
         if rows.any():
             info["val_mse_physics"][name] = float((rj ** 2).mean())
             info["val_mse_sum"][name] = float(((rj - mj) ** 2).mean())
-            info["val_mse_hybrid"][name] = float(((rj - w * mj) ** 2).mean())
+            info["val_mse_hybrid"][name] = float(((rj - share.weight * mj) ** 2).mean())
     return weights, info
 
 

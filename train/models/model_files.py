@@ -332,6 +332,24 @@ def mlp_shapes(joints: int, hidden: int) -> dict:
     return {"W1": (3 * joints, hidden), "b1": (hidden,), "W2": (hidden, joints), "b2": (joints,)}
 
 
+def stderr_record_problem(fit_info) -> str | None:
+    """What is wrong with the record of how a rigid-body model's standard errors were computed (its
+    fit_info's stderr_method, stderr_blocks, ci95_factor; absent in models whose standard errors are
+    the least-squares covariance's), or None."""
+    if not isinstance(fit_info, dict):
+        return None if fit_info is None else "has a fit_info that is not a record"
+    if not any(k in fit_info for k in ("stderr_method", "stderr_blocks", "ci95_factor")):
+        return None
+    blocks, factor = fit_info.get("stderr_blocks"), fit_info.get("ci95_factor")
+    if not isinstance(fit_info.get("stderr_method"), str):
+        return "records standard errors without saying how they were computed (stderr_method)"
+    if isinstance(blocks, bool) or not isinstance(blocks, int) or blocks < 2:
+        return f"records standard errors over {blocks!r} blocks, not a whole number of at least 2"
+    if isinstance(factor, bool) or not isinstance(factor, (int, float)) or not 0 < factor < 100:
+        return f"records a 95 % interval factor of {factor!r}, not a positive number"
+    return None
+
+
 def check_rigid_loaded(directory: Path | str, model) -> None:
     """A loaded rigid-body model's parameters: one per column of its regressor (base parameters and effect
     terms), as many names as values, standard errors >= 0."""
@@ -341,6 +359,9 @@ def check_rigid_loaded(directory: Path | str, model) -> None:
         raise ModelFileError(f"{path} has {theta.size} parameters but {stderr.size} standard errors")
     if np.any(stderr < 0):
         raise ModelFileError(f"{path} has a negative standard error")
+    problem = stderr_record_problem(getattr(model, "fit_info", None))
+    if problem is not None:
+        raise ModelFileError(f"{Path(directory) / MODEL_JSON} {problem}; fit the model again")
     if len(model.names) != theta.size:
         raise ModelFileError(f"{Path(directory) / MODEL_JSON} names {len(model.names)} parameters but "
                              f"{path.name} holds {theta.size}")
