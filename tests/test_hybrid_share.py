@@ -1,0 +1,99 @@
+"""The hybrid's network share (train.models.hybrid_share): chosen by cross-validation over time blocks of
+the validation data, 0 when the network does not help out of sample, shrunk with little data, and the
+hybrid not worse than its physics part on held-out data when its network learnt nothing useful."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from train.models.hybrid_share import MIN_ROWS, block_cv_share
+
+RATE = 50.0
+
+
+def _smooth(rng, n, width=25):
+    """A slowly varying series (moving average of white noise over `width` rows), unit variance."""
+    x = np.convolve(rng.normal(size=n + width), np.ones(width) / np.sqrt(width), mode="valid")[:n]
+    return x / x.std()
+
+
+def test_a_network_that_learnt_the_residual_gets_its_full_weight():
+    rng = np.random.default_rng(0)
+    r = _smooth(rng, 2000)
+    share = block_cv_share(r, r + 0.1 * _smooth(rng, 2000), RATE)
+    assert share.weight == pytest.approx(share.weight_all, rel=0.02) and share.weight > 0.9
+    assert share.blocks == 13 and share.cv_gain > 0  # 40 s of rows: blocks of 3 s
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_network_unrelated_to_the_residual_gets_no_weight(seed):
+    rng = np.random.default_rng(seed)
+    r, m = _smooth(rng, 1500), _smooth(rng, 1500)  # slow noise: in-sample it often looks related
+    share = block_cv_share(r, m, RATE)
+    assert share.weight == 0.0, share
+
+
+def test_too_few_validation_samples_use_the_physics_alone():
+    rng = np.random.default_rng(1)
+    r = _smooth(rng, MIN_ROWS - 1)
+    share = block_cv_share(r, r, RATE)
+    assert share.weight == 0.0 and "too few" in share.reason
+
+
+def test_the_share_shrinks_with_little_data():
+    """A network that explains a fifth of the residual's variance: with plenty of validation data its share
+    is near the least-squares weight; with little, the cross-validated gain is a smaller part of the
+    in-sample gain and the share is smaller (or 0)."""
+    def mean_share(n, trials=40):
+        rng = np.random.default_rng(n)
+        out = []
+        for _ in range(trials):
+            s, e = _smooth(rng, n), _smooth(rng, n)
+            share = block_cv_share(0.45 * s + e, s, RATE)
+            out.append((share.weight, share.weight_all))
+        return np.array(out).mean(axis=0)
+
+    big, small = mean_share(6000), mean_share(300)
+    assert big[0] > 0.85 * big[1]
+    assert small[0] < 0.6 * small[1]
+    assert small[0] < big[0]
+
+
+def test_the_share_is_a_least_squares_weight_between_0_and_1():
+    rng = np.random.default_rng(2)
+    r = _smooth(rng, 3000)
+    assert block_cv_share(r, 0.5 * r, RATE).weight == 1.0  # would be 2: clipped
+    assert block_cv_share(r, -r, RATE).weight == 0.0  # would be -1: clipped
+
+
+# ---- the hybrid model on held-out data ------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def splits(tmp_path_factory):
+    from tests.sessions import write_synthetic_session
+    from train.data.preprocess import preprocess
+    from train.data.session import read_sessions
+    from train.data.splits import SplitConfig, make_splits
+
+    path, _ = write_synthetic_session(tmp_path_factory.mktemp("share") / "s.h5", 90, seed=5)
+    ds = preprocess(read_sessions([path]))
+    return make_splits(ds, SplitConfig(n_pool=600, n_val=250, n_test=250), seed=0)
+
+
+def test_a_network_that_learnt_noise_leaves_the_hybrid_no_worse_than_its_physics_on_held_out_data(splits):
+    """The physics part has the session's friction (nothing is left for a network); one epoch at a high
+    learning rate leaves the network with noise that makes physics + network worse on the test set."""
+    from train.evaluation.metrics import mse
+    from train.models.registry import make_model
+
+    effects = [("coulomb", None, None), ("viscous", None, None)]
+    model = make_model("hybrid", splits.pool.joint_names, effects=effects, epochs=1, lr=0.05, batch_size=64,
+                       seed=1).fit(splits.pool, splits.val)
+    test = splits.test
+    physics = mse(test.tau, model.rigid.predict_dataset(test))
+    hybrid = mse(test.tau, model.predict_dataset(test))
+    assert np.all(hybrid <= 1.02 * physics), (hybrid / physics, model.network_weight)
+    shares = model.blend_info["share"]
+    assert set(shares) == set(splits.pool.joint_names)
+    assert all(s["blocks"] >= 2 and isinstance(s["reason"], str) for s in shares.values())
