@@ -200,3 +200,21 @@ def test_the_stderr_record_is_saved_and_checked_on_load(rigid, tmp_path):
     doc_path.write_text(json.dumps(doc))
     with pytest.raises(ModelFileError, match="blocks"):
         load_model(tmp_path / "m")
+
+
+def test_crane_train_fit_prints_the_effect_parameters_with_their_intervals(tmp_path):
+    from click.testing import CliRunner
+
+    from tests.sessions import write_synthetic_session
+    from train.cli import main
+
+    path, _ = write_synthetic_session(tmp_path / "s.h5", 60, seed=2)
+    result = CliRunner().invoke(main, ["fit", str(path), "--model", "rigid-body", "--scale-to-data",
+                                       "--effect", "coulomb:joint=joint2", "-o", str(tmp_path / "m")])
+    assert result.exit_code == 0, result.output
+    lines = result.output.splitlines()
+    head = next(i for i, line in enumerate(lines) if line.startswith("effect parameters"))
+    assert "jackknife" in lines[head] and "95 % interval" in lines[head]
+    name, value, pm, se, low, high = lines[head + 1].translate(str.maketrans("[],", "   ")).split()
+    assert name.startswith("coulomb.") and pm == "±"
+    assert float(low) < float(value) < float(high) and float(se) > 0
