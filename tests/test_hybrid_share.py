@@ -1,13 +1,14 @@
-"""The hybrid's network share (train.models.hybrid_share): chosen by cross-validation over time blocks of
-the validation data, 0 when the network does not help out of sample, shrunk with little data, and the
-hybrid not worse than its physics part on held-out data when its network learnt nothing useful."""
+"""The hybrid's network share (train.models.hybrid_share): judged on out-of-fold network predictions,
+chosen by cross-validation over time blocks, 0 when the network does not help out of sample, shrunk with
+little data, capped on the validation data, and the hybrid not worse than its physics part on held-out
+data when its network learnt nothing useful."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from train.models.hybrid_share import MIN_ROWS, block_cv_share
+from train.models.hybrid_share import MIN_ROWS, block_cv_share, cross_fit, validation_cap
 
 RATE = 50.0
 
@@ -65,6 +66,41 @@ def test_the_share_is_a_least_squares_weight_between_0_and_1():
     r = _smooth(rng, 3000)
     assert block_cv_share(r, 0.5 * r, RATE).weight == 1.0  # would be 2: clipped
     assert block_cv_share(r, -r, RATE).weight == 0.0  # would be -1: clipped
+
+
+def test_the_validation_cap_is_where_the_blend_stops_helping():
+    r = np.array([1.0, 2.0, -1.0])
+    m = np.array([0.5, 1.0, 0.0])
+    cap = validation_cap(r, m)
+    assert cap == pytest.approx(2 * 2.5 / 1.25)
+    assert np.sum((r - cap * m) ** 2) == pytest.approx(np.sum(r ** 2))  # exactly as good as the physics
+    assert validation_cap(r, -m) == 0.0 and validation_cap(r[:0], m[:0]) == float("inf")
+
+
+class _Recorder:
+    """A stand-in network: predicts, for every row, the earliest and latest time it was trained on."""
+
+    def fit(self, ds, val):
+        self.span = (float(np.min(ds.t)), float(np.max(ds.t)))
+        return self
+
+    def predict(self, q, dq, ddq):
+        return np.tile(self.span, (len(q), 1))
+
+
+def test_cross_fit_predicts_each_time_block_by_a_network_that_never_saw_it():
+    from train.data.dataset import Dataset
+
+    n = 90
+    t = np.random.default_rng(0).permutation(n) / RATE  # rows shuffled, as a training pool's blocks are
+    z = np.zeros((n, 2))
+    ds = Dataset(("joint1", "joint2"), t, z, z, z, z, np.ones((n, 2), bool), RATE)
+    first, last = cross_fit(_Recorder, ds, None, folds=3).T  # what each row's network was trained on
+    block = np.argsort(np.argsort(t)) // 30  # each row's time block
+    start, end = [t[block == k].min() for k in range(3)], [t[block == k].max() for k in range(3)]
+    assert np.all(first[block == 0] == start[1]) and np.all(first[block > 0] == start[0])
+    assert np.all(last[block == 2] == end[1]) and np.all(last[block < 2] == end[2])
+    assert cross_fit(_Recorder, ds.subset(np.arange(5)), None, folds=3) is None
 
 
 # ---- the hybrid model on held-out data ------------------------------------------------------------------
