@@ -21,7 +21,7 @@ unit RMS on the training data before the filter runs, so p0 means the same for e
 Standard errors: the delete-a-block jackknife over contiguous time blocks of the fit's samples
 (train.evaluation.block_uncertainty; blocks of >= 3 s, 5 to 20 of them, a repeated sample in its first
 occurrence's block), which holds for serially correlated residuals where sqrt(diag(s^2 P)) (s^2 =
-RSS / (rows - parameters)) counts every row as independent and is several times too small. fit_info
+RSS / (rows - parameters)) counts every row as independent and is too small. fit_info
 records the method, the block count and the 95 % interval's factor (value +- ci95_factor x stderr,
 Student's t with blocks - 1 degrees of freedom).
 
