@@ -117,19 +117,41 @@ def splits(tmp_path_factory):
     return make_splits(ds, SplitConfig(n_pool=600, n_val=250, n_test=250), seed=0)
 
 
-def test_a_network_that_learnt_noise_leaves_the_hybrid_no_worse_than_its_physics_on_held_out_data(splits):
-    """The physics part has the session's friction (nothing is left for a network); one epoch at a high
-    learning rate leaves the network with noise that makes physics + network worse on the test set."""
-    from train.evaluation.metrics import mse
+@pytest.fixture(scope="module")
+def noisy(splits):
+    """A hybrid whose physics part has the session's friction (nothing is left for a network) and whose
+    network, one epoch at a high learning rate, learnt noise that makes physics + network worse."""
     from train.models.registry import make_model
 
     effects = [("coulomb", None, None), ("viscous", None, None)]
-    model = make_model("hybrid", splits.pool.joint_names, effects=effects, epochs=1, lr=0.05, batch_size=64,
-                       seed=1).fit(splits.pool, splits.val)
+    return make_model("hybrid", splits.pool.joint_names, effects=effects, epochs=1, lr=0.05, batch_size=64,
+                      seed=1).fit(splits.pool, splits.val)
+
+
+def test_a_network_that_learnt_noise_leaves_the_hybrid_no_worse_than_its_physics_on_held_out_data(splits,
+                                                                                                   noisy):
+    from train.evaluation.metrics import mse
+
     test = splits.test
-    physics = mse(test.tau, model.rigid.predict_dataset(test))
-    hybrid = mse(test.tau, model.predict_dataset(test))
-    assert np.all(hybrid <= 1.02 * physics), (hybrid / physics, model.network_weight)
-    shares = model.blend_info["share"]
+    physics = mse(test.tau, noisy.rigid.predict_dataset(test))
+    hybrid = mse(test.tau, noisy.predict_dataset(test))
+    assert np.all(hybrid <= 1.02 * physics), (hybrid / physics, noisy.network_weight)
+    shares = noisy.blend_info["share"]
     assert set(shares) == set(splits.pool.joint_names)
     assert all(s["blocks"] >= 2 and isinstance(s["reason"], str) for s in shares.values())
+
+
+def test_a_damaged_share_record_is_refused_on_load(noisy, tmp_path):
+    import json
+
+    from train.models.base import ModelFileError
+    from train.models.registry import load_model
+
+    noisy.save(tmp_path / "m")
+    assert load_model(tmp_path / "m").blend_info["share"] == json.loads(json.dumps(noisy.blend_info["share"]))
+    doc_path = tmp_path / "m" / "model.json"
+    doc = json.loads(doc_path.read_text())
+    doc["state"]["blend"]["share"]["joint1"]["weight_all"] = 2.0
+    doc_path.write_text(json.dumps(doc))
+    with pytest.raises(ModelFileError, match="share"):
+        load_model(tmp_path / "m")

@@ -233,6 +233,30 @@ def _check_hybrid_state(path: Path, state: dict) -> None:
             isinstance(k, str) and _number(0)[0](v) and v <= 1 for k, v in weights.items()):
         raise ModelFileError(f"{path} has network weights {_shown(weights)}, not a number in [0, 1] per "
                              f"joint")
+    problem = _share_record_problem(state.get("blend"))
+    if problem is not None:
+        raise ModelFileError(f"{path} has a network share record (state.blend) that {problem}")
+
+
+def _share_record_problem(blend) -> str | None:
+    """What is wrong with a hybrid's record of how its network shares were chosen (state.blend; its
+    "share": per joint the least-squares weight and the number of blocks), or None."""
+    if blend is None:
+        return None
+    if not isinstance(blend, dict):
+        return "is not a record"
+    share = blend.get("share")
+    if share is None:
+        return None
+    if not isinstance(share, dict) or not all(isinstance(k, str) and isinstance(v, dict)
+                                              for k, v in share.items()):
+        return "does not give a record per joint"
+    for joint, rec in share.items():
+        w, blocks = rec.get("weight_all"), rec.get("blocks")
+        if not (_number(0)[0](w) and w <= 1) or isinstance(blocks, bool) or not isinstance(blocks, int) \
+                or blocks < 0:
+            return f"gives {joint} a weight {_shown(w)} over {_shown(blocks)} blocks"
+    return None
 
 
 def _check_rigid_state(path: Path, state: dict) -> None:
