@@ -18,10 +18,11 @@ def _fit_and_save(sessions, method: str, out_dir, train_size: int | None = None,
               effects=(), effect_files=(), joints=None, alpha=None, zero_phase=False,
               scale_to_data=False, epochs: int | None = None, progress: bool = True,
               config_path=None, arm: str | None = None, eval_set: str | None = None,
-              force: bool = False) -> dict:
+              force: bool = False):
     """train.api.fit on `arm`'s data of the sessions, saved to out_dir (with fit_metrics.json); returns the
-    metrics document. The output is checked before any work; a session whose arm the operator's hand moved
-    is refused (train.data.session.HandOnArmError) before anything is written."""
+    FitResult (its metrics document and model). The output is checked before any work; a session whose
+    arm the operator's hand moved is refused (train.data.session.HandOnArmError) before anything is
+    written."""
     from tqdm import tqdm
 
     from ..api import check_model_output, fit
@@ -42,7 +43,27 @@ def _fit_and_save(sessions, method: str, out_dir, train_size: int | None = None,
     if bar is not None:
         bar.close()
     result.save(out_dir, force=force)
-    return result.metrics
+    return result
+
+
+def effect_lines(model) -> list[str]:
+    """The fitted effect parameters of a rigid-body model (or a hybrid's physics part) with their standard
+    errors and 95 % intervals, and how those were computed; none for other models."""
+    rigid = getattr(model, "rigid", model)
+    if getattr(rigid, "method", None) != "rigid-body" or not rigid.is_fitted:
+        return []
+    rows = rigid.parameters_table()[rigid.n_base:]
+    if not rows:
+        return []
+    info = rigid.fit_info
+    factor = float(info.get("ci95_factor", 1.96))
+    lines = [f"effect parameters (± standard error: {info.get('stderr_method', 'least-squares covariance')}; "
+             f"95 % interval = value ± {factor:.3g} x standard error)"]
+    for r in rows:
+        half = factor * r["stderr"]
+        lines.append(f"  {r['name']:<34}{r['value']:>11.4g} ± {r['stderr']:<9.2g}"
+                     f"[{r['value'] - half:.4g}, {r['value'] + half:.4g}]")
+    return lines
 
 
 @click.command()
@@ -77,11 +98,13 @@ def fit(sessions, method, out_dir, train_size, seed, effects, effect_files, epoc
     from ..data.session import HandOnArmError
 
     try:
-        doc = _fit_and_save(sessions, method, out_dir, train_size, seed, [parse_effect(e) for e in effects],
-                        effect_files, joints, alpha, zero_phase, scale_to_data, epochs,
-                        show_progress(not no_progress), config_path, arm, eval_set, force)
+        result = _fit_and_save(sessions, method, out_dir, train_size, seed,
+                               [parse_effect(e) for e in effects], effect_files, joints, alpha, zero_phase,
+                               scale_to_data, epochs, show_progress(not no_progress), config_path, arm,
+                               eval_set, force)
     except HandOnArmError as exc:
         raise HandOnArmError(hand_on_hint(exc), exc.path, exc.arm) from None
+    doc = result.metrics
     click.echo(f"{method} on the {doc['arm']}: trained on {doc['train_samples']} samples "
                f"({doc['train_samples_all_moving']} with every joint moving); "
                f"test on {doc['test_samples']} samples"
@@ -90,4 +113,6 @@ def fit(sessions, method, out_dir, train_size, seed, effects, effect_files, epoc
     for j in doc["joints"]:
         t = doc["test"]
         click.echo(f"{j:<10}{t['mse'][j]:>14.4g}{t['rmse'][j]:>12.4g}{t['nmse'][j]:>10.3g}")
+    for line in effect_lines(result.model):
+        click.echo(line)
     click.echo(f"model written to {out_dir}")

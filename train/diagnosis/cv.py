@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..evaluation.block_uncertainty import jackknife_values
 from .effects import named_values
 
 if TYPE_CHECKING:
@@ -37,14 +38,9 @@ def sparse_joint(moving: np.ndarray, fold: np.ndarray, folds: int, joint_names: 
 
 
 def jackknife(per_fold: list[dict[str, float]]) -> dict[str, tuple[float, float]]:
-    """name -> (mean over folds, delete-a-block jackknife standard error) of the per-fold values."""
-    names = [n for n in per_fold[0] if all(n in v for v in per_fold)]
-    k = len(per_fold)
-    out = {}
-    for name in names:
-        v = np.array([f[name] for f in per_fold], dtype=float)
-        out[name] = (float(v.mean()), float(math.sqrt((k - 1) / k * ((v - v.mean()) ** 2).sum())))
-    return out
+    """name -> (mean over folds, delete-a-block jackknife standard error) of the per-fold values (each
+    fold's fit leaves one contiguous time block out; train.evaluation.block_uncertainty)."""
+    return jackknife_values(per_fold)
 
 
 class Engine:

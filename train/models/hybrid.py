@@ -8,12 +8,17 @@
    paper's network with the masked loss (train.models.mlp, "mlp-masked") learns that residual: each
    joint's error counts only where the joint moves, so dead-zone samples are kept for the other joints.
 
-3. The network's share is chosen on the validation data, per joint: its output is scaled by the weight
-   w in [0, 1] that minimises the validation MSE of physics + w x network on the samples where the joint
-   moves (least squares, clipped). w = 0 falls back to the physics alone, so on the validation data the
-   hybrid is never worse than its physics part (a network that learnt noise, or too little, cannot make
-   it worse there). The weight is folded into the network's output scaling (its `y_mean`, `y_std`), so
-   the saved network part, the loop export and the numpy fast path all predict physics + w x network.
+3. The network's share is chosen per joint by cross-validation over contiguous time blocks
+   (train.models.hybrid_share): networks trained like this one on all but one of 3 time blocks of the
+   training data predict the block left out; on those out-of-fold predictions the network's output gets
+   the least-squares weight w in [0, 1] of physics + w x network (on the samples where the joint
+   moves), shrunk by the share of its gain that survives leaving each 3 s block out, 0 unless that
+   held-out gain is positive by more than one standard error (or with fewer than 50 samples), and
+   capped so that the hybrid is no worse than the physics on the validation data. w = 0 falls back to
+   the physics alone, so a network that learnt noise, or too little, does not make the hybrid worse than
+   its physics part on held-out data. The weight is folded into the network's output scaling (its
+   `y_mean`, `y_std`), so the saved network part, the loop export and the numpy fast path all predict
+   physics + w x network.
 
 The physics carries what it can explain (and extrapolates outside the training range); the network
 mops up what no chosen effect covers. Saved as a directory with model.json plus the two parts in
@@ -29,6 +34,7 @@ import numpy as np
 
 from ..data.dataset import Dataset
 from .base import Model, ModelFileError
+from .hybrid_share import Share, block_cv_share, cross_fit, time_order, validation_cap
 from .recorded_effects import refuse_effect_files, specs_for
 
 if TYPE_CHECKING:
@@ -58,13 +64,16 @@ class HybridModel(Model):
         self.blend_info: dict = {}
 
     def _make_parts(self):
-        from .mlp import MLPModel
         from .rigid_body import RigidBodyModel
 
         effects = [tuple(e) if isinstance(e, list) else e for e in self.options.get("effects", [])]
         rigid = RigidBodyModel(self.joint_names, self.preprocessing, effects=effects, **self.rigid_options)
-        mlp = MLPModel(self.joint_names, self.preprocessing, loss="masked", **self.mlp_options)
-        return rigid, mlp
+        return rigid, self._make_network()
+
+    def _make_network(self):
+        from .mlp import MLPModel
+
+        return MLPModel(self.joint_names, self.preprocessing, loss="masked", **self.mlp_options)
 
     @staticmethod
     def _residual(ds: Dataset | None, physics) -> Dataset | None:
@@ -78,8 +87,10 @@ class HybridModel(Model):
             progress: Callable[[int, int], object] | None = None) -> HybridModel:
         rigid, mlp = self._make_parts()
         rigid.fit(train, val)
-        mlp.fit(self._residual(train, rigid), self._residual(val, rigid), progress=progress)
-        self.network_weight, self.blend_info = _choose_weight(rigid, mlp, val)
+        residual, val_residual = self._residual(train, rigid), self._residual(val, rigid)
+        mlp.fit(residual, val_residual, progress=progress)
+        oof = cross_fit(self._make_network, residual, val_residual)
+        self.network_weight, self.blend_info = _choose_weight(rigid, mlp, residual, oof, val)
         _scale_network(mlp, [self.network_weight[n] for n in self.joint_names])
         self.rigid, self.mlp = rigid, mlp
         if not self.preprocessing:
@@ -134,28 +145,43 @@ class HybridModel(Model):
         self.blend_info = dict(state.get("blend") or {})
 
 
-def _choose_weight(rigid, mlp, val: Dataset | None) -> tuple[dict[str, float], dict]:
-    """Per joint, the network's weight w in [0, 1] minimising the validation MSE of physics + w x network
-    on the validation samples where the joint moves (the masked loss's samples), and the validation
-    MSEs of the physics alone, the unweighted sum and the weighted hybrid. Without validation data the
-    network counts fully (w = 1)."""
+def _choose_weight(rigid, mlp, residual: Dataset, oof: np.ndarray | None,
+                   val: Dataset | None) -> tuple[dict[str, float], dict]:
+    """Per joint, the network's share w in [0, 1] chosen by cross-validation over time blocks of the
+    out-of-fold network predictions `oof` (N, J) on the training residual (train.models.hybrid_share),
+    capped so the hybrid is no worse than the physics on the validation samples where the joint moves;
+    and the validation MSEs of the physics alone, the unweighted sum and the weighted hybrid."""
     names = list(rigid.joint_names)
-    if val is None or len(val) == 0:
-        return {n: 1.0 for n in names}, {"chosen_on": "no validation data: network weight 1"}
-    r = val.tau - rigid.predict_dataset(val)
-    m = mlp.predict(val.q, val.dq, val.ddq)
-    weights, info = {}, {"chosen_on": f"{len(val)} validation samples (each joint where it moves)",
-                         "val_mse_physics": {}, "val_mse_sum": {}, "val_mse_hybrid": {}}
+    order = time_order(residual)
+    r, moving = residual.tau[order], residual.moving[order]
+    m = oof[order] if oof is not None else None
+    info = {"chosen_on": f"out-of-fold predictions on {len(residual)} training samples (each joint where "
+                         f"it moves), cross-validated over contiguous time blocks",
+            "val_mse_physics": {}, "val_mse_sum": {}, "val_mse_hybrid": {}, "share": {}}
+    weights = {}
     for j, name in enumerate(names):
-        rows = val.moving[:, j] if getattr(val, "moving", None) is not None else np.ones(len(val), bool)
-        rj, mj = r[rows, j], m[rows, j]
-        mm = float(mj @ mj)
-        w = 1.0 if not rows.any() else (0.0 if mm <= 0 else float(np.clip((rj @ mj) / mm, 0.0, 1.0)))
-        weights[name] = w
-        if rows.any():
-            info["val_mse_physics"][name] = float((rj ** 2).mean())
-            info["val_mse_sum"][name] = float(((rj - mj) ** 2).mean())
-            info["val_mse_hybrid"][name] = float(((rj - w * mj) ** 2).mean())
+        rows = moving[:, j]
+        if m is None:
+            share = Share(0.0, 0.0, 0, 0.0, 0.0, 0.0, "too few training samples to cross-fit the network")
+        else:
+            share = block_cv_share(r[rows, j], m[rows, j], float(residual.rate_hz))
+        weights[name] = share.weight
+        info["share"][name] = {"weight_all": share.weight_all, "blocks": share.blocks,
+                               "cv_gain": share.cv_gain, "cv_gain_se": share.cv_gain_se,
+                               "in_sample_gain": share.in_sample_gain, "reason": share.reason}
+    if val is not None and len(val):
+        rv, mv = val.tau - rigid.predict_dataset(val), mlp.predict(val.q, val.dq, val.ddq)
+        for j, name in enumerate(names):
+            rows = val.moving[:, j]
+            rj, mj = rv[rows, j], mv[rows, j]
+            cap = validation_cap(rj, mj)
+            if weights[name] > cap:
+                weights[name] = cap
+                info["share"][name]["reason"] += "; capped: no worse than the physics on the validation data"
+            if rows.any():
+                info["val_mse_physics"][name] = float((rj ** 2).mean())
+                info["val_mse_sum"][name] = float(((rj - mj) ** 2).mean())
+                info["val_mse_hybrid"][name] = float(((rj - weights[name] * mj) ** 2).mean())
     return weights, info
 
 

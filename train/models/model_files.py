@@ -233,6 +233,30 @@ def _check_hybrid_state(path: Path, state: dict) -> None:
             isinstance(k, str) and _number(0)[0](v) and v <= 1 for k, v in weights.items()):
         raise ModelFileError(f"{path} has network weights {_shown(weights)}, not a number in [0, 1] per "
                              f"joint")
+    problem = _share_record_problem(state.get("blend"))
+    if problem is not None:
+        raise ModelFileError(f"{path} has a network share record (state.blend) that {problem}")
+
+
+def _share_record_problem(blend) -> str | None:
+    """What is wrong with a hybrid's record of how its network shares were chosen (state.blend; its
+    "share": per joint the least-squares weight and the number of blocks), or None."""
+    if blend is None:
+        return None
+    if not isinstance(blend, dict):
+        return "is not a record"
+    share = blend.get("share")
+    if share is None:
+        return None
+    if not isinstance(share, dict) or not all(isinstance(k, str) and isinstance(v, dict)
+                                              for k, v in share.items()):
+        return "does not give a record per joint"
+    for joint, rec in share.items():
+        w, blocks = rec.get("weight_all"), rec.get("blocks")
+        if not (_number(0)[0](w) and w <= 1) or isinstance(blocks, bool) or not isinstance(blocks, int) \
+                or blocks < 0:
+            return f"gives {joint} a weight {_shown(w)} over {_shown(blocks)} blocks"
+    return None
 
 
 def _check_rigid_state(path: Path, state: dict) -> None:
@@ -332,6 +356,24 @@ def mlp_shapes(joints: int, hidden: int) -> dict:
     return {"W1": (3 * joints, hidden), "b1": (hidden,), "W2": (hidden, joints), "b2": (joints,)}
 
 
+def stderr_record_problem(fit_info) -> str | None:
+    """What is wrong with the record of how a rigid-body model's standard errors were computed (its
+    fit_info's stderr_method, stderr_blocks, ci95_factor; absent in models whose standard errors are
+    the least-squares covariance's), or None."""
+    if not isinstance(fit_info, dict):
+        return None if fit_info is None else "has a fit_info that is not a record"
+    if not any(k in fit_info for k in ("stderr_method", "stderr_blocks", "ci95_factor")):
+        return None
+    blocks, factor = fit_info.get("stderr_blocks"), fit_info.get("ci95_factor")
+    if not isinstance(fit_info.get("stderr_method"), str):
+        return "records standard errors without saying how they were computed (stderr_method)"
+    if isinstance(blocks, bool) or not isinstance(blocks, int) or blocks < 2:
+        return f"records standard errors over {blocks!r} blocks, not a whole number of at least 2"
+    if isinstance(factor, bool) or not isinstance(factor, (int, float)) or not 0 < factor < 100:
+        return f"records a 95 % interval factor of {factor!r}, not a positive number"
+    return None
+
+
 def check_rigid_loaded(directory: Path | str, model) -> None:
     """A loaded rigid-body model's parameters: one per column of its regressor (base parameters and effect
     terms), as many names as values, standard errors >= 0."""
@@ -341,6 +383,9 @@ def check_rigid_loaded(directory: Path | str, model) -> None:
         raise ModelFileError(f"{path} has {theta.size} parameters but {stderr.size} standard errors")
     if np.any(stderr < 0):
         raise ModelFileError(f"{path} has a negative standard error")
+    problem = stderr_record_problem(getattr(model, "fit_info", None))
+    if problem is not None:
+        raise ModelFileError(f"{Path(directory) / MODEL_JSON} {problem}; fit the model again")
     if len(model.names) != theta.size:
         raise ModelFileError(f"{Path(directory) / MODEL_JSON} names {len(model.names)} parameters but "
                              f"{path.name} holds {theta.size}")

@@ -18,7 +18,12 @@ With forgetting factor 1 taking one sample or a block of samples per update give
 (block=1 is the textbook row-by-row form; the default block of 64 samples is just faster); the result
 equals least squares regularised by 1/p0, i.e. plain least squares for large p0. Columns are scaled to
 unit RMS on the training data before the filter runs, so p0 means the same for every column.
-Standard errors: sqrt(diag(s^2 P)) with s^2 the residual variance (RSS / (rows - parameters)).
+Standard errors: the delete-a-block jackknife over contiguous time blocks of the fit's samples
+(train.evaluation.block_uncertainty; blocks of >= 3 s, 5 to 20 of them, a repeated sample in its first
+occurrence's block), which holds for serially correlated residuals where sqrt(diag(s^2 P)) (s^2 =
+RSS / (rows - parameters)) counts every row as independent and is too small. fit_info
+records the method, the block count and the 95 % interval's factor (value +- ci95_factor x stderr,
+Student's t with blocks - 1 degrees of freedom).
 
 Effects: `effects=[(name, joint_name or None, shape dict or None), ...]`. A joint-scope effect with
 joint None is added once per learning joint. An effect with shape parameters (e.g. a Stribeck
@@ -59,6 +64,7 @@ from crane_io.errors import ConfigError, CraneError
 from ..data.dataset import Dataset
 from ..data.splits import AUTO_ALL_MOVING_MAX_JOINTS
 from ..data.splits import per_joint as per_joint_set
+from ..evaluation.block_uncertainty import BlockPlan, least_squares_jackknife, sample_blocks, t_factor
 from .base import Model, ModelFileError
 from .model_files import read_arrays
 from .recorded_effects import refuse_effect_files, specs_for
@@ -263,12 +269,16 @@ class RigidBodyModel(Model):
         return names
 
     # ---- fitting ---------------------------------------------------------------------------------
-    def _solve(self, ds: Dataset, terms, per_joint: bool = False):
+    def _solve(self, ds: Dataset, terms, per_joint: bool = False, uncertainty: bool = False):
         """Least squares of the torque equations: every joint's of every sample, or (per_joint) each
-        joint's only where that joint moves."""
+        joint's only where that joint moves. Returns (theta, standard errors, residual variance, the
+        block plan of the standard errors); with `uncertainty` False (the shape search) the standard
+        errors are those of the least-squares covariance and the plan None."""
         Phi = self.regressor(ds.q, ds.dq, ds.ddq, terms, ds.context)
         y = ds.tau
+        sample = np.arange(len(ds))
         if per_joint:
+            sample = np.nonzero(ds.moving)[0]
             Phi, y = Phi[ds.moving][:, None, :], y[ds.moving][:, None]
         scale = np.sqrt((Phi ** 2).mean(axis=(0, 1)))
         scale = np.where(scale > 1e-12, scale, 1.0)
@@ -277,8 +287,14 @@ class RigidBodyModel(Model):
         resid = y - Phi @ theta
         dof = max(resid.size - len(theta), 1)
         s2 = float((resid ** 2).sum() / dof)
-        stderr = np.sqrt(np.clip(np.diag(P_s), 0, None) * s2) / scale
-        return theta, stderr, s2
+        if not uncertainty:
+            return theta, np.sqrt(np.clip(np.diag(P_s), 0, None) * s2) / scale, s2, None
+        plan = _blocks_of(ds)
+        p = len(theta)
+        rows = np.repeat(plan.ids[sample], y.shape[1])  # each equation's block (its sample's)
+        se_s = least_squares_jackknife((Phi / scale).reshape(-1, p), y.reshape(-1), rows, plan.count,
+                                       ridge=1.0 / self.p0)
+        return theta, se_s / scale, s2, plan
 
     def _check_given_shape(self, term, ds: Dataset) -> None:
         """A shape given on the command line (`--effect stribeck:stribeck_velocity=...`) must make the
@@ -311,10 +327,12 @@ class RigidBodyModel(Model):
                 self._check_given_shape(term, fit_ds)
         tuned = self._tune_shapes(terms, fit_ds, val_ds, per_joint)
         self.terms = terms
-        self.theta, self.stderr, s2 = self._solve(fit_ds, terms, per_joint)
+        self.theta, self.stderr, s2, plan = self._solve(fit_ds, terms, per_joint, uncertainty=True)
         self.names = self._parameter_names(terms)
         self.fit_info = {"rows": int(len(rows)), "residual_variance": s2, "shape_search": tuned,
-                         "rows_used": "per-joint" if per_joint else "all-moving"}
+                         "rows_used": "per-joint" if per_joint else "all-moving",
+                         "stderr_method": plan.describe(), "stderr_blocks": int(plan.count),
+                         "ci95_factor": t_factor(plan.count)}
         if not self.preprocessing:
             self.preprocessing = dict(train.meta.get("preprocessing", {}))
         return self
@@ -354,7 +372,7 @@ class RigidBodyModel(Model):
         """Validation mean squared error of the fit with term i given `shape`."""
         trial = [dict(t) for t in terms]
         trial[i]["shape"] = shape
-        theta, _, _ = self._solve(fit_ds, trial, per_joint)
+        theta = self._solve(fit_ds, trial, per_joint)[0]
         pred = self.regressor(val_ds.q, val_ds.dq, val_ds.ddq, trial, val_ds.context) @ theta
         err = (val_ds.tau - pred) ** 2
         return float(err[val_ds.moving].mean() if per_joint else err.mean())
@@ -444,6 +462,17 @@ class RigidBodyModel(Model):
         for term in self.terms if isinstance(self.terms, list) else ():
             if isinstance(term, dict):
                 self.effect_by_name(term.get("name"))
+
+
+def _blocks_of(ds: Dataset) -> BlockPlan:
+    """The contiguous time blocks of the fit's samples (train.evaluation.block_uncertainty): in time
+    order within each segment (the training pool's rows may come in shuffled blocks), a repeated sample
+    in its first occurrence's block."""
+    order = np.lexsort((ds.t, ds.segment))
+    rank = np.empty(len(ds), dtype=float)
+    rank[order] = np.arange(len(ds))
+    values = np.hstack([ds.q, ds.dq, ds.ddq, ds.tau])
+    return sample_blocks(rank, ds.rate_hz, values)
 
 
 def _validation_rows(val: Dataset | None, per_joint: bool, fit_ds: Dataset) -> Dataset:
