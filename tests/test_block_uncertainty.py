@@ -172,11 +172,11 @@ def test_the_rigid_body_standard_errors_are_the_block_jackknife(rigid):
     assert info["ci95_factor"] == pytest.approx(t_factor(info["stderr_blocks"]))
     assert np.all(np.isfinite(model.stderr)) and np.all(model.stderr > 0)
     # the fit's own equations, rows in blocks, give the same numbers through the estimator
-    from train.models.rigid_body import _blocks_of
+    from train.models.rigid_body import fit_blocks
 
     rows = np.flatnonzero(ds.all_moving)
     sub = ds.subset(rows)
-    plan = _blocks_of(sub)
+    plan = fit_blocks(sub)
     Phi = model.regressor(sub.q, sub.dq, sub.ddq, context=sub.context)
     scale = np.sqrt((Phi ** 2).mean(axis=(0, 1)))
     se = least_squares_jackknife((Phi / scale).reshape(-1, Phi.shape[2]), sub.tau.reshape(-1),

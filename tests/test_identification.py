@@ -13,6 +13,7 @@ from crane_io.physics.dynamics import ArmDynamics
 from crane_io.physics.identified_model import IdentifiedArm, pseudo_inertia
 from tests.sessions import write_synthetic_session
 from train.cli import main as train_main
+from train.evaluation.block_uncertainty import sample_blocks
 from train.identification.consistency import body_summary, project
 from train.identification.estimate import IdentificationError, weighted_least_squares
 
@@ -34,6 +35,10 @@ def _exciting(arm, n, rng):
     return q, dq, ddq
 
 
+def _blocks(n: int):
+    return sample_blocks(np.arange(n, dtype=float), 50.0)
+
+
 def _ar1(rng, shape, rho, sd):
     e = rng.normal(0, sd * np.sqrt(1 - rho ** 2), shape)
     for k in range(1, shape[0]):
@@ -49,7 +54,7 @@ def test_the_estimate_recovers_the_truth_and_its_interval_covers_it_under_correl
     hits, trials = 0, 12
     for k in range(trials):
         tau = phi @ truth + _ar1(np.random.default_rng(k), (6000, 3), 0.9, 0.02)
-        est = weighted_least_squares(phi, tau, np.ones_like(tau, bool))
+        est = weighted_least_squares(phi, tau, np.ones_like(tau, bool), _blocks(len(tau)))
         z = np.abs(est.theta - truth) / est.stderr
         hits += int(np.mean(z < 1.96) >= 0.8)
         assert np.all(est.stderr > 0)
@@ -63,7 +68,7 @@ def test_a_consistent_estimate_is_left_alone_and_an_inconsistent_one_is_projecte
     phi = arm.base_regressor(q, dq, ddq)
     truth = arm.base_parameters()
     tau = phi @ truth + rng.normal(0, 0.01, (3000, 3))
-    est = weighted_least_squares(phi, tau, np.ones_like(tau, bool))
+    est = weighted_least_squares(phi, tau, np.ones_like(tau, bool), _blocks(len(tau)))
     k = arm.base_map_rows(arm.joint_names)
     proj = project(truth, est.cov, k, arm.standard_parameters(), arm.body_names(), np.zeros(0, bool))
     assert proj.as_estimated and np.allclose(proj.theta, truth, rtol=1e-5, atol=1e-8)
@@ -98,7 +103,7 @@ def test_a_joint_that_never_moves_is_refused_in_one_sentence(arm):
     moving = np.ones((500, 3), bool)
     moving[:, 2] = False
     with pytest.raises(IdentificationError, match="joint #3 moves in only 0 samples"):
-        weighted_least_squares(phi, phi @ arm.base_parameters(), moving)
+        weighted_least_squares(phi, phi @ arm.base_parameters(), moving, _blocks(500))
 
 
 @pytest.fixture(scope="module")

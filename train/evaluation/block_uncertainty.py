@@ -155,6 +155,25 @@ def least_squares_jackknife(A: np.ndarray, b: np.ndarray, ids: np.ndarray, count
     """Delete-a-block jackknife standard errors (p,) of the least-squares estimate
     argmin |A theta - b|^2 + ridge |theta|^2, rows A (m, p), b (m,) in blocks `ids` (0..count-1):
     each replicate solves the normal equations without one block's."""
+    return jackknife_se(least_squares_replicates(A, b, ids, count, ridge))[1]
+
+
+def least_squares_covariance(A: np.ndarray, b: np.ndarray, ids: np.ndarray, count: int,
+                             ridge: float = 0.0) -> np.ndarray:
+    """The delete-a-block jackknife covariance (p, p) of the same estimate: (K-1)/K sum_k d_k d_k^T with
+    d_k the k-th replicate's deviation from the replicates' mean (its diagonal is the square of
+    least_squares_jackknife)."""
+    reps = least_squares_replicates(A, b, ids, count, ridge)
+    k = reps.shape[0]
+    if k < 2:
+        return np.full((reps.shape[1], reps.shape[1]), np.nan)
+    dev = reps - reps.mean(axis=0)
+    return (k - 1) / k * dev.T @ dev
+
+
+def least_squares_replicates(A: np.ndarray, b: np.ndarray, ids: np.ndarray, count: int,
+                             ridge: float = 0.0) -> np.ndarray:
+    """(K, p) the least-squares estimates with each of the K blocks left out in turn."""
     A = np.asarray(A, dtype=float)
     b = np.asarray(b, dtype=float)
     G, c = block_normal_equations(A, b, ids, count)
@@ -167,4 +186,4 @@ def least_squares_jackknife(A: np.ndarray, b: np.ndarray, ids: np.ndarray, count
             reps[k] = np.linalg.solve(M, ct - c[k])
         except np.linalg.LinAlgError:
             reps[k] = np.linalg.lstsq(M, ct - c[k], rcond=None)[0]
-    return jackknife_se(reps)[1]
+    return reps

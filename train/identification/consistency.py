@@ -38,6 +38,7 @@ from .estimate import IdentificationError
 
 MIN_MASS = 1e-3  # kg: a body lighter than this is not a body
 LENGTH = 0.1  # m: the arm's link scale, for the solver's units
+MARGIN = 1e-6  # kg (solver units): the projection lands this far inside the set, not on its edge
 AS_ESTIMATED = 1e-4  # chi^2 per parameter below which the projection did not move the estimate
 REGULARISATION = 1e-6
 
@@ -116,7 +117,8 @@ def project(theta_hat: np.ndarray, cov: np.ndarray, base_map: np.ndarray, phi_no
     constraints = []
     for b in range(nb_std // 10):
         v = phi[10 * b:10 * b + 10]
-        constraints += [congruence @ _cvx_pseudo_inertia(cp, v) @ congruence >> 0, v[0] >= MIN_MASS]
+        constraints += [congruence @ _cvx_pseudo_inertia(cp, v) @ congruence >> MARGIN * np.eye(4),
+                         v[0] >= MIN_MASS]
     if n_other and np.any(nonnegative):
         constraints.append(other[np.flatnonzero(nonnegative)] >= 0)
     problem = cp.Problem(cp.Minimize(objective), constraints)

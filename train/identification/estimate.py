@@ -5,11 +5,12 @@ static friction). Two steps: ordinary least squares gives each joint's residual 
 sigma_j; the weighted fit divides joint j's equations by sigma_j, so every equation counts by its noise.
 
 The uncertainty accounts for serial correlation: the residuals of a recording at 50 Hz are correlated
-over tens of samples, so the textbook covariance s^2 (A^T A)^-1 is too small. The parameters are
-re-estimated with each of `blocks` contiguous time blocks left out (a delete-one-block jackknife), and the
-covariance is (B - 1) / B times the sum of the outer products of those estimates' deviations. The larger
-of the two covariances (by trace ratio) is used, so a short recording never gets a smaller error than
-its independent-sample value.
+over tens of samples, so the textbook covariance s^2 (A^T A)^-1 is too small. The covariance is the
+delete-a-block jackknife's over contiguous time blocks (train.evaluation.block_uncertainty: the same
+blocks and estimator as `crane-train fit`'s standard errors; a repeated sample stays in its first
+occurrence's block). Where the jackknife comes out below the textbook value on average (few blocks, by
+chance), the textbook covariance is used, so a recording never gets a smaller error than its
+independent-sample value.
 
 The condition number is that of the weighted regressor with every column scaled to unit norm (the
 figure identification papers quote: how well the data separate the parameters, independent of units).
@@ -23,7 +24,8 @@ import numpy as np
 
 from crane_io.errors import CraneError
 
-DEFAULT_BLOCKS = 10
+from ..evaluation.block_uncertainty import BlockPlan, least_squares_covariance
+
 CORRELATED = 0.95  # |correlation| above which two estimates are reported as a strongly correlated pair
 
 
@@ -58,14 +60,13 @@ def _solve(a: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.linalg.lstsq(a, y, rcond=None)[0]
 
 
-def weighted_least_squares(phi: np.ndarray, tau: np.ndarray, moving: np.ndarray,
-                           blocks: int = DEFAULT_BLOCKS) -> Estimate:
-    """The estimate of theta in tau = phi @ theta from phi (N, J, p), tau (N, J) N m and the dead-zone
-    mask moving (N, J) (time order: the blocks are contiguous in it)."""
+def weighted_least_squares(phi: np.ndarray, tau: np.ndarray, moving: np.ndarray, plan: BlockPlan) -> Estimate:
+    """The estimate of theta in tau = phi @ theta from phi (N, J, p), tau (N, J) N m, the dead-zone mask
+    moving (N, J) and the samples' time blocks `plan` (train.evaluation.block_uncertainty)."""
     phi, tau, moving = np.asarray(phi, float), np.asarray(tau, float), np.asarray(moving, bool)
     n, nj, p = phi.shape
     counts = moving.sum(axis=0)
-    if counts.size == 0 or counts.min() < max(p // nj + 1, 2 * blocks):
+    if counts.size == 0 or counts.min() < max(p // nj + 1, 2 * plan.count):
         j = int(np.argmin(counts))
         raise IdentificationError(f"joint #{j + 1} moves in only {int(counts[j])} samples; identifying "
                                   f"{p} parameters needs more motion (an exciting trajectory, or a longer "
@@ -93,7 +94,7 @@ def weighted_least_squares(phi: np.ndarray, tau: np.ndarray, moving: np.ndarray,
     s2 = float(resid @ resid / dof)
     ata_inv = np.linalg.inv((aw / col).T @ (aw / col)) / np.outer(col, col)
     cov_iid = s2 * ata_inv
-    cov = _block_jackknife(aw, yw, col, sample, n, blocks)
+    cov = least_squares_covariance(aw / col, yw, plan.ids[sample], plan.count) / np.outer(col, col)
     if np.trace(cov / np.maximum(np.diag(cov_iid), 1e-300)[None, :]) < p:  # never below the iid value
         cov = cov_iid
     cov = 0.5 * (cov + cov.T)
@@ -103,18 +104,3 @@ def weighted_least_squares(phi: np.ndarray, tau: np.ndarray, moving: np.ndarray,
              if abs(corr[i, k]) > CORRELATED]
     return Estimate(theta=theta, cov=cov, sigma=sigma, condition=condition, rows=int(len(y)),
                     correlated=pairs)
-
-
-def _block_jackknife(aw, yw, col, sample, n: int, blocks: int) -> np.ndarray:
-    """Delete-one-block jackknife covariance over `blocks` contiguous blocks of the N samples."""
-    block_of = np.minimum((sample * blocks) // max(n, 1), blocks - 1)
-    g = (aw / col).T @ (aw / col)
-    b = (aw / col).T @ yw
-    estimates = []
-    for k in range(blocks):
-        keep = block_of == k
-        ak = (aw / col)[keep]
-        estimates.append(np.linalg.solve(g - ak.T @ ak, b - ak.T @ yw[keep]) / col)
-    est = np.array(estimates)
-    dev = est - est.mean(axis=0)
-    return (blocks - 1) / blocks * dev.T @ dev

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from .consistency import Projection, project
-from .estimate import DEFAULT_BLOCKS, Estimate, weighted_least_squares
+from .estimate import Estimate, weighted_least_squares
 from .verdict import Check, Thresholds, checks, parameter_contribution, to_json
 
 DEFAULT_EFFECTS = ("viscous", "coulomb")
@@ -97,12 +97,13 @@ def _mse_where_moving(tau: np.ndarray, pred: np.ndarray, moving: np.ndarray) -> 
 
 
 def identify(data, *, effects: Sequence[str] = DEFAULT_EFFECTS, seed: int = 0, scale_to_data: bool = False,
-             config=None, arm: str | None = None, joints=None, thresholds: Thresholds | None = None,
-             blocks: int = DEFAULT_BLOCKS) -> Identification:
+             config=None, arm: str | None = None, joints=None,
+             thresholds: Thresholds | None = None) -> Identification:
     """Identify from `data` (a Dataset, or session file(s) read as train.api.load_sessions reads them)."""
     from ..api import FitResult, load_sessions, load_settings, model_preprocessing, test_metrics
     from ..data.splits import make_splits
     from ..models.registry import make_model
+    from ..models.rigid_body import fit_blocks
 
     thresholds = thresholds or Thresholds()
     if not hasattr(data, "tau"):
@@ -115,7 +116,7 @@ def identify(data, *, effects: Sequence[str] = DEFAULT_EFFECTS, seed: int = 0, s
                        effects=effect_list, rows="per-joint")
     model.fit(pool, splits.val)  # resolves the context joints and the effect terms
     phi = model.regressor(pool.q, pool.dq, pool.ddq, context=pool.context)
-    est = weighted_least_squares(phi, pool.tau, pool.moving, blocks=blocks)
+    est = weighted_least_squares(phi, pool.tau, pool.moving, fit_blocks(pool))
     dyn = model.dynamics
     names = list(model.names)
     n_base = model.n_base

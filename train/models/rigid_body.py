@@ -289,7 +289,7 @@ class RigidBodyModel(Model):
         s2 = float((resid ** 2).sum() / dof)
         if not uncertainty:
             return theta, np.sqrt(np.clip(np.diag(P_s), 0, None) * s2) / scale, s2, None
-        plan = _blocks_of(ds)
+        plan = fit_blocks(ds)
         p = len(theta)
         rows = np.repeat(plan.ids[sample], y.shape[1])  # each equation's block (its sample's)
         se_s = least_squares_jackknife((Phi / scale).reshape(-1, p), y.reshape(-1), rows, plan.count,
@@ -464,7 +464,7 @@ class RigidBodyModel(Model):
                 self.effect_by_name(term.get("name"))
 
 
-def _blocks_of(ds: Dataset) -> BlockPlan:
+def fit_blocks(ds: Dataset) -> BlockPlan:
     """The contiguous time blocks of the fit's samples (train.evaluation.block_uncertainty): in time
     order within each segment (the training pool's rows may come in shuffled blocks), a repeated sample
     in its first occurrence's block."""
