@@ -1,4 +1,4 @@
-"""Discover the missing term (`crane-train diagnose --discover`, train/diagnosis/discovery.py, issue 12).
+"""Discover the missing term (`crane-train diagnose --discover`, train/diagnosis/discovery.py).
 
 Four effects whose form the effects library lacks are planted, each hidden on a stated joint of the
 baseline plant (tests/fakes/planted-*.toml, effects as data in tests/fakes/planted_effects.json): a
@@ -131,10 +131,10 @@ def test_discovery_finds_the_planted_term_and_its_effect_file_halves_the_error(p
     assert doc["effect_file"] == str(out)
     written = json.loads(out.read_text())  # effects as data
     (spec,) = written["effects"]
-    assert spec["name"] == f"discovered-{joint}" and entry["expression"] in spec["description"]
+    assert spec["name"].startswith(f"{joint}-") and entry["expression"] in spec["description"]
     assert [t["parameter"] for t in spec["terms"]] == [t["parameter"] for t in entry["terms"]]
     assert [t["value"] for t in spec["terms"]] == [t["coefficient"] for t in entry["terms"]]
-    effects = known + [(f"discovered-{joint}", joint, None)]
+    effects = known + [(spec["name"], joint, None)]
     if entry["on_top_of"]:
         effects.append((entry["on_top_of"], joint, None))
     fixed = tmp_path / "with-discovered"

@@ -267,7 +267,8 @@ def _refusal_notes(refused, check, terms: list[Term], joint_names, j: int) -> li
         notes.append(f"Not proposed: {names} (fitted without the held-out blocks, it does not lower "
                      "the error on them).")
     if check is not None and check.worse:
-        worse = ", ".join(f"{joint_names[k]} (x{check.after[k] / check.before[k]:.3g})" for k in check.worse)
+        worse = ", ".join(f"{joint_names[k]} (x{check.after[k] / check.before[k]:.3g}, larger in "
+                          f"{int(check.blocks_worse[k])} held-out blocks)" for k in check.worse)
         notes.append(f"Not claimed: the refit with these terms makes the held-out error of {worse} worse.")
     return notes
 

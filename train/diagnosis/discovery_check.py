@@ -9,9 +9,11 @@ blocks and scored on the held-out ones (`heldout_check`):
 
 - a term whose removal does not raise the joint's held-out error is dropped (the least useful first, the
   rest refitted), so every term that is proposed lowers the held-out error;
-- the refit with what is left must not make any joint's held-out error worse (beyond WORSE_TOLERANCE, the
-  rounding of the fit): a rigid-body base is shared by the joints, and a term that buys one joint's fit
-  with another's is not a discovery.
+- the refit with what is left must not make any joint's held-out error worse: a rigid-body base is
+  shared by the joints, and a term that buys one joint's fit with another's is not a discovery. Worse
+  means larger summed over the held-out blocks (beyond WORSE_TOLERANCE, the fit's rounding) and larger in
+  at least half of them: one short block where a joint's small error moves is the noise of fitting the
+  shared parameters on fewer blocks, not a trade.
 """
 
 from __future__ import annotations
@@ -43,9 +45,13 @@ def placed(cols: np.ndarray, j: int, n_joints: int) -> np.ndarray:
 
 def heldout_sse(engine: Engine, C: np.ndarray | None, train: list[int], held: list[int]) -> np.ndarray:
     """(J,) squared error on the `held` blocks of the base (and C) fitted on the `train` blocks."""
+    return block_sse(engine, C, train, held).sum(axis=0)
+
+
+def block_sse(engine: Engine, C: np.ndarray | None, train: list[int], held: list[int]) -> np.ndarray:
+    """(len(held), J) squared error on each of the `held` blocks of the base (and C) fitted on `train`."""
     th_x, th_c, _ = engine.fit(C, train)
-    return sum((engine.heldout_sse(C, th_x, th_c if C is not None else None, k) for k in held),
-               np.zeros(engine.y.shape[1]))
+    return np.array([engine.heldout_sse(C, th_x, th_c if C is not None else None, k) for k in held])
 
 
 @dataclass
@@ -54,6 +60,7 @@ class HeldOut:
     dropped: list[int]  # the terms that did not
     before: np.ndarray  # (J,) held-out SSE of the base alone
     after: np.ndarray  # (J,) with the kept terms
+    blocks_worse: np.ndarray  # (J,) held-out blocks in which the error with the kept terms is larger
     worse: list[int] = field(default_factory=list)  # joints whose held-out error the refit makes worse
 
     def reduction(self, j: int) -> float:
@@ -81,8 +88,14 @@ def heldout_check(engine: Engine, T: np.ndarray, S: list[int], j: int, train: li
             break
         dropped.append(S.pop(worst))
         after = before
-    worse = [k for k in range(n_joints) if after[k] > before[k] * (1 + WORSE_TOLERANCE)] if S else []
-    return HeldOut(S, dropped, before, after, worse)
+    per_block = np.zeros((len(held), n_joints))
+    if S:
+        per_block = (block_sse(engine, placed(T[:, S], j, n_joints), train, held)
+                     > block_sse(engine, None, train, held) * (1 + WORSE_TOLERANCE))
+    count = per_block.sum(axis=0)
+    worse = [k for k in range(n_joints) if after[k] > before[k] * (1 + WORSE_TOLERANCE)
+             and 2 * count[k] >= len(held)] if S else []
+    return HeldOut(S, dropped, before, after, count, worse)
 
 
 def coefficients(engine: Engine, C: np.ndarray, blocks: list[int]) -> tuple[np.ndarray, np.ndarray]:

@@ -25,6 +25,7 @@ SUFFIX = ".json"
 
 
 MAX_NAME = 64  # an effect name's length (crane_io.physics.effects.spec)
+MAX_DESCRIPTION = 2000  # characters of an effect's description (crane_io.physics.effects.spec)
 
 
 def _factor_slug(f: list, j: int, labels: Sequence[str]) -> str:
@@ -48,7 +49,7 @@ def _factor_slug(f: list, j: int, labels: Sequence[str]) -> str:
     if op == "pow":
         return f"{f[1]}{at(f[2])}-p{f[3]}"
     if op in ("sin", "cos"):
-        angle = "q" if list(f[2]) == [j] else "q" + "+".join(f"j{labels[k]}" for k in f[2])
+        angle = "q" if list(f[2]) == [j] else "q" + "".join(f"_j{labels[k]}" for k in f[2])
         return f"{op}{f[1] if f[1] != 1 else ''}{angle}"
     shape = "".join(f"-{k}.{float(v)!r}" for k, v in sorted(f[4].items()))
     return f"lib.{f[1]}.{f[3]}{at(f[2])}{shape}"
@@ -94,6 +95,10 @@ def effect_spec(d: JointDiscovery, joints: Sequence[str]) -> dict:
     description = (f"{d.joint}: tau += {d.expression} (N m), found by crane-train diagnose --discover. "
                    f"Terms (estimate ± delete-a-block jackknife standard error): {terms}. Held-out error "
                    f"removed: {100 * d.error_reduction:.0f}% (per block: {blocks}).{on_top}")
+    if len(description) > MAX_DESCRIPTION:  # the terms and their estimates are in "terms" as well
+        description = (f"{d.joint}: a sum of {len(d.terms)} terms found by crane-train diagnose --discover "
+                       f"(their estimates are the defaults below). Held-out error removed: "
+                       f"{100 * d.error_reduction:.0f}%.{on_top}")
     return {"kind": "terms", "name": effect_name(d, joints), "version": 1, "joint": d.joint,
             "joints": list(joints), "friction": False, "title": f"discovered term of {d.joint}",
             "description": description,
