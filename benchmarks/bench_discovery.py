@@ -144,7 +144,7 @@ def run(quick: bool = False) -> list[dict]:
                                          f"{_ratios(r['found_vs_baseline'])}; {note}"})
                 rows.append({"benchmark": "discovery", "metric": f"{name} s{seed} pass",
                              "value": float(r["pass"]), "unit": "bool", "note": note})
-                print(json.dumps({k: v for k, v in r.items()}, indent=1, default=str), flush=True)
+                print(json.dumps(r, indent=1, default=str), file=sys.stderr, flush=True)
     return rows
 
 
