@@ -131,10 +131,10 @@ def test_discovery_finds_the_planted_term_and_its_effect_file_halves_the_error(p
     assert doc["effect_file"] == str(out)
     written = json.loads(out.read_text())  # effects as data
     (spec,) = written["effects"]
-    assert spec["name"] == f"discovered-{joint}" and entry["expression"] in spec["description"]
+    assert spec["name"].startswith(f"{joint}-") and entry["expression"] in spec["description"]
     assert [t["parameter"] for t in spec["terms"]] == [t["parameter"] for t in entry["terms"]]
     assert [t["value"] for t in spec["terms"]] == [t["coefficient"] for t in entry["terms"]]
-    effects = known + [(f"discovered-{joint}", joint, None)]
+    effects = known + [(spec["name"], joint, None)]
     if entry["on_top_of"]:
         effects.append((entry["on_top_of"], joint, None))
     fixed = tmp_path / "with-discovered"

@@ -213,18 +213,19 @@ def _data(n=200, seed=0):
 
 def test_a_discovered_effect_written_as_data_computes_the_columns_the_discovery_evaluated(tmp_path, fresh):
     from train.diagnosis.discovery_basis import evaluate, generate
-    from train.diagnosis.effect_writer import write_effect_file
+    from train.diagnosis.effect_writer import effect_name, write_effect_file
 
     joints = ("joint1", "joint2", "joint4")
     basis = generate(joints, 1)  # every kind of term, the library's columns included
     picks = [basis[i] for i in range(0, len(basis), 3)]
-    path, added = write_effect_file(tmp_path / "d.json",
-                                    _discovery(joints, picks, np.linspace(-1, 1, len(picks))))
-    assert added == [("discovered-joint2", "joint2", None)]
-    assert load_effect_file(path) == ["discovered-joint2"]
+    found = _discovery(joints, picks, np.linspace(-1, 1, len(picks)))
+    path, added = write_effect_file(tmp_path / "d.json", found)
+    name = effect_name(found.discovered[0], joints)
+    assert added == [(name, "joint2", None)]
+    assert load_effect_file(path) == [name]
     from crane_io.physics.effects import get_effect
 
-    effect = get_effect("discovered-joint2")
+    effect = get_effect(name)
     q, dq, ddq = _data()
     cols = effect.columns(q, dq, ddq, 1)
     expected = np.stack([evaluate(t, q, dq, ddq) for t in picks], axis=1)
@@ -245,7 +246,7 @@ def test_text_embedded_in_an_effect_spec_file_stays_data(tmp_path, fresh, name):
                                 model_dir=name, sessions=[name])
     doc = json.loads(path.read_text())
     assert doc["found_by"]["sessions"] == [name] and doc["found_by"]["model"] == name
-    assert load_effect_file(path) == ["discovered-joint2"]
+    assert load_effect_file(path) == ["joint2-" + "+".join(sorted(("const", "sign-dq")))]
     assert not (tmp_path / "marker").exists()
     assert list(tmp_path.iterdir()) == [path]  # written atomically: no temporary file left
 

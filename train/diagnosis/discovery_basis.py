@@ -4,14 +4,21 @@ a joint's missing torque may be made of, each a named column computed from (q, d
 For the joint j under study (variables q_j, dq_j, ddq_j; "2" for joint2) and every other joint k:
 
 - own joint: a constant, sign(dq_j) and smooth signs tanh(dq_j/v), dq_j, |dq_j|·dq_j, dq_j³, ddq_j,
-  powers of q_j (q_j, q_j², q_j³, q_j·|q_j|), sin/cos(n·q_j) for n = 1..3;
-- friction whose level changes with position: sign(dq_j)·q_j, sign(dq_j)·sin/cos(n·q_j), n = 1, 2;
-- damping that changes with position: dq_j·q_j, dq_j·sin/cos(n·q_j), n = 1, 2;
+  powers of q_j (q_j, q_j², q_j³, q_j·|q_j|), sin/cos(n·q_j) for n = 1..6 (a stiffness that changes
+  with the angle);
+- friction whose level changes with position: sign(dq_j)·q_j, sign(dq_j)·q_j², sign(dq_j)·sin/cos(n·q_j),
+  n = 1..6;
+- damping that changes with position: dq_j·q_j, dq_j·q_j², dq_j·sin/cos(n·q_j), n = 1..6;
 - coupling from the other joints: sign(dq_k), tanh(dq_k/v), dq_k, |dq_k|·dq_k, ddq_k, sin/cos(n·q_k)
   (n = 1, 2), sign(dq_j)·sin/cos(q_k) (friction loaded by another joint's pose), dq_j·dq_k;
 - sums of angles as gravity produces them: sin/cos(q_a + q_b) for every pair, and of all joints;
 - the effects library's own columns on joint j, for every point of their shape grid (Stribeck bumps,
   cogging harmonics, backlash reversal, ...).
+
+The polynomials in q_j describe a smooth shape over the observed range of the angle; a harmonic
+sin/cos(n·q) describes one that repeats, and it is a candidate only when the angle it reads was observed
+over at least one of its periods, 2π/n (`periodic_refusals`; the library's cogging alike with its
+cycles per revolution): a few percent of a period cannot tell a ripple from a slope.
 
 Columns that duplicate an earlier one (correlation beyond 0.9999 on the joint's moving samples, e.g.
 the library's Coulomb column and sign(dq_j)) or that are zero there are dropped. Every term carries the
@@ -22,6 +29,7 @@ computes exactly the column that was fitted.
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -35,6 +43,7 @@ if TYPE_CHECKING:
     from collections.abc import Sequence
 
 SMOOTH_SIGN_VELOCITIES = (0.05, 0.25)  # rad/s: v of tanh(dq/v)
+HARMONICS = tuple(range(1, 7))  # n of sin/cos(n·q_j) of the joint's own angle
 _SKIP_LIBRARY = {"payload", "torque-constant-error"}  # need the arm's dynamics; not a column of one joint
 
 
@@ -117,15 +126,19 @@ def _own_terms(P: _Pieces, j: int) -> list[tuple]:
         _single(P.piece([["pow", "q", j, 3]], f"q{L}"), "N m/rad^3", "angle"),
         _single(P.piece([["q", j], ["abs", "q", j]], f"q{L}"), "N m/rad^2", "angle"),
     ]
-    out += [_single(P.trig(fn, n, j), "N m", "angle") for n in (1, 2, 3) for fn in ("sin", "cos")]
+    out += [_single(P.trig(fn, n, j), "N m", "angle") for n in HARMONICS for fn in ("sin", "cos")]
     return out
 
 
 def _position_dependent_terms(P: _Pieces, j: int) -> list[tuple]:
     """Friction and damping of joint j whose level changes with its angle."""
+    L = P.labels[j]
+    square = P.piece([["pow", "q", j, 2]], f"q{L}")
     out = [_mul(P.sgn(j), P.q(j), "velocity sign x angle", "N m/rad"),
-           _mul(P.dq(j), P.q(j), "velocity x angle", "N m s/rad^2")]
-    for n in (1, 2):
+           _mul(P.sgn(j), square, "velocity sign x angle", "N m/rad^2"),
+           _mul(P.dq(j), P.q(j), "velocity x angle", "N m s/rad^2"),
+           _mul(P.dq(j), square, "velocity x angle", "N m s/rad^3")]
+    for n in HARMONICS:
         for fn in ("sin", "cos"):
             out.append(_mul(P.sgn(j), P.trig(fn, n, j), "velocity sign x angle", "N m"))
             out.append(_mul(P.dq(j), P.trig(fn, n, j), "velocity x angle", "N m s/rad"))
@@ -229,3 +242,56 @@ def distinct(terms: list[Term], T: np.ndarray, rows: np.ndarray, tol: float = 1e
         keep.append(i)
         basis.append(r / rn)
     return keep
+
+
+def periods(term: Term) -> list[tuple[tuple[int, ...], float]]:
+    """(joint columns whose summed angle it reads, period in rad) of each periodic factor of `term`:
+    sin/cos(n·q) repeats every 2π/n, the library's cogging every 2π/cycles_per_rev."""
+    out = []
+    for f in term.expr:
+        if f[0] in ("sin", "cos"):
+            out.append((tuple(f[2]), 2 * math.pi / f[1]))
+        elif f[0] == "library" and "cycles_per_rev" in f[4]:
+            out.append(((f[2],), 2 * math.pi / float(f[4]["cycles_per_rev"])))
+    return out
+
+
+@dataclass(frozen=True)
+class Refusal:
+    """Periodic terms of one angle left out of the basis: the angle was observed over less than their
+    period."""
+    angle: str  # "q2", "q2 + q4"
+    observed: float  # rad, the range of the angle over the rows
+    shortest: float  # rad, the shortest refused period
+    longest: float  # rad, the longest one
+    count: int  # refused terms
+
+    def sentence(self) -> str:
+        span = (f"{self.shortest:.2f} rad" if math.isclose(self.shortest, self.longest)
+                else f"{self.shortest:.2f}-{self.longest:.2f} rad")
+        return (f"{self.count} periodic term(s) of {self.angle} (periods {span}) were not considered: "
+                f"{self.angle} was observed over {self.observed:.2f} rad, less than one period.")
+
+
+def periodic_refusals(terms: list[Term], q: np.ndarray, rows: np.ndarray, joint_names: Sequence[str]
+                      ) -> tuple[list[int], list[Refusal]]:
+    """(indices of the terms kept, the refusals): a term with a periodic factor is kept only when the
+    angle that factor reads spans at least one period over `rows` (module docstring)."""
+    labels = [joint_label(n, i) for i, n in enumerate(joint_names)]
+    spans: dict[tuple[int, ...], float] = {}
+    refused: dict[tuple[int, ...], list[float]] = {}
+    keep = []
+    for i, t in enumerate(terms):
+        ok = True
+        for cols, period in periods(t):
+            if cols not in spans:
+                angle = q[np.ix_(rows, list(cols))].sum(axis=1) if len(rows) else np.zeros(0)
+                spans[cols] = float(np.ptp(angle)) if len(angle) else 0.0
+            if spans[cols] < period:
+                refused.setdefault(cols, []).append(period)
+                ok = False
+        if ok:
+            keep.append(i)
+    out = [Refusal(" + ".join(f"q{labels[k]}" for k in cols), spans[cols], min(p), max(p), len(p))
+           for cols, p in refused.items()]
+    return keep, out

@@ -75,12 +75,16 @@ def _supports(Z, e, max_terms: int) -> dict[int, np.ndarray]:
 
 def _prune(Z, e, blocks, train, S: list[int]) -> list[int]:
     """Drop, one at a time, the selected term whose least-squares coefficient is least certain until
-    every coefficient is at least twice its delete-a-block jackknife standard error."""
-    K = len(train)
-    while S and K > 1:
+    every coefficient is at least twice its delete-a-block jackknife standard error
+    (train.diagnosis.cv.jackknife)."""
+    from .cv import jackknife
+
+    while S and len(train) > 1:
         full = np.linalg.lstsq(Z[:, S], e, rcond=None)[0]
-        jack = np.array([np.linalg.lstsq(Z[blocks != k][:, S], e[blocks != k], rcond=None)[0] for k in train])
-        se = np.sqrt((K - 1) / K * ((jack - jack.mean(0)) ** 2).sum(0))
+        names = [str(i) for i in range(len(S))]
+        spread = jackknife([dict(zip(names, np.linalg.lstsq(Z[blocks != k][:, S], e[blocks != k],
+                                                            rcond=None)[0])) for k in train])
+        se = np.array([spread[n][1] for n in names])
         z = np.abs(full) / np.maximum(se, 1e-300)
         worst = int(np.argmin(z))
         if z[worst] >= 2.0:
