@@ -143,6 +143,7 @@ def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = ()
     epochs: of the network (default from the settings, 100); progress(done, total): called per epoch."""
     import numpy as np
 
+    from .data.data_checks import fit_rows_finding, warn
     from .data.splits import eval_mask, make_splits
     from .evaluation.metrics import metrics_table
     from .models.registry import make_model
@@ -189,6 +190,9 @@ def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = ()
                                                               "dead_zone_rad_s": dead_zone,
                                                               "input_range": q_range, "splits": eval_set},
                        **options)
+    few = fit_rows_finding(method, pool.moving)
+    if few is not None:
+        warn([few])
     if has_net and progress is not None:
         model.fit(pool, splits.val, progress=progress)
     else:
@@ -201,7 +205,8 @@ def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = ()
                "test": metrics_table(test.tau, model.predict_dataset(test), ds.joint_names, eval_mask(test)),
                "eval_set": test.meta.get("eval_set", "all-moving"),
                "usable_fraction": ds.meta["usable_fraction"],
-               "sources": [str(Path(f).resolve()) for f in ds.meta["sources"]]}  # found from any directory
+               "sources": [str(Path(f).resolve()) for f in ds.meta["sources"]],  # found from any directory
+               "data_checks": [*ds.meta.get("data_checks", []), *([few.to_dict()] if few else [])]}
     return FitResult(model, metrics, ds, splits)
 
 

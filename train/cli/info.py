@@ -23,7 +23,8 @@ def session_info(paths, joints=None, alpha: float = 0.1, arm: str = "follower") 
               "complete": s.attrs.get("complete")} for s in sessions]
     return {"files": files, "arm": arm, "joints": list(ds.joint_names), "samples_preprocessed": len(ds),
             "rate_hz_preprocessed": ds.rate_hz, "sigma_rad_s": ds.meta["sigma"], "alpha": alpha,
-            "usable_fraction": ds.meta["usable_fraction"], "splits": _splits_need(ds)}
+            "usable_fraction": ds.meta["usable_fraction"], "splits": _splits_need(ds),
+            "data_checks": ds.meta["data_checks"]}
 
 
 def _splits_need(ds) -> dict:
@@ -65,6 +66,11 @@ def info(sessions, joints, alpha, arm, as_json):
     for name, sigma in zip(doc["joints"], doc["sigma_rad_s"]):
         click.echo(f"  {name:<8} moving {uf['per_joint'][name]:6.1%}   sigma {sigma:.3f} rad/s")
     click.echo(f"  all joints moving {uf['all_joints']:6.1%}")
+    checks = doc["data_checks"]
+    click.echo(f"data checks: {len(checks)} finding(s)" + ("" if checks else
+               " (no copies, repeated segments, time-reversed stretches or jumps)"))
+    for finding in checks:
+        click.echo(f"  {finding['message']}")
     sp = doc.get("splits")
     if sp:
         click.echo(f"splits ({sp['eval_set']} validation and test sets for {len(doc['joints'])} joints): "

@@ -32,7 +32,8 @@ The method, per joint j (names as in the session):
 5. Significant: error_reduction >= `min_reduction` AND the held-out error falls in every fold
    (`min_fold_fraction`), judged by forward selection (ranking.forward_selection): each
    candidate on top of the effects selected before it. A session with nothing missing yields no
-   significant candidate.
+   significant candidate. Each pick after the first reports its parameters from its fit with the earlier
+   picks in the model (the model it joins); its values alone are kept as `parameters_alone`.
 
 Arm-scope effects (payload) have one set of parameters for all joints: their fit is joint across all
 joints and they are reported once, on the joint where they remove the largest fraction of the error,
@@ -59,17 +60,15 @@ from .effects import (
     complexity,
     effect_name,
     library_effects,
-    param_units,
 )
-from .ranking import forward_selection, is_significant, rank
+from .ranking import fit_parameters, forward_selection, is_significant, rank
 from .result import Candidate, Diagnosis, DiagnosisError
 from .text import (
-    candidate_sentence,
+    candidate_text,
     joint_summary,
     residual_correlations,
     residual_dependence,
     selected_suffix,
-    unidentifiable_sentence,
 )
 
 if TYPE_CHECKING:
@@ -340,21 +339,12 @@ def _judge(effect, j: int | None, fit: CVFit, joint_names, min_reduction: float,
     """(home joint index, Candidate) of one cross-validated candidate: an arm-scope one (j None) is
     reported on the joint where it removes the largest fraction of the error."""
     name = effect_name(effect)
-    units = param_units(effect)
     joints = [j] if j is not None else list(range(len(joint_names)))
     reductions = {jj: fit.reduction(jj) for jj in joints}
     home = max(joints, key=lambda jj: reductions[jj])
     fold_red = fit.fold_reductions(home)
     improved = int(sum(r > 0 for r in fold_red))
-    stats = jackknife(fit.fold_values) if fit.fold_values else {}
-    parameters = {n: {"value": v, "std": sd, "unit": units.get(n, "")} for n, (v, sd) in stats.items()}
-    if not fit.identifiable:
-        parameters = {}  # any value fits as well: printing one (with a tiny spread) would mislead
-    loose = list(fit.collinear)
-    if loose:  # coefficients the others (and the model's own) can trade with: no value is meaningful
-        loose = [p.name for p in getattr(effect, "linear_params", ())] or loose
-        for n in loose:
-            parameters.pop(n, None)
+    parameters, loose = fit_parameters(effect, fit)
     red = reductions[home]
     cand = Candidate(
         joint=joint_names[home], rank=0, effect=name, title=getattr(effect, "title", name),
@@ -367,10 +357,7 @@ def _judge(effect, j: int | None, fit: CVFit, joint_names, min_reduction: float,
         sentence="", other_joints={joint_names[jj]: reductions[jj] for jj in joints if jj != home},
         n_parameters=complexity(effect), identifiable=fit.identifiable,
         unidentifiable_parameters=loose)
-    cand.sentence = candidate_sentence(effect, cand) if fit.identifiable else unidentifiable_sentence(cand)
-    if fit.identifiable and loose:
-        cand.sentence = (cand.sentence[:-1] + f" ({', '.join(loose)} cannot be told apart from the model's "
-                         "own parameters, so no value is given).")
+    cand.sentence = candidate_text(effect, cand)
     return home, cand
 
 
