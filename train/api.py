@@ -190,7 +190,7 @@ def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = ()
                                                               "dead_zone_rad_s": dead_zone,
                                                               "input_range": q_range, "splits": eval_set},
                        **options)
-    few = fit_rows_finding(method, pool.moving)
+    few = fit_rows_finding(method, pool.moving, per_joint=eval_set["eval_set"] == "per-joint")
     if few is not None:
         warn([few])
     if has_net and progress is not None:

@@ -11,15 +11,17 @@ warn of it). Each finding names the file and the time range (seconds of the file
   offset), so such a run is a copy; the later copy is dropped;
 * **time-reversed stretches** (`reversed_rows`, only where the file records a velocity: `dq_servo`, else
   `dq`): the recorded velocity and the derivative of the recorded angle disagree in sign, over the joints
-  that move, in more than REVERSED_FRACTION of the samples of a REVERSED_WINDOW_S window; such rows are
-  dropped (played backwards, friction and inertia have the wrong sign for the torque);
+  that move, in more than REVERSED_FRACTION of the samples of a REVERSED_WINDOW_S window (two stretches
+  are one when what lies between them holds less than half a window of agreeing samples: a pause, in
+  which nothing can be compared); such rows are dropped (played backwards, friction and
+  inertia have the wrong sign for the torque);
 * **jumps** (`jump_rows`): a step of a joint's angle between two consecutive samples larger than its
   velocity allows (JUMP_SLACK times the larger recorded speed of the two samples plus JUMP_SPEED_RAD_S,
   times the time step; without a recorded velocity, MAX_SPEED_RAD_S times the time step; never less than
   JUMP_MIN_RAD): two recordings joined together. The samples within JUMP_MASK_S of the jump are dropped
   and the data is cut there;
-* **too few rows to fit** (`fit_rows_finding`): a fit whose training rows are fewer than
-  MIN_FIT_ROWS[method] is warned about.
+* **too few rows to fit** (`fit_rows_finding`): a fit whose training rows (those its method uses) are
+  fewer than MIN_FIT_ROWS[method] is warned about.
 
 A dropped stretch cuts its file into continuous pieces (RawSession.breaks) that the preprocessing filters
 separately, as it does at a gap in `t`. Findings travel in each RawSession's `findings` and the Dataset's
@@ -52,9 +54,7 @@ JUMP_SPEED_RAD_S = 2.0  # ... plus this speed (the recorded velocity's noise and
 MAX_SPEED_RAD_S = 10.0  # without a recorded velocity: faster than any CRANE-X7 joint moves
 JUMP_MIN_RAD = 0.1  # a smaller step is never called a jump (servo velocity lags and quantisation)
 JUMP_MASK_S = 0.05  # dropped either side of a jump
-MIN_FIT_ROWS = {"rigid-body": 300, "hybrid": 1000, "mlp-mse": 1000, "mlp-masked": 1000}
-FIT_ROWS_COUNTED = {"rigid-body": "all-moving", "mlp-mse": "all-moving", "hybrid": "any-moving",
-                    "mlp-masked": "any-moving"}
+MIN_FIT_ROWS = {"rigid-body": 300, "hybrid": 1000, "mlp-mse": 1000, "mlp-masked": 1000}  # training rows
 
 
 class DataCheckWarning(UserWarning):
@@ -77,9 +77,9 @@ class Finding:
     @property
     def message(self) -> str:
         where = f"{self.path}: " if self.path else ""
-        span = f" at {self.t0:.2f}-{self.t1:.2f} s" if self.t1 >= self.t0 else ""
+        span = f"{self.t0:.2f}-{self.t1:.2f} s: " if self.t1 >= self.t0 else ""
         done = f" ({self.rows} rows {self.action})" if self.action == "dropped" else ""
-        return f"{where}{self.detail}{span}{done}"
+        return f"{where}{span}{self.detail}{done}"
 
     def to_dict(self) -> dict:
         return {"check": self.check, "path": self.path, "t0_s": self.t0, "t1_s": self.t1, "rows": self.rows,
@@ -134,17 +134,27 @@ def repeated_rows(sessions: Sequence[RawSession]) -> tuple[list[np.ndarray], lis
     twin = (first < idx) & np.all(rows == rows[first], axis=1)
     offset = np.where(twin, idx - first, -1)
     same = np.concatenate(([False], (offset[1:] == offset[:-1]) & twin[1:] & (owner[1:] == owner[:-1])))
-    # a run of twins at one offset: its first row plus the rows continuing it
-    run_flag = twin & (same | np.concatenate((same[1:], [False])))
+    # runs of twins at one offset: a run starts at a twin that does not continue the row before it
+    start = twin & ~same
+    run_id = np.cumsum(start) - 1
+    member = twin & (start | same)
+    length = np.bincount(run_id[member], minlength=int(start.sum()))
+    run_start = np.flatnonzero(start)
+    rate = np.array([s.rate_hz for s in sessions])[owner[run_start]]
+    long = np.flatnonzero(length >= np.maximum(REPEAT_MIN_ROWS, REPEAT_MIN_S * rate))
     drop = np.zeros(len(rows), bool)
-    findings = []
-    for a, b in _runs(run_flag):
-        for a2, b2 in _split_offsets(offset, a, b):
-            s = sessions[owner[a2]]
-            if b2 - a2 < max(REPEAT_MIN_ROWS, REPEAT_MIN_S * s.rate_hz) or np.ptp(rows[a2:b2]) == 0:
-                continue
-            drop[a2:b2] = True
-            findings.append(_repeat_finding(sessions, owner, starts, (a2, b2), first[a2]))
+    found: list[list[int]] = []  # [a, b, src] of each copied run, neighbouring runs of one file merged
+    for r in long.tolist():
+        a, b = int(run_start[r]), int(run_start[r] + length[r])
+        if np.ptp(rows[a:b]) == 0:
+            continue
+        drop[a:b] = True
+        if found and owner[found[-1][1] - 1] == owner[a] and a - found[-1][1] <= REPEAT_MIN_ROWS:
+            drop[found[-1][1]:a] = True
+            found[-1][1] = b
+        else:
+            found.append([a, b, int(first[a])])
+    findings = [_repeat_finding(sessions, owner, starts, (a, b), src) for a, b, src in found]
     return [drop[starts[k]:starts[k + 1]] for k in range(len(sessions))], findings
 
 
@@ -157,15 +167,8 @@ def _repeat_finding(sessions, owner, starts, run: tuple[int, int], src: int) -> 
     j0, j1 = src - starts[o], src + (b - a) - 1 - starts[o]
     where = "earlier in the same file" if o == k else f"in {s_src.path}"
     return Finding("repeated", s.path, float(s.t[i0]), float(s.t[i1]), b - a, "dropped",
-                   f"a repeated segment: q and tau repeat exactly those at "
-                   f"{s_src.t[j0]:.2f}-{s_src.t[j1]:.2f} s {where}")
-
-
-def _split_offsets(offset: np.ndarray, a: int, b: int) -> list[tuple[int, int]]:
-    """[a, b) cut where the offset changes."""
-    cuts = np.flatnonzero(np.diff(offset[a:b]) != 0) + 1 + a
-    bounds = [a, *cuts.tolist(), b]
-    return list(zip(bounds[:-1], bounds[1:]))
+                   f"a repeated segment, q and tau exactly as at {s_src.t[j0]:.2f}-{s_src.t[j1]:.2f} s "
+                   f"{where}")
 
 
 def recorded_speed_ok(s: RawSession) -> bool:
@@ -189,11 +192,16 @@ def reversed_rows(s: RawSession) -> tuple[np.ndarray, list[Finding]]:
     c_bad = np.concatenate(([0], np.cumsum(against.sum(axis=1))))
     n_all, n_bad = c_all[w:] - c_all[:-w], c_bad[w:] - c_bad[:-w]  # per window starting at row i
     flagged = (n_all >= w // 2) & (n_bad > REVERSED_FRACTION * n_all)
+    c_agree = c_all - c_bad
     drop = np.zeros(n, bool)
+    last = None
     for a, b in _runs(flagged):
+        if last is not None and last < a and c_agree[a] - c_agree[last] < w // 2:
+            a = last  # nothing between says the time runs forward there
         drop[a:b - 1 + w] = True
+        last = b - 1 + w
     findings = [Finding("reversed", s.path, float(s.t[a]), float(s.t[b - 1]), b - a, "dropped",
-                        "a time-reversed stretch: the recorded velocity runs against the angle's derivative")
+                        "a time-reversed stretch, the recorded velocity against the angle's derivative")
                 for a, b in _runs(drop)]
     return drop, findings
 
@@ -207,7 +215,7 @@ def jump_rows(s: RawSession) -> tuple[np.ndarray, np.ndarray, list[Finding]]:
         speed = np.maximum(np.abs(s.dq[:-1]), np.abs(s.dq[1:]))
         allowed = np.maximum(dt * (JUMP_SLACK * speed + JUMP_SPEED_RAD_S), JUMP_MIN_RAD)
     else:
-        allowed = np.maximum(dt * MAX_SPEED_RAD_S, JUMP_MIN_RAD)
+        allowed = np.broadcast_to(np.maximum(dt * MAX_SPEED_RAD_S, JUMP_MIN_RAD), step.shape)
     over = step > allowed
     at = np.flatnonzero(over.any(axis=1)) + 1  # the first row after each jump
     drop = np.zeros(n, bool)
@@ -262,17 +270,20 @@ def warn(findings: Sequence[Finding | dict]) -> None:
         warnings.warn(DataCheckWarning(f["message"] if isinstance(f, dict) else f.message), stacklevel=2)
 
 
-def fit_rows_finding(method: str, moving: np.ndarray) -> Finding | None:
-    """A warning when the training rows a `method` uses (every joint moving, or any: FIT_ROWS_COUNTED) of the
-    (N, J) dead-zone mask `moving` are fewer than MIN_FIT_ROWS[method]; None otherwise."""
+def fit_rows_finding(method: str, moving: np.ndarray, per_joint: bool = False) -> Finding | None:
+    """A warning when the training rows `method` fits on are fewer than MIN_FIT_ROWS[method]; None otherwise.
+    `moving`: the (N, J) dead-zone mask of the training data. The rows counted: those with every joint
+    moving (mlp-mse; rigid-body unless `per_joint`), or the fewest rows in which any one joint moves
+    (mlp-masked, hybrid; rigid-body fitted per joint)."""
     need = MIN_FIT_ROWS.get(method)
     if need is None:
         return None
-    kind = FIT_ROWS_COUNTED[method]
-    rows = int((moving.all(axis=1) if kind == "all-moving" else moving.any(axis=1)).sum())
+    if method == "mlp-mse" or (method == "rigid-body" and not per_joint):
+        rows, which = int(moving.all(axis=1).sum()), "rows in which every joint moves"
+    else:
+        rows, which = int(moving.sum(axis=0).min()), "rows in which its least moving joint moves"
     if rows >= need:
         return None
-    which = "every joint" if kind == "all-moving" else "some joint"
     return Finding("few-rows", "", 0.0, -1.0, rows, "warned",
-                   f"{method} is fitted on {rows} rows in which {which} moves, fewer than the {need} it "
-                   f"needs for estimates to be trusted; record more or fit a smaller model")
+                   f"{method} is fitted on {rows} {which}, fewer than the {need} it needs for estimates to "
+                   f"be trusted; record more or fit a smaller model")
