@@ -169,10 +169,11 @@ def test_fit_on_too_few_rows_is_warned_about():
     moving = np.ones((60, 3), bool)
     f = dc.fit_rows_finding("rigid-body", moving)
     assert f is not None and "60 rows" in f.message and str(dc.MIN_FIT_ROWS["rigid-body"]) in f.message
-    assert dc.fit_rows_finding("rigid-body", np.ones((400, 3), bool)) is None
+    assert dc.fit_rows_finding("rigid-body", np.ones((200, 3), bool)) is None
     few_masked = np.ones((2000, 3), bool)
     few_masked[100:, 2] = False  # joint4 moves in 100 rows only
     assert "100 rows" in dc.fit_rows_finding("mlp-masked", few_masked).message
+    assert dc.fit_rows_finding("mlp-masked", np.ones((600, 3), bool)) is None
 
 
 def test_loading_warns_and_info_lists_the_findings(clean):

@@ -212,11 +212,19 @@ def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = ()
 
 def _define_effects(effect_files: Sequence[PathLike]) -> None:
     """Register the effects of files the user named to define effects (fit, diagnose): an effect-spec
-    file is read as data, a Python file is run."""
-    from crane_io.physics.effects import load_effect_file
+    file is read as data, a Python file is run. Two files defining one name differently (their specs'
+    identities differ) are refused: which of them a model used could not be told."""
+    from crane_io.physics.effects import get_effect, load_effect_file
+    from crane_io.physics.effects.spec import identity, spec_of
 
+    defined: dict[str, tuple[str, PathLike]] = {}
     for path in effect_files:
-        load_effect_file(path)
+        for name in load_effect_file(path):
+            key = identity(spec_of(get_effect(name)))
+            if name in defined and defined[name][0] != key:
+                raise ConfigError(f"{defined[name][1]} and {path} both define the effect {name!r}, "
+                                  f"differently; give it another name in one of them")
+            defined[name] = (key, path)
 
 
 def load_model(model_dir: PathLike, effect_files: Sequence[PathLike] = ()) -> Model:

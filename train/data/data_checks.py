@@ -54,7 +54,9 @@ JUMP_SPEED_RAD_S = 2.0  # ... plus this speed (the recorded velocity's noise and
 MAX_SPEED_RAD_S = 10.0  # without a recorded velocity: faster than any CRANE-X7 joint moves
 JUMP_MIN_RAD = 0.1  # a smaller step is never called a jump (servo velocity lags and quantisation)
 JUMP_MASK_S = 0.05  # dropped either side of a jump
-MIN_FIT_ROWS = {"rigid-body": 300, "hybrid": 1000, "mlp-mse": 1000, "mlp-masked": 1000}  # training rows
+# training rows below which a fit is warned about: a rigid-body model of 3 joints has some 20-25 parameters
+# (150 rows: 450 equations, about 20 per parameter); a network of 64 hidden units some 4 500 weights
+MIN_FIT_ROWS = {"rigid-body": 150, "hybrid": 500, "mlp-mse": 500, "mlp-masked": 500}
 
 
 class DataCheckWarning(UserWarning):
