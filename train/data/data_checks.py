@@ -218,6 +218,7 @@ def jump_rows(s: RawSession) -> tuple[np.ndarray, np.ndarray, list[Finding]]:
         allowed = np.maximum(dt * (JUMP_SLACK * speed + JUMP_SPEED_RAD_S), JUMP_MIN_RAD)
     else:
         allowed = np.broadcast_to(np.maximum(dt * MAX_SPEED_RAD_S, JUMP_MIN_RAD), step.shape)
+    by = "by its recorded velocity" if recorded_speed_ok(s) else "at any speed the arm reaches"
     over = step > allowed
     at = np.flatnonzero(over.any(axis=1)) + 1  # the first row after each jump
     drop = np.zeros(n, bool)
@@ -229,8 +230,8 @@ def jump_rows(s: RawSession) -> tuple[np.ndarray, np.ndarray, list[Finding]]:
         j = int(np.argmax(step[i - 1] - allowed[i - 1]))
         findings.append(Finding("jump", s.path, float(s.t[a]), float(s.t[b - 1]), b - a, "dropped",
                                 f"a jump of {step[i - 1, j]:.3g} rad in {s.joint_names[j]} between "
-                                f"{s.t[i - 1]:.3f} and {s.t[i]:.3f} s (its velocity allows "
-                                f"{allowed[i - 1, j]:.2g} rad)"))
+                                f"{s.t[i - 1]:.3f} and {s.t[i]:.3f} s (at most {allowed[i - 1, j]:.2g} rad "
+                                f"{by})"))
     return drop, at, findings
 
 

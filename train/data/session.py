@@ -10,6 +10,10 @@ against t, finite values, t strictly increasing). Every problem is a `SessionFil
 sentence names the file and the attribute or dataset; stored data that fail their fletcher32 checksum
 (written by crane-collect) name the damaged dataset (`SessionDamagedError`).
 
+The arm's recorded velocity (`dq_servo`, else `dq`) is read when present, for the data checks
+(train.data.data_checks), which `read_sessions` applies: a copy of one file under another name is
+refused, repeated, time-reversed and jump rows are dropped, each finding kept in `RawSession.findings`.
+
 Either arm's group can be read (`arm`, "follower" by default). The optional root attribute `hand_on`
 ("leader", the default when it is absent, or "follower") says which arm the operator's hand moved: that
 arm's torque holds the hand's force besides its own dynamics, so it is no inverse-dynamics data
@@ -210,11 +214,13 @@ def _recorded_velocity(path: Path, f: h5py.File, arm: str, joints: int, n: int) 
     """The arm's recorded velocity (rad/s): `dq_servo`, else `dq`, when one has n finite rows; else None
     (the data checks then do without it)."""
     for key in (DQ_SERVO, DQ):
-        ds = dataset(path, f, f"{arm}/{key}", joints, required=False)
-        if ds is not None and ds.shape[0] >= n:
-            v = _read(path, ds, n)
-            if np.isfinite(v).all():
-                return v
+        try:
+            ds = dataset(path, f, f"{arm}/{key}", joints, required=False)
+            v = _read(path, ds, n) if ds is not None and ds.shape[0] >= n else None
+        except SessionFileError:  # optional and never modelled: a damaged one is only not used
+            continue
+        if v is not None and np.isfinite(v).all():
+            return v
     return None
 
 
