@@ -197,7 +197,7 @@ def test_the_project_simulated_session_passes_clean(tmp_path):
     cfg = tmp_path / "fast.toml"
     cfg.write_text("[safety]\nhoming_speed = 1.0\n")
     out = tmp_path / "sim.h5"
-    run_session(RunOptions(output=out, sim=True, seed=3, duration=3.0, status=False, config=str(cfg)))
+    run_session(RunOptions(output=out, sim=True, seed=3, duration=4.0, status=False, config=str(cfg)))
     for arm in ("follower", "leader"):
         sessions = read_sessions([out], arm)
         assert sessions[0].dq is not None

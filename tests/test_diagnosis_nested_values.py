@@ -45,7 +45,7 @@ def lab(tmp_path_factory):
     root = tmp_path_factory.mktemp("nested")
     plant = root / "viscous-three.toml"
     plant.write_text(PLANT)
-    session = simulate_session(root / "s.h5", str(plant), 45.0, seed=0)
+    session = simulate_session(root / "s.h5", str(plant), 30.0, seed=0)
     model, ds = _model(session, root / "coulomb", COULOMB)
     return root, session, ds, diagnose(model, ds)
 
