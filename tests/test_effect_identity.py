@@ -111,3 +111,20 @@ def test_fit_refuses_two_definitions_of_one_name_in_one_sentence(lab, tmp_path):
              files["one-again"], "--effect", f"{NAME}:joint=joint2", "-o", tmp_path / "same",
              "--scale-to-data", "--no-progress")
     assert r.exit_code == 0, r.output
+
+
+def test_diagnose_takes_another_definition_of_a_model_effect_name_as_a_candidate(lab):
+    from crane_io.physics.effects import get_effect, load_effect_file
+    from train.data.preprocess import read_preprocessed
+    from train.diagnosis.diagnose import diagnose
+    from train.evaluation.heldout import model_settings
+
+    _, session, files, models = lab
+    model = load_model(models["one"])
+    ds = read_preprocessed([session], model_settings(model, models["one"])[0])
+    load_effect_file(files["one-again"])  # the model's own definition: already in the model on joint2
+    own = diagnose(model, ds, effects=[get_effect(NAME)]).candidates
+    assert {c.joint for c in own} == {"joint1", "joint4"}
+    load_effect_file(files["two"])  # the same name, other terms: a candidate like any other
+    found = diagnose(model, ds, effects=[get_effect(NAME)]).candidates
+    assert {c.joint for c in found} == {"joint1", "joint2", "joint4"} and all(c.effect == NAME for c in found)
