@@ -132,8 +132,7 @@ def test_zero_phase_option_has_no_delay():
 
 
 def test_preprocess_downsamples_selects_joints_and_keeps_segments(session_path, tmp_path):
-    copy = tmp_path / "copy.h5"  # a second recording (the same file twice is refused)
-    copy.write_bytes(session_path.read_bytes())
+    copy, _ = write_synthetic_session(tmp_path / "other.h5", 30, seed=4)  # a second recording
     sessions = read_sessions([session_path, copy])
     ds = preprocess(sessions, PreprocessConfig(joints=("joint4", "joint1")))
     assert ds.joint_names == ("joint4", "joint1") and ds.rate_hz == 50

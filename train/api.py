@@ -146,6 +146,7 @@ def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = ()
     epochs: of the network (default from the settings, 100); progress(done, total): called per epoch."""
     import numpy as np
 
+    from .data.data_checks import fit_rows_finding, warn
     from .data.splits import make_splits
     from .models.registry import make_model
 
@@ -181,11 +182,16 @@ def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = ()
 
         torch.set_num_threads(1)
     model = make_model(method, ds.joint_names, preprocessing=model_preprocessing(ds, splits), **options)
+    per_joint_eval = splits.test.meta.get("eval_set", "all-moving") == "per-joint"
+    few = fit_rows_finding(method, pool.moving, per_joint=per_joint_eval)
+    if few is not None:
+        warn([few])
     if has_net and progress is not None:
         model.fit(pool, splits.val, progress=progress)
     else:
         model.fit(pool, splits.val)
-    return FitResult(model, test_metrics(model, ds, splits, pool, method, seed), ds, splits)
+    return FitResult(model, test_metrics(model, ds, splits, pool, method, seed, [few] if few else []), ds,
+                     splits)
 
 
 def model_preprocessing(ds: Dataset, splits: Splits) -> dict:
@@ -200,8 +206,10 @@ def model_preprocessing(ds: Dataset, splits: Splits) -> dict:
             "splits": eval_set}
 
 
-def test_metrics(model: Model, ds: Dataset, splits: Splits, pool: Dataset, method: str, seed: int) -> dict:
-    """The fit_metrics.json document: the held-out test error per joint, the sizes, the seed, the sources."""
+def test_metrics(model: Model, ds: Dataset, splits: Splits, pool: Dataset, method: str, seed: int,
+                 findings=()) -> dict:
+    """The fit_metrics.json document: the held-out test error per joint, the sizes, the seed, the sources,
+    and the data checks' findings (train.data.data_checks: the sessions', then `findings` of the fit)."""
     from .data.splits import eval_mask
     from .evaluation.metrics import metrics_table
 
@@ -213,16 +221,25 @@ def test_metrics(model: Model, ds: Dataset, splits: Splits, pool: Dataset, metho
             "test": metrics_table(test.tau, model.predict_dataset(test), ds.joint_names, eval_mask(test)),
             "eval_set": test.meta.get("eval_set", "all-moving"),
             "usable_fraction": ds.meta["usable_fraction"],
-            "sources": [str(Path(f).resolve()) for f in ds.meta["sources"]]}  # found from any directory
+            "sources": [str(Path(f).resolve()) for f in ds.meta["sources"]],  # found from any directory
+            "data_checks": [*ds.meta.get("data_checks", []), *(f.to_dict() for f in findings)]}
 
 
 def _define_effects(effect_files: Sequence[PathLike]) -> None:
     """Register the effects of files the user named to define effects (fit, diagnose): an effect-spec
-    file is read as data, a Python file is run."""
-    from crane_io.physics.effects import load_effect_file
+    file is read as data, a Python file is run. Two files defining one name differently (their specs'
+    identities differ) are refused: which of them a model used could not be told."""
+    from crane_io.physics.effects import get_effect, load_effect_file
+    from crane_io.physics.effects.spec import identity, spec_of
 
+    defined: dict[str, tuple[str, PathLike]] = {}
     for path in effect_files:
-        load_effect_file(path)
+        for name in load_effect_file(path):
+            key = identity(spec_of(get_effect(name)))
+            if name in defined and defined[name][0] != key:
+                raise ConfigError(f"{defined[name][1]} and {path} both define the effect {name!r}, "
+                                  f"differently; give it another name in one of them")
+            defined[name] = (key, path)
 
 
 def load_model(model_dir: PathLike, effect_files: Sequence[PathLike] = ()) -> Model:

@@ -37,3 +37,19 @@ COMMANDS = {
 @click.version_option(package_name="crane-x7")
 def main():
     """Turn CRANE-X7 session files into inverse-dynamics models, compare and diagnose them."""
+    import warnings
+
+    warnings.showwarning = _one_line(warnings.showwarning)
+
+
+def _one_line(default):
+    """A showwarning that writes the data checks' findings (train.data.data_checks.DataCheckWarning) as one
+    line on stderr, "Warning: <sentence>", and leaves other warnings to `default`."""
+    from crane_io.cli_support import shown
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if category.__name__ != "DataCheckWarning":
+            return default(message, category, filename, lineno, file, line)
+        click.echo(f"Warning: {shown(message)}", err=True)
+
+    return show

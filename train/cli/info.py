@@ -20,10 +20,11 @@ def session_info(paths, joints=None, alpha: float = 0.1, arm: str = "follower") 
     files = [{"path": s.path, "source": s.source, "hand_on": hand_on(s.attrs, s.path), "rate_hz": s.rate_hz,
               "samples": len(s),
               "duration_s": s.duration_s, "joint_names": list(s.joint_names), "truncated": s.truncated,
-              "complete": s.attrs.get("complete")} for s in sessions]
+              "complete": s.attrs.get("complete"), "recorded_velocity": s.dq is not None} for s in sessions]
     return {"files": files, "arm": arm, "joints": list(ds.joint_names), "samples_preprocessed": len(ds),
             "rate_hz_preprocessed": ds.rate_hz, "sigma_rad_s": ds.meta["sigma"], "alpha": alpha,
-            "usable_fraction": ds.meta["usable_fraction"], "splits": _splits_need(ds)}
+            "usable_fraction": ds.meta["usable_fraction"], "splits": _splits_need(ds),
+            "data_checks": ds.meta["data_checks"]}
 
 
 def _splits_need(ds) -> dict:
@@ -65,6 +66,14 @@ def info(sessions, joints, alpha, arm, as_json):
     for name, sigma in zip(doc["joints"], doc["sigma_rad_s"]):
         click.echo(f"  {name:<8} moving {uf['per_joint'][name]:6.1%}   sigma {sigma:.3f} rad/s")
     click.echo(f"  all joints moving {uf['all_joints']:6.1%}")
+    checks = doc["data_checks"]
+    click.echo(f"data checks: {len(checks)} finding(s)" + ("" if checks else
+               " (no copies, repeated segments, time-reversed stretches or jumps found)"))
+    for finding in checks:
+        click.echo(f"  {finding['message']}")
+    for f in doc["files"]:
+        if not f["recorded_velocity"]:
+            click.echo(f"  {f['path']} records no velocity (dq_servo or dq), so time reversal is not checked")
     sp = doc.get("splits")
     if sp:
         click.echo(f"splits ({sp['eval_set']} validation and test sets for {len(doc['joints'])} joints): "

@@ -29,6 +29,7 @@ import numpy as np
 
 from crane_io.errors import ConfigError
 
+from .data_checks import warn
 from .dataset import Dataset
 from .filters import lowpass, pseudo_diff
 from .masks import DeadZoneError, dead_zone_mask, moving_fractions
@@ -100,8 +101,10 @@ class PreprocessConfig:
         return cls(**data)
 
 
-def _pieces(t: np.ndarray, split_gap_s: float) -> list[slice]:
-    cuts = np.flatnonzero(np.diff(t) > split_gap_s) + 1
+def _pieces(t: np.ndarray, split_gap_s: float, breaks=()) -> list[slice]:
+    """The continuous pieces of a session: cut at time steps longer than split_gap_s and at `breaks` (rows
+    where the data checks dropped data or found a jump, RawSession.breaks)."""
+    cuts = np.union1d(np.flatnonzero(np.diff(t) > split_gap_s) + 1, np.asarray(breaks, dtype=int))
     bounds = [0, *cuts.tolist(), len(t)]
     return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
 
@@ -202,7 +205,7 @@ def preprocess(sessions: list[RawSession] | RawSession, config: PreprocessConfig
         cols = [s.joint_names.index(n) for n in config.joints]
         ccols = [s.joint_names.index(n) for n in context]
         settle = int(round(config.settle_s * s.rate_hz))
-        for piece in _pieces(s.t, config.split_gap_s):
+        for piece in _pieces(s.t, config.split_gap_s, s.breaks):
             n = len(s.t[piece])
             if n <= settle + 2 * s.rate_hz / config.downsample_hz:
                 dropped += 1
@@ -222,7 +225,8 @@ def preprocess(sessions: list[RawSession] | RawSession, config: PreprocessConfig
     meta = {"preprocessing": config.to_dict(), "sigma": sigma.tolist(), "alpha": config.alpha,
             "sources": [s.path for s in sessions], "source_kinds": [s.source for s in sessions],
             "raw_rate_hz": [s.rate_hz for s in sessions], "arm": config.arm, "pieces_dropped": dropped,
-            "usable_fraction": moving_fractions(moving, config.joints), "context_joints": list(context)}
+            "usable_fraction": moving_fractions(moving, config.joints), "context_joints": list(context),
+            "data_checks": [f.to_dict() for s in sessions for f in s.findings]}
     return Dataset(joint_names=tuple(config.joints), t=cat["t"], q=cat["q"], dq=cat["dq"], ddq=cat["ddq"],
                    tau=cat["tau"], moving=moving, rate_hz=float(rate), segment=cat["segment"], meta=meta,
                    context_names=tuple(context), context_q=cat["cq"], context_dq=cat["cdq"],
@@ -233,5 +237,8 @@ def read_preprocessed(paths: Path | str | Sequence[str | PathLike[str]], config:
                       hand_free: bool = True) -> Dataset:
     """Read the sessions' `config.arm` group and preprocess it. With `hand_free` (the default: fitting
     and evaluating an inverse-dynamics model), a session whose arm the operator's hand moved is refused
-    (train.data.session.HandOnArmError)."""
-    return preprocess(read_sessions(paths, config.arm, hand_free=hand_free), config)
+    (train.data.session.HandOnArmError). What the data checks found is issued as DataCheckWarning
+    (train.data.data_checks) and kept in meta["data_checks"]."""
+    ds = preprocess(read_sessions(paths, config.arm, hand_free=hand_free), config)
+    warn(ds.meta["data_checks"])
+    return ds

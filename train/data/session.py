@@ -10,6 +10,10 @@ against t, finite values, t strictly increasing). Every problem is a `SessionFil
 sentence names the file and the attribute or dataset; stored data that fail their fletcher32 checksum
 (written by crane-collect) name the damaged dataset (`SessionDamagedError`).
 
+The arm's recorded velocity (`dq_servo`, else `dq`) is read when present, for the data checks
+(train.data.data_checks), which `read_sessions` applies: a copy of one file under another name is
+refused, repeated, time-reversed and jump rows are dropped, each finding kept in `RawSession.findings`.
+
 Either arm's group can be read (`arm`, "follower" by default). The optional root attribute `hand_on`
 ("leader", the default when it is absent, or "follower") says which arm the operator's hand moved: that
 arm's torque holds the hand's force besides its own dynamics, so it is no inverse-dynamics data
@@ -31,6 +35,8 @@ from crane_io.h5check import member
 from crane_io.session_format import (  # noqa: F401 - FORMAT_VERSION: the newest version this reader understands
     ARMS,
     DEFAULT_HAND_ON,
+    DQ,
+    DQ_SERVO,
     FORMAT,
     FORMAT_ATTR,
     FORMAT_VERSION,
@@ -42,6 +48,7 @@ from crane_io.session_format import (  # noqa: F401 - FORMAT_VERSION: the newest
     T,
 )
 
+from .data_checks import apply_checks
 from .session_check import (
     check_declared,
     check_fits,
@@ -78,6 +85,9 @@ class RawSession:
     attrs: dict = field(default_factory=dict)  # every root attribute, decoded to plain Python
     truncated: bool = False  # datasets had different lengths (a crashed recording); cut to the shortest
     arm: str = "follower"  # the group the signals were read from
+    dq: np.ndarray | None = None  # (N, J) rad/s, the recorded velocity (dq_servo, else dq) when there is one
+    breaks: np.ndarray = field(default_factory=lambda: np.zeros(0, int))  # rows starting a new piece
+    findings: list = field(default_factory=list)  # the data checks' findings (train.data.data_checks)
 
     @property
     def duration_s(self) -> float:
@@ -185,6 +195,7 @@ def read_session(path: str | PathLike[str], arm: str = "follower") -> RawSession
         if n < MIN_SAMPLES:
             raise SessionFileError(f"{path} has only {n} samples; at least {MIN_SAMPLES} are needed")
         t, q, tau = (_read(path, d, n) for d in (dt, dq, dtau))
+        velocity = _recorded_velocity(path, f, arm, len(names), n)
     for name, arr in ((T, t), (Q, q), (TAU, tau)):
         bad = ~np.isfinite(arr)
         if bad.any():
@@ -196,13 +207,29 @@ def read_session(path: str | PathLike[str], arm: str = "follower") -> RawSession
         raise SessionFileError(f"{path}: /{arm}/t is not strictly increasing (at sample {row + 1})")
     check_rate_matches(path, arm, t, rate)
     return RawSession(t=t, q=q, tau=tau, rate_hz=rate, joint_names=names, source=source,
-                      path=str(path), attrs=attrs, truncated=truncated, arm=arm)
+                      path=str(path), attrs=attrs, truncated=truncated, arm=arm, dq=velocity)
+
+
+def _recorded_velocity(path: Path, f: h5py.File, arm: str, joints: int, n: int) -> np.ndarray | None:
+    """The arm's recorded velocity (rad/s): `dq_servo`, else `dq`, when one has n finite rows; else None
+    (the data checks then do without it)."""
+    for key in (DQ_SERVO, DQ):
+        try:
+            ds = dataset(path, f, f"{arm}/{key}", joints, required=False)
+            v = _read(path, ds, n) if ds is not None and ds.shape[0] >= n else None
+        except SessionFileError:  # optional and never modelled: a damaged one is only not used
+            continue
+        if v is not None and np.isfinite(v).all():
+            return v
+    return None
 
 
 def read_sessions(paths: Path | str | Sequence[str | PathLike[str]], arm: str = "follower",
-                  hand_free: bool = False) -> list[RawSession]:
+                  hand_free: bool = False, checks: bool = True) -> list[RawSession]:
     """Read several session files; they must name the same joints. With `hand_free`, a session whose
-    `arm` the operator's hand moved is refused (check_hand_free)."""
+    `arm` the operator's hand moved is refused (check_hand_free). With `checks` (the default) the data
+    checks apply (train.data.data_checks: a copy under another name refused, repeated, time-reversed and
+    jump rows dropped, each session carrying its `findings`)."""
     paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
     if not paths:
         raise SessionFileError("no session files were given")
@@ -221,4 +248,4 @@ def read_sessions(paths: Path | str | Sequence[str | PathLike[str]], arm: str = 
         if s.joint_names != first.joint_names:
             raise SessionFileError(f"{s.path} has joints {', '.join(s.joint_names)} but {first.path} has "
                                    f"{', '.join(first.joint_names)}; sessions must record the same joints")
-    return sessions
+    return apply_checks(sessions) if checks else sessions

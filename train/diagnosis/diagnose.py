@@ -32,12 +32,14 @@ The method, per joint j (names as in the session):
 5. Significant: error_reduction >= `min_reduction` AND the held-out error falls in every fold
    (`min_fold_fraction`), judged by forward selection (ranking.forward_selection): each
    candidate on top of the effects selected before it. A session with nothing missing yields no
-   significant candidate.
+   significant candidate. Each pick after the first reports its parameters from its fit with the earlier
+   picks in the model (the model it joins); its values alone are kept as `parameters_alone`.
 
 Arm-scope effects (payload) have one set of parameters for all joints: their fit is joint across all
 joints and they are reported once, on the joint where they remove the largest fraction of the error,
 with the other joints' fractions in the sentence. Effects the model already contains (same name on the
-same joint, or on every joint) are not candidates.
+same joint, or on every joint, and the same definition: crane_io.physics.effects.spec's identity) are
+not candidates.
 """
 
 from __future__ import annotations
@@ -49,7 +51,7 @@ import numpy as np
 from crane_io.errors import CraneError
 
 from ..data.dataset import Dataset
-from ..models.recorded_effects import effect_entries
+from ..models.recorded_effects import effect_entries, effect_identities
 from .cv import CVFit, Engine, cross_validate, fold_ids, jackknife, sparse_joint
 from .defaults import DEFAULT_FOLDS, DEFAULT_MIN_FOLD_FRACTION, DEFAULT_MIN_REDUCTION
 from .effects import (
@@ -59,17 +61,15 @@ from .effects import (
     complexity,
     effect_name,
     library_effects,
-    param_units,
 )
-from .ranking import forward_selection, is_significant, rank
+from .ranking import fit_parameters, forward_selection, is_significant, rank
 from .result import Candidate, Diagnosis, DiagnosisError
 from .text import (
-    candidate_sentence,
+    candidate_text,
     joint_summary,
     residual_correlations,
     residual_dependence,
     selected_suffix,
-    unidentifiable_sentence,
 )
 
 if TYPE_CHECKING:
@@ -120,8 +120,10 @@ def diagnose(model: Model, ds: Dataset, effects: Iterable[Any] | None = None, *,
     residual = ds.tau - np.asarray(predict_on(model, ds), dtype=float)
     X = physics_basis(model, ds)
     if X is None:
-        return _run(ds, None, residual, residual, effects, exclude=model_effects(model), **options)
-    return _run(ds, X, ds.tau, residual, effects, exclude=model_effects(model), refit=True, model=model,
+        return _run(ds, None, residual, residual, effects, exclude=model_effects(model),
+                    own_ids=effect_identities(model), **options)
+    return _run(ds, X, ds.tau, residual, effects, exclude=model_effects(model),
+                own_ids=effect_identities(model), refit=True, model=model,
                 **options)
 
 
@@ -139,9 +141,10 @@ def diagnose_residual(ds: Dataset, residual: np.ndarray, effects: Iterable[Any] 
 
 def _run(ds: Dataset, X, y, residual, effects=None, *, exclude=(), folds: int = DEFAULT_FOLDS,
          min_reduction: float = DEFAULT_MIN_REDUCTION, min_fold_fraction: float = DEFAULT_MIN_FOLD_FRACTION,
-         refit: bool = False, progress: bool = False, model=None) -> Diagnosis:
+         refit: bool = False, progress: bool = False, model=None, own_ids: dict | None = None) -> Diagnosis:
     """Cross-validate every candidate (effect, joint) against the basis X (None: no basis, y is the
-    residual), select forward, then rank and describe per joint."""
+    residual), select forward, then rank and describe per joint. `own_ids`: name -> identity of the
+    model's own effects (an effect of one of their names but another definition is still a candidate)."""
     fold = _check_data(ds, residual, folds)
     effects = [bind(e, ds.joint_names) for e in (library_effects() if effects is None else effects)]
     if X is None:
@@ -152,7 +155,8 @@ def _run(ds: Dataset, X, y, residual, effects=None, *, exclude=(), folds: int = 
 
     results: dict[int, list[Candidate]] = {j: [] for j in range(len(ds.joint_names))}
     tried: dict[int, tuple] = {}  # id(candidate) -> (effect, columns_by_shape, fit, columns_at)
-    for effect, j in _with_progress(_candidates_to_try(effects, ds.joint_names, exclude), progress):
+    for effect, j in _with_progress(_candidates_to_try(effects, ds.joint_names, exclude, own_ids),
+                                      progress):
         columns_by_shape = candidate_columns(effect, ds, j)
         if not columns_by_shape:
             continue
@@ -310,19 +314,36 @@ def _check_data(ds: Dataset, residual: np.ndarray, folds: int) -> np.ndarray:
     return fold
 
 
-def _candidates_to_try(effects, joint_names, exclude) -> list[tuple[object, int | None]]:
+def _identity(effect) -> str | None:
+    """The identity of an effect's definition (crane_io.physics.effects.spec), None when it has none."""
+    from crane_io.physics.effects.spec import identity, spec_of
+
+    try:
+        return identity(spec_of(effect))
+    except (CraneError, TypeError, ValueError, AttributeError):
+        return None
+
+
+def _candidates_to_try(effects, joint_names, exclude, own_ids=None) -> list[tuple[object, int | None]]:
     """(effect, joint index) for every joint-scope effect on every joint and (effect, None) for every
-    arm-scope effect, except the effects the model already contains."""
+    arm-scope effect, except the effects the model already contains: the same name on the same joint (or
+    on every joint), unless `own_ids` (name -> identity) shows the model's effect of that name is defined
+    otherwise."""
     exclude = {(n, j) for n, j in exclude}
     work = []
     for effect in effects:
         name = effect_name(effect)
+        mine = (own_ids or {}).get(name)
+        if mine is not None and _identity(effect) not in (None, mine):
+            exclude_here = set()  # another effect that shares the name: a candidate like any other
+        else:
+            exclude_here = exclude
         if getattr(effect, "scope", "joint") == "arm":
-            if (name, None) not in exclude:
+            if (name, None) not in exclude_here:
                 work.append((effect, None))
         else:
             for j, joint in enumerate(joint_names):
-                if (name, joint) not in exclude and (name, None) not in exclude:
+                if (name, joint) not in exclude_here and (name, None) not in exclude_here:
                     work.append((effect, j))
     return work
 
@@ -340,21 +361,12 @@ def _judge(effect, j: int | None, fit: CVFit, joint_names, min_reduction: float,
     """(home joint index, Candidate) of one cross-validated candidate: an arm-scope one (j None) is
     reported on the joint where it removes the largest fraction of the error."""
     name = effect_name(effect)
-    units = param_units(effect)
     joints = [j] if j is not None else list(range(len(joint_names)))
     reductions = {jj: fit.reduction(jj) for jj in joints}
     home = max(joints, key=lambda jj: reductions[jj])
     fold_red = fit.fold_reductions(home)
     improved = int(sum(r > 0 for r in fold_red))
-    stats = jackknife(fit.fold_values) if fit.fold_values else {}
-    parameters = {n: {"value": v, "std": sd, "unit": units.get(n, "")} for n, (v, sd) in stats.items()}
-    if not fit.identifiable:
-        parameters = {}  # any value fits as well: printing one (with a tiny spread) would mislead
-    loose = list(fit.collinear)
-    if loose:  # coefficients the others (and the model's own) can trade with: no value is meaningful
-        loose = [p.name for p in getattr(effect, "linear_params", ())] or loose
-        for n in loose:
-            parameters.pop(n, None)
+    parameters, loose = fit_parameters(effect, fit)
     red = reductions[home]
     cand = Candidate(
         joint=joint_names[home], rank=0, effect=name, title=getattr(effect, "title", name),
@@ -367,10 +379,7 @@ def _judge(effect, j: int | None, fit: CVFit, joint_names, min_reduction: float,
         sentence="", other_joints={joint_names[jj]: reductions[jj] for jj in joints if jj != home},
         n_parameters=complexity(effect), identifiable=fit.identifiable,
         unidentifiable_parameters=loose)
-    cand.sentence = candidate_sentence(effect, cand) if fit.identifiable else unidentifiable_sentence(cand)
-    if fit.identifiable and loose:
-        cand.sentence = (cand.sentence[:-1] + f" ({', '.join(loose)} cannot be told apart from the model's "
-                         "own parameters, so no value is given).")
+    cand.sentence = candidate_text(effect, cand)
     return home, cand
 
 

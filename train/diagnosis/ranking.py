@@ -10,9 +10,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .cv import CVFit, Engine, cross_validate
+from .cv import CVFit, Engine, cross_validate, jackknife
+from .effects import param_units
 from .result import Candidate
-from .text import spill_over_sentence
+from .text import candidate_text, spill_over_sentence
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -56,6 +57,34 @@ def rank(cands: list[Candidate]) -> list[Candidate]:
 MAX_SELECTED = 6  # forward selection stops after this many effects
 
 
+def fit_parameters(effect, fit: CVFit) -> tuple[dict[str, dict], list[str]]:
+    """(parameters {name: {"value", "std", "unit"}}, the linear coefficients that cannot be told apart from
+    the basis) of a candidate's cross-validated fit: the mean over folds and its jackknife standard error;
+    no value for a candidate that is not identifiable, nor for a coefficient the basis can trade with."""
+    units = param_units(effect)
+    stats = jackknife(fit.fold_values) if fit.fold_values else {}
+    parameters = {n: {"value": v, "std": sd, "unit": units.get(n, "")} for n, (v, sd) in stats.items()}
+    if not fit.identifiable:
+        parameters = {}  # any value fits as well: printing one (with a tiny spread) would mislead
+    loose = list(fit.collinear)
+    if loose:  # coefficients the others (and the model's own) can trade with: no value is meaningful
+        loose = [p.name for p in getattr(effect, "linear_params", ())] or loose
+        for n in loose:
+            parameters.pop(n, None)
+    return parameters, loose
+
+
+def _take_nested_values(c: Candidate, effect, fit: CVFit) -> None:
+    """A pick judged on top of the earlier picks reports that model's values: its parameters and shape
+    from `fit` (cross-validated with the earlier picks in the basis); its values alone stay in
+    `parameters_alone`."""
+    c.parameters_alone = c.parameters
+    c.parameters, c.unidentifiable_parameters = fit_parameters(effect, fit)
+    c.shape = dict(fit.shape_all or {})
+    c.identifiable = fit.identifiable
+    c.sentence = candidate_text(effect, c)
+
+
 def _label(c: Candidate) -> str:
     return f"{c.effect} on {c.joint}"
 
@@ -91,6 +120,9 @@ def forward_selection(engine: Engine, joint_names: Sequence[str], results: dict[
     the effect whose addition took its significance, `reduction_given_leader` its reduction then, and a
     sentence saying to add that effect first and diagnose again.
 
+    A pick after the first reports its parameters (and shape) from its fit on top of the picks before it,
+    the model it joins, not from its fit alone (kept in `parameters_alone`).
+
     `tried` maps id(candidate) -> (effect, columns_by_shape, its CVFit, columns_at); candidates are
     changed in place. Candidates not significant on their own are not tried again (one that only
     becomes significant once another effect is in shows when diagnosing the refitted model).
@@ -104,6 +136,8 @@ def forward_selection(engine: Engine, joint_names: Sequence[str], results: dict[
         pool.remove(leader)
         selected.append(leader)
         leader.selection_step = len(selected)
+        if leader.given:  # judged again with the earlier picks in: its values are from that model
+            _take_nested_values(leader, tried[id(leader)][0], fits[id(leader)])
         eng = eng.extended(fits[id(leader)].columns_all)
         if not pool:
             break

@@ -23,7 +23,9 @@ class Candidate:
     error_reduction: float  # fraction of the held-out MSE removed (can be negative: it made things worse)
     fold_reductions: list[float]  # the same, per fold
     folds_improved: int  # folds whose held-out error fell
-    parameters: dict[str, dict]  # name -> {"value", "std", "unit"}
+    # name -> {"value", "std", "unit"}: for a pick of the forward selection after the first, from the model
+    # with the earlier picks in (its values alone: parameters_alone)
+    parameters: dict[str, dict]
     shape: dict  # chosen shape values (on all data)
     mse_before: float  # held-out MSE of the model's residual on this joint's moving samples, N m^2
     mse_after: float  # the same after adding the candidate
@@ -43,6 +45,7 @@ class Candidate:
     # fitted rigid-body model): its parameters cannot be estimated and are left out of `parameters`
     identifiable: bool = True
     unidentifiable_parameters: list[str] = field(default_factory=list)
+    parameters_alone: dict[str, dict] | None = None  # a later pick's parameters when judged on its own
 
 
 @dataclass

@@ -16,6 +16,9 @@ if TYPE_CHECKING:
     from typing import Any
 
 
+REFINED_DIGITS = 4  # significant digits of a refined shape value (sentence and command alike)
+
+
 def _fmt(value: float) -> str:
     if value == 0 or not math.isfinite(value):
         return f"{value:g}"
@@ -71,6 +74,19 @@ def candidate_sentence(effect: Any, c: Candidate) -> str:
     return text + "."
 
 
+def candidate_text(effect: Any, c: Candidate) -> str:
+    """The sentence of a judged candidate: `candidate_sentence`, or why it has no value (not identifiable,
+    or some coefficients that cannot be told apart from the model's own)."""
+    if not c.identifiable:
+        return unidentifiable_sentence(c)
+    text = candidate_sentence(effect, c)
+    loose = c.unidentifiable_parameters
+    if loose:
+        text = (text[:-1] + f" ({', '.join(loose)} cannot be told apart from the model's own parameters, "
+                "so no value is given).")
+    return text
+
+
 def spill_over_sentence(c: Candidate, reduction: float, leader: Candidate) -> str:
     """Why candidate c was demoted: with `leader` in the model it explains only `reduction`."""
     label = f"{leader.effect} on {leader.joint}"
@@ -106,10 +122,11 @@ def selected_suffix(c: Candidate) -> str:
 def refinement_sentence(r: dict) -> str:
     """The model's own shape parameter is off its grid pick: what refining it removes, how to refit."""
     unit = _unit(r.get("unit", ""))
-    return (f"{r['joint']}: the model's {r['effect']} has {r['parameter']} = {_fmt(r['model_value'])}{unit} "
-            f"(picked from a grid by fit); refined to {r['value']:.3g} ± {r['std']:.2g}{unit} it removes "
+    value = f"{r['value']:.{REFINED_DIGITS}g}"  # the same value in the sentence and in the command
+    return (f"{r['joint']}: the model's {r['effect']} has {r['parameter']} = {r['model_value']:g}{unit} "
+            f"(picked from a grid by fit); refined to {value} ± {r['std']:.2g}{unit} it removes "
             f"{_pct(r['error_reduction'])} of the remaining error: refit with --effect "
-            f"{r['effect']}:joint={r['joint']},{r['parameter']}={r['value']:.4g}.")
+            f"{r['effect']}:joint={r['joint']},{r['parameter']}={value}.")
 
 
 def residual_correlations(ds: Dataset, residual: np.ndarray, joint: int) -> list[dict]:

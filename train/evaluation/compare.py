@@ -23,7 +23,7 @@ import numpy as np
 
 from crane_io.errors import CraneError
 
-from ..models.recorded_effects import effect_labels
+from ..models.recorded_effects import effect_keys, effect_labels
 from .heldout import HeldOut, evaluation_data, fit_record, model_settings
 from .metrics import metrics_table, mse
 
@@ -47,9 +47,14 @@ class ModelScore:
     n_test: int
     notes: list[str] = field(default_factory=list)
     arm: str = "follower"  # the arm the model was fitted (and is evaluated) on
+    # each effect's label with the identity of its definition ('coulomb:joint=joint2@<sha256>'): effects of
+    # one name but different definitions (two effect files' discovered-joint2) differ here
+    effect_keys: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict:
         return {"directory": self.directory, "method": self.method, "arm": self.arm, "effects": self.effects,
+                "effect_identities": {label: key.rpartition("@")[2]
+                                      for label, key in zip(self.effects, self.effect_keys)},
                 "n_test": self.n_test, "test": self.test, "moving_mse": self.moving_mse, "notes": self.notes}
 
 
@@ -81,7 +86,8 @@ def score(model: Model, held: HeldOut, directory: str = "") -> ModelScore:
     test = metrics_table(ds.tau[held.test], pred[held.test], ds.joint_names, held.test_mask())
     moving = mse(ds.tau, pred, ds.moving)
     return ModelScore(directory, model.method, effect_labels(model), test,
-                      {j: float(v) for j, v in zip(ds.joint_names, moving)}, int(held.test.sum()))
+                      {j: float(v) for j, v in zip(ds.joint_names, moving)}, int(held.test.sum()),
+                      effect_keys=effect_keys(model))
 
 
 def _align(reference: HeldOut, other: HeldOut) -> HeldOut:
@@ -190,14 +196,32 @@ def _label(s: ModelScore, i: int) -> str:
     return f"{i + 1}. {name}"
 
 
+def _keys(s: ModelScore) -> list[str]:
+    return s.effect_keys if len(s.effect_keys) == len(s.effects) else list(s.effects)
+
+
+def effect_changes(s: ModelScore, first: ModelScore) -> list[tuple[str, str]]:
+    """What model `s` changes against `first`, as (sign, effect label): "+" added, "-" dropped, "~" the
+    same name with another definition (its spec's identity differs: crane_io.physics.effects.spec)."""
+    mine = dict(zip(_keys(s), s.effects))
+    theirs = dict(zip(_keys(first), first.effects))
+    added = [label for key, label in mine.items() if key not in theirs]
+    dropped = [label for key, label in theirs.items() if key not in mine]
+    changed = [label for label in added if label in dropped]
+    return ([("+", e) for e in added if e not in changed] + [("-", e) for e in dropped if e not in changed]
+            + [("~", e) for e in changed])
+
+
 def _what(s: ModelScore, first: ModelScore, i: int) -> str:
-    """'rigid-body (6 effects)' for the first model, then what each later one adds or drops."""
+    """'rigid-body (6 effects)' for the first model, then what each later one adds, drops or defines
+    differently ('~discovered-joint2:joint=joint2 (another definition)')."""
     if i == 0:
         return s.method + (f" ({len(s.effects)} effects)" if s.effects else "")
-    added = [e for e in s.effects if e not in first.effects]
-    dropped = [e for e in first.effects if e not in s.effects]
-    text = s.method + "".join(f" +{e}" for e in added) + "".join(f" -{e}" for e in dropped)
-    return text if (added or dropped or s.method != first.method) else s.method + " (same effects as 1)"
+    changes = effect_changes(s, first)
+    ids = {label: key.rpartition("@")[2][:12] for label, key in zip(s.effects, _keys(s))}
+    text = s.method + "".join(f" {sign}{e}" + (f" (another definition, {ids[e]})" if sign == "~" else "")
+                              for sign, e in changes)
+    return text if (changes or s.method != first.method) else s.method + " (same effects as 1)"
 
 
 def table_text(c: Comparison, metric: str = "mse") -> str:
@@ -262,8 +286,7 @@ def legend_names(c: Comparison) -> list[str]:
             n = len(s.effects)
             what = s.method + (f", {n} effect{'s' if n > 1 else ''}" if n else "")
         else:
-            changes = ([f"+{_short_effect(e)}" for e in s.effects if e not in first.effects]
-                       + [f"-{_short_effect(e)}" for e in first.effects if e not in s.effects])
+            changes = [f"{sign}{_short_effect(e)}" for sign, e in effect_changes(s, first)]
             if len(changes) > 3:  # the first two, then how many more
                 changes = [*changes[:2], f"and {len(changes) - 2} more"]
             what = " ".join([s.method, *changes]) if changes else f"{s.method}, same effects as 1"

@@ -30,6 +30,26 @@ def effect_labels(model: Model) -> list[str]:
     return [f"{name}:joint={joint}" if joint else str(name) for name, joint in effect_entries(model)]
 
 
+def effect_identities(model: Model) -> dict[str, str]:
+    """Effect name -> the identity (SHA-256 of its spec, crane_io.physics.effects.spec) of the effect the
+    model records under that name: two effects that share a name but not their definition differ here."""
+    from crane_io.physics.effects.spec import identity
+
+    out = {}
+    for spec in (getattr(model, "options", {}) or {}).get("effect_specs") or []:
+        if isinstance(spec, dict) and isinstance(spec.get("name"), str):
+            out[spec["name"]] = identity(spec)
+    return out
+
+
+def effect_keys(model: Model) -> list[str]:
+    """Each effect of the model as its label plus its identity ('coulomb:joint=joint2@<sha>'): what makes
+    two models' effects the same or not."""
+    ids = effect_identities(model)
+    return [f"{label}@{ids.get(str(name), '')}" for label, (name, _) in zip(effect_labels(model),
+                                                                            effect_entries(model))]
+
+
 def specs_for(names) -> list[dict]:
     """The spec (crane_io.physics.effects.spec, with its identity) of each distinct effect name, as the
     library holds it now (built-in, an effect-spec file's or a Python file's the user named)."""
