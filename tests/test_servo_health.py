@@ -236,3 +236,74 @@ def test_a_stalled_servo_overloads_and_a_low_supply_raises_the_input_voltage_bit
     s.reboot(chain.time)  # the overload is gone with the torque; the supply is still low
     chain.advance(0.01)
     assert s.read_register("hardware_error_status") == INPUT_VOLTAGE_BIT
+
+
+# ---- end to end: crane-collect run ends in a safety stop naming the servo's error ----------------------
+
+QUIET = """
+[loop]
+status_hz = 0
+status_log_s = 10
+"""
+LEAN_OPERATOR = QUIET + """
+[operator]
+task = "contact"
+press_fraction = 0.8
+press_torque_min = 5.5
+press_torque_max = 6.0
+press_min_s = 3.0
+press_max_s = 5.0
+"""
+
+
+def _physics(sims, name: str):
+    plant = sims[name].chain.plant
+    return getattr(plant, "plant", plant)  # (the hand's wrapper around the arm plant)
+
+
+def _hot_elbow(k, ctx):  # a user lowers the leader's elbow's Temperature Limit; the winding is at 50 C
+    if k == 1:
+        ctx.sims["leader"].chain.servos[5].write_register("temperature_limit", 55)
+
+
+def _brown_out(k, ctx):  # the follower's supply drops to 9 V
+    if k == 100:
+        health = _physics(ctx.sims, "follower").health
+        health.supply = replace(health.supply, voltage=9.0)
+
+
+@pytest.mark.parametrize("plant, hook, duration, words", [
+    ("stall-overload", None, 6.0, "joint4 (ID 5): overload; the servo switched its torque off"),
+    ("hot-motor", _hot_elbow, 3.0, "leader: hardware error on dxlsim://leader-"),
+    ("supply", _brown_out, 3.0, "follower: hardware error on dxlsim://follower-"),
+])
+def test_a_fault_from_the_physics_ends_the_session_in_a_safety_stop(tmp_path, plant, hook, duration, words):
+    import h5py
+
+    from collect.recorder import read_events
+    from collect.runner import RunOptions, SafetyStop, run_session
+    from tests.recording import torque_off_everywhere
+
+    fault = {"stall-overload": "overload", "hot-motor": "overheating", "supply": "input voltage error"}[plant]
+    if plant == "supply":
+        plant = tmp_path / "supply.toml"
+        plant.write_text('base = "crane-x7"\n[supply]\nenabled = true\n')
+    config = tmp_path / "operator.toml"
+    config.write_text(LEAN_OPERATOR if plant == "stall-overload" else QUIET)
+    seen = {}
+
+    def on_cycle(k, ctx):
+        seen["sims"] = ctx.sims
+        if hook is not None:
+            hook(k, ctx)
+
+    out = tmp_path / "s.h5"
+    with pytest.raises(SafetyStop) as info:
+        run_session(RunOptions(output=out, sim=True, plant=str(plant), duration=duration, config=config, seed=2,
+                               status=False, on_cycle=on_cycle))
+    assert words in str(info.value) and fault in str(info.value)
+    with h5py.File(out, "r") as f:
+        assert f.attrs["complete"] and f.attrs["end_reason"] == "safety_stop"
+        stops = [e["message"] for e in read_events(f) if e["kind"] == "safety_stop"]
+        assert len(stops) == 1 and fault in stops[0]
+    assert torque_off_everywhere(seen["sims"])
