@@ -299,8 +299,8 @@ def test_a_fault_from_the_physics_ends_the_session_in_a_safety_stop(tmp_path, pl
 
     out = tmp_path / "s.h5"
     with pytest.raises(SafetyStop) as info:
-        run_session(RunOptions(output=out, sim=True, plant=str(plant), duration=duration, config=config, seed=2,
-                               status=False, on_cycle=on_cycle))
+        run_session(RunOptions(output=out, sim=True, plant=str(plant), duration=duration, config=config,
+                               seed=2, status=False, on_cycle=on_cycle))
     assert words in str(info.value) and fault in str(info.value)
     with h5py.File(out, "r") as f:
         assert f.attrs["complete"] and f.attrs["end_reason"] == "safety_stop"
