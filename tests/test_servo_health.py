@@ -307,3 +307,49 @@ def test_a_fault_from_the_physics_ends_the_session_in_a_safety_stop(tmp_path, pl
         stops = [e["message"] for e in read_events(f) if e["kind"] == "safety_stop"]
         assert len(stops) == 1 and fault in stops[0]
     assert torque_off_everywhere(seen["sims"])
+
+
+@pytest.mark.slow
+def test_a_sagging_supply_stops_a_session_recorded_over_ptys(tmp_path):
+    """sim-serve --pair on the low-supply preset, crane-collect run over the two links: the servos' input
+    voltage error ends the session in a safety stop that names it, torque off everywhere."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    import h5py
+
+    from collect.recorder import read_events
+    from crane_io.dynamixel import link_registry
+
+    bin_dir = Path(sys.executable).parent
+    env = dict(os.environ, **{link_registry.RUNTIME_ENV: str(tmp_path / "run")})
+    leader, follower, session = tmp_path / "leader", tmp_path / "follower", tmp_path / "s.h5"
+    serve = subprocess.Popen(
+        [str(bin_dir / "crane-collect"), "sim-serve", "--pair", "--leader-link", str(leader), "--follower-link",
+         str(follower), "--clock", "lockstep", "--seed", "1", "--plant", "low-supply"],
+        env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 300
+        while not (leader.exists() and follower.exists()):
+            assert serve.poll() is None and time.monotonic() < deadline, "sim-serve did not come up"
+            time.sleep(0.2)
+        run = subprocess.run([str(bin_dir / "crane-collect"), "run", "--leader-port", str(leader),
+                              "--follower-port", str(follower), "-o", str(session), "--duration", "30",
+                              "--quiet"], env=env, capture_output=True, text=True, timeout=900)
+    finally:
+        serve.send_signal(signal.SIGTERM)
+        serve.communicate(timeout=60)
+    assert run.returncode == 3, run.stdout + run.stderr
+    assert "safety stop" in run.stderr and "input voltage error" in run.stderr
+    assert "reboot the servo to clear it" in run.stderr  # not in the Shutdown mask: no torque-off claim
+    with h5py.File(session, "r") as f:
+        assert f.attrs["complete"] and f.attrs["end_reason"] == "safety_stop"
+        events = read_events(f)
+        assert [e["kind"] for e in events if e["kind"] == "safety_stop"] == ["safety_stop"]
+        assert "input voltage error" in next(e["message"] for e in events if e["kind"] == "safety_stop")
+        assert [e["message"] for e in events if e["kind"] == "torque_state"] == [
+            "leader: torque off on 8 of 8 servos", "follower: torque off on 8 of 8 servos"]
