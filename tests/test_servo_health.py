@@ -329,8 +329,8 @@ def test_a_sagging_supply_stops_a_session_recorded_over_ptys(tmp_path):
     env = dict(os.environ, **{link_registry.RUNTIME_ENV: str(tmp_path / "run")})
     leader, follower, session = tmp_path / "leader", tmp_path / "follower", tmp_path / "s.h5"
     serve = subprocess.Popen(
-        [str(bin_dir / "crane-collect"), "sim-serve", "--pair", "--leader-link", str(leader), "--follower-link",
-         str(follower), "--clock", "lockstep", "--seed", "1", "--plant", "low-supply"],
+        [str(bin_dir / "crane-collect"), "sim-serve", "--pair", "--leader-link", str(leader),
+         "--follower-link", str(follower), "--clock", "lockstep", "--seed", "1", "--plant", "low-supply"],
         env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         deadline = time.monotonic() + 300
