@@ -273,7 +273,7 @@ def _brown_out(k, ctx):  # the follower's supply drops to 9 V
 
 
 @pytest.mark.parametrize("plant, hook, duration, words", [
-    ("stall-overload", None, 6.0, "joint4 (ID 5): overload; the servo switched its torque off"),
+    ("stall-overload", None, 4.0, "joint4 (ID 5): overload; the servo switched its torque off"),
     ("hot-motor", _hot_elbow, 3.0, "leader: hardware error on dxlsim://leader-"),
     ("supply", _brown_out, 3.0, "follower: hardware error on dxlsim://follower-"),
 ])
@@ -288,8 +288,11 @@ def test_a_fault_from_the_physics_ends_the_session_in_a_safety_stop(tmp_path, pl
     if plant == "supply":
         plant = tmp_path / "supply.toml"
         plant.write_text('base = "crane-x7"\n[supply]\nenabled = true\n')
+    elif plant == "stall-overload":  # the preset, overloading sooner
+        plant = tmp_path / "stall.toml"
+        plant.write_text('base = "stall-overload"\n[overload]\nenabled = true\ntime_s = 0.3\n')
     config = tmp_path / "operator.toml"
-    config.write_text(LEAN_OPERATOR if plant == "stall-overload" else QUIET)
+    config.write_text(LEAN_OPERATOR if fault == "overload" else QUIET)
     seen = {}
 
     def on_cycle(k, ctx):
