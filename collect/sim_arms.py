@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import itertools
 import os
+from dataclasses import replace
 from pathlib import Path
 
 from crane_io.description import ArmDescription
@@ -43,15 +44,20 @@ def default_plant(arm: ArmDescription) -> str:
     return DEFAULT_PLANT if all(n in PAPER_JOINTS for n in arm.bilateral_joints) else DEFAULT_PLANT_7DOF
 
 
-def make_plant(spec: str | None, seed: int, arm: ArmDescription, objects: bool = True):
+def make_plant(spec: str | None, seed: int, arm: ArmDescription, objects: bool = True,
+               supply_voltage: float | None = None):
     """The plant behind a simulated arm: ArmPlant from a preset/TOML (default: default_plant(arm)) that
     integrates the arm's bilateral joints, or "simple" for the light SimplePlant. `objects=False`:
     without the preset's [[environment]] (the leader's world: only the follower touches objects). A
     preset whose effects or objects sit on joints the run holds is the plant's ConfigError (one
-    sentence)."""
+    sentence). `supply_voltage` (V): the servos' supply (the arm plant's [supply] enabled at that voltage;
+    ConfigError for the simple plant, which has no supply model)."""
     from crane_io.sim.simple_plant import SimplePlant
 
     if spec == "simple":
+        if supply_voltage is not None:
+            raise ConfigError("the simple plant has no supply model; use an arm-plant preset with a supply "
+                              "voltage")
         return SimplePlant.from_arm(arm)
     try:
         from crane_io.sim.arm_plant import ArmPlant
@@ -64,6 +70,8 @@ def make_plant(spec: str | None, seed: int, arm: ArmDescription, objects: bool =
     name = spec or default_plant(arm)
     config = load_plant_config(name)
     config = config if objects else config.without_environment()
+    if supply_voltage is not None:
+        config = replace(config, supply=replace(config.supply, enabled=True, voltage=float(supply_voltage)))
     # The arm plant integrates arm joints only: a bilateral gripper is its simple current-driven servo
     # (inertia and viscous friction), as every held servo is when its mode is current.
     joints = tuple(n for n in arm.bilateral_joints if n != "gripper")

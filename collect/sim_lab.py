@@ -160,11 +160,12 @@ class SimulatedLab:
               clock: str = "wall", period_s: float = 0.002, config: Config | None = None,
               task: str | None = None, hand_delay_s: float = DEFAULT_HAND_DELAY_S,
               arm: ArmDescription | None = None, fast_sync_read: bool = True,
-              return_delay_time: int | None = None, encoder_offsets: dict | None = None) -> SimulatedLab:
+              return_delay_time: int | None = None, encoder_offsets: dict | None = None,
+              supply_voltage: float | None = None) -> SimulatedLab:
         """The leader's and the follower's plants (seeds 2 seed and 2 seed + 1, as `run --sim`; the
         preset's objects only in the follower's world) behind servo chains, the hand on `hand_on`;
         `encoder_offsets` {arm: (n,) rad}: that arm's encoders read that much more than the truth (the
-        hand feels the true angles)."""
+        hand feels the true angles); `supply_voltage` (V): both arms' servo supply (make_plant)."""
         from crane_io.sim.chain import SimulatedChain
 
         from .sim_arms import default_plant, make_plant
@@ -177,7 +178,8 @@ class SimulatedLab:
             config = config.with_operator_task(task)
         plants, chains = {}, {}
         for k, name in enumerate(ARMS):
-            plants[name] = make_plant(plant, seed * 2 + k, arm, objects=name == "follower")
+            plants[name] = make_plant(plant, seed * 2 + k, arm, objects=name == "follower",
+                                      supply_voltage=supply_voltage)
         environment = getattr(plants["follower"], "environment", None) or []
         operator = SimulatedOperator(seed, arm, config.loop.rate_hz, config, environment=environment)
         hand = HandOnPlant(plants[hand_on], operator, arm, hand_delay_s)

@@ -1,5 +1,5 @@
 """ArmPlant: stick-slip that really sticks, gravity when torque is off, repeatable seeded runs,
-presets, the Plant protocol, overload, truth kept apart."""
+presets, the Plant protocol, truth kept apart."""
 
 import json
 
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from crane_io.errors import ConfigError
-from crane_io.sim.arm_plant import OVERLOAD_BIT, ArmPlant
+from crane_io.sim.arm_plant import ArmPlant
 from crane_io.sim.plant_api import ActuatorCommand, Plant
 from crane_io.sim.plant_config import load_plant_config, presets
 
@@ -120,20 +120,6 @@ def test_held_joints_follow_their_goal_position():
     for _ in range(250):
         plant.step(cmd, 0.002)
     assert plant.state()[0][2] == pytest.approx(0.3, abs=1e-3)
-
-
-def test_overload_bit_after_saturating_long_enough(tmp_path):
-    path = tmp_path / "hot.toml"
-    path.write_text('base = "baseline"\n[overload]\nenabled = true\ntime_s = 0.1\n')
-    plant = ArmPlant(load_plant_config(path))
-    cur = np.zeros(N)
-    cur[1] = 3.2  # at the limit
-    for _ in range(40):
-        plant.step(command(cur, limit=3.2), 0.002)
-    assert plant.hardware_errors() == {}
-    for _ in range(20):
-        plant.step(command(cur, limit=3.2), 0.002)
-    assert plant.hardware_errors() == {3: OVERLOAD_BIT}
 
 
 def test_payload_and_hidden_effects_change_the_physics():

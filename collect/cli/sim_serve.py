@@ -109,11 +109,16 @@ def slip_summary(chain) -> str:
                    "follower's) to this file (not overwritten without --force). Nothing else ever records "
                    "it.")
 @click.option("--force", is_flag=True, help="Overwrite the --truth file if it exists.")
+@click.option("--supply-voltage", "supply_voltage", type=Number(float, 1, 30, unit="V"), default=None,
+              metavar="V", help="The servos' supply in volts (the arm plant's [supply]; default: the "
+                                "plant's, 12.0 V): outside a servo's Min/Max Voltage Limit (9.5..16.0 V) it "
+                                "raises its Input Voltage error.")
 @wiring_fault_options
 @cli_errors
 def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_s, config_path,
               encoder_offsets, joints, plant, clock, period_s, seed, no_fast_sync_read, return_delay,
-              truth, force, swap_ids, reverse_joints, wrong_models, current_sign, current_scale):
+              truth, force, supply_voltage, swap_ids, reverse_joints, wrong_models, current_sign,
+              current_scale):
     """Serve a simulated CRANE-X7 (or, with --pair, a leader and a follower with a simulated hand) on
     pseudo-terminals until Ctrl+C or SIGTERM."""
     if not period_s > 0:
@@ -151,10 +156,10 @@ def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_
         if pair:
             _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, config, arm,
                         plant, clock, period_s, seed, not no_fast_sync_read, return_delay, truth,
-                        offsets)
+                        offsets, supply_voltage)
         else:
             _serve_one(stop, link, arm, plant, clock, period_s, seed, not no_fast_sync_read,
-                       return_delay, truth, offsets.get("arm"), faults)
+                       return_delay, truth, offsets.get("arm"), faults, supply_voltage)
     finally:
         signal.signal(signal.SIGTERM, previous)
 
@@ -211,7 +216,7 @@ def _wait(stop: threading.Event, errors, status) -> None:
 
 
 def _serve_one(stop, link, arm, plant_name, clock, period_s, seed, fast_sync_read, return_delay, truth_path,
-               offsets=None, faults=None):
+               offsets=None, faults=None, supply_voltage=None):
     from crane_io.dynamixel.link_registry import withdraw
     from crane_io.sim.chain import SimulatedChain
     from crane_io.sim.transport import PtyServer
@@ -220,7 +225,7 @@ def _serve_one(stop, link, arm, plant_name, clock, period_s, seed, fast_sync_rea
     from ..sim_arms import default_plant, make_plant
     from ..sim_lab import OffsetPlant
 
-    plant = make_plant(plant_name, seed, arm)
+    plant = make_plant(plant_name, seed, arm, supply_voltage=supply_voltage)
     plant_name = plant_name or default_plant(arm)
     _write_truth(plant, truth_path)
     kind = type(plant).__name__ + (", encoders off" if offsets is not None else "")
@@ -252,7 +257,8 @@ def _serve_one(stop, link, arm, plant_name, clock, period_s, seed, fast_sync_rea
 
 
 def _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, config, arm, plant_name,
-                clock, period_s, seed, fast_sync_read, return_delay, truth_path, offsets):
+                clock, period_s, seed, fast_sync_read, return_delay, truth_path, offsets,
+                supply_voltage=None):
     from crane_io.dynamixel.link_registry import withdraw
 
     from ..config import PAPER_JOINTS
@@ -261,7 +267,7 @@ def _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, c
     lab = SimulatedLab.build(plant=plant_name, seed=seed, hand_on=hand_on, clock=clock, period_s=period_s,
                              config=config, task=task, hand_delay_s=hand_delay_s, arm=arm,
                              fast_sync_read=fast_sync_read, return_delay_time=return_delay,
-                             encoder_offsets=offsets)
+                             encoder_offsets=offsets, supply_voltage=supply_voltage)
     paper = tuple(arm.bilateral_joints) == PAPER_JOINTS
     joints = "" if paper else f" --joints {','.join(arm.bilateral_joints)}"
     _write_truth(lab.plants["follower"], truth_path)  # (a HandOnPlant passes write_truth through)

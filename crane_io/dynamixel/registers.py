@@ -16,6 +16,7 @@ import numpy as np
 from crane_io.description import ArmDescription, default_arm
 from crane_io.dynamixel import units
 from crane_io.dynamixel.control_table import (
+    HARDWARE_ERROR_BITS,
     MODE_CURRENT,
     MODE_POSITION,
     X_SERIES,
@@ -48,6 +49,9 @@ log = logging.getLogger(__name__)
 _POLL_ADDRESS, _POLL_SIZE = span("hardware_error_status", "bus_watchdog")
 _POLL_ERRORS = X_SERIES["hardware_error_status"].address - _POLL_ADDRESS
 _POLL_WATCHDOG = X_SERIES["bus_watchdog"].address - _POLL_ADDRESS
+# the faults the servo's factory Shutdown mask (e-manual Shutdown(63), default 0x34) turns its torque off for
+_SHUTDOWN_FAULTS = {name for bit, name in HARDWARE_ERROR_BITS.items()
+                    if X_SERIES["shutdown"].default >> bit & 1}
 
 
 @dataclass(frozen=True)
@@ -318,9 +322,11 @@ class ServoRegisters:
                 "they hold no torque until configure() re-arms them (keep the control loop from stalling)",
                 faults=faults)
         where = describe_faults(faults, ids)
+        off = any(_SHUTDOWN_FAULTS.intersection(names) for names in faults.values())
         return ServoFaultError(
             f"hardware error on {self.port_name}: {where}"
-            "; the servo switched its torque off (remove the cause, then power-cycle or reboot it)",
+            + ("; the servo switched its torque off (remove the cause, then power-cycle or reboot it)" if off
+               else "; remove the cause, then power-cycle or reboot the servo to clear it"),
             faults=faults)
 
     def _silent_servos(self) -> dict[str, int]:

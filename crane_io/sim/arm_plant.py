@@ -32,8 +32,11 @@ effects (crane_io.physics.effects), plus the actuator, plus the external torque 
 - Sensors: position to the 4096-count grid is done by the chain; the plant adds an occasional
   one-count error, velocity noise and current noise (PlantConfig.sensor); present current is the
   motor torque / Kt_true.
-- Overload (optional): a joint whose goal current sits at its Current Limit for `overload.time_s`
-  gets Hardware Error Status bit 5; it stays set (the chain's Shutdown logic turns torque off).
+- Servo health (optional, the config's [overload], [thermal], [supply]; crane_io.sim.servo_health):
+  winding temperature from I^2 R, the overload timer and the supply voltage, stepped with the plant;
+  they set Present Temperature / Present Input Voltage and the Overload, Overheating and Input Voltage
+  bits (the chain's servos latch them and act on their Shutdown mask). Without them the servos read a
+  constant 12.0 V and 35 C and raise nothing.
 - Contact (optional, the config's [[environment]]: joint walls and planes, crane_io.sim.environment): the
   objects' torque on the integrated joints is added to the external torque in every substep, so
   stick-slip friction sees it. `contact_torque()` and `in_contact` give it at the end of the last
@@ -55,7 +58,7 @@ from crane_io.dynamixel.units import AMPERE_PER_CURRENT_LSB, RAD_PER_PULSE, RADS
 from crane_io.errors import ConfigError
 from crane_io.physics.dynamics import ArmDynamics
 from crane_io.physics.effects import PlantTerms
-from crane_io.sim import chain_kernel, plant_backend, plant_layout
+from crane_io.sim import chain_kernel, plant_backend, plant_layout, servo_health
 from crane_io.sim.environment import Environment
 from crane_io.sim.plant_api import ActuatorCommand, SensorReading
 from crane_io.sim.plant_config import ARM_JOINTS, PlantConfig, check_joints, load_plant_config
@@ -65,8 +68,7 @@ _PULSE_SIGNS = np.array((-RAD_PER_PULSE, RAD_PER_PULSE))  # one-pulse position n
 _TWO_TO_MINUS_53 = 1.0 / 9007199254740992.0  # Generator.random: (64-bit output >> 11) x 2**-53
 _EMPTY_U64, _EMPTY_F64 = np.zeros(0, dtype=np.uint64), np.zeros(0)
 
-
-OVERLOAD_BIT = 0x20
+OVERLOAD_BIT = servo_health.OVERLOAD_BIT
 _HELD_OMEGA = 30.0  # rad/s: held joints follow their goal as a critically damped 2nd-order system
 _STOP_MARGIN = math.radians(2.0)  # end stops sit this far beyond the software limits
 _CONTACT_OMEGA_H = 0.25  # backlash contact: natural frequency on the motor inertia x substep
@@ -152,8 +154,10 @@ class ArmPlant:
         self._contact = np.zeros(n_int)  # the objects' torque at the end of the last step
         self._in_contact = False
         self.motor_torque = np.zeros(n_int)
-        self._saturated_time = np.zeros(len(names))
-        self._errors: dict[int, int] = {}
+        self.health = servo_health.build([arm.joint(n).model for n in names], config.overload, config.thermal,
+                                         config.supply)
+        self._idle_supply = ([servo_health.NOMINAL_VOLTAGE] * len(names),
+                             [servo_health.IDLE_TEMPERATURE_C] * len(names))
         self.time = 0.0
         self._raw_signs_ok = None  # the generator _position_noise may read raw (see _raw_signs)
         # the effects and end stops per integrated joint, in crane_io.sim.plant_layout's layout
@@ -226,17 +230,17 @@ class ArmPlant:
         hands them over without arrays in between."""
         if dt <= 0:
             return
-        if self.config.overload.enabled:
-            self._overload(np.array(en_l, dtype=bool), np.array(mode_l), np.array(gc_l, dtype=float),
-                           np.array(lim_l, dtype=float), dt)
         self._stepper.step(en_l, mode_l, gc_l, gp_l, gains_l, lim_l, dt)
         self.time += dt
+        if self.health is not None:
+            _, vel, cur = self._true_lists()
+            self.health.step(en_l, cur, vel, dt)
 
     def step_command(self, cmds: np.ndarray, position_mask: int, dt: float) -> bool:
         """`step_lists` from the commands as one (5, servos) float array (driving 1.0/0.0, operating mode,
         goal current A, goal position rad, current limit A; the simulated chain's fast path) when the
         stepper takes them as they are (the compiled one: no integrated joint's servo driving in a position
-        mode (bit i of `position_mask`: servo i is), no overload model). Returns False (nothing done)
+        mode (bit i of `position_mask`: servo i is), no servo health model). Returns False (nothing done)
         otherwise."""
         if dt <= 0:
             return True
@@ -264,13 +268,28 @@ class ArmPlant:
                 for p, a, b, c, g in zip(pos.tolist(), kp.tolist(), kd.tolist(), cap.tolist(),
                                          bi_cmd.goal_position)]
 
-    def _overload(self, enabled, mode, goal_current, limit, dt) -> None:
-        if not self.config.overload.enabled:
-            return
-        sat = enabled & (mode == 0) & (np.abs(goal_current) >= limit * (1 - 1e-6)) & (limit > 0)
-        self._saturated_time = np.where(sat, self._saturated_time + dt, 0.0)
-        for i in np.flatnonzero(self._saturated_time >= self.config.overload.time_s):
-            self._errors[self.servo_ids[i]] = self._errors.get(self.servo_ids[i], 0) | OVERLOAD_BIT
+    def _true_lists(self) -> tuple[list, list, list]:
+        """(position, velocity, current) lists in servo order: the true state, no sensor noise."""
+        n = len(self.servo_ids)
+        pos, vel, cur = [0.0] * n, [0.0] * n, [0.0] * n
+        kt = self._kt_l
+        for i, q, dq, tau in zip(self._bi_l, self.q.tolist(), self.dq.tolist(), self.motor_torque.tolist()):
+            pos[i], vel[i], cur[i] = q, dq, tau / kt[i]
+        for i, q, dq, c in zip(self._held_l, self._held_q.tolist(), self._held_dq.tolist(),
+                               self._held_current.tolist()):
+            pos[i], vel[i], cur[i] = q, dq, c
+        return pos, vel, cur
+
+    def supply_lists(self) -> tuple[list, list]:
+        """(voltages V, temperatures C) in servo order: the health model's, else 12.0 V and 35 C."""
+        return self._idle_supply if self.health is None else self.health.readings()
+
+    def watch_servo_limits(self, memories: np.ndarray) -> None:
+        """Compare the health model's temperature and voltage with the Temperature Limit and Min/Max Voltage
+        Limit in these control tables ((servos, bytes), servo order: the simulated chain's); without this,
+        with the control table's defaults."""
+        if self.health is not None and np.shape(memories)[0] == len(self.servo_ids):
+            self.health.limits = servo_health.ControlTableLimits(memories)
 
     def read(self) -> SensorReading:
         """What the sensors measure (arrays; `read_lists` gives the same numbers as lists)."""
@@ -288,13 +307,7 @@ class ArmPlant:
         (= 0.0 + s * standard normal) for the velocity, then for the current noise."""
         n = len(self.servo_ids)
         s = self.config.sensor
-        pos, vel, cur = [0.0] * n, [0.0] * n, [0.0] * n
-        kt = self._kt_l
-        for i, q, dq, tau in zip(self._bi_l, self.q.tolist(), self.dq.tolist(), self.motor_torque.tolist()):
-            pos[i], vel[i], cur[i] = q, dq, tau / kt[i]
-        for i, q, dq, c in zip(self._held_l, self._held_q.tolist(), self._held_dq.tolist(),
-                               self._held_current.tolist()):
-            pos[i], vel[i], cur[i] = q, dq, c
+        pos, vel, cur = self._true_lists()
         if s.position_noise_probability > 0:
             p = s.position_noise_probability
             flips, signs = self._position_noise(n)
@@ -308,7 +321,7 @@ class ArmPlant:
                 vel = [x + (0.0 + vel_sd * next(z)) for x in vel]
             if cur_sd > 0:
                 cur = [x + (0.0 + cur_sd * next(z)) for x in cur]
-        return pos, vel, cur, [12.0] * n, [35.0] * n
+        return pos, vel, cur, *self.supply_lists()
 
     def read_arrays(self) -> tuple:
         """`read_lists` with position, velocity and current as float64 arrays (the same numbers, the same
@@ -327,7 +340,7 @@ class ArmPlant:
         pos, vel, cur = fns[3](self.q, self.dq, self.motor_torque, self._held_q, self._held_dq,
                                self._held_current, self._bi_a, self._held_a, self._kt_array(), n, p, raw,
                                flips, signs, vel_sd, cur_sd, z)
-        return pos, vel, cur, [12.0] * n, [35.0] * n
+        return pos, vel, cur, *self.supply_lists()
 
     def _kt_array(self) -> np.ndarray:
         """The torque constants as an array (kept while `_kt_l` holds the same values)."""
@@ -360,7 +373,7 @@ class ArmPlant:
     def kernel_step_args(self, dt: float) -> tuple | None:
         """The plant's arguments of lockstep_kernel.sync_write_goal for a step of dt (the step `step_command`
         takes; the kernel writes the new state into the packed state, crane_io.sim.plant_layout, and the
-        caller calls `kernel_stepped(dt)`), or None when the compiled stepper is off, the overload model on,
+        caller calls `kernel_stepped(dt)`), or None when the compiled stepper is off, the health model on,
         or dt not positive (then the plant steps through step_command / step_lists)."""
         return self._stepper.step_args(dt)
 
@@ -419,12 +432,15 @@ class ArmPlant:
         return flips, _PULSE_SIGNS.take(rng.integers(0, 2, size=n, dtype=np.int64)).tolist()
 
     def hardware_errors(self) -> dict[int, int]:
-        return dict(self._errors)
+        """{servo ID: bits} whose condition holds now (crane_io.sim.servo_health); {} without health model."""
+        if self.health is None:
+            return {}
+        return {sid: b for sid, b in zip(self.servo_ids, self.health.error_bits().tolist()) if b}
 
     def clear_errors(self) -> None:
-        """Clear latched hardware errors (what a servo reboot does)."""
-        self._errors.clear()
-        self._saturated_time[:] = 0.0
+        """Restart the overload timers (the temperature and the supply stay what they are)."""
+        if self.health is not None:
+            self.health.reset_overload()
 
     def set_external_torque(self, torque: np.ndarray) -> None:
         torque = np.array(torque, dtype=float)  # a copy of its own

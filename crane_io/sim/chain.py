@@ -123,6 +123,9 @@ class SimulatedChain(InstructionHandlers, LockstepWrites):
         ]
         for i, s in enumerate(self._order):
             s.chain_row = i
+        watch = getattr(plant, "watch_servo_limits", None)  # its health model reads their limits
+        if watch is not None:
+            watch(self.memories)
         if fast is None:
             fast = os.environ.get("CRANE_CHAIN_FAST", "1") != "0"
         # the compiled functions, loaded (or compiled) now, not at the first packet a host waits on

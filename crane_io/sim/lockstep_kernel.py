@@ -17,7 +17,7 @@ Each one either does exactly what the general path (crane_io.sim.chain with its 
 plant's step_command and read_arrays) does for the packet, or does nothing and says so (-1), and the
 general path takes the packet: anything unusual (another instruction or address, a servo that is missing,
 has no Fast Sync Read or whose watchdog expired, a servo in a position mode on an integrated joint, the
-overload model, a stuffed packet) stays there. tests/test_chain_fast.py drives both with the same packets.
+servo health model, a stuffed packet) stays there. tests/test_chain_fast.py drives both with the same packets.
 
 They call the chain_kernel functions (compiled here again) and plant_kernel's compiled step_arm from compiled
 code, without numba's per-call argument handling in between, with the same IEEE operations (no fastmath).

@@ -2,10 +2,10 @@
 
 A stepper has one interface, two implementations:
 
-- `step(enabled, mode, goal_current, goal_position, gains, limit, dt)`: ArmPlant.step_lists after the
-  overload model (lists in servo order); steps the plant's state;
+- `step(enabled, mode, goal_current, goal_position, gains, limit, dt)`: ArmPlant.step_lists' physics
+  (lists in servo order); steps the plant's state;
 - `step_command(cmds, position_mask, dt) -> bool`: the same from the commands as one (5, servos) array (the
-  simulated chain's fast path); False when it does not take them;
+  simulated chain's fast path); False when it does not take them (a plant with a servo health model);
 - `step_args(dt)`, `cycle_args(dt)`, `read_args()`: the plant's arguments of the simulated chain's compiled
   lockstep cycle (crane_io.sim.lockstep_kernel), or None.
 
@@ -112,7 +112,7 @@ class CompiledStepper:
 
     def step_command(self, cmds: np.ndarray, position_mask: int, dt: float) -> bool:
         p = self.plant
-        if p.config.overload.enabled or position_mask & p._bi_mask:
+        if p.health is not None or position_mask & p._bi_mask:
             return False
         self._take(self._call(cmds, self.pd0, dt), dt)
         return True
@@ -140,7 +140,7 @@ class CompiledStepper:
     def step_args(self, dt: float) -> tuple | None:
         """ArmPlant.kernel_step_args."""
         p = self.plant
-        if p.config.overload.enabled or not dt > 0:
+        if p.health is not None or not dt > 0:
             return None
         kst = self._state()
         if kst is None:
@@ -178,7 +178,7 @@ class CompiledStepper:
     def read_args(self) -> tuple | None:
         """ArmPlant.kernel_read_args."""
         p = self.plant
-        if p._chain_fns is False:
+        if p._chain_fns is False or p.health is not None:  # (the health model's supply: read_arrays)
             return None
         kst = self._state()
         if kst is None:

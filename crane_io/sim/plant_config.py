@@ -25,7 +25,12 @@ Keys (every one optional; crane_io/sim/plants/crane-x7.toml documents each with 
                                only the held joints'; a joint left out is locked at 0)
     [initial]                  initial angle (rad) per joint
     [sensor]                   position_noise_probability, current_noise_lsb, velocity_noise_lsb
-    [overload]                 enabled, time_s: overload bit after time_s saturated at the limit
+    [overload]                 enabled, time_s, current_fraction, still_velocity: overload bit after
+                               time_s at the Current Limit without moving (crane_io.sim.servo_health)
+    [thermal]                  enabled, ambient_c, time_constant_s, thermal_resistance: winding
+                               temperature from I^2 R; overheating bit above the Temperature Limit
+    [supply]                   enabled, voltage, resistance_ohm: the servos' supply; input voltage bit
+                               outside the Min/Max Voltage Limit
     [limits]                   stiffness (N m/rad), damping (N m s/rad) of the hard end stops
     [[effects]]                the plant's truth: effect = NAME, joint = JOINT (an integrated joint;
                                none for arm effects),
@@ -62,14 +67,15 @@ from typing import Literal
 
 from crane_io.description import default_arm
 from crane_io.errors import ConfigError
+from crane_io.sim.servo_health import OverloadConfig, SupplyConfig, ThermalConfig, check_configs
 from crane_io.toml_config import check_keys, check_seed, expect, from_table, is_number, read_toml
 
 BILATERAL_JOINTS = ("joint1", "joint2", "joint4")  # the paper's joints: the default integrated set
 # the joints a plant can integrate (the gripper is always a held servo)
 ARM_JOINTS = ("joint1", "joint2", "joint3", "joint4", "joint5", "joint6", "joint7")
 _TOP_KEYS = {"name", "description", "base", "seed", "joints", "substep_s", "effect_files", "effect_specs",
-             "torque_constant", "locked", "initial", "sensor", "overload", "limits", "effects", "known",
-             "hidden", "environment"}
+             "torque_constant", "locked", "initial", "sensor", "overload", "thermal", "supply", "limits",
+             "effects", "known", "hidden", "environment"}
 ENVIRONMENT_KINDS = ("joint-wall", "plane")
 
 
@@ -141,12 +147,6 @@ class SensorConfig:
 
 
 @dataclass
-class OverloadConfig:
-    enabled: bool = False
-    time_s: float = 1.0  # seconds at the current limit before the overload bit is set
-
-
-@dataclass
 class LimitsConfig:
     stiffness: float = 200.0  # N m/rad of the end-stop spring beyond a joint limit
     damping: float = 2.0  # N m s/rad of the end stop
@@ -163,7 +163,9 @@ class PlantConfig:
     locked: dict[str, float] = field(default_factory=dict)
     initial: dict[str, float] = field(default_factory=dict)
     sensor: SensorConfig = field(default_factory=SensorConfig)
-    overload: OverloadConfig = field(default_factory=OverloadConfig)
+    overload: OverloadConfig = field(default_factory=OverloadConfig)  # crane_io.sim.servo_health
+    thermal: ThermalConfig = field(default_factory=ThermalConfig)
+    supply: SupplyConfig = field(default_factory=SupplyConfig)
     limits: LimitsConfig = field(default_factory=LimitsConfig)
     effects: list[EffectSpec] = field(default_factory=list)
     known: list[tuple[str, str | None, dict | None]] = field(default_factory=list)
@@ -377,6 +379,11 @@ def load_plant_config(preset_or_path: str | Path = "crane-x7") -> PlantConfig:
     _within_limits(cfg.initial, "initial", where)
     cfg.sensor = _dataclass_table(SensorConfig, data, "sensor", where)
     cfg.overload = _dataclass_table(OverloadConfig, data, "overload", where)
+    cfg.thermal = _dataclass_table(ThermalConfig, data, "thermal", where)
+    cfg.supply = _dataclass_table(SupplyConfig, data, "supply", where)
+    problem = check_configs(cfg.overload, cfg.thermal, cfg.supply, where)
+    if problem:
+        raise ConfigError(problem)
     cfg.limits = _dataclass_table(LimitsConfig, data, "limits", where)
     effects = data.get("effects", []) or []
     if not isinstance(effects, list):

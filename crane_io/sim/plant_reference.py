@@ -42,7 +42,7 @@ class ReferenceStepper:
 
     # ---- the stepper's interface (crane_io.sim.plant_backend) ------------------------------------------
     def step(self, en_l, mode_l, gc_l, gp_l, gains_l, lim_l, dt: float) -> None:
-        """ArmPlant.step_lists after the overload model: the held joints, then the integrated ones."""
+        """ArmPlant.step_lists' physics: the held joints, then the integrated ones."""
         p = self.plant
         held = p._held_l
         self._step_held([en_l[i] for i in held], [mode_l[i] for i in held], [gc_l[i] for i in held],
