@@ -34,7 +34,7 @@ ROUNDS = 20  # measured rounds of reading both arms
 WARM_UP_ROUNDS = 2  # unmeasured rounds first (the first read settles the bus's fast-read choice)
 SLOW_LINK_S = 0.002  # s: a cycle's reads slower than a 1 ms latency timer explains: the timer is the cause
 
-LATENCY_ADVICE = ("set each U2D2's latency timer to 1 ms (the udev rule in docs/rig-timing.md, or "
+LATENCY_ADVICE = ("set each U2D2's latency timer to 1 ms (udev/99-crane-x7.rules, or "
                   "`echo 1 > /sys/bus/usb-serial/devices/ttyUSB0/latency_timer`)")
 
 

@@ -147,6 +147,10 @@ def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_
     with compile_notice(lambda: click.echo(compile_sentence(), err=True)):  # said when it compiles
         compile_kernels()
     adapter = _adapter(latency_timer_ms, clock)
+    if adapter is not None:  # replies are due at set times: the serving threads take turns often
+        from crane_io.sim.transport import ADAPTER_SWITCH_INTERVAL_S
+
+        sys.setswitchinterval(ADAPTER_SWITCH_INTERVAL_S)
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:

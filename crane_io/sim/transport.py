@@ -35,6 +35,10 @@ from crane_io.sim.chain import SimulatedChain
 
 URL_SCHEME = "dxlsim"
 DEFAULT_BAUDRATE = 3_000_000  # the line's speed when no servo is left to tell it
+# With an adapter's timing, replies are due at set times; a process serving several links (sim-serve
+# --pair) sets the interpreter's thread switch interval to this (its default is 5 ms), so a server thread
+# waits at most about this long for another one's physics to hand over.
+ADAPTER_SWITCH_INTERVAL_S = 0.0002
 _HANDLER_PACKAGE = "crane_io.sim"
 
 if _HANDLER_PACKAGE not in serial.protocol_handler_packages:
@@ -150,7 +154,7 @@ class PtyServer:
                         elif reply:
                             self._send(reply)
                     behind = self.chain.lag_s >= self.chain.max_substep_s
-                else:
+                elif not self._delivery_near():
                     behind = self.chain.touch() >= self.chain.max_substep_s
         except BaseException as exc:  # reported through .error; the thread must not die silently
             self.error = exc
@@ -174,6 +178,10 @@ class PtyServer:
         for due, size in self._adapter_link.exchange(written, n_out, baudrate, replies):
             self._pending.append((due, reply[at:at + size]))
             at += size
+
+    def _delivery_near(self) -> bool:
+        """A held reply is due within one slice of physics: stepping now could make it late."""
+        return bool(self._pending) and self._pending[0][0] - time.monotonic() < self.chain.step_budget_s
 
     def _deliver_due(self) -> None:
         now = time.monotonic()
