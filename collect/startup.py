@@ -141,9 +141,8 @@ def open_buses(arm: ArmDescription, config: Config, ports: dict, out, *, simulat
             checkpoint()
             buses[name].configure(watchdog_s=config.safety.watchdog_s)
         checkpoint()
-        if not simulated:  # the links can carry a cycle in a period, or LinkTooSlow (collect/link_timing.py)
-            _check_links(buses, config, warnings_, out)
-            checkpoint()
+        _check_links(buses, config, warnings_, out, simulated)
+        checkpoint()
         if torque_going_on is not None:
             torque_going_on()
         for name in ARMS:
@@ -155,7 +154,11 @@ def open_buses(arm: ArmDescription, config: Config, ports: dict, out, *, simulat
     return buses, {"infos": infos, "warnings": warnings_}
 
 
-def _check_links(buses: dict, config: Config, warnings_: list, out) -> None:
+def _check_links(buses: dict, config: Config, warnings_: list, out, simulated: bool) -> None:
+    """Real ports: they can carry a cycle in a period (a warning when only just), or LinkTooSlow
+    (collect/link_timing.py). Simulated (dxlsim://) arms run in lockstep: nothing to time."""
+    if simulated:
+        return
     from .link_timing import check_link_timing
 
     note = check_link_timing(buses, config.loop.period_s)

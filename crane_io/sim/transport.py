@@ -133,10 +133,7 @@ class PtyServer:
         behind = False  # the plant is behind real time: look at the line, then keep stepping
         try:
             while not self._stop.is_set():
-                wait = 0.0 if behind else self.idle_touch_s
-                if self._pending:
-                    wait = min(wait, max(0.0, self._pending[0][0] - time.monotonic()))
-                ready, _, _ = select.select([self._master, self._wake_r], [], [], wait)
+                ready, _, _ = select.select([self._master, self._wake_r], [], [], self._wait_s(behind))
                 if self._pending:
                     self._deliver_due()
                 if self._master in ready:
@@ -147,17 +144,31 @@ class PtyServer:
                             continue
                         raise
                     if data:
-                        written = time.monotonic()
-                        reply = self.chain.feed(data)
-                        if self._adapter_link is not None and self.chain.clock == "wall":
-                            self._schedule(written, len(data), reply)
-                        elif reply:
-                            self._send(reply)
+                        self._answer(data)
                     behind = self.chain.lag_s >= self.chain.max_substep_s
                 elif not self._delivery_near():
                     behind = self.chain.touch() >= self.chain.max_substep_s
         except BaseException as exc:  # reported through .error; the thread must not die silently
             self.error = exc
+
+    def _wait_s(self, behind: bool) -> float:
+        """How long to wait for the line: not at all when the plant is behind, else until the next touch
+        or a held reply's time, whichever comes first; a reply due within a slice of physics is waited
+        for rather than risk the slice delaying it."""
+        wait = 0.0 if behind else self.idle_touch_s
+        if self._pending:
+            until_due = max(0.0, self._pending[0][0] - time.monotonic())
+            wait = until_due if until_due < self.chain.step_budget_s else min(wait, until_due)
+        return wait
+
+    def _answer(self, data: bytes) -> None:
+        """The chain's reply to `data`, on the line now or held as the adapter would hold it."""
+        written = time.monotonic()
+        reply = self.chain.feed(data)
+        if self._adapter_link is not None and self.chain.clock == "wall":
+            self._schedule(written, len(data), reply)
+        elif reply:
+            self._send(reply)
 
     def _servo_timing(self, servo_id: int) -> tuple[float, int]:
         """(Return Delay Time s, baud rate) of a servo on the chain, from its control table."""
