@@ -135,33 +135,30 @@ def _forced_run(links, rate_hz, duration_s, folder):
     ended). A safety stop (a loop too late to hold the arms) ends it early; its cycles still count.
     Another error ends it too, said in `ended`."""
     import collect.link_timing as link_timing
-    import crane_io.dynamixel.port as port
     from collect.alignment import SafetyStop
     from collect.runner import BilateralRun, RunOptions
     from crane_io.errors import CraneError
 
     keep = link_timing.check_link_timing
     link_timing.check_link_timing = lambda *a, **k: None
-    patience = port.SDK_LATENCY_MS
-    port.SDK_LATENCY_MS = PATIENCE_MS  # a pty has no latency timer to read: reply timeouts for a busy machine
     options = RunOptions(output=folder / f"s{rate_hz:g}.h5", leader_port=str(links["leader"]),
                          follower_port=str(links["follower"]), rate=rate_hz, duration=duration_s,
                          status=False, calibrate=False, force=True)
     run = BilateralRun(options)
+    stopped = ""
     try:
         with run:
             run.start()
             run.align()
             run.record()
-    except SafetyStop:
-        pass
+    except SafetyStop as exc:
+        stopped = f" ({exc})"
     except CraneError as exc:  # e.g. a reply that a busy machine delivered past its timeout
         return {}, f"error: {exc}"
     finally:
         link_timing.check_link_timing = keep
-        port.SDK_LATENCY_MS = patience
     result = run.result
-    return result.summary, f"{result.end_reason} after {result.duration_s:.1f} s"
+    return result.summary, f"{result.end_reason} after {result.duration_s:.1f} s{stopped}"
 
 
 def _pty_case(rate, latency, duration_s) -> list[dict]:
