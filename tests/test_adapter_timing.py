@@ -106,7 +106,8 @@ def test_status_packets_are_split_and_named_by_their_first_servo():
 def test_the_pty_server_holds_replies_by_the_servos_own_settings(tmp_path):
     """The transport's schedule comes from the chain's control table: Return Delay Time and Baud Rate."""
     arm = default_arm()
-    chain = SimulatedChain.for_arm(arm, SimplePlant.from_arm(arm), clock="wall", return_delay_time=250)
+    chain = SimulatedChain.for_arm(arm, SimplePlant.from_arm(arm), clock="wall", return_delay_time=250,
+                                   fast=False)
     server = PtyServer(chain, tmp_path / "arm", adapter=AdapterTiming(latency_timer_s=1 * MS))
     server._adapter_link = AdapterLink(server.adapter, t0=0.0)
     reply = p.status_packet(2, 0, b"\x00" * 4) + p.status_packet(3, 0, b"\x00" * 4)
