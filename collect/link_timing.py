@@ -31,6 +31,7 @@ import statistics
 import time
 from dataclasses import dataclass
 
+from crane_io.dynamixel.control_table import X_SERIES
 from crane_io.errors import HardwareError
 
 from .config import MIN_RATE_HZ
@@ -39,7 +40,7 @@ REFUSE_SHARE = 0.8  # of the period: the rest is the controller's, the writes' a
 WARN_SHARE = 0.5  # of the period: little room left for a busy machine's delays
 ROUNDS = 20  # measured rounds of reading both arms
 WARM_UP_ROUNDS = 2  # unmeasured rounds first (the first read settles the bus's fast-read choice)
-TICK_ADDRESS = 120  # Realtime Tick, 2 bytes, 1 ms per LSB, wraps at 32767 (e-manual, control table)
+TICK = X_SERIES["realtime_tick"]  # 2 bytes, 1 ms per LSB, wraps at 32767 (e-manual, control table)
 TICK_WRAP = 32768
 TICK_PAUSE_S = 0.02  # s of real time between the two readings of the Realtime Tick
 TICK_SHARE = 0.5  # a servo that counted less than half the real time between them does not keep it
@@ -85,9 +86,9 @@ def servos_keep_real_time(buses: dict, pause_s: float = TICK_PAUSE_S) -> bool:
     real time, read again. False for a lockstep simulation, whose servos' time waits for the host."""
     bus = next(iter(buses.values()))
     sid, joint = bus.ids[0], bus.joint_names[0]
-    first = int.from_bytes(bus.read_block(sid, TICK_ADDRESS, 2, joint), "little")
+    first = int.from_bytes(bus.read_block(sid, TICK.address, TICK.size, joint), "little")
     time.sleep(pause_s)
-    second = int.from_bytes(bus.read_block(sid, TICK_ADDRESS, 2, joint), "little")
+    second = int.from_bytes(bus.read_block(sid, TICK.address, TICK.size, joint), "little")
     return (second - first) % TICK_WRAP >= TICK_SHARE * pause_s * 1e3
 
 
