@@ -9,15 +9,16 @@ of the loop's range (100..2000 Hz) can be kept.
 
 `check_link_timing(buses, period_s)` sends the cycle's real read, on both buses at once, a few times
 while the torque is still off (reads change nothing on the servos; the writes are left out, since a goal
-written now would act at torque-on, and their bytes take about 0.1 ms at 3 Mbps) and times each round.
+written now would act at torque-on, and their bytes take about 0.1 ms at 3 Mbps), each round at the start
+of a period as the loop paces its reads, and times each round.
 When the median round exceeds `REFUSE_SHARE` of the period the run is refused (LinkTooSlow, one
 sentence: the measured time, the rate and what to do); when it exceeds `WARN_SHARE` it gives a warning
-sentence. The median: a host that asks again right after a reply meets the adapter's timer at the same
-point each time, so most rounds take what the link takes, while a busy machine's delays and the odd
-round that catches the timer just before it expires stay in the tails. Why refuse rather than warn
-(docs/rig-timing.md): such a loop is late every cycle, its controller's filters assume a period it never
-keeps and its session's time base is irregular, so the recording is of no use, while refusing before
-any torque is on costs nothing.
+sentence. Paced rounds meet the adapter's timer where the loop's reads will meet it (a read that cannot
+end within its period is followed at once, as the loop's next one would be); the median keeps a busy
+machine's delays and the odd round that catches the timer just before it expires in the tails. Why
+refuse rather than warn (docs/rig-timing.md): such a loop is late every cycle, its controller's filters
+assume a period it never keeps and its session's time base is irregular, so the recording is of no use,
+while refusing before any torque is on costs nothing.
 
 Servos whose Realtime Tick (addr 120, 1 ms) stands still while real time passes are a lockstep
 simulation (crane_io.sim: time advances one period per Goal Current write, and waits for the host), so
@@ -36,7 +37,9 @@ from crane_io.errors import HardwareError
 
 from .config import MIN_RATE_HZ
 
-REFUSE_SHARE = 0.8  # of the period: the rest is the controller's, the writes' and the recorder's
+# of the period: the rest is the controller's and the writes' (about 0.3 ms and 0.08 ms a cycle, so a 500 Hz
+# loop over 1 ms adapters, whose paced reads take up to about 1.6 ms, still fits)
+REFUSE_SHARE = 0.9
 WARN_SHARE = 0.5  # of the period: little room left for a busy machine's delays
 ROUNDS = 20  # measured rounds of reading both arms
 WARM_UP_ROUNDS = 2  # unmeasured rounds first (the first read settles the bus's fast-read choice)
@@ -64,15 +67,23 @@ class LinkTiming:
     rounds: int
 
 
-def measure_cycle_transfer(buses: dict, rounds: int = ROUNDS, warm_up: int = WARM_UP_ROUNDS) -> LinkTiming:
-    """Read every bus in `buses` at once (one thread each, as the loop does), `warm_up` + `rounds` times:
-    the best, median and worst time of a measured round. A failed read raises its bus's error."""
+def measure_cycle_transfer(buses: dict, rounds: int = ROUNDS, warm_up: int = WARM_UP_ROUNDS,
+                           period_s: float | None = None) -> LinkTiming:
+    """Read every bus in `buses` at once (one thread each, as the loop does), `warm_up` + `rounds` times,
+    each round at the start of a period of `period_s` as the loop paces its reads (a round that ends late
+    is followed at once; None: back to back): the best, median and worst time of a measured round. A
+    failed read raises its bus's error."""
     if rounds < 1:
         raise ValueError("rounds must be at least 1")
     reads = [bus.read_state for bus in buses.values()]
     times = []
+    start = time.perf_counter()
     with concurrent.futures.ThreadPoolExecutor(len(reads), "crane-link-timing") as pool:
         for k in range(warm_up + rounds):
+            if period_s is not None:
+                start = max(start, time.perf_counter())
+                time.sleep(max(0.0, start - time.perf_counter()))
+                start += period_s
             t0 = time.perf_counter()
             for future in [pool.submit(read, check_faults=False) for read in reads]:
                 future.result()
@@ -123,4 +134,4 @@ def check_link_timing(buses: dict, period_s: float, rounds: int = ROUNDS) -> str
     them (`verdict`): None, a warning sentence, or LinkTooSlow. None for a lockstep simulation."""
     if not servos_keep_real_time(buses):
         return None
-    return verdict(measure_cycle_transfer(buses, rounds), period_s)
+    return verdict(measure_cycle_transfer(buses, rounds, period_s=period_s), period_s)

@@ -27,7 +27,7 @@ def test_a_link_slower_than_the_period_refuses_in_one_sentence_with_the_fix():
 
 def test_a_link_that_fits_a_lower_rate_names_that_rate_and_not_the_latency_timer():
     # 1 ms reads (a 1 ms latency timer) at 1 kHz: nothing to change on the adapter, the rate is too high
-    with pytest.raises(LinkTooSlow, match=r"lower `rate` to at most 800 Hz$"):
+    with pytest.raises(LinkTooSlow, match=r"lower `rate` to at most 900 Hz$"):
         verdict(LinkTiming(best_s=0.00098, median_s=0.001, worst_s=0.002, rounds=20), 0.001)
 
 
