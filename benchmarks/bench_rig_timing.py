@@ -131,35 +131,33 @@ def _start_up_check(links, rate_hz):
         return timing, str(exc), True
 
 
-def _forced_run(links, rate_hz, duration_s, folder):
-    """The loop on the links for `duration_s`, past the start-up check: (the timer's summary, how the run
-    ended). A safety stop (a loop too late to hold the arms) ends it early; its cycles still count.
-    Another error ends it too, said in `ended`."""
-    import collect.link_timing as link_timing
-    from collect.alignment import SafetyStop
-    from collect.runner import BilateralRun, RunOptions
-    from crane_io.errors import CraneError
+FORCED_RUN = """
+import sys
+import collect.link_timing as link_timing
+link_timing.check_link_timing = lambda *a, **k: None  # forced past the start-up check
+from collect.cli import main
+main(sys.argv[1:])
+"""
 
-    keep = link_timing.check_link_timing
-    link_timing.check_link_timing = lambda *a, **k: None
-    options = RunOptions(output=folder / f"s{rate_hz:g}.h5", leader_port=str(links["leader"]),
-                         follower_port=str(links["follower"]), rate=rate_hz, duration=duration_s,
-                         status=False, calibrate=False, force=True)
-    run = BilateralRun(options)
-    stopped = ""
-    try:
-        with run:
-            run.start()
-            run.align()
-            run.record()
-    except SafetyStop as exc:
-        stopped = f" ({exc})"
-    except CraneError as exc:  # e.g. a reply that a busy machine delivered past its timeout
-        return {}, f"error: {exc}"
-    finally:
-        link_timing.check_link_timing = keep
-    result = run.result
-    return result.summary, f"{result.end_reason} after {result.duration_s:.1f} s{stopped}"
+
+def _forced_run(links, rate_hz, duration_s, folder):
+    """`crane-collect run` on the links for `duration_s` in its own process, forced past the start-up
+    check: (the session's timing, how the run ended). A safety stop (a loop too late to hold the arms)
+    ends it early; its recorded cycles still count."""
+    import h5py
+
+    out = folder / f"s{rate_hz:g}.h5"
+    proc = subprocess.run([sys.executable, "-c", FORCED_RUN, "run", "--leader-port", str(links["leader"]),
+                           "--follower-port", str(links["follower"]), "--rate", f"{rate_hz:g}", "--duration",
+                           f"{duration_s:g}", "--no-calibration", "--quiet", "-o", str(out), "--force"],
+                          capture_output=True, text=True, timeout=600)
+    last = (proc.stderr.strip().splitlines() or ["ended"])[-1]
+    if not out.exists():
+        return {}, f"no session: {last}"
+    with h5py.File(out, "r") as f:
+        timing = {k: v for k, v in f["timing"].attrs.items()}
+        ended = f"{f.attrs.get('end_reason', '?')}, {timing.get('cycles', 0):.0f} cycles"
+    return timing, ended if proc.returncode == 0 else f"{ended}: {last}"
 
 
 def _pty_case(rate, latency, duration_s) -> list[dict]:
