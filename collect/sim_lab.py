@@ -192,16 +192,17 @@ class SimulatedLab:
                                                   return_delay_time=return_delay_time)
         return cls(plants, chains, hand, hand_on, clock, plant or default_plant(arm))
 
-    def serve(self, links: dict) -> dict:
+    def serve(self, links: dict, adapter=None) -> dict:
         """Serve each arm on a pseudo-terminal linked at links[name]; returns {name: PtyServer}. If the
-        second cannot start, the first is stopped again (ConfigError, one sentence)."""
+        second cannot start, the first is stopped again (ConfigError, one sentence). `adapter`: each
+        link's crane_io.sim.adapter_timing.AdapterTiming (a U2D2 per arm), or None."""
         from crane_io.sim.transport import PtyServer
 
         if len({str(p) for p in links.values()}) != len(links):
             raise ConfigError("the leader's and the follower's links must be two different paths")
         try:
             for name in ARMS:
-                self.servers[name] = PtyServer(self.chains[name], links[name]).start()
+                self.servers[name] = PtyServer(self.chains[name], links[name], adapter=adapter).start()
         except BaseException:
             self.stop()
             raise

@@ -4,7 +4,8 @@
   starts;
 - the two ports (simulated or the user's), both buses opened, latency timers checked (a warning),
   every servo pinged and its model checked, servos configured (return delay 0, modes, Bus Watchdog),
-  torque on; a failure closes what was opened;
+  on real ports one cycle's reads timed against the period (collect/link_timing.py: a refusal or a
+  warning), torque on; a failure closes what was opened;
 - the session file opened with what the run knows about itself (its attributes), after the alignment.
 """
 
@@ -140,6 +141,8 @@ def open_buses(arm: ArmDescription, config: Config, ports: dict, out, *, simulat
             checkpoint()
             buses[name].configure(watchdog_s=config.safety.watchdog_s)
         checkpoint()
+        _check_links(buses, config, warnings_, out, simulated)
+        checkpoint()
         if torque_going_on is not None:
             torque_going_on()
         for name in ARMS:
@@ -149,6 +152,19 @@ def open_buses(arm: ArmDescription, config: Config, ports: dict, out, *, simulat
             bus.close()
         raise
     return buses, {"infos": infos, "warnings": warnings_}
+
+
+def _check_links(buses: dict, config: Config, warnings_: list, out, simulated: bool) -> None:
+    """Real ports: they can carry a cycle in a period (a warning when only just), or LinkTooSlow
+    (collect/link_timing.py). Simulated (dxlsim://) arms run in lockstep: nothing to time."""
+    if simulated:
+        return
+    from .link_timing import check_link_timing
+
+    note = check_link_timing(buses, config.loop.period_s)
+    if note is not None:
+        warnings_.append(note)
+        print(f"Warning: {note}", file=out or sys.stderr, flush=True)
 
 
 def make_recorder(output: Path, config: Config, arm: ArmDescription, hw: dict, *, simulated: bool,

@@ -130,10 +130,12 @@ def test_sim_realtime_reports_and_restores_real_time_scheduling(tmp_path):
 
 
 def _serve(tmp_path, name):
+    """A wall-clock arm that answers as fast as its pty allows (no U2D2 timing: this is about scheduling;
+    tests/test_link_timing.py is about the adapters)."""
     link = tmp_path / name
     proc = subprocess.Popen([CLI, "sim-serve", "--link", str(link), "--plant", "simple", "--clock", "wall",
-                             "--return-delay", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+                             "--return-delay", "0", "--latency-timer", "0"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
     end = time.monotonic() + 60
     while not link.exists():
         assert proc.poll() is None, proc.communicate()

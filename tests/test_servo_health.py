@@ -341,8 +341,9 @@ def test_a_sagging_supply_stops_a_session_recorded_over_ptys(tmp_path):
             assert serve.poll() is None and time.monotonic() < deadline, "sim-serve did not come up"
             time.sleep(0.2)
         run = subprocess.run([str(bin_dir / "crane-collect"), "run", "--skip-selftest",
-                              "--leader-port", str(leader), "--follower-port", str(follower), "-o", str(session),
-                              "--duration", "60", "--quiet"], env=env, capture_output=True, text=True, timeout=900)
+                              "--leader-port", str(leader), "--follower-port", str(follower),
+                              "-o", str(session), "--duration", "60", "--quiet"],
+                             env=env, capture_output=True, text=True, timeout=900)
     finally:
         serve.send_signal(signal.SIGTERM)
         serve.communicate(timeout=60)

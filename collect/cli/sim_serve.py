@@ -104,6 +104,12 @@ def slip_summary(chain) -> str:
 @click.option("--no-fast-sync-read", is_flag=True, help="Servos ignore Fast Sync Read (old firmware).")
 @click.option("--return-delay", type=Number(int, 0, 254), default=None,
               help="Return Delay Time register of every servo (2 us/LSB). Default: factory 250.")
+@click.option("--latency-timer", "latency_timer_ms", type=Number(int, 0, 255, unit="ms"), default=1,
+              show_default=True, metavar="MS",
+              help="On the wall clock, replies reach the host as through a U2D2: bytes at the servos' baud "
+                   "rate, their Return Delay Time, and the adapter's USB packets sent when its latency timer "
+                   "expires (1 ms: the udev rule; 16 ms: an unconfigured adapter; docs/rig-timing.md). 0: "
+                   "replies as fast as the pseudo-terminal allows. The lockstep clock is never delayed.")
 @click.option("--truth", "truth", type=click.Path(dir_okay=False), default=None, metavar="JSON",
               help="Also write the arm plant's hidden truth (effects, parameters, seed; --pair: the "
                    "follower's) to this file (not overwritten without --force). Nothing else ever records "
@@ -117,8 +123,8 @@ def slip_summary(chain) -> str:
 @cli_errors
 def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_s, config_path,
               encoder_offsets, joints, plant, clock, period_s, seed, no_fast_sync_read, return_delay,
-              truth, force, supply_voltage, swap_ids, reverse_joints, wrong_models, current_sign,
-              current_scale):
+              latency_timer_ms, truth, force, supply_voltage, swap_ids, reverse_joints, wrong_models,
+              current_sign, current_scale):
     """Serve a simulated CRANE-X7 (or, with --pair, a leader and a follower with a simulated hand) on
     pseudo-terminals until Ctrl+C or SIGTERM."""
     if not period_s > 0:
@@ -150,16 +156,21 @@ def sim_serve(link, pair, leader_link, follower_link, hand_on, task, hand_delay_
 
     with compile_notice(lambda: click.echo(compile_sentence(), err=True)):  # said when it compiles
         compile_kernels()
+    adapter = _adapter(latency_timer_ms, clock)
+    if adapter is not None:  # replies are due at set times: the serving threads take turns often
+        from crane_io.sim.transport import ADAPTER_SWITCH_INTERVAL_S
+
+        sys.setswitchinterval(ADAPTER_SWITCH_INTERVAL_S)
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
         if pair:
             _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, config, arm,
                         plant, clock, period_s, seed, not no_fast_sync_read, return_delay, truth,
-                        offsets, supply_voltage)
+                        offsets, adapter, supply_voltage)
         else:
             _serve_one(stop, link, arm, plant, clock, period_s, seed, not no_fast_sync_read,
-                       return_delay, truth, offsets.get("arm"), faults, supply_voltage)
+                       return_delay, truth, offsets.get("arm"), adapter, faults, supply_voltage)
     finally:
         signal.signal(signal.SIGTERM, previous)
 
@@ -178,6 +189,22 @@ def _check_links(pair, link, leader_link, follower_link, task, config_path) -> N
                             ("--task", task), ("--config", config_path)) if v is not None]
     if extra:
         raise ConfigError(f"{extra[0]} goes with --pair")
+
+
+def _adapter(latency_timer_ms: int, clock: str):
+    """The U2D2 model of a wall-clock serve (crane_io.sim.adapter_timing), None without one."""
+    if clock != "wall" or latency_timer_ms == 0:
+        return None
+    from crane_io.sim.adapter_timing import AdapterTiming
+
+    return AdapterTiming(latency_timer_s=latency_timer_ms / 1000)
+
+
+def _adapter_sentence(adapter) -> str:
+    if adapter is None:
+        return ""
+    return (f" Replies reach the link as through a U2D2 with a {adapter.latency_timer_s * 1000:g} ms "
+            "latency timer.")
 
 
 def _write_truth(plant, truth_path) -> None:
@@ -216,7 +243,7 @@ def _wait(stop: threading.Event, errors, status) -> None:
 
 
 def _serve_one(stop, link, arm, plant_name, clock, period_s, seed, fast_sync_read, return_delay, truth_path,
-               offsets=None, faults=None, supply_voltage=None):
+               offsets=None, adapter=None, faults=None, supply_voltage=None):
     from crane_io.dynamixel.link_registry import withdraw
     from crane_io.sim.chain import SimulatedChain
     from crane_io.sim.transport import PtyServer
@@ -236,7 +263,7 @@ def _serve_one(stop, link, arm, plant_name, clock, period_s, seed, fast_sync_rea
     plant, models = apply_wiring_faults(plant, arm, faults)
     chain = SimulatedChain(plant, models, clock=clock, period_s=period_s, fast_sync_read=fast_sync_read,
                            return_delay_time=return_delay)
-    server = PtyServer(chain, link)
+    server = PtyServer(chain, link, adapter=adapter)
     entry = None
     try:
         server.start()
@@ -244,7 +271,8 @@ def _serve_one(stop, link, arm, plant_name, clock, period_s, seed, fast_sync_rea
         click.echo(f"Simulated CRANE-X7 ({kind}, {clock} clock, bilateral joints "
                    f"{','.join(arm.bilateral_joints)}) on {link} -> {server.slave_path}")
         click.echo(f"Point the SDK or Dynamixel Wizard 2.0 at {link} (Protocol 2.0, 3,000,000 bps, "
-                   f"IDs 2-9), e.g. `crane-collect check --port {link}`. Ctrl+C stops.")
+                   f"IDs 2-9), e.g. `crane-collect check --port {link}`.{_adapter_sentence(adapter)} "
+                   "Ctrl+C stops.")
         _wait(stop, lambda: server.error, lambda: status_line(chain))
     finally:
         server.stop()
@@ -257,7 +285,7 @@ def _serve_one(stop, link, arm, plant_name, clock, period_s, seed, fast_sync_rea
 
 
 def _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, config, arm, plant_name,
-                clock, period_s, seed, fast_sync_read, return_delay, truth_path, offsets,
+                clock, period_s, seed, fast_sync_read, return_delay, truth_path, offsets, adapter=None,
                 supply_voltage=None):
     from crane_io.dynamixel.link_registry import withdraw
 
@@ -274,7 +302,7 @@ def _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, c
     links = {"leader": leader_link, "follower": follower_link}
     entries = []
     try:
-        lab.serve(links)
+        lab.serve(links, adapter=adapter)
         for name, server in lab.servers.items():
             entries.append(_announce(server, name, lab.plant_name, clock, hand=name == hand_on))
         for name, server in lab.servers.items():
@@ -283,7 +311,8 @@ def _serve_pair(stop, leader_link, follower_link, hand_on, task, hand_delay_s, c
         click.echo(f"The simulated hand is on the {hand_on}; it takes hold {hand_delay_s:g} s after the "
                    f"arm's torque comes on. Record with `crane-collect run --leader-port {leader_link} "
                    f"--follower-port {follower_link}{joints} --skip-selftest -o SESSION.h5`"
-                   + (" --hand-on follower" if hand_on == "follower" else "") + ". Ctrl+C stops.")
+                   + (" --hand-on follower" if hand_on == "follower" else "") + "."
+                   + _adapter_sentence(adapter) + " Ctrl+C stops.")
         _wait(stop, lab.error, lambda: pair_status_line(lab))
     finally:
         lab.stop()

@@ -10,6 +10,10 @@
    On the wall clock the server's one thread both answers the line and keeps the plant up to real
    time, in slices of at most the chain's `step_budget_s` with a look at the line between them, so
    an instruction never waits for more than one slice of physics (see SimulatedChain.touch).
+   With `adapter=AdapterTiming(...)` the replies of a wall-clock chain reach the line when a U2D2 would
+   hand them to the host: after the bytes' time on the RS-485 line, the servos' Return Delay Times and
+   the adapter's USB packets and latency timer (crane_io.sim.adapter_timing); meanwhile the thread
+   keeps the plant up to real time. The lockstep clock is never delayed.
 """
 
 from __future__ import annotations
@@ -18,15 +22,23 @@ import errno
 import os
 import select
 import threading
+import time
 import tty
+from collections import deque
 from pathlib import Path
 
 import serial
 
 from crane_io.errors import ConfigError, HardwareError
+from crane_io.sim.adapter_timing import AdapterLink, AdapterTiming, status_packets
 from crane_io.sim.chain import SimulatedChain
 
 URL_SCHEME = "dxlsim"
+DEFAULT_BAUDRATE = 3_000_000  # the line's speed when no servo is left to tell it
+# With an adapter's timing, replies are due at set times; a process serving several links (sim-serve
+# --pair) sets the interpreter's thread switch interval to this (its default is 5 ms), so a server thread
+# waits at most about this long for another one's physics to hand over.
+ADAPTER_SWITCH_INTERVAL_S = 0.0002
 _HANDLER_PACKAGE = "crane_io.sim"
 
 if _HANDLER_PACKAGE not in serial.protocol_handler_packages:
@@ -69,10 +81,14 @@ def registered_names() -> list[str]:
 class PtyServer:
     """Serve a SimulatedChain on a pseudo-terminal whose slave side is symlinked at `link`."""
 
-    def __init__(self, chain: SimulatedChain, link: str | os.PathLike, idle_touch_s: float = 0.005):
+    def __init__(self, chain: SimulatedChain, link: str | os.PathLike, idle_touch_s: float = 0.005,
+                 adapter: AdapterTiming | None = None):
         self.chain = chain
         self.link = Path(link)
         self.idle_touch_s = idle_touch_s
+        self.adapter = adapter  # None: replies go on the line as soon as the chain gives them
+        self._adapter_link: AdapterLink | None = None
+        self._pending: deque = deque()  # (time.monotonic() due, bytes): replies the adapter still holds
         self._master = self._slave = None
         self._wake_r = self._wake_w = None
         self._thread: threading.Thread | None = None
@@ -106,6 +122,9 @@ class PtyServer:
             self._close_fds()
             raise ConfigError(f"cannot create the link {self.link}: {exc.strerror}") from None
         self._stop.clear()
+        self._pending.clear()
+        if self.adapter is not None:
+            self._adapter_link = AdapterLink(self.adapter, time.monotonic())
         self._thread = threading.Thread(target=self._serve, name=f"pty-server {self.link}", daemon=True)
         self._thread.start()
         return self
@@ -114,8 +133,9 @@ class PtyServer:
         behind = False  # the plant is behind real time: look at the line, then keep stepping
         try:
             while not self._stop.is_set():
-                wait = 0.0 if behind else self.idle_touch_s
-                ready, _, _ = select.select([self._master, self._wake_r], [], [], wait)
+                ready, _, _ = select.select([self._master, self._wake_r], [], [], self._wait_s(behind))
+                if self._pending:
+                    self._deliver_due()
                 if self._master in ready:
                     try:
                         data = os.read(self._master, 65536)
@@ -124,14 +144,60 @@ class PtyServer:
                             continue
                         raise
                     if data:
-                        reply = self.chain.feed(data)
-                        if reply:
-                            self._send(reply)
+                        self._answer(data)
                     behind = self.chain.lag_s >= self.chain.max_substep_s
-                else:
+                elif not self._delivery_near():
                     behind = self.chain.touch() >= self.chain.max_substep_s
         except BaseException as exc:  # reported through .error; the thread must not die silently
             self.error = exc
+
+    def _wait_s(self, behind: bool) -> float:
+        """How long to wait for the line: not at all when the plant is behind, else until the next touch
+        or a held reply's time, whichever comes first; a reply due within a slice of physics is waited
+        for rather than risk the slice delaying it."""
+        wait = 0.0 if behind else self.idle_touch_s
+        if self._pending:
+            until_due = max(0.0, self._pending[0][0] - time.monotonic())
+            wait = until_due if until_due < self.chain.step_budget_s else min(wait, until_due)
+        return wait
+
+    def _answer(self, data: bytes) -> None:
+        """The chain's reply to `data`, on the line now or held as the adapter would hold it."""
+        written = time.monotonic()
+        reply = self.chain.feed(data)
+        if self._adapter_link is not None and self.chain.clock == "wall":
+            self._schedule(written, len(data), reply)
+        elif reply:
+            self._send(reply)
+
+    def _servo_timing(self, servo_id: int) -> tuple[float, int]:
+        """(Return Delay Time s, baud rate) of a servo on the chain, from its control table."""
+        servos = self.chain.servos
+        servo = servos.get(servo_id) or next(iter(servos.values()), None)
+        if servo is None or not servo.baudrate:
+            return 0.0, DEFAULT_BAUDRATE
+        return servo.return_delay_s, servo.baudrate
+
+    def _schedule(self, written: float, n_out: int, reply: bytes) -> None:
+        """The adapter's deliveries of `reply` to an instruction of `n_out` bytes read at `written`."""
+        replies = []
+        for size, sid in status_packets(reply):
+            delay_s, baudrate = self._servo_timing(sid)
+            replies.append((size, delay_s, baudrate))
+        baudrate = self._servo_timing(-1)[1]
+        at = 0
+        for due, size in self._adapter_link.exchange(written, n_out, baudrate, replies):
+            self._pending.append((due, reply[at:at + size]))
+            at += size
+
+    def _delivery_near(self) -> bool:
+        """A held reply is due within one slice of physics: stepping now could make it late."""
+        return bool(self._pending) and self._pending[0][0] - time.monotonic() < self.chain.step_budget_s
+
+    def _deliver_due(self) -> None:
+        now = time.monotonic()
+        while self._pending and self._pending[0][0] <= now:
+            self._send(self._pending.popleft()[1])
 
     def _send(self, reply: bytes) -> None:
         """Put a reply on the line (a hook for test fakes that deliver replies late)."""
