@@ -34,9 +34,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from crane_io.dynamixel.control_table import X_SERIES
+from crane_io.dynamixel.control_table import INDIRECT_PER_SET, INDIRECT_SETS, X_SERIES
 from crane_io.dynamixel.units import SECONDS_PER_WATCHDOG_LSB
-from crane_io.sim import chain_kernel, noise_kernel, plant_kernel, servo_indirect
+from crane_io.sim import chain_kernel, noise_kernel, plant_kernel
 from crane_io.sim.servo import MEMORY_SIZE, S_CONTACT, S_EXPIRED, S_FAST_READ, S_ON_BUS
 from crane_io.sim.servo_rules import EXTENDED_GOAL_RANGE
 
@@ -61,8 +61,9 @@ L_N, L_K, L_PC, L_NC, L_GEO, L_PAR, L_COG, L_SCAL, L_HPAR, L_PD0, L_IDX = range(
 DECLINED, UNHEARD, STEPPED, WRITTEN, STEPPED_UNSENSED = -1, 0, 1, 2, 3
 _TABLE = chain_kernel.CRC_TABLE_U16
 _MEMORY_SIZE = MEMORY_SIZE
-# the Indirect Data areas, first address and one past the last
-(IND1_AT, IND1_END, _a1), (IND2_AT, IND2_END, _a2) = servo_indirect.DATA_AREAS
+# the Indirect Data areas (crane_io.sim.servo_indirect): first address and one past the last
+(_k1, _a1, IND1_AT), (_k2, _a2, IND2_AT) = INDIRECT_SETS
+IND1_END, IND2_END = IND1_AT + INDIRECT_PER_SET, IND2_AT + INDIRECT_PER_SET
 _WD_LSB = SECONDS_PER_WATCHDOG_LSB
 _GEO_COLS, _HELD_COLS = plant_kernel.GEO_COLS, plant_kernel.HELD_COLS
 
