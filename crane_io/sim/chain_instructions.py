@@ -23,6 +23,7 @@ from crane_io.sim.servo_indirect import reaches, touches_data
 GOAL_CURRENT_ADDRESS = X_SERIES["goal_current"].address
 GOAL_POSITION_ADDRESS = X_SERIES["goal_position"].address
 ID_ADDRESS = X_SERIES["id"].address
+TICK_ADDRESS = X_SERIES["realtime_tick"].address
 BAUD_ADDRESS = X_SERIES["baud_rate"].address  # right after the ID (the chain reads both at once)
 _LIMIT_AT = X_SERIES["current_limit"].address
 BAUD_CODE_OF = {rate: code for code, rate in BAUD_CODES.items()}  # bit/s -> Baud Rate register value
@@ -187,7 +188,9 @@ class InstructionHandlers:
         restart."""
         if self._tick_shift:
             for s in self._order:
-                s.shift_tick()
+                if s.tick_origin_ms:
+                    tick = _U16.unpack_from(s.memory, TICK_ADDRESS)[0]
+                    _U16.pack_into(s.memory, TICK_ADDRESS, (tick - s.tick_origin_ms) % 32768)
 
     def _crc_replies(self, baudrate: int | None, now: float | None) -> list[tuple[bytes, float]]:
         """The status packets (CRC Error 0x03, e-manual Protocol 2.0 "Status Packet") of the servos that

@@ -19,6 +19,8 @@ little-endian bytes. Rules follow the ROBOTIS e-manual (see shared/crane_x7_fact
 - Bus Watchdog (address 98, 20 ms/LSB): with torque on and a non-zero value, no instruction for that
   long makes the servo stop (the plant sees it as torque off), the item reads -1 and a write to a goal
   item is refused with Data Range Error (0x04) until 0 is written to it.
+- Indirect Data bytes stand for the bytes their Indirect Address names (crane_io.sim.servo_indirect).
+- Reboot and Factory Reset restart the servo: silent for REBOOT_SILENCE_S, then Realtime Tick from 0.
 
 Time comes from the chain (`now`, seconds of simulated or wall time); this class never sleeps.
 """
@@ -134,9 +136,8 @@ class EmulatedServo:
         """`memory`: a writable buffer of MEMORY_SIZE bytes to hold the control table (the simulated chain
         gives each servo a row of one array); default a bytearray of its own. `state`: a float64 array of
         STATE_SIZE holding `last_contact`, `watchdog_expired`, `on_bus`, `supports_fast_sync_read` and
-        `booting_until` (the
-        chain gives each servo a row of one array, which its compiled lockstep path reads and writes);
-        default an array of its own."""
+        `booting_until` (the chain gives each servo a row of one array, which its compiled lockstep path
+        reads and writes); default an array of its own."""
         self.model = MODELS[model] if isinstance(model, str) else model
         self.registers: dict[str, Register] = dict(self.model.registers)
         self._at: dict[int, Register] = {r.address: r for r in self.registers.values()}
@@ -371,12 +372,6 @@ class EmulatedServo:
             _SUPPLY.pack_into(m, self._supply_at, supply, temp)
         moving = abs(vel) > _U32.unpack_from(m, self._threshold_at)[0]
         _TICK_MOVING.pack_into(m, self._tick_at, (int(now * 1000) - self.tick_origin_ms) % 32768, moving)
-
-    def shift_tick(self) -> None:
-        """A Realtime Tick written from the chain's clock made to count from the servo's last restart."""
-        if self.tick_origin_ms:
-            tick = _U16.unpack_from(self.memory, self._tick_at)[0]
-            _U16.pack_into(self.memory, self._tick_at, (tick - self.tick_origin_ms) % 32768)
 
     # ---- faults --------------------------------------------------------------------------------
     def set_hardware_error(self, bits: int) -> None:

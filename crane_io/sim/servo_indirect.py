@@ -29,9 +29,12 @@ ADDRESS_ITEMS = frozenset(f"indirect_address_{first + j}" for first, _a, _d in I
 TARGET_RANGE = (EEPROM_END, CONTROL_TABLE_SIZE - 1)  # what an Indirect Address may hold: 64 .. 661
 
 
+(_LO1, _HI1, _A1), (_LO2, _HI2, _A2) = DATA_AREAS
+
+
 def touches_data(address: int, end: int) -> bool:
     """The byte range address .. end - 1 covers an Indirect Data byte."""
-    return any(address < hi and lo < end for lo, hi, _at in DATA_AREAS)
+    return (address < _HI1 and _LO1 < end) or (address < _HI2 and _LO2 < end)
 
 
 def _is_data(address: int) -> bool:
