@@ -406,3 +406,27 @@ def test_realtime_tick_counts_from_0_after_a_reboot(rig):
         group.addParam(SID + 1, [0, 0])
         assert group.txPacket() == COMM_SUCCESS
     assert rig.r(TICK, 2) == tick + 3 * round(rig.chain.period_s * 1000)
+
+
+# ---- Moving (122), Shutdown (63) -------------------------------------------------------------------------
+
+def test_moving_is_set_while_present_velocity_exceeds_moving_threshold(rig):
+    assert rig.r(24, 4) == 10  # Moving Threshold's default
+    assert rig.r(PRESENT_VELOCITY, 4) == 0 and rig.r(122, 1) == 0
+    assert rig.w(MODE, MODE_CURRENT, 1) == OK
+    assert rig.w(TORQUE, 1, 1) == OK
+    assert rig.w(GOAL_CURRENT, 150, 2) == OK
+    rig.chain.advance(0.3)
+    assert abs(rig.r(PRESENT_VELOCITY, 4)) > 10 and rig.r(122, 1) == 1
+
+
+def test_only_the_errors_in_the_shutdown_mask_turn_torque_off(rig):
+    servo = rig.chain.servos[SID]
+    assert rig.w(63, 0x04, 1) == OK  # overheating only
+    assert rig.w(TORQUE, 1, 1) == OK
+    servo.raise_hardware_error(0x20)  # overload: not in the mask
+    assert rig.r(TORQUE, 1) == 1
+    servo.raise_hardware_error(0x04)
+    assert rig.r(TORQUE, 1) == 0
+    assert rig.ph.write1ByteTxRx(rig.port, SID, TORQUE, 1)[1] & p.ERR_ALERT  # refused until Reboot
+    assert rig.r(TORQUE, 1) == 0
