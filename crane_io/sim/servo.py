@@ -195,8 +195,7 @@ class EmulatedServo:
         self.reboots = 0
         # Realtime Tick counts from the servo's last restart: the chain's millisecond count it restarted at
         self.tick_origin_ms = 0
-        # Indirect Data address -> the address it stands for, of the bytes not mapped onto themselves
-        self.indirect: dict[int, int] = {}
+        self.indirect: dict[int, int] = {}  # mapped Indirect Data bytes (crane_io.sim.servo_indirect)
         self._input_voltage = input_voltage
         self._temperature = temperature
         self._load_defaults(keep=())
@@ -560,9 +559,9 @@ class EmulatedServo:
         """RAM (address >= 64) back to defaults (torque off), errors cleared, EEPROM kept; the servo hears
         nothing for REBOOT_SILENCE_S (`booting_until`)."""
         eeprom = bytes(self.memory[:EEPROM_END])
-        present = {n: self.read_register(n) for n in ("present_position", "present_velocity",
-                                                      "present_current", "present_input_voltage",
-                                                      "present_temperature")}
+        present = {n: self.read_register(n) for n in (
+            "present_position", "present_velocity", "present_current", "present_input_voltage",
+            "present_temperature")}
         self._load_defaults(keep=())
         self.memory[:EEPROM_END] = eeprom
         for n, v in present.items():
@@ -570,14 +569,15 @@ class EmulatedServo:
         self.write_register("goal_current", self.read_register("current_limit"))
         self.write_register("goal_pwm", self.read_register("pwm_limit"))
         self.write_register("goal_position", present["present_position"])
-        self.registered = None
-        self.watchdog_expired = False
-        self.last_contact = now
         self._restart(now)
         self.reboots += 1
 
     def _restart(self, now: float) -> None:
-        """The firmware restarts: silent for REBOOT_SILENCE_S, then Realtime Tick counts from 0."""
+        """The firmware restarts: nothing registered, no watchdog error, silent for REBOOT_SILENCE_S, then
+        Realtime Tick counts from 0."""
+        self.registered = None
+        self.watchdog_expired = False
+        self.last_contact = now
         self.booting_until = now + REBOOT_SILENCE_S
         self.tick_origin_ms = round(self.booting_until * 1000)
 
@@ -593,9 +593,6 @@ class EmulatedServo:
         for n, v in present.items():
             self.write_register(n, v)
         self.write_register("goal_position", present["present_position"])
-        self.registered = None
-        self.watchdog_expired = False
-        self.last_contact = now
         self._restart(now)
         return p.ERR_NONE
 
