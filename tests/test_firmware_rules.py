@@ -383,6 +383,13 @@ def test_a_sync_write_of_goal_position_through_indirect_data_is_the_lockstep_tic
     assert group.txPacket() == COMM_SUCCESS
     assert rig.r(GOAL_POSITION, 4) == 2060
     assert rig.chain.stats.plant_steps == steps + 1
+    # Reg Write checks and holds it as Write would; Action carries it out
+    assert rig.ph.regWriteTxRx(rig.port, SID, IND_DATA, 4, list((9000).to_bytes(4, "little")))[1] \
+        == p.ERR_DATA_LIMIT
+    assert rig.ph.regWriteTxRx(rig.port, SID, IND_DATA, 4, list((2070).to_bytes(4, "little"))) == OK
+    assert rig.r(GOAL_POSITION, 4) == 2060
+    assert rig.ph.action(rig.port, SID) == COMM_SUCCESS
+    assert rig.r(GOAL_POSITION, 4) == 2070
 
 
 def test_indirect_addresses_are_ram_and_return_to_their_defaults_at_reboot(rig):
