@@ -253,6 +253,14 @@ def test_the_lockstep_cycle_takes_one_compiled_call_per_packet_and_agrees_throug
     _feed(chains, _write(2, GOAL_CURRENT, 20, 2))
     _feed(chains, p.instruction_packet(p.BROADCAST_ID, p.INST_SYNC_READ,
                                        bytes((PRESENT, 0, 10, 0)) + bytes(ids)))
+    # Indirect Data 1..4 standing for Present Position: a Fast Sync Read of them declines the compiled path
+    for k in range(4):
+        _feed(chains, _write(2, 168 + 2 * k, PRESENT + 6 + k, 2))
+    n_before = len(handled)
+    reply = _feed(chains, _fast_read(ids, address=224, length=4))
+    assert len(handled) == n_before + 1
+    position = chains[0].servos[2].read_register("present_position")
+    assert reply[10:14] == position.to_bytes(4, "little", signed=True)  # servo 2's block comes first
     # the chain's Fast Sync Read switched off, a reply filter
     for c in chains:
         c.fast_sync_read = False

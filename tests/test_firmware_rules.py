@@ -286,7 +286,10 @@ def test_reg_write_waits_for_action_and_action_alone_is_an_instruction_error(rig
 
 def test_factory_reset_with_an_unknown_option_is_a_data_range_error(rig):
     assert rig.ph.factoryReset(rig.port, SID, 0x03) == (COMM_SUCCESS, p.ERR_DATA_RANGE)
+    assert rig.ph.ping(rig.port, SID)[1] == COMM_SUCCESS  # nothing reset, no restart
     assert rig.ph.factoryReset(rig.port, SID, 0x02) == (COMM_SUCCESS, 0)
+    assert rig.ph.ping(rig.port, SID)[1] == COMM_RX_TIMEOUT  # restarting, as after a Reboot
+    rig.chain.advance(REBOOT_SILENCE_S + 0.01)
     assert rig.ph.ping(rig.port, SID)[1] == COMM_SUCCESS  # ID and baud rate kept
 
 
@@ -336,3 +339,101 @@ def test_value_ranges_of_limit_items(rig):
     for address, size, bad in ((32, 2, 161), (34, 2, 94), (40, 4, 32768), (VELOCITY_LIMIT, 4, 1024),
                                (65, 1, 2)):
         assert rig.w(address, bad, size) == RANGE, address
+
+
+# ---- Indirect Address / Indirect Data (168.., 224.., 578.., 634..) ---------------------------------------
+
+IND_ADDRESS, IND_DATA, IND_ADDRESS_29, IND_DATA_29, LED = 168, 224, 578, 634, 65
+
+
+def test_indirect_data_reads_and_writes_the_item_its_indirect_address_names(rig):
+    assert rig.r(IND_ADDRESS, 2) == IND_DATA and rig.r(IND_ADDRESS_29, 2) == IND_DATA_29  # defaults: itself
+    assert rig.w(IND_DATA + 27, 7, 1) == OK and rig.r(IND_DATA + 27, 1) == 7  # unmapped: a plain byte
+    for k in range(4):  # Indirect Data 1..4 stand for Goal Position, 5 for the LED, 6..9 for Present Position
+        assert rig.w(IND_ADDRESS + 2 * k, GOAL_POSITION + k, 2) == OK
+        assert rig.w(IND_ADDRESS + 2 * (5 + k), PRESENT_POSITION + k, 2) == OK
+    assert rig.w(IND_ADDRESS + 8, LED, 2) == OK
+    assert rig.w(IND_DATA, 2100, 4) == OK
+    assert rig.r(GOAL_POSITION, 4) == 2100 and rig.r(IND_DATA, 4) == 2100
+    assert rig.w(IND_DATA + 4, 1, 1) == OK and rig.r(LED, 1) == 1
+    assert rig.w(IND_DATA + 4, 2, 1) == RANGE  # the LED's range
+    assert rig.w(IND_DATA, 5000, 4) == LIMIT  # Goal Position's limits (Position mode)
+    assert rig.w(IND_DATA, 7, 1) == (COMM_SUCCESS, p.ERR_DATA_LENGTH)  # a part of Goal Position
+    assert rig.r(GOAL_POSITION, 4) == 2100  # none of them written
+    assert rig.r(IND_DATA + 5, 4) == rig.r(PRESENT_POSITION, 4)
+    assert rig.w(IND_DATA + 5, 0, 4) == ACCESS  # Present Position is read-only
+    # the EEPROM area cannot be mapped; the address range ends at 661
+    assert rig.w(IND_ADDRESS, MAX_POSITION, 2) == RANGE and rig.w(IND_ADDRESS, 662, 2) == RANGE
+    # the second set, read in one Fast Sync Read with the first
+    assert rig.w(IND_ADDRESS_29, LED, 2) == OK
+    assert rig.w(IND_DATA_29, 0, 1) == OK and rig.r(LED, 1) == 0
+    group = GroupSyncRead(rig.port, rig.ph, IND_DATA, 9)
+    group.addParam(SID)
+    assert group.fastSyncRead() == COMM_SUCCESS
+    assert group.getData(SID, IND_DATA, 4) == 2100
+    assert group.getData(SID, IND_DATA + 4, 1) == 0
+
+
+def test_a_sync_write_of_goal_position_through_indirect_data_is_the_lockstep_tick(rig):
+    for k in range(4):
+        assert rig.w(IND_ADDRESS + 2 * k, GOAL_POSITION + k, 2) == OK
+    steps = rig.chain.stats.plant_steps
+    group = GroupSyncWrite(rig.port, rig.ph, IND_DATA, 4)
+    group.addParam(SID, list((2060).to_bytes(4, "little")))
+    assert group.txPacket() == COMM_SUCCESS
+    assert rig.r(GOAL_POSITION, 4) == 2060
+    assert rig.chain.stats.plant_steps == steps + 1
+    # Reg Write checks and holds it as Write would; Action carries it out
+    assert rig.ph.regWriteTxRx(rig.port, SID, IND_DATA, 4, list((9000).to_bytes(4, "little")))[1] \
+        == p.ERR_DATA_LIMIT
+    assert rig.ph.regWriteTxRx(rig.port, SID, IND_DATA, 4, list((2070).to_bytes(4, "little"))) == OK
+    assert rig.r(GOAL_POSITION, 4) == 2060
+    assert rig.ph.action(rig.port, SID) == COMM_SUCCESS
+    assert rig.r(GOAL_POSITION, 4) == 2070
+
+
+def test_indirect_addresses_are_ram_and_return_to_their_defaults_at_reboot(rig):
+    assert rig.w(IND_ADDRESS, LED, 2) == OK
+    assert rig.w(IND_DATA, 1, 1) == OK
+    assert rig.ph.reboot(rig.port, SID) == (COMM_SUCCESS, 0)
+    rig.chain.advance(REBOOT_SILENCE_S + 0.01)
+    assert rig.r(IND_ADDRESS, 2) == IND_DATA
+    assert rig.r(IND_DATA, 1) == 0 and rig.r(LED, 1) == 0
+
+
+def test_realtime_tick_counts_from_0_after_a_reboot(rig):
+    rig.chain.advance(2.0)
+    assert rig.ph.reboot(rig.port, SID) == (COMM_SUCCESS, 0)
+    rig.chain.advance(REBOOT_SILENCE_S + 0.1)
+    tick, other = rig.r(TICK, 2), rig.r(TICK, 2, sid=SID + 1)
+    assert abs(tick - 100) <= 2  # 0.1 s after the restart
+    assert abs(other - (tick + 2500)) <= 2  # a servo that did not restart goes on counting
+    for _ in range(3):  # the lockstep cycle's compiled path counts it the same way
+        group = GroupSyncWrite(rig.port, rig.ph, GOAL_CURRENT, 2)
+        group.addParam(SID + 1, [0, 0])
+        assert group.txPacket() == COMM_SUCCESS
+    assert rig.r(TICK, 2) == tick + 3 * round(rig.chain.period_s * 1000)
+
+
+# ---- Moving (122), Shutdown (63) -------------------------------------------------------------------------
+
+def test_moving_is_set_while_present_velocity_exceeds_moving_threshold(rig):
+    assert rig.r(24, 4) == 10  # Moving Threshold's default
+    assert rig.r(PRESENT_VELOCITY, 4) == 0 and rig.r(122, 1) == 0
+    assert rig.w(MODE, MODE_CURRENT, 1) == OK
+    assert rig.w(TORQUE, 1, 1) == OK
+    assert rig.w(GOAL_CURRENT, 150, 2) == OK
+    rig.chain.advance(0.3)
+    assert abs(rig.r(PRESENT_VELOCITY, 4)) > 10 and rig.r(122, 1) == 1
+
+
+def test_only_the_errors_in_the_shutdown_mask_turn_torque_off(rig):
+    servo = rig.chain.servos[SID]
+    assert rig.w(63, 0x04, 1) == OK  # overheating only
+    assert rig.w(TORQUE, 1, 1) == OK
+    servo.raise_hardware_error(0x20)  # overload: not in the mask
+    assert rig.r(TORQUE, 1) == 1
+    servo.raise_hardware_error(0x04)
+    assert rig.r(TORQUE, 1) == 0
+    assert rig.ph.write1ByteTxRx(rig.port, SID, TORQUE, 1)[1] & p.ERR_ALERT  # refused until Reboot
+    assert rig.r(TORQUE, 1) == 0

@@ -229,6 +229,7 @@ def test_factory_reset_keeps_id_and_baud_with_option_2(rig):
     ph, port = rig.ph, rig.port
     assert ph.read1ByteTxRx(port, 8, ADDR_RDT)[0] == 0
     assert ph.factoryReset(port, 8, 0x02) == (COMM_SUCCESS, 0)
+    rig.chain.advance(REBOOT_SILENCE_S)  # silent while it restarts
     assert ph.read1ByteTxRx(port, 8, ADDR_RDT)[0] == 250  # back to the factory 500 us
     assert ph.read1ByteTxRx(port, 8, 8)[0] == 5  # still 3 Mbps
 

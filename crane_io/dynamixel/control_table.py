@@ -83,6 +83,17 @@ _COMMON = [
     _r("present_input_voltage", 144, 2, "R", unit="0.1 V"),
     _r("present_temperature", 146, 1, "R", unit="1 C"),
 ]
+# Indirect Address k (2 bytes, 64 .. 661: the address Indirect Data k stands for; its default is Indirect Data
+# k itself) and Indirect Data k (1 byte): k = 1 .. 28 at 168 / 224, k = 29 .. 56 at 578 / 634
+# (first k, address of Indirect Address k, address of Indirect Data k) of each set
+INDIRECT_SETS = ((1, 168, 224), (29, 578, 634))
+INDIRECT_PER_SET = 28
+for _first, _address_at, _data_at in INDIRECT_SETS:
+    for _j in range(INDIRECT_PER_SET):
+        _COMMON.append(_r(f"indirect_address_{_first + _j}", _address_at + 2 * _j, 2, "RW",
+                          default=_data_at + _j))
+    for _j in range(INDIRECT_PER_SET):
+        _COMMON.append(_r(f"indirect_data_{_first + _j}", _data_at + _j, 1, "RW", default=0))
 
 
 @dataclass(frozen=True)

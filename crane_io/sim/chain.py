@@ -49,6 +49,7 @@ from crane_io.sim.chain_lockstep import LockstepWrites
 from crane_io.sim.chain_paths import ChainCalls, LockstepCalls, PlantPaths, fast_layout, plant_paths
 from crane_io.sim.plant_api import ActuatorCommand, Plant
 from crane_io.sim.servo import MEMORY_SIZE, STATE_SIZE, EmulatedServo
+from crane_io.sim.servo_indirect import touches_data
 
 __all__ = ["GOAL_CURRENT_ADDRESS", "GOAL_POSITION_ADDRESS", "ChainStats", "SimulatedChain"]
 # the items the fast path reads and writes in every servo's memory (chain_paths.fast_layout checks them)
@@ -148,6 +149,7 @@ class SimulatedChain(InstructionHandlers, LockstepWrites):
         self._hearing_cache = None  # (key, servos, index): see _hearing
         self._fast_read_kept = None  # see _fast_sync_reply
         self._booting = False  # a servo is restarting after a Reboot (the lockstep fast path waits)
+        self._tick_shift = False  # a servo restarted: its Realtime Tick counts from then (see _shift_ticks)
         self.servos: dict[int, EmulatedServo] = {}
         self._rekey()
         self.reply_filter: Callable[[bytes], bytes | None] | None = None
@@ -333,7 +335,9 @@ class SimulatedChain(InstructionHandlers, LockstepWrites):
             volt, temp = self._supply(sensed[10], sensed[11])
             done = self._lockstep_fns.sense(self.memories, *sensed[:10], volt, temp, int(now * 1000) % 32768,
                                             self._sensed)
-            if not done:
+            if done:
+                self._shift_ticks()
+            else:
                 position, velocity, current = self._sensed.copy()
                 voltage, temperature = sensed[10], sensed[11]
         elif fast is not None:
@@ -349,6 +353,8 @@ class SimulatedChain(InstructionHandlers, LockstepWrites):
             tick = int(now * 1000) % 32768
             done = fast.sensors_into(self.memories, position, velocity, current, volt, temp, tick,
                                      _PRESENT_AT, _TICK_AT, _SUPPLY_AT, _THRESHOLD_AT)
+            if done:
+                self._shift_ticks()
         else:
             position, velocity, current, voltage, temperature = self._plant_lists()
         if fast is None or not done:
@@ -463,7 +469,10 @@ class SimulatedChain(InstructionHandlers, LockstepWrites):
 
     def _fast_sync_reply(self, fast, servos, ids, address, length, now):
         """The fast path of a Fast Sync Read: every addressed servo answers (on the bus, supports it, its
-        watchdog has not expired), the packet built in one compiled call; else None (the general path)."""
+        watchdog has not expired, no Indirect Data is read), the packet built in one compiled call; else None
+        (the general path)."""
+        if touches_data(address, address + length):
+            return None
         index = self._index(servos)
         kept = self._fast_read_kept  # (index, ids, servos, rows, ids array) of the last fast read
         if kept is not None and kept[0] is index and kept[1] == ids:

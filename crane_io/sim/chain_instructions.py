@@ -4,7 +4,8 @@ general path (crane_io.sim.chain.SimulatedChain.feed parses the packet and picks
 - to one servo (`_unicast`): Ping, Read, Write, Reg Write, Action, Reboot, Factory Reset, Clear, each a
   function of `_UNICAST`; a broadcast one is carried out without a reply;
 - broadcast: Ping (every servo answers, by ID), Sync Read, Fast Sync Read, Bulk Read, Fast Bulk Read, Sync
-  Write, Bulk Write; a write of Goal Current or Goal Position is the lockstep tick.
+  Write, Bulk Write; a write of Goal Current or Goal Position (directly or through Indirect Data) is the
+  lockstep tick.
 
 `InstructionHandlers` is a part of SimulatedChain (its memories, servos, clock and plant step).
 """
@@ -16,11 +17,13 @@ from collections.abc import Iterable
 from crane_io.dynamixel.control_table import X_SERIES
 from crane_io.sim import protocol as p
 from crane_io.sim.servo import _I16, _U16, BAUD_CODES, MEMORY_SIZE, S_BOOT, S_ON_BUS, EmulatedServo
+from crane_io.sim.servo_indirect import reaches, touches_data
 
 # a write to Goal Current or Goal Position is a lockstep tick
 GOAL_CURRENT_ADDRESS = X_SERIES["goal_current"].address
 GOAL_POSITION_ADDRESS = X_SERIES["goal_position"].address
 ID_ADDRESS = X_SERIES["id"].address
+TICK_ADDRESS = X_SERIES["realtime_tick"].address
 BAUD_ADDRESS = X_SERIES["baud_rate"].address  # right after the ID (the chain reads both at once)
 _LIMIT_AT = X_SERIES["current_limit"].address
 BAUD_CODE_OF = {rate: code for code, rate in BAUD_CODES.items()}  # bit/s -> Baud Rate register value
@@ -83,7 +86,7 @@ def _factory_reset(s, inst, params, now, reply):
     if reply.broadcast and params[0] == 0xFF:
         return []  # e-manual: broadcast "reset all" is not carried out
     replies = reply(p.ERR_NONE if params[0] in (0x01, 0x02, 0xFF) else p.ERR_DATA_RANGE)
-    s.factory_reset(params[0])
+    s.factory_reset(params[0], now)
     return replies
 
 
@@ -156,7 +159,7 @@ class InstructionHandlers:
                 s.contact(now)
                 self._unicast(s, inst, params, now, broadcast=True)
             self._rekey()
-            self._booting = self._booting or inst == p.INST_REBOOT
+            self._restarted(inst)
             return []
         replies = []
         for s in servos:
@@ -170,8 +173,24 @@ class InstructionHandlers:
                 s.contact(now)
                 self._unicast(s, inst, params, now, broadcast=True)
         self._rekey()
-        self._booting = self._booting or inst == p.INST_REBOOT
+        self._restarted(inst)
         return replies
+
+    def _restarted(self, inst: int) -> None:
+        """After a Reboot or Factory Reset: `_booting` (a servo is restarting) and `_tick_shift` (a servo's
+        Realtime Tick counts from its restart: see _shift_ticks)."""
+        if inst in (p.INST_REBOOT, p.INST_FACTORY_RESET):
+            self._booting = self._booting or bool(self.servo_state[:, S_BOOT].any())
+            self._tick_shift = any(s.tick_origin_ms for s in self._order)
+
+    def _shift_ticks(self) -> None:
+        """The Realtime Tick the compiled path wrote from the chain's clock, counted from each servo's
+        restart."""
+        if self._tick_shift:
+            for s in self._order:
+                if s.tick_origin_ms:
+                    tick = _U16.unpack_from(s.memory, TICK_ADDRESS)[0]
+                    _U16.pack_into(s.memory, TICK_ADDRESS, (tick - s.tick_origin_ms) % 32768)
 
     def _crc_replies(self, baudrate: int | None, now: float | None) -> list[tuple[bytes, float]]:
         """The status packets (CRC Error 0x03, e-manual Protocol 2.0 "Status Packet") of the servos that
@@ -362,7 +381,10 @@ class InstructionHandlers:
     def _lockstep_tick(self, spans) -> None:
         if self.clock != "lockstep":
             return
+        goals = (GOAL_CURRENT_ADDRESS, GOAL_POSITION_ADDRESS)
         for address, length in spans:
-            if any(address <= a < address + length for a in (GOAL_CURRENT_ADDRESS, GOAL_POSITION_ADDRESS)):
+            if any(address <= a < address + length for a in goals) or (
+                    touches_data(address, address + length)
+                    and any(reaches(s, address, length, goals) for s in self._order)):
                 self._step(self.period_s)
                 return

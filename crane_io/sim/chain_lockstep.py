@@ -54,6 +54,8 @@ class LockstepWrites:
             if result == STEPPED_UNSENSED:
                 position, velocity, current = self._sensed.tolist()
                 self._set_sensors(position, velocity, current, args[-2], args[-1], self.time)
+            else:
+                self._shift_ticks()
             self._plant_errors()
         elif result == WRITTEN:  # the plant steps on the general path
             self._step(dt)

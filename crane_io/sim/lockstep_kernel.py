@@ -16,8 +16,9 @@ one compiled call per stage.
 Each one either does exactly what the general path (crane_io.sim.chain with its Python handlers, the
 plant's step_command and read_arrays) does for the packet, or does nothing and says so (-1), and the
 general path takes the packet: anything unusual (another instruction or address, a servo that is missing,
-has no Fast Sync Read or whose watchdog expired, a servo in a position mode on an integrated joint, the
-servo health model, a stuffed packet) stays there. tests/test_chain_fast.py drives both with the same packets.
+has no Fast Sync Read or whose watchdog expired, a read of Indirect Data, a servo in a position mode on an
+integrated joint, the servo health model, a stuffed packet) stays there. tests/test_chain_fast.py drives both
+with the same packets.
 
 They call the chain_kernel functions (compiled here again) and plant_kernel's compiled step_arm from compiled
 code, without numba's per-call argument handling in between, with the same IEEE operations (no fastmath).
@@ -33,7 +34,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from crane_io.dynamixel.control_table import X_SERIES
+from crane_io.dynamixel.control_table import INDIRECT_PER_SET, INDIRECT_SETS, X_SERIES
 from crane_io.dynamixel.units import SECONDS_PER_WATCHDOG_LSB
 from crane_io.sim import chain_kernel, noise_kernel, plant_kernel
 from crane_io.sim.servo import MEMORY_SIZE, S_CONTACT, S_EXPIRED, S_FAST_READ, S_ON_BUS
@@ -60,6 +61,9 @@ L_N, L_K, L_PC, L_NC, L_GEO, L_PAR, L_COG, L_SCAL, L_HPAR, L_PD0, L_IDX = range(
 DECLINED, UNHEARD, STEPPED, WRITTEN, STEPPED_UNSENSED = -1, 0, 1, 2, 3
 _TABLE = chain_kernel.CRC_TABLE_U16
 _MEMORY_SIZE = MEMORY_SIZE
+# the Indirect Data areas (crane_io.sim.servo_indirect): first address and one past the last
+(_k1, _a1, IND1_AT), (_k2, _a2, IND2_AT) = INDIRECT_SETS
+IND1_END, IND2_END = IND1_AT + INDIRECT_PER_SET, IND2_AT + INDIRECT_PER_SET
 _WD_LSB = SECONDS_PER_WATCHDOG_LSB
 _GEO_COLS, _HELD_COLS = plant_kernel.GEO_COLS, plant_kernel.HELD_COLS
 
@@ -233,6 +237,9 @@ def fast_sync_read(pkt, mem, sst, baud_code, max_length, now, buf):
     length = np.int64(pkt[10]) | (np.int64(pkt[11]) << 8)
     if length <= 0 or address + length > _MEMORY_SIZE:
         return -1
+    stop = address + length
+    if (address < IND1_END and IND1_AT < stop) or (address < IND2_END and IND2_AT < stop):
+        return -1  # Indirect Data (crane_io.sim.servo_indirect): the general path reads what they stand for
     n_ids = end - 12
     if 8 + n_ids * (2 * (2 + length) + 2) > buf.shape[0]:
         return -1

@@ -19,6 +19,8 @@ little-endian bytes. Rules follow the ROBOTIS e-manual (see shared/crane_x7_fact
 - Bus Watchdog (address 98, 20 ms/LSB): with torque on and a non-zero value, no instruction for that
   long makes the servo stop (the plant sees it as torque off), the item reads -1 and a write to a goal
   item is refused with Data Range Error (0x04) until 0 is written to it.
+- Indirect Data bytes stand for the bytes their Indirect Address names (crane_io.sim.servo_indirect).
+- Reboot and Factory Reset restart the servo: silent for REBOOT_SILENCE_S, then Realtime Tick from 0.
 
 Time comes from the chain (`now`, seconds of simulated or wall time); this class never sleeps.
 """
@@ -50,6 +52,8 @@ from crane_io.dynamixel.units import (
     to_signed,
 )
 from crane_io.sim import protocol as p
+from crane_io.sim import servo_indirect
+from crane_io.sim.servo_indirect import ADDRESS_ITEMS, TARGET_RANGE, touches_data
 from crane_io.sim.servo_rules import (
     DRIVE_MODE_AT,
     HOMING_OFFSET_AT,
@@ -102,6 +106,7 @@ _RANGES = {
     "max_position_limit": (0, 4095),
     "min_position_limit": (0, 4095),
     "homing_offset": (-HOMING_RANGE, HOMING_RANGE),
+    **{name: TARGET_RANGE for name in ADDRESS_ITEMS},  # Indirect Address (crane_io.sim.servo_indirect)
 }
 _GAIN_ITEMS = ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "position_i_gain", "position_p_gain")
 _I32_MIN, _I32_MAX = -(2**31), 2**31 - 1
@@ -131,9 +136,8 @@ class EmulatedServo:
         """`memory`: a writable buffer of MEMORY_SIZE bytes to hold the control table (the simulated chain
         gives each servo a row of one array); default a bytearray of its own. `state`: a float64 array of
         STATE_SIZE holding `last_contact`, `watchdog_expired`, `on_bus`, `supports_fast_sync_read` and
-        `booting_until` (the
-        chain gives each servo a row of one array, which its compiled lockstep path reads and writes);
-        default an array of its own."""
+        `booting_until` (the chain gives each servo a row of one array, which its compiled lockstep path
+        reads and writes); default an array of its own."""
         self.model = MODELS[model] if isinstance(model, str) else model
         self.registers: dict[str, Register] = dict(self.model.registers)
         self._at: dict[int, Register] = {r.address: r for r in self.registers.values()}
@@ -189,6 +193,9 @@ class EmulatedServo:
         self.watchdog_expired = False
         self.last_contact = 0.0
         self.reboots = 0
+        # Realtime Tick counts from the servo's last restart: the chain's millisecond count it restarted at
+        self.tick_origin_ms = 0
+        self.indirect: dict[int, int] = {}  # mapped Indirect Data bytes (crane_io.sim.servo_indirect)
         self._input_voltage = input_voltage
         self._temperature = temperature
         self._load_defaults(keep=())
@@ -285,6 +292,7 @@ class EmulatedServo:
         self.write_register("present_temperature", round(self._temperature))
         for name, value in kept.items():
             self.write_register(name, value)
+        self.indirect = servo_indirect.mapping(self.memory)
 
     # ---- state the chain and the plant need ---------------------------------------------------
     @property
@@ -362,7 +370,7 @@ class EmulatedServo:
                 temp = max(0, round(temperature)) & 0xFF
             _SUPPLY.pack_into(m, self._supply_at, supply, temp)
         moving = abs(vel) > _U32.unpack_from(m, self._threshold_at)[0]
-        _TICK_MOVING.pack_into(m, self._tick_at, int(now * 1000) % 32768, moving)
+        _TICK_MOVING.pack_into(m, self._tick_at, (int(now * 1000) - self.tick_origin_ms) % 32768, moving)
 
     # ---- faults --------------------------------------------------------------------------------
     def set_hardware_error(self, bits: int) -> None:
@@ -394,10 +402,13 @@ class EmulatedServo:
             st[S_EXPIRED] = 1.0
 
     # ---- instruction semantics -----------------------------------------------------------------
-    def read(self, address: int, length: int) -> tuple[int, bytes]:
-        """(error number, data) of a Read; an impossible range answers Access Error with zeros."""
+    def read(self, address: int, length: int, plain: bool = False) -> tuple[int, bytes]:
+        """(error number, data) of a Read; an impossible range answers Access Error with zeros. `plain`: the
+        Indirect Data bytes as stored (not where their Indirect Address points)."""
         if length < 0 or address < 0 or address + length > MEMORY_SIZE:
             return p.ERR_ACCESS, bytes(max(0, min(length, p.MAX_LENGTH)))
+        if self.indirect and not plain and touches_data(address, address + length):
+            return servo_indirect.read(self, address, length)
         wd = self._watchdog_at
         if self.watchdog_expired and address <= wd < address + length:
             data = bytearray(self.memory[address:address + length])
@@ -405,11 +416,14 @@ class EmulatedServo:
             return p.ERR_NONE, bytes(data)
         return p.ERR_NONE, bytes(self.memory[address:address + length])
 
-    def check_write(self, address: int, data: bytes) -> int:
-        """The error number a Write of `data` at `address` would get (0 when it is allowed)."""
+    def check_write(self, address: int, data: bytes, plain: bool = False) -> int:
+        """The error number a Write of `data` at `address` would get (0 when it is allowed). `plain`: into
+        the Indirect Data bytes themselves (not where their Indirect Address points)."""
         end = address + len(data)
         if not data or address < 0 or end > MEMORY_SIZE:
             return p.ERR_ACCESS
+        if self.indirect and not plain and touches_data(address, end):
+            return servo_indirect.check_write(self, address, data)
         exact = self._at.get(address)
         if exact is not None and address + exact.size == end:
             touched = [exact]  # the usual write: exactly one item
@@ -454,8 +468,11 @@ class EmulatedServo:
         lo, hi = _RANGES.get(name, (-(2**31), 2**32))
         return lo <= value <= hi
 
-    def write(self, address: int, data: bytes, now: float = 0.0) -> int:
-        """Apply a Write with the servo's rules; returns the error number (0 = written)."""
+    def write(self, address: int, data: bytes, now: float = 0.0, plain: bool = False) -> int:
+        """Apply a Write with the servo's rules; returns the error number (0 = written). `plain`: as
+        check_write's."""
+        if self.indirect and not plain and touches_data(address, address + len(data)):
+            return servo_indirect.write(self, address, data, now)
         exact = self._at.get(address)
         if exact is not None and len(data) == exact.size:  # the usual write: exactly one item
             raw = int.from_bytes(data, "little")
@@ -464,7 +481,7 @@ class EmulatedServo:
             if not error:
                 self._apply(exact.name, value, now)
             return error
-        error = self.check_write(address, data)
+        error = self.check_write(address, data, plain=True)
         if error:
             return error
         end = address + len(data)
@@ -519,6 +536,8 @@ class EmulatedServo:
             goal = self.read_register("goal_current")
             self.write_register("goal_current", max(-value, min(value, goal)))
         self.write_register(name, value)
+        if name in ADDRESS_ITEMS:
+            self.indirect = servo_indirect.mapping(self.memory)
 
     def reg_write(self, address: int, data: bytes) -> int:
         error = self.check_write(address, data)
@@ -540,9 +559,9 @@ class EmulatedServo:
         """RAM (address >= 64) back to defaults (torque off), errors cleared, EEPROM kept; the servo hears
         nothing for REBOOT_SILENCE_S (`booting_until`)."""
         eeprom = bytes(self.memory[:EEPROM_END])
-        present = {n: self.read_register(n) for n in ("present_position", "present_velocity",
-                                                      "present_current", "present_input_voltage",
-                                                      "present_temperature")}
+        present = {n: self.read_register(n) for n in (
+            "present_position", "present_velocity", "present_current", "present_input_voltage",
+            "present_temperature")}
         self._load_defaults(keep=())
         self.memory[:EEPROM_END] = eeprom
         for n, v in present.items():
@@ -550,14 +569,21 @@ class EmulatedServo:
         self.write_register("goal_current", self.read_register("current_limit"))
         self.write_register("goal_pwm", self.read_register("pwm_limit"))
         self.write_register("goal_position", present["present_position"])
+        self._restart(now)
+        self.reboots += 1
+
+    def _restart(self, now: float) -> None:
+        """The firmware restarts: nothing registered, no watchdog error, silent for REBOOT_SILENCE_S, then
+        Realtime Tick counts from 0."""
         self.registered = None
         self.watchdog_expired = False
         self.last_contact = now
         self.booting_until = now + REBOOT_SILENCE_S
-        self.reboots += 1
+        self.tick_origin_ms = round(self.booting_until * 1000)
 
-    def factory_reset(self, option: int) -> int:
-        """0xFF resets everything, 0x01 all but the ID, 0x02 all but the ID and the baud rate."""
+    def factory_reset(self, option: int, now: float = 0.0) -> int:
+        """0xFF resets everything, 0x01 all but the ID, 0x02 all but the ID and the baud rate; then the servo
+        restarts as after a reboot."""
         keep = {0xFF: (), 0x01: ("id",), 0x02: ("id", "baud_rate")}.get(option)
         if keep is None:
             return p.ERR_DATA_RANGE
@@ -567,8 +593,7 @@ class EmulatedServo:
         for n, v in present.items():
             self.write_register(n, v)
         self.write_register("goal_position", present["present_position"])
-        self.registered = None
-        self.watchdog_expired = False
+        self._restart(now)
         return p.ERR_NONE
 
     def __repr__(self) -> str:
