@@ -52,14 +52,14 @@ def compile_functions(namespace: dict, names: tuple[str, ...], signatures: dict[
         g = types.FunctionType(f.__code__, ns, name, f.__defaults__)
         g.__qualname__ = tag + (qualname_prefix + name if qualname_prefix else f.__qualname__)
         ns[name] = jit(g)
-    timer = _notice_timer()
+    done = _notice_watch([ns[name] for name in names])
     try:
         for name, sigs in signatures.items():
             for sig in sigs:
                 ns[name].compile(sig)
     finally:
-        if timer is not None:
-            timer.cancel()
+        if done is not None:
+            done.set()
     return {name: ns[name] for name in names}
 
 
@@ -132,8 +132,8 @@ def sources_digest(namespace: dict) -> str:
 
 @contextlib.contextmanager
 def compile_notice(callback, after_s: float = 1.0):
-    """While inside: once a `compile_functions` call is still busy after `after_s` (numba compiling, not
-    loading from its cache), `callback()` is called, once, from a timer thread (a command says there
+    """While inside: once a `compile_functions` call is compiling (a signature missed numba's cache) and
+    still busy after `after_s`, `callback()` is called, once, from a watching thread (a command says there
     what it is doing, e.g. "compiling the simulator's kernels once, about 30 s")."""
     _notice[:] = [callback, float(after_s)]
     try:
@@ -142,17 +142,37 @@ def compile_notice(callback, after_s: float = 1.0):
         _notice.clear()
 
 
-def _notice_timer() -> threading.Timer | None:
+def _misses(dispatchers) -> int:
+    """How many signatures of `dispatchers` numba had to compile (not found in its cache) so far."""
+    total = 0
+    for d in dispatchers:
+        try:
+            total += sum(d.stats.cache_misses.values())
+        except AttributeError:  # a numba without dispatcher statistics: judge by the time alone
+            return 1
+    return total
+
+
+def _notice_watch(dispatchers) -> threading.Event | None:
+    """The compile_notice in effect, watched from a thread until the returned event is set: its callback
+    is called once numba is compiling (a signature missed its cache) and the call has taken `after_s`,
+    never for loading from the cache, however slow a busy machine makes that."""
     if not _notice:
         return None
     callback, after_s = _notice
+    done = threading.Event()
+    before = _misses(dispatchers)
 
-    def fire():
-        if _notice and _notice[0] is callback:
-            _notice.clear()  # said once
-            callback()
+    def watch():
+        if done.wait(after_s):
+            return
+        while not done.is_set():
+            if _misses(dispatchers) > before:
+                if _notice and _notice[0] is callback:
+                    _notice.clear()  # said once
+                    callback()
+                return
+            done.wait(0.1)
 
-    timer = threading.Timer(after_s, fire)
-    timer.daemon = True
-    timer.start()
-    return timer
+    threading.Thread(target=watch, daemon=True, name="compile-notice").start()
+    return done

@@ -18,6 +18,16 @@ def _own_user_dirs(tmp_path_factory, monkeypatch):
     monkeypatch.setenv(RUNTIME_ENV, str(base / "runtime"))
 
 
+@pytest.fixture(autouse=True, scope="module")
+def _module_effects_library():
+    """The effects library as it was before the module: what a module-scoped fixture registers (a fit with
+    an effect file) leaves with the module instead of staying for every later module."""
+    saved = dict(effects._REGISTRY)
+    yield
+    effects._REGISTRY.clear()
+    effects._REGISTRY.update(saved)
+
+
 @pytest.fixture(autouse=True)
 def _own_effects_library():
     """The effects library as it was before the test (after its module's fixtures): a user effect one test

@@ -1,10 +1,12 @@
 """`crane-collect run` says that it compiles the kernels when it does (after an install without
 scripts/setup.sh), once, before the alignment; never with `status` off. The compilation is stood in for by
-a slow call that runs crane_io.jit's notice timer as compile_functions does."""
+a slow call that misses numba's cache and runs crane_io.jit's notice watch as compile_functions does."""
 
+import collections
 import functools
 import io
 import threading
+import types
 
 import pytest
 
@@ -16,10 +18,13 @@ from crane_io import jit
 
 def _slow_compile():
     for _ in range(2):  # two slow modules: said once
-        timer = jit._notice_timer()
+        misses = collections.Counter()
+        dispatcher = types.SimpleNamespace(stats=types.SimpleNamespace(cache_misses=misses))
+        done = jit._notice_watch([dispatcher])
+        misses["sig"] += 1  # numba compiles: the signature was not in its cache
         threading.Event().wait(0.3)
-        if timer is not None:
-            timer.cancel()
+        if done is not None:
+            done.set()
 
 
 @pytest.mark.parametrize("status", [True, False])

@@ -47,8 +47,8 @@ def test_help_imports_no_heavy_library(module):
 
 def test_train_help_lists_every_subcommand():
     names = [row["args"][0] for row in help_imports("train.cli")[1:]]
-    assert names == sorted(["info", "fit", "sweep", "report", "diagnose", "compare", "effects", "export",
-                            "fidelity", "view", "import"])
+    assert names == sorted(["info", "fit", "identify", "sweep", "report", "diagnose", "compare", "effects",
+                            "export", "fidelity", "view", "import"])
 
 
 def test_light_method_names_match_the_registry_and_the_sweep():
