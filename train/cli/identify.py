@@ -25,9 +25,9 @@ DEFAULTS = Thresholds()
 @click.option("-o", "--output", "out_dir", required=True, type=click.Path(),
               help="Model directory to write (a rigid-body model with identification.json), whole or not at "
                    "all; an existing one only with --force.")
-@click.option("--effect", "effects", multiple=True, metavar="NAME",
-              help=f"The friction (or other) effects identified on every joint beside the rigid body; "
-                   f"repeatable [{', '.join(DEFAULT_EFFECTS)}].")
+@click.option("--effect", "effects", multiple=True, metavar="NAME[:joint=JOINT,shape=VALUE]",
+              help=f"A friction (or other) effect identified beside the rigid body, on every joint or "
+                   f"(joint=) one; repeatable [{', '.join(DEFAULT_EFFECTS)}].")
 @click.option("--joints", default=None,
               help="Comma-separated joints to identify, or 'all' [joint1,joint2,joint4].")
 @arm_option

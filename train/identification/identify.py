@@ -104,6 +104,7 @@ def identify(data, *, effects: Sequence[str] = DEFAULT_EFFECTS, seed: int = 0, s
     from ..data.splits import make_splits
     from ..models.registry import make_model
     from ..models.rigid_body import fit_blocks
+    from ..settings import parse_effect
 
     thresholds = thresholds or Thresholds()
     if not hasattr(data, "tau"):
@@ -111,7 +112,7 @@ def identify(data, *, effects: Sequence[str] = DEFAULT_EFFECTS, seed: int = 0, s
     ds = data
     splits = make_splits(ds, load_settings(config)["splits"], seed=seed, scale_to_data=scale_to_data)
     pool = splits.pool
-    effect_list = [[str(e), None, None] for e in effects]
+    effect_list = [list(parse_effect(str(e))) for e in effects]
     model = make_model("rigid-body", ds.joint_names, preprocessing=model_preprocessing(ds, splits),
                        effects=effect_list, rows="per-joint")
     model.fit(pool, splits.val)  # resolves the context joints and the effect terms
