@@ -3,7 +3,10 @@
 (train.identification) that are judged on a separate bilateral session, against the plant's truth and in
 the control loop.
 
-Per seed (the first seed does every part, the others only the excitation's identification for coverage):
+Per seed: an excitation designed on the plain condition number, one designed on the normalised one
+(`ExcitationOptions(normalised=True)`) and a bilateral session, each identified with the plant's effect
+set, for coverage and for the held-out error on the first seed's separate bilateral session. The first
+seed also gives the details:
 
 1. held-out torque MSE on the test blocks of a separate bilateral session (its own seed) per joint, of
    the model identified from the excitation and of the one identified from the bilateral session, both
@@ -177,6 +180,12 @@ def main() -> None:
         tmp.mkdir(parents=True, exist_ok=True)
         cover: list = []
         consistent: list = []
+        held_seed = seeds[0] + 1000
+        held = record(tmp, "run", held_seed, duration, budget)
+        r_floor = _quiet(identify, str(held), effects=PLANT_EFFECTS, seed=held_seed, scale_to_data=True)
+        floor = r_floor.heldout_mse
+        per_seed: list[str] = []
+        kinds: dict[str, list] = {}
         for i, seed in enumerate(seeds):
             ex = record(tmp, "excite", seed, duration, budget)
             r_ex = _quiet(identify, str(ex), effects=PLANT_EFFECTS, seed=seed, scale_to_data=True)
@@ -194,15 +203,24 @@ def main() -> None:
             for nm, tv, ev, sv, inside in rows:
                 print(f"    {nm:34s} truth {tv:10.5f} estimate {ev:10.5f} +- {Z95 * sv:9.5f} "
                       f"{'in' if inside else 'OUT'}")
+            ex_norm = record(tmp, "excite", seed, duration, budget, normalised=True)
+            for kind, path in (("excitation", ex), ("excitation, normalised design", ex_norm),
+                               ("bilateral", record(tmp, "run", seed, duration, budget))):
+                res = r_ex if kind == "excitation" else _quiet(identify, str(path), effects=PLANT_EFFECTS,
+                                                               seed=seed, scale_to_data=True)
+                rows_k = coverage(res, truth if kind == "excitation" else plant_truth(res))
+                ratio = heldout_on(res, held, held_seed) / floor
+                kinds.setdefault(kind, []).append((rows_k, ratio, res.estimate.condition,
+                                                   res.projection.within_uncertainty))
+                per_seed.append(f"{seed:4d}  {kind:30s} {res.estimate.condition:6.1f} "
+                                f"{sum(r[4] for r in rows_k):3d}/{len(rows_k)}   "
+                                + " ".join(f"{x:5.2f}x" for x in ratio))
             if i > 0:
                 continue
             bil = record(tmp, "run", seed, duration, budget)
-            held = record(tmp, "run", seed + 1000, duration, budget)
             r_ex_d = _quiet(identify, str(ex), effects=DEFAULT_EFFECTS, seed=seed, scale_to_data=True)
             r_bil = _quiet(identify, str(bil), effects=PLANT_EFFECTS, seed=seed, scale_to_data=True)
             r_bil_d = _quiet(identify, str(bil), effects=DEFAULT_EFFECTS, seed=seed, scale_to_data=True)
-            r_floor = _quiet(identify, str(held), effects=PLANT_EFFECTS, seed=seed + 1000, scale_to_data=True)
-            floor = r_floor.heldout_mse
             bil_rows = coverage(r_bil, plant_truth(r_bil))
             print(f"bilateral seed {seed} ({duration:.0f} s), plant effects: {sum(r[4] for r in bil_rows)}/"
                   f"{len(bil_rows)} truths inside their 95 % interval; "
@@ -241,7 +259,7 @@ def main() -> None:
             if args.no_loop:
                 continue
             model_dir = tmp / "model-ex"
-            _quiet(r_ex.save, model_dir)
+            _quiet(r_ex.save, model_dir, force=True)
             loop_s = min(duration, 60.0)
             stock_tr, id_tr = tmp / "stock.truth.h5", tmp / "ident.truth.h5"
             stock = record(tmp, "run", seed + 2000, loop_s, budget, truth_trace=stock_tr)
@@ -255,6 +273,17 @@ def main() -> None:
             for j in f_stock.joints:
                 a, b = f_stock.joints[j]["follower_false_rms"], f_id.joints[j]["follower_false_rms"]
                 print(f"   {j}: {a:.4f} / {b:.4f} ({'lower' if b < a else 'NOT lower'})")
+        print(f"\nper seed, plant effects: identify's condition number, truths inside their 95 % interval, "
+              f"held-out MSE / floor on bilateral seed {held_seed} "
+              f"(joints {', '.join(r_floor.fit.model.joint_names)})")
+        print("\n".join(per_seed))
+        for kind, runs in kinds.items():
+            n_k = sum(sum(r[4] for r in rows_k) for rows_k, *_ in runs)
+            t_k = sum(len(rows_k) for rows_k, *_ in runs)
+            worst = np.max([ratio for _, ratio, *_ in runs], axis=0)
+            print(f"   {kind:30s} coverage {n_k}/{t_k} = {100 * n_k / max(t_k, 1):.0f} %; physically "
+                  f"consistent (projection within uncertainty) {sum(r[3] for r in runs)}/{len(runs)}; "
+                  f"worst held-out / floor " + " ".join(f"{x:.2f}x" for x in worst))
         n_in = sum(r[4] for r in cover)
         print(f"\n3. over seeds {seeds}: physically consistent (projection found) in {len(consistent)}/"
               f"{len(consistent)} runs; as estimated in {sum(c[1] for c in consistent)}, within uncertainty "
