@@ -147,9 +147,16 @@ def coverage(result, truth: dict[str, float]) -> list[tuple[str, float, float, f
     return rows
 
 
+ZERO_PHASE = False  # --zero-phase: every session filtered forward and backward (identify's zero_phase)
+
+
+def identify_as_set(path: Path, effects, seed: int):
+    return _quiet(identify, str(path), effects=effects, seed=seed, scale_to_data=True, zero_phase=ZERO_PHASE)
+
+
 def heldout_on(result, path: Path, seed: int) -> np.ndarray:
     """Per joint MSE (N m)^2 of the model on the test blocks of the session at `path` (identify's split)."""
-    ds = load_sessions(str(path))
+    ds = load_sessions(str(path), zero_phase=ZERO_PHASE)
     test = make_splits(ds, load_settings(None)["splits"], seed=seed, scale_to_data=True).test
     pred = result.fit.model.predict_dataset(test)
     err = (test.tau - pred) ** 2
@@ -167,8 +174,12 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=180.0)
     ap.add_argument("--budget", type=int, default=1000)
     ap.add_argument("--workdir", default=None, help="keep the sessions here and reuse them on a rerun")
+    ap.add_argument("--zero-phase", action="store_true",
+                    help="identify and judge on data filtered forward and backward")
     ap.add_argument("--no-loop", action="store_true", help="skip part 4 (the arm model in the loop)")
     args = ap.parse_args()
+    global ZERO_PHASE
+    ZERO_PHASE = args.zero_phase
     seeds = [int(s) for s in args.seeds.split(",")]
     duration, budget = args.duration, args.budget
     if args.quick:
@@ -182,13 +193,13 @@ def main() -> None:
         consistent: list = []
         held_seed = seeds[0] + 1000
         held = record(tmp, "run", held_seed, duration, budget)
-        r_floor = _quiet(identify, str(held), effects=PLANT_EFFECTS, seed=held_seed, scale_to_data=True)
+        r_floor = identify_as_set(held, PLANT_EFFECTS, held_seed)
         floor = r_floor.heldout_mse
         per_seed: list[str] = []
         kinds: dict[str, list] = {}
         for i, seed in enumerate(seeds):
             ex = record(tmp, "excite", seed, duration, budget)
-            r_ex = _quiet(identify, str(ex), effects=PLANT_EFFECTS, seed=seed, scale_to_data=True)
+            r_ex = identify_as_set(ex, PLANT_EFFECTS, seed)
             truth = plant_truth(r_ex)
             rows = coverage(r_ex, truth)
             cover += rows
@@ -206,8 +217,7 @@ def main() -> None:
             ex_norm = record(tmp, "excite", seed, duration, budget, normalised=True)
             for kind, path in (("excitation", ex), ("excitation, normalised design", ex_norm),
                                ("bilateral", record(tmp, "run", seed, duration, budget))):
-                res = r_ex if kind == "excitation" else _quiet(identify, str(path), effects=PLANT_EFFECTS,
-                                                               seed=seed, scale_to_data=True)
+                res = r_ex if kind == "excitation" else identify_as_set(path, PLANT_EFFECTS, seed)
                 rows_k = coverage(res, truth if kind == "excitation" else plant_truth(res))
                 ratio = heldout_on(res, held, held_seed) / floor
                 kinds.setdefault(kind, []).append((rows_k, ratio, res.estimate.condition,
@@ -218,9 +228,9 @@ def main() -> None:
             if i > 0:
                 continue
             bil = record(tmp, "run", seed, duration, budget)
-            r_ex_d = _quiet(identify, str(ex), effects=DEFAULT_EFFECTS, seed=seed, scale_to_data=True)
-            r_bil = _quiet(identify, str(bil), effects=PLANT_EFFECTS, seed=seed, scale_to_data=True)
-            r_bil_d = _quiet(identify, str(bil), effects=DEFAULT_EFFECTS, seed=seed, scale_to_data=True)
+            r_ex_d = identify_as_set(ex, DEFAULT_EFFECTS, seed)
+            r_bil = identify_as_set(bil, PLANT_EFFECTS, seed)
+            r_bil_d = identify_as_set(bil, DEFAULT_EFFECTS, seed)
             bil_rows = coverage(r_bil, plant_truth(r_bil))
             print(f"bilateral seed {seed} ({duration:.0f} s), plant effects: {sum(r[4] for r in bil_rows)}/"
                   f"{len(bil_rows)} truths inside their 95 % interval; "
@@ -236,7 +246,7 @@ def main() -> None:
                 mse = heldout_on(res, held, seed + 1000)
                 print(f"{label:44s} {_fmt(mse)}   " + " ".join(f"{m / f:5.2f}x" for m, f in zip(mse, floor)))
             ex_n = record(tmp, "excite", seed, duration, budget, normalised=True)
-            r_ex_n = _quiet(identify, str(ex_n), effects=PLANT_EFFECTS, seed=seed, scale_to_data=True)
+            r_ex_n = identify_as_set(ex_n, PLANT_EFFECTS, seed)
             c_ex, c_bil, c_n = conditions(ex, config), conditions(bil, config), conditions(ex_n, config)
             mse_n = heldout_on(r_ex_n, held, seed + 1000)
             print(f"{'excitation (normalised design), plant effects':44s} {_fmt(mse_n)}   "
@@ -261,7 +271,7 @@ def main() -> None:
             model_dir = tmp / "model-ex"
             _quiet(r_ex.save, model_dir, force=True)
             loop_s = min(duration, 60.0)
-            stock_tr, id_tr = tmp / "stock.truth.h5", tmp / "ident.truth.h5"
+            stock_tr, id_tr = tmp / "stock.truth.h5", tmp / f"ident{'-zp' if ZERO_PHASE else ''}.truth.h5"
             stock = record(tmp, "run", seed + 2000, loop_s, budget, truth_trace=stock_tr)
             ident = record(tmp, "run", seed + 2000, loop_s, budget, truth_trace=id_tr,
                            arm_model=model_dir / "arm_model.toml")

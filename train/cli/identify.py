@@ -44,11 +44,14 @@ DEFAULTS = Thresholds()
               help="A parameter whose torque is below this share of the torque RMS does not matter.")
 @click.option("--max-heldout-ratio", type=Number(float, 1), default=DEFAULTS.max_heldout_ratio,
               show_default=True, help="Verdict: the largest held-out MSE over the fit's own, per joint.")
+@click.option("--zero-phase", is_flag=True,
+              help="Filter the sessions forward and backward instead of with the paper's causal chain (the "
+                   "model folder then does not run in the control loop; arm_model.toml does).")
 @click.option("--json", "as_json", is_flag=True, help="Print identification.json instead of the table.")
 @force_option("the model directory")
 @cli_errors
 def identify(sessions, out_dir, effects, joints, arm, seed, scale_to_data, config_path, max_condition,
-             max_rel_stderr, negligible, max_heldout_ratio, as_json, force):
+             max_rel_stderr, negligible, max_heldout_ratio, zero_phase, as_json, force):
     """Identify the arm's inertial and friction parameters from SESSION(s): excitation or bilateral data."""
     from ..api import check_model_output
     from ..identification.identify import identify as run_identification
@@ -58,7 +61,7 @@ def identify(sessions, out_dir, effects, joints, arm, seed, scale_to_data, confi
     thresholds = Thresholds(max_condition, max_rel_stderr, negligible, max_heldout_ratio)
     result = run_identification(list(sessions), effects=effects or DEFAULT_EFFECTS, seed=seed,
                                 scale_to_data=scale_to_data, config=config_path, arm=arm, joints=joints,
-                                thresholds=thresholds)
+                                thresholds=thresholds, zero_phase=zero_phase)
     result.save(out_dir, force=force)
     if as_json:
         click.echo(json.dumps(result.to_json(), indent=2))
