@@ -167,27 +167,21 @@ def _fmt(xs) -> str:
     return " ".join(f"{x:9.5f}" for x in xs)
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="60 s sessions, one seed, budget 300")
-    ap.add_argument("--seeds", default="0,1,2")
-    ap.add_argument("--duration", type=float, default=180.0)
-    ap.add_argument("--budget", type=int, default=1000)
-    ap.add_argument("--workdir", default=None, help="keep the sessions here and reuse them on a rerun")
-    ap.add_argument("--zero-phase", action="store_true",
-                    help="identify and judge on data filtered forward and backward")
-    ap.add_argument("--no-loop", action="store_true", help="skip part 4 (the arm model in the loop)")
-    args = ap.parse_args()
+def bench(seeds: list[int], duration: float, budget: int, workdir: str | None = None, loop: bool = True,
+          zero_phase: bool = False) -> list[dict]:
+    """Every part of the module docstring, printed; the headline figures as run_all.py rows."""
     global ZERO_PHASE
-    ZERO_PHASE = args.zero_phase
-    seeds = [int(s) for s in args.seeds.split(",")]
-    duration, budget = args.duration, args.budget
-    if args.quick:
-        seeds, duration, budget = seeds[:1], 60.0, 300
+    ZERO_PHASE = zero_phase
+    out: list[dict] = []
+
+    def row(metric: str, value: float, unit: str = "", note: str = "") -> None:
+        out.append({"benchmark": "identification", "metric": metric, "value": float(value), "unit": unit,
+                    "note": note})
+
     config = load_config(None)
     t_start = time.perf_counter()
     with contextlib.ExitStack() as stack:
-        tmp = Path(args.workdir) if args.workdir else Path(stack.enter_context(tempfile.TemporaryDirectory()))
+        tmp = Path(workdir) if workdir else Path(stack.enter_context(tempfile.TemporaryDirectory()))
         tmp.mkdir(parents=True, exist_ok=True)
         cover: list = []
         consistent: list = []
@@ -266,7 +260,9 @@ def main() -> None:
                   f"{c_n['plain']:.1f} ({c_bil['plain'] / c_n['plain']:.2f}x), unit-norm {c_n['unit']:.1f} "
                   f"({c_bil['unit'] / c_n['unit']:.2f}x), identify {r_ex_n.estimate.condition:.1f} "
                   f"({r_bil.estimate.condition / r_ex_n.estimate.condition:.2f}x)", flush=True)
-            if args.no_loop:
+            row("condition number, identify: bilateral / excitation", r_bil.estimate.condition
+                / r_ex.estimate.condition, "x", f"seed {seed}, {duration:.0f} s, goal >= 10")
+            if not loop:
                 continue
             model_dir = tmp / "model-ex"
             _quiet(r_ex.save, model_dir, force=True)
@@ -283,6 +279,8 @@ def main() -> None:
             for j in f_stock.joints:
                 a, b = f_stock.joints[j]["follower_false_rms"], f_id.joints[j]["follower_false_rms"]
                 print(f"   {j}: {a:.4f} / {b:.4f} ({'lower' if b < a else 'NOT lower'})")
+                row(f"false reaction torque {j}: arm model / stock", b / a, "x",
+                    f"seed {seed + 2000}, goal < 1")
         print(f"\nper seed, plant effects: identify's condition number, truths inside their 95 % interval, "
               f"held-out MSE / floor on bilateral seed {held_seed} "
               f"(joints {', '.join(r_floor.fit.model.joint_names)})")
@@ -291,6 +289,9 @@ def main() -> None:
             n_k = sum(sum(r[4] for r in rows_k) for rows_k, *_ in runs)
             t_k = sum(len(rows_k) for rows_k, *_ in runs)
             worst = np.max([ratio for _, ratio, *_ in runs], axis=0)
+            row(f"worst held-out MSE / floor, {kind}", float(worst.max()), "x",
+                "every joint and seed, goal <= 1.1")
+            row(f"coverage of 95 % intervals, {kind}", 100 * n_k / max(t_k, 1), "%", "goal >= 90")
             print(f"   {kind:30s} coverage {n_k}/{t_k} = {100 * n_k / max(t_k, 1):.0f} %; physically "
                   f"consistent (projection within uncertainty) {sum(r[3] for r in runs)}/{len(runs)}; "
                   f"worst held-out / floor " + " ".join(f"{x:.2f}x" for x in worst))
@@ -305,6 +306,30 @@ def main() -> None:
             by_name.setdefault(nm, []).append(inside)
         print("   per parameter: " + "; ".join(f"{nm} {sum(v)}/{len(v)}" for nm, v in by_name.items()))
     print(f"\n[{time.perf_counter() - t_start:.0f} s wall]")
+    return out
+
+
+def run(quick: bool = False) -> list[dict]:
+    """run_all.py's entry: --quick's settings, or the full three seeds."""
+    return bench([0], 60.0, 300) if quick else bench([0, 1, 2], 180.0, 1000)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="60 s sessions, one seed, budget 300")
+    ap.add_argument("--seeds", default="0,1,2")
+    ap.add_argument("--duration", type=float, default=180.0)
+    ap.add_argument("--budget", type=int, default=1000)
+    ap.add_argument("--workdir", default=None, help="keep the sessions here and reuse them on a rerun")
+    ap.add_argument("--zero-phase", action="store_true",
+                    help="identify and judge on data filtered forward and backward")
+    ap.add_argument("--no-loop", action="store_true", help="skip part 4 (the arm model in the loop)")
+    args = ap.parse_args()
+    seeds = [int(s) for s in args.seeds.split(",")]
+    duration, budget = args.duration, args.budget
+    if args.quick:
+        seeds, duration, budget = seeds[:1], 60.0, 300
+    bench(seeds, duration, budget, args.workdir, not args.no_loop, args.zero_phase)
 
 
 if __name__ == "__main__":
