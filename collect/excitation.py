@@ -56,6 +56,7 @@ class ExcitationOptions:
     save: str | Path | None = None  # where the trajectory's JSON goes (None: next to the session)
     evaluations: int = 1000  # the optimiser's budget in cost evaluations
     seconds: float | None = None  # ... and in seconds (None: no time limit)
+    normalised: bool = False  # optimise the unit-column-norm condition number (excitation_design.optimise)
     say: object = None  # where the design's progress lines go (None: the run's status stream)
 
 
@@ -161,7 +162,7 @@ class ExcitationRun(BilateralRun):
                       f"{space.period:.1f} s, {HARMONICS} harmonics, budget {ex.evaluations} evaluations"
                       + (f" or {ex.seconds:g} s" if ex.seconds is not None else ""))
             result = optimise(space, dynamics, clearance, seed=self.options.seed, evaluations=ex.evaluations,
-                              seconds=ex.seconds, progress=self._say)
+                              seconds=ex.seconds, progress=self._say, normalised=ex.normalised)
             traj = result.trajectory.with_periods(periods)
             self._say(f"condition number {result.initial_condition:.1f} at the start, "
                       f"{traj.condition_number:.1f} optimised ({result.evaluations} evaluations, "

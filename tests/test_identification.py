@@ -155,3 +155,13 @@ def test_bad_thresholds_are_one_sentence(session, tmp_path):
     r = CliRunner().invoke(train_main, ["identify", str(session), "-o", str(tmp_path / "id"),
                                        "--negligible", "2"])
     assert r.exit_code == 2 and "Traceback" not in r.output and "--negligible" in r.output
+
+
+def test_an_effect_can_be_identified_on_one_joint(session, tmp_path):
+    r = CliRunner().invoke(train_main, ["identify", str(session), "-o", str(tmp_path / "id"),
+                                       "--scale-to-data", "--json", "--effect", "viscous",
+                                       "--effect", "coulomb:joint=joint2"])
+    assert r.exit_code in (0, 1), r.output
+    others = [p["name"] for p in json.loads(r.output)["parameters"] if p["kind"] == "other"]
+    assert sorted(others) == ["coulomb.coulomb@joint2", "viscous.viscous@joint1", "viscous.viscous@joint2",
+                              "viscous.viscous@joint4"]

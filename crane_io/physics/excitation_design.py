@@ -16,9 +16,14 @@ shared out on both sides (the grid's peaks are within a
 fraction of a percent of the true ones for up to 20 harmonics, so the true peaks stay within the limits).
 
 The cost is log10 of the regressor's condition number over SAMPLES samples of one period, plus a
-penalty of 100 per metre that the clearance falls short of `min_clearance` at any of them. The start
-is seeded: q0 at the middle of each range (or `start`), the harmonics drawn at random; when it is not
-clear, its harmonics halved until they are give a first clear trajectory to fall back on.
+penalty of 100 per metre that the clearance falls short of `min_clearance` at any of them. The condition
+number is the plain one (`normalised=False`, the default) or that of the regressor with every column
+scaled to unit norm (`normalised=True`): the plain one has a floor set by the columns' physical scales
+(a Coulomb column is at most 1, a gravity column several N m), the normalised one measures only how well
+the samples separate the parameters, as the identification's own condition number does. The trajectory's
+stored `condition_number` is the plain one either way; `DesignResult.criterion` is the optimised value.
+The start is seeded: q0 at the middle of each range (or `start`), the harmonics drawn at random; when it is
+not clear, its harmonics halved until they are give a first clear trajectory to fall back on.
 scipy.optimize.minimize (Powell: derivative-free, the clip and scale make the cost only piecewise
 smooth) runs from the start until `evaluations` cost evaluations or `seconds` have passed; the best
 trajectory whose clearance held is the result. `progress` gets a line every `progress_every` evaluations.
@@ -135,6 +140,7 @@ class DesignResult:
     evaluations: int
     seconds: float
     clearance: float  # m: the smallest clearance over the samples
+    criterion: float  # the optimised condition number (plain or normalised) of the result
 
 
 class _Budget(Exception):
@@ -144,8 +150,10 @@ class _Budget(Exception):
 class _Cost:
     """The cost of the module docstring, keeping the best trajectory whose clearance held."""
 
-    def __init__(self, space, dynamics, clearance, evaluations, seconds, progress, progress_every):
+    def __init__(self, space, dynamics, clearance, evaluations, seconds, progress, progress_every,
+                 normalised=False):
         self.space, self.dynamics, self.clear = space, dynamics, clearance
+        self.normalised = normalised
         self.t = np.linspace(0.0, space.period, SAMPLES, endpoint=False)
         self.max_evaluations, self.seconds = evaluations, seconds
         self.progress, self.every = progress, progress_every
@@ -154,10 +162,12 @@ class _Cost:
         self.best: tuple[float, FourierTrajectory, float] | None = None  # (cond, trajectory, clearance)
         self.best_cost = math.inf
 
-    def measure(self, traj: FourierTrajectory) -> tuple[float, float]:
-        """(condition number, smallest clearance) over the samples."""
+    def measure(self, traj: FourierTrajectory, normalised: bool | None = None) -> tuple[float, float]:
+        """(condition number, smallest clearance) over the samples; the condition number of the cost's
+        definition unless `normalised` is given."""
         q, dq, ddq = traj.evaluate(self.t)
-        return regressor_condition(self.dynamics, q, dq, ddq), float(np.min(self.clear.clearance(q)))
+        norm = self.normalised if normalised is None else normalised
+        return regressor_condition(self.dynamics, q, dq, ddq, norm), float(np.min(self.clear.clearance(q)))
 
     def __call__(self, x: np.ndarray) -> float:
         if self.count >= self.max_evaluations or (
@@ -180,15 +190,19 @@ class _Cost:
 
 def optimise(space: DesignSpace, dynamics, clearance, *, seed: int = 0, evaluations: int = 400,
              seconds: float | None = None, start: np.ndarray | None = None,
-             progress: Callable[[str], None] | None = None, progress_every: int = 50) -> DesignResult:
+             progress: Callable[[str], None] | None = None, progress_every: int = 50,
+             normalised: bool = False) -> DesignResult:
     """The best trajectory found within the budget (the module docstring). `dynamics`: an ArmDynamics
-    over `space.joints`; `clearance`: an ArmClearance over them. ConfigError when no trajectory clear of
-    the table and the arm's links was found."""
+    over `space.joints`; `clearance`: an ArmClearance over them; `normalised`: minimise the condition
+    number of the unit-column-norm regressor. ConfigError when no trajectory clear of the table and the
+    arm's links was found."""
     if evaluations < 1:
         raise ConfigError(f"the optimiser's budget must be at least 1 evaluation, got {evaluations}")
-    cost = _Cost(space, dynamics, clearance, evaluations, seconds, progress, max(1, progress_every))
+    cost = _Cost(space, dynamics, clearance, evaluations, seconds, progress, max(1, progress_every),
+                 normalised)
     x0 = initial(space, seed, start)
-    first_cond, margin = cost.measure(trajectory(x0, space))
+    first_cond = cost.measure(trajectory(x0, space), normalised=False)[0]
+    margin = cost.measure(trajectory(x0, space))[1]
     try:
         if margin < space.min_clearance:  # a fallback clear of the table and the links: smaller swings
             fallback = x0.reshape(len(space.joints), -1).copy()
@@ -204,5 +218,6 @@ def optimise(space: DesignSpace, dynamics, clearance, *, seed: int = 0, evaluati
         raise ConfigError("no trajectory clear of the table and the arm's own links was found within the "
                           "optimiser's budget; give a larger `budget`, another `seed` or other joints")
     cond, traj, margin = cost.best
-    return DesignResult(traj.with_condition(cond), first_cond, cost.count, time.perf_counter() - cost.t0,
-                        margin)
+    plain = cost.measure(traj, normalised=False)[0] if normalised else cond
+    return DesignResult(traj.with_condition(plain), first_cond, cost.count, time.perf_counter() - cost.t0,
+                        margin, cond)

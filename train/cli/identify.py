@@ -25,9 +25,9 @@ DEFAULTS = Thresholds()
 @click.option("-o", "--output", "out_dir", required=True, type=click.Path(),
               help="Model directory to write (a rigid-body model with identification.json), whole or not at "
                    "all; an existing one only with --force.")
-@click.option("--effect", "effects", multiple=True, metavar="NAME",
-              help=f"The friction (or other) effects identified on every joint beside the rigid body; "
-                   f"repeatable [{', '.join(DEFAULT_EFFECTS)}].")
+@click.option("--effect", "effects", multiple=True, metavar="NAME[:joint=JOINT,shape=VALUE]",
+              help=f"A friction (or other) effect identified beside the rigid body, on every joint or "
+                   f"(joint=) one; repeatable [{', '.join(DEFAULT_EFFECTS)}].")
 @click.option("--joints", default=None,
               help="Comma-separated joints to identify, or 'all' [joint1,joint2,joint4].")
 @arm_option
@@ -44,11 +44,14 @@ DEFAULTS = Thresholds()
               help="A parameter whose torque is below this share of the torque RMS does not matter.")
 @click.option("--max-heldout-ratio", type=Number(float, 1), default=DEFAULTS.max_heldout_ratio,
               show_default=True, help="Verdict: the largest held-out MSE over the fit's own, per joint.")
+@click.option("--zero-phase", is_flag=True,
+              help="Filter the sessions forward and backward instead of with the paper's causal chain (the "
+                   "model folder then does not run in the control loop; arm_model.toml does).")
 @click.option("--json", "as_json", is_flag=True, help="Print identification.json instead of the table.")
 @force_option("the model directory")
 @cli_errors
 def identify(sessions, out_dir, effects, joints, arm, seed, scale_to_data, config_path, max_condition,
-             max_rel_stderr, negligible, max_heldout_ratio, as_json, force):
+             max_rel_stderr, negligible, max_heldout_ratio, zero_phase, as_json, force):
     """Identify the arm's inertial and friction parameters from SESSION(s): excitation or bilateral data."""
     from ..api import check_model_output
     from ..identification.identify import identify as run_identification
@@ -58,7 +61,7 @@ def identify(sessions, out_dir, effects, joints, arm, seed, scale_to_data, confi
     thresholds = Thresholds(max_condition, max_rel_stderr, negligible, max_heldout_ratio)
     result = run_identification(list(sessions), effects=effects or DEFAULT_EFFECTS, seed=seed,
                                 scale_to_data=scale_to_data, config=config_path, arm=arm, joints=joints,
-                                thresholds=thresholds)
+                                thresholds=thresholds, zero_phase=zero_phase)
     result.save(out_dir, force=force)
     if as_json:
         click.echo(json.dumps(result.to_json(), indent=2))

@@ -5,7 +5,10 @@ like `crane-train fit --model rigid-body` makes (compare, report, diagnose and t
 with identification.json beside it.
 
 The data are split as `fit` splits them (training pool, validation, test blocks); the parameters are
-estimated on the pool and judged on the test blocks.
+estimated on the pool and judged on the test blocks. Sessions are filtered with the paper's causal chain
+(as `fit` filters them, so the model folder runs in the control loop) or, with `zero_phase`, forward and
+backward: the causal chain delays q, dq, ddq and tau alike, but the regressor is nonlinear in them, so
+the filtered torque is not quite the regressor of the filtered motion (docs/identification.md, "Results").
 """
 
 from __future__ import annotations
@@ -97,21 +100,23 @@ def _mse_where_moving(tau: np.ndarray, pred: np.ndarray, moving: np.ndarray) -> 
 
 
 def identify(data, *, effects: Sequence[str] = DEFAULT_EFFECTS, seed: int = 0, scale_to_data: bool = False,
-             config=None, arm: str | None = None, joints=None,
-             thresholds: Thresholds | None = None) -> Identification:
-    """Identify from `data` (a Dataset, or session file(s) read as train.api.load_sessions reads them)."""
+             config=None, arm: str | None = None, joints=None, thresholds: Thresholds | None = None,
+             zero_phase: bool = False) -> Identification:
+    """Identify from `data` (a Dataset, or session file(s) read as train.api.load_sessions reads them;
+    `zero_phase`: filtered forward and backward, the module docstring)."""
     from ..api import FitResult, load_sessions, load_settings, model_preprocessing, test_metrics
     from ..data.splits import make_splits
     from ..models.registry import make_model
     from ..models.rigid_body import fit_blocks
+    from ..settings import parse_effect
 
     thresholds = thresholds or Thresholds()
     if not hasattr(data, "tau"):
-        data = load_sessions(data, arm=arm, joints=joints, config=config)
+        data = load_sessions(data, arm=arm, joints=joints, config=config, zero_phase=zero_phase)
     ds = data
     splits = make_splits(ds, load_settings(config)["splits"], seed=seed, scale_to_data=scale_to_data)
     pool = splits.pool
-    effect_list = [[str(e), None, None] for e in effects]
+    effect_list = [list(parse_effect(str(e))) for e in effects]
     model = make_model("rigid-body", ds.joint_names, preprocessing=model_preprocessing(ds, splits),
                        effects=effect_list, rows="per-joint")
     model.fit(pool, splits.val)  # resolves the context joints and the effect terms
