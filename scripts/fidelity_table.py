@@ -1,4 +1,5 @@
-"""The README's "Closing the loop" tables from the fidelity JSON files of scripts/closing-the-loop.sh.
+"""The "Closing the loop" tables of docs/results.md from the fidelity JSON files of
+scripts/closing-the-loop.sh.
 
     python scripts/fidelity_table.py out/loop      # prints Markdown tables
 """
