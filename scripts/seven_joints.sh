@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Seven joints (README "Seven joints"): bilateral control of the whole arm on the simulated CRANE-X7,
+# Seven joints (docs/results.md "Seven joints"): bilateral control of the whole arm on the simulated CRANE-X7,
 # the paper's sweep at seven joints, and planted effects on the wrist.
 #
 # 1. a ${DURATION} s session with every arm joint bilateral (crane-x7-7dof plant), what it holds (moving
