@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Closing the loop (README "Closing the loop"): learned models in the bilateral controller's
+# Closing the loop (docs/results.md "Closing the loop"): learned models in the bilateral controller's
 # reaction-force observers, and the force fidelity they buy, on the simulated arm.
 #
 # 1. training data in free motion on the crane-x7 plant: the follower's (the hand on the leader, as
@@ -11,7 +11,7 @@
 #    beside the session (--truth-trace); crane-train fidelity on each;
 # 4. the modelling loop in force terms: a hidden Coulomb friction on joint 2 leaves a false force on
 #    that joint until the diagnosis names it and the model gets it;
-# 5. the follower's friction dither (docs/examples/dither.toml; README "Contact at standstill"), with
+# 5. the follower's friction dither (docs/examples/dither.toml; docs/results.md "Friction dither"), with
 #    the nominal observer and with a rigid-body + Coulomb + viscous + rotor-inertia model fitted per
 #    joint (--eval-set per-joint, --alpha 0.2) on free motion recorded with the dither (the follower's training data of
 #    step 1 with the dither on: the same seed), joint 4 dithered in antiphase in the evaluation
@@ -21,7 +21,7 @@
 #    dither_min_velocity); the model with that setting, with its sign as
 #    fitted (the dead zone), with the nominal observer's one lag (model_filters = "observer"), and a
 #    model fitted with 40 rad/s filters run at its own cutoff (its inertia comes out low). Same seed
-#    and length as step 3: the ratios are against its nominal run without dither. (README "Closing
+#    and length as step 3: the ratios are against its nominal run without dither. (docs/results.md "Closing
 #    the loop" measured 60 s runs on seeds 23, 29, 31, 37 and 41: EVAL_S=60 and the seed in evaluate().)
 #    The own-cutoff variant's sed sets every model_cutoff line, the per-joint one too, to 0.
 # Results land in $OUT (default out/loop): fidelity-*.json, fidelity.md (the tables), models/.
