@@ -138,6 +138,13 @@ def test_excite_sim_records_a_session_marked_as_excitation(excitation_session):
     assert clearance.clearance(q[::25, cols]).min() > 0.0
     session = read_session(out)  # what crane-train fit / sweep / diagnose / info read
     assert len(session.t) == len(q) and session.attrs[sf.EXCITATION_ATTR]
+    from train.cli import main as train_main
+
+    info = CliRunner().invoke(train_main, ["info", str(out), "--json"])
+    assert info.exit_code == 0, info.output
+    assert json.loads(info.output)["files"][0]["excitation_arm"] == "follower"
+    info = CliRunner().invoke(train_main, ["info", str(out)])
+    assert "excitation data (the follower alone)" in info.output and "hand on the" not in info.output
 
 
 def test_a_saved_trajectory_replays_with_its_condition_number(excitation_session, tmp_path):

@@ -17,14 +17,24 @@ def session_info(paths, joints=None, alpha: float = 0.1, arm: str = "follower") 
     sessions = read_sessions(paths, arm)
     config = PreprocessConfig(alpha=alpha, arm=arm, **({"joints": tuple(joints)} if joints else {}))
     ds = preprocess(sessions, config)
-    files = [{"path": s.path, "source": s.source, "hand_on": hand_on(s.attrs, s.path), "rate_hz": s.rate_hz,
-              "samples": len(s),
+    files = [{"path": s.path, "source": s.source, "hand_on": hand_on(s.attrs, s.path),
+              "excitation_arm": _excitation_arm(s.attrs), "rate_hz": s.rate_hz, "samples": len(s),
               "duration_s": s.duration_s, "joint_names": list(s.joint_names), "truncated": s.truncated,
               "complete": s.attrs.get("complete"), "recorded_velocity": s.dq is not None} for s in sessions]
     return {"files": files, "arm": arm, "joints": list(ds.joint_names), "samples_preprocessed": len(ds),
             "rate_hz_preprocessed": ds.rate_hz, "sigma_rad_s": ds.meta["sigma"], "alpha": alpha,
             "usable_fraction": ds.meta["usable_fraction"], "splits": _splits_need(ds),
             "data_checks": ds.meta["data_checks"]}
+
+
+def _excitation_arm(attrs: dict) -> str | None:
+    """The arm that ran an exciting trajectory on its own (`crane-collect excite`), None for other data."""
+    from crane_io import session_format as sf
+
+    if not bool(attrs.get(sf.EXCITATION_ATTR, False)):
+        return None
+    arm = attrs.get(sf.EXCITATION_ARM_ATTR, "follower")
+    return arm.decode() if isinstance(arm, bytes) else str(arm)
 
 
 def _splits_need(ds) -> dict:
@@ -56,9 +66,10 @@ def info(sessions, joints, alpha, arm, as_json):
         return
     for f in doc["files"]:
         flag = "  (truncated: cut to the shortest dataset)" if f["truncated"] else ""
+        what = (f"excitation data (the {f['excitation_arm']} alone)" if f["excitation_arm"]
+                else f"hand on the {f['hand_on']}")
         click.echo(f"{f['path']}: {f['source']}, {f['duration_s']:.1f} s at {f['rate_hz']:g} Hz, "
-                   f"{f['samples']} samples, {len(f['joint_names'])} joints, "
-                   f"hand on the {f['hand_on']}{flag}")
+                   f"{f['samples']} samples, {len(f['joint_names'])} joints, {what}{flag}")
     uf = doc["usable_fraction"]
     click.echo(f"preprocessed ({arm}): {doc['samples_preprocessed']} samples at "
                f"{doc['rate_hz_preprocessed']:g} Hz, "
