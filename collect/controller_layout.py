@@ -129,13 +129,7 @@ class ControlLaw(ABC):
         of what they give, and the safety checks (`safety.check` of the leader, then of the follower):
         (commands, clamped leader torque, clamped follower torque, the first breach or None)."""
         cmd = self.step(leader, follower, dt)
-        tau_l = safety.limit_torque(leader.q, cmd.leader_tau, leader.dq_servo)
-        tau_f = safety.limit_torque(follower.q, cmd.follower_tau, follower.dq_servo)
-        self.applied(tau_l, tau_f)
-        breach = safety.check("leader", leader.q, leader.dq_servo)
-        if breach is None:
-            breach = safety.check("follower", follower.q, follower.dq_servo)
-        return cmd, tau_l, tau_f, breach
+        return (cmd, *guarded(cmd, leader, follower, safety, self.applied))
 
     @abstractmethod
     def applied(self, tau_leader: np.ndarray, tau_follower: np.ndarray) -> None:
@@ -145,3 +139,17 @@ class ControlLaw(ABC):
     def observer(self, arm: str):
         """`arm`'s observer ("leader" or "follower"): z, y, applied (None before the first cycle), J;
         model (its ModelReaction or None) and fallback (the model's joints on the nominal observer)."""
+
+
+def guarded(cmd: Commands, leader: ArmSignals, follower: ArmSignals, safety, applied) -> tuple:
+    """The safety clamps of both goal torques of `cmd` (`safety.limit_torque(q, tau, dq_servo)`), `applied`
+    of what they give (the observers see what went out), then the safety checks (the leader's, then the
+    follower's): (clamped leader torque, clamped follower torque, the first breach or None). Every cycle of
+    the bilateral law and of a held or excited arm goes through it."""
+    tau_l = safety.limit_torque(leader.q, cmd.leader_tau, leader.dq_servo)
+    tau_f = safety.limit_torque(follower.q, cmd.follower_tau, follower.dq_servo)
+    applied(tau_l, tau_f)
+    breach = safety.check("leader", leader.q, leader.dq_servo)
+    if breach is None:
+        breach = safety.check("follower", follower.q, follower.dq_servo)
+    return tau_l, tau_f, breach

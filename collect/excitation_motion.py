@@ -24,6 +24,7 @@ from crane_io.description import ArmDescription
 from crane_io.physics.excitation_trajectory import FourierTrajectory
 
 from .controller import ArmSignals
+from .controller_layout import guarded
 from .operator import minimum_jerk
 
 MIN_APPROACH_S = 1.0
@@ -88,15 +89,10 @@ class ExcitationMotion:
         self._cycles += 1
         other = (self.hold, self._zero)
         ref_l, ref_f = (other, ref) if self.driven == "follower" else (ref, other)
-        cmd = ctl.hold(ArmSignals(sl.position, sl.velocity, sl.current),
-                       ArmSignals(sf.position, sf.velocity, sf.current), ref_l, ref_f, dt)
-        tau_l = safety.limit_torque(sl.position, cmd.leader_tau, sl.velocity)
-        tau_f = safety.limit_torque(sf.position, cmd.follower_tau, sf.velocity)
-        ctl.applied(tau_l, tau_f)
-        breach = safety.check("leader", sl.position, sl.velocity)
-        if breach is None:
-            breach = safety.check("follower", sf.position, sf.velocity)
-        return tau_l, tau_f, breach
+        leader = ArmSignals(sl.position, sl.velocity, sl.current)
+        follower = ArmSignals(sf.position, sf.velocity, sf.current)
+        cmd = ctl.hold(leader, follower, ref_l, ref_f, dt)
+        return guarded(cmd, leader, follower, safety, ctl.applied)
 
     def summary_lines(self) -> list[str]:
         """The summary's line on how closely the driven arm followed its reference."""
