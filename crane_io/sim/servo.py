@@ -53,13 +53,13 @@ from crane_io.dynamixel.units import (
 )
 from crane_io.sim import protocol as p
 from crane_io.sim import servo_indirect
-from crane_io.sim.servo_indirect import ADDRESS_ITEMS, TARGET_RANGE, touches_data
+from crane_io.sim.servo_indirect import ADDRESS_ITEMS, touches_data
 from crane_io.sim.servo_rules import (
     DRIVE_MODE_AT,
     HOMING_OFFSET_AT,
-    HOMING_RANGE,
     effective_homing,
     goal_error,
+    in_range,
 )
 
 # a servo's state outside its control table: one float64 per column (EmulatedServo's `state`)
@@ -72,7 +72,6 @@ REBOOT_SILENCE_S = 0.5
 MEMORY_SIZE = CONTROL_TABLE_SIZE  # the whole X-series control table, Indirect Data included
 BAUD_CODES = {0: 9600, 1: 57600, 2: 115200, 3: 1_000_000, 4: 2_000_000, 5: 3_000_000, 6: 4_000_000,
               7: 4_500_000}
-VALID_MODES = (0, 1, 3, 4, 5, 16)
 POSITION_MODES = (MODE_POSITION, MODE_EXTENDED_POSITION, MODE_CURRENT_BASED_POSITION)
 # the items a Bus Watchdog error makes read-only (e-manual, Bus Watchdog (98))
 GOAL_ITEMS = ("goal_pwm", "goal_current", "goal_velocity", "goal_position")
@@ -85,30 +84,6 @@ _TICK_MOVING = struct.Struct("<HB")  # Realtime Tick, Moving
 _SUPPLY = struct.Struct("<HB")  # Present Input Voltage, Present Temperature
 _SUPPLY_RAW: dict[tuple[float, float], tuple[int, int]] = {}  # (V, deg C) -> their register values
 _GAINS = struct.Struct("<HHH")  # Position D, I, P Gain
-# value ranges the servo accepts (e-manual); Current Limit's depends on the model, gains are 0..16383
-_RANGES = {
-    "id": (0, 252),
-    "baud_rate": (0, 7),
-    "return_delay_time": (0, 254),
-    "torque_enable": (0, 1),
-    "status_return_level": (0, 2),
-    "bus_watchdog": (0, 127),
-    "protocol_type": (1, 2),
-    "secondary_id": (0, 255),
-    "led": (0, 1),
-    "max_voltage_limit": (95, 160),
-    "min_voltage_limit": (95, 160),
-    "acceleration_limit": (0, 32767),
-    "velocity_limit": (0, 1023),
-    "temperature_limit": (0, 100),
-    "pwm_limit": (0, 885),
-    "moving_threshold": (0, 1023),
-    "max_position_limit": (0, 4095),
-    "min_position_limit": (0, 4095),
-    "homing_offset": (-HOMING_RANGE, HOMING_RANGE),
-    **{name: TARGET_RANGE for name in ADDRESS_ITEMS},  # Indirect Address (crane_io.sim.servo_indirect)
-}
-_GAIN_ITEMS = ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "position_i_gain", "position_p_gain")
 _I32_MIN, _I32_MAX = -(2**31), 2**31 - 1
 _MASKS = {1: 0xFF, 2: 0xFFFF, 4: 0xFFFFFFFF}
 MODE_RESET_ITEMS = ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "position_i_gain",
@@ -454,19 +429,9 @@ class EmulatedServo:
             return p.ERR_ACCESS
         if self.watchdog_expired and r.name in GOAL_ITEMS:
             return p.ERR_DATA_RANGE  # the goal items are read-only after a Bus Watchdog error
-        if not self._in_range(r.name, value):
+        if not in_range(r.name, value, self.model.current_limit_max):
             return p.ERR_DATA_RANGE
         return goal_error(self, r.name, value)
-
-    def _in_range(self, name: str, value: int) -> bool:
-        if name == "operating_mode":
-            return value in VALID_MODES
-        if name in _GAIN_ITEMS:
-            return 0 <= value <= 16383
-        if name == "current_limit":
-            return 0 <= value <= self.model.current_limit_max
-        lo, hi = _RANGES.get(name, (-(2**31), 2**32))
-        return lo <= value <= hi
 
     def write(self, address: int, data: bytes, now: float = 0.0, plain: bool = False) -> int:
         """Apply a Write with the servo's rules; returns the error number (0 = written). `plain`: as

@@ -1,7 +1,7 @@
-"""Firmware rules of the emulated X-series servo that are more than a value range (ROBOTIS e-manual,
-XM430-W350 / XM540-W270 control tables and Protocol 2.0; docs/simulator-firmware.md lists each rule with
-its source):
+"""Firmware rules of the emulated X-series servo (ROBOTIS e-manual, XM430-W350 / XM540-W270 control
+tables and Protocol 2.0; docs/simulator-firmware.md lists each rule with its source):
 
+- the value range each item accepts (Data Range Error 0x04 outside it: `in_range`);
 - the frame of the position, velocity and current items: Drive Mode (10) bit 0 reverses the direction of
   the Present and Goal items, and Present Position = actual position + Homing Offset (20), the goals in
   the same frame (the offset's sign is not reversed with the direction; in Position Control Mode an
@@ -24,6 +24,7 @@ from crane_io.dynamixel.control_table import (
     X_SERIES,
 )
 from crane_io.sim import protocol as p
+from crane_io.sim.servo_indirect import ADDRESS_ITEMS, TARGET_RANGE
 
 DRIVE_MODE_AT = X_SERIES["drive_mode"].address
 HOMING_OFFSET_AT = X_SERIES["homing_offset"].address
@@ -34,6 +35,31 @@ POSITION_MODE_HOMING = 1024  # Position Control Mode ignores an offset outside -
 EXTENDED_GOAL_RANGE = 1_048_575  # Goal Position in the extended position modes (-256 .. 256 rev)
 PROFILE_RANGE = 32767  # Profile Velocity and Profile Acceleration: 0 .. 32767
 # goal item -> the limit item that bounds it (+- the limit for the signed ones)
+VALID_MODES = (0, 1, 3, 4, 5, 16)  # Operating Mode values of the X series
+# value ranges the servo accepts (e-manual); Current Limit's depends on the model, gains are 0..16383
+_RANGES = {
+    "id": (0, 252),
+    "baud_rate": (0, 7),
+    "return_delay_time": (0, 254),
+    "torque_enable": (0, 1),
+    "status_return_level": (0, 2),
+    "bus_watchdog": (0, 127),
+    "protocol_type": (1, 2),
+    "secondary_id": (0, 255),
+    "led": (0, 1),
+    "max_voltage_limit": (95, 160),
+    "min_voltage_limit": (95, 160),
+    "acceleration_limit": (0, 32767),
+    "velocity_limit": (0, 1023),
+    "temperature_limit": (0, 100),
+    "pwm_limit": (0, 885),
+    "moving_threshold": (0, 1023),
+    "max_position_limit": (0, 4095),
+    "min_position_limit": (0, 4095),
+    "homing_offset": (-HOMING_RANGE, HOMING_RANGE),
+    **{name: TARGET_RANGE for name in ADDRESS_ITEMS},  # Indirect Address (crane_io.sim.servo_indirect)
+}
+_GAIN_ITEMS = ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "position_i_gain", "position_p_gain")
 GOAL_LIMITS = {
     "goal_pwm": "pwm_limit",
     "goal_current": "current_limit",
@@ -76,3 +102,16 @@ def goal_error(servo, name: str, value: int) -> int:
         if mode in (MODE_EXTENDED_POSITION, MODE_CURRENT_BASED_POSITION):
             return p.ERR_NONE if -EXTENDED_GOAL_RANGE <= value <= EXTENDED_GOAL_RANGE else p.ERR_DATA_RANGE
     return p.ERR_NONE
+
+
+def in_range(name: str, value: int, current_limit_max: int) -> bool:
+    """`value` is within the range item `name` accepts (Data Range Error otherwise); `current_limit_max`:
+    the model's largest Current Limit."""
+    if name == "operating_mode":
+        return value in VALID_MODES
+    if name in _GAIN_ITEMS:
+        return 0 <= value <= 16383
+    if name == "current_limit":
+        return 0 <= value <= current_limit_max
+    lo, hi = _RANGES.get(name, (-(2**31), 2**32))
+    return lo <= value <= hi
