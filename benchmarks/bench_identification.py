@@ -3,22 +3,26 @@
 (train.identification) that are judged on a separate bilateral session, against the plant's truth and in
 the control loop.
 
-Per seed: an excitation designed on the plain condition number, one designed on the normalised one
-(`ExcitationOptions(normalised=True)`) and a bilateral session, each identified with the plant's effect
-set, for coverage and for the held-out error on the first seed's separate bilateral session. The first
-seed also gives the details:
+Per seed: an excitation with the default speed cycle (collect/excitation.py SPEED_CYCLE), one that plays
+every period at full speed (`ExcitationOptions(speeds=(1.0,))`) and a bilateral session, each identified
+with the plant's effect set (zero-phase filtering, identify's default; --causal: the paper's chain), for
+coverage and for the held-out error on the first seed's separate bilateral session. The first seed also
+gives the details:
 
-1. held-out torque MSE on the test blocks of a separate bilateral session (its own seed) per joint, of
-   the model identified from the excitation and of the one identified from the bilateral session, both
-   with the plant's effect set (--effect as in PLANT_EFFECTS) and with the default (viscous, Coulomb);
-   the noise floor: the plant's structure fitted on that session's own training pool (same split).
+1. held-out torque MSE on the test blocks of a separate bilateral session (its own seed) per joint,
+   filtered both ways (forward-backward and the paper's causal chain), each over its noise floor: the
+   plant's structure identified on that session's own training pool with the same filter (same split).
+   The plant's true parameters are judged the same way, as the reference a perfect identification
+   reaches; the models of the excitation and of the bilateral session with the plant's effect set, with
+   the default (viscous, Coulomb) and without Stribeck.
 2. condition numbers of both recordings: the plain one of the base + friction regressor
    (crane_io.physics.excitation_trajectory.recording_condition), its unit-column-norm version, and the
    one identify prints (weighted, unit-norm columns, the fit's rows).
-3. physical consistency of every run and the coverage of the 95 % intervals (estimate +- 1.96 stderr)
-   of every parameter with a truth: the base parameters of the plant's rigid body plus its rotor
-   inertia (found by least squares of the model's base columns on the plant's exact inverse dynamics
-   over random states), friction from the plant preset.
+3. physical consistency of every run and the coverage of the 95 % intervals (identify's `interval95`:
+   estimate +- t stderr) of every identifiable parameter (identify's definition) with a truth: the base
+   parameters of the plant's rigid body plus its rotor inertia (found by least squares of the model's
+   base columns on the plant's exact inverse dynamics over random states), friction from the plant
+   preset.
 4. the identified arm model as both arms' nominal observer model (`run --arm-model`) against the stock
    one, same seed: the follower's false reaction torque in free motion (`crane-train fidelity` with the
    truth trace).
