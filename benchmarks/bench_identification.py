@@ -3,22 +3,26 @@
 (train.identification) that are judged on a separate bilateral session, against the plant's truth and in
 the control loop.
 
-Per seed: an excitation designed on the plain condition number, one designed on the normalised one
-(`ExcitationOptions(normalised=True)`) and a bilateral session, each identified with the plant's effect
-set, for coverage and for the held-out error on the first seed's separate bilateral session. The first
-seed also gives the details:
+Per seed: an excitation with the default speed cycle (collect/excitation.py SPEED_CYCLE), one that plays
+every period at full speed (`ExcitationOptions(speeds=(1.0,))`) and a bilateral session, each identified
+with the plant's effect set (zero-phase filtering, identify's default; --causal: the paper's chain), for
+coverage and for the held-out error on the first seed's separate bilateral session. The first seed also
+gives the details:
 
-1. held-out torque MSE on the test blocks of a separate bilateral session (its own seed) per joint, of
-   the model identified from the excitation and of the one identified from the bilateral session, both
-   with the plant's effect set (--effect as in PLANT_EFFECTS) and with the default (viscous, Coulomb);
-   the noise floor: the plant's structure fitted on that session's own training pool (same split).
+1. held-out torque MSE on the test blocks of a separate bilateral session (its own seed) per joint,
+   filtered both ways (forward-backward and the paper's causal chain), each over its noise floor: the
+   plant's structure identified on that session's own training pool with the same filter (same split).
+   The plant's true parameters are judged the same way, as the reference a perfect identification
+   reaches; the models of the excitation and of the bilateral session with the plant's effect set, with
+   the default (viscous, Coulomb) and without Stribeck.
 2. condition numbers of both recordings: the plain one of the base + friction regressor
    (crane_io.physics.excitation_trajectory.recording_condition), its unit-column-norm version, and the
    one identify prints (weighted, unit-norm columns, the fit's rows).
-3. physical consistency of every run and the coverage of the 95 % intervals (estimate +- 1.96 stderr)
-   of every parameter with a truth: the base parameters of the plant's rigid body plus its rotor
-   inertia (found by least squares of the model's base columns on the plant's exact inverse dynamics
-   over random states), friction from the plant preset.
+3. physical consistency of every run and the coverage of the 95 % intervals (identify's `interval95`:
+   estimate +- t stderr) of every identifiable parameter (identify's definition) with a truth: the base
+   parameters of the plant's rigid body plus its rotor inertia (found by least squares of the model's
+   base columns on the plant's exact inverse dynamics over random states), friction from the plant
+   preset.
 4. the identified arm model as both arms' nominal observer model (`run --arm-model`) against the stock
    one, same seed: the follower's false reaction torque in free motion (`crane-train fidelity` with the
    truth trace).
@@ -43,7 +47,7 @@ import h5py  # noqa: E402
 import numpy as np  # noqa: E402
 
 from collect.config import load_config  # noqa: E402
-from collect.excitation import ExcitationOptions, models, run_excitation  # noqa: E402
+from collect.excitation import SPEED_CYCLE, ExcitationOptions, models, run_excitation  # noqa: E402
 from collect.run_options import RunOptions  # noqa: E402
 from collect.runner import run_session  # noqa: E402
 from crane_io import session_format as sf  # noqa: E402
@@ -59,7 +63,7 @@ PLANT = "crane-x7"
 # joint, rotor inertia where it is not a base parameter already (joint4)
 PLANT_EFFECTS = ("coulomb", "viscous", "stribeck:stribeck_velocity=0.05", "rotor-inertia:joint=joint4")
 DEFAULT_EFFECTS = ("viscous", "coulomb")
-Z95 = 1.959964
+NO_STRIBECK = ("coulomb", "viscous", "rotor-inertia:joint=joint4")
 
 
 def _quiet(fn, *args, **kwargs):
@@ -67,16 +71,17 @@ def _quiet(fn, *args, **kwargs):
         return fn(*args, **kwargs)
 
 
-def record(tmp: Path, kind: str, seed: int, duration: float, budget: int, normalised: bool = False,
+def record(tmp: Path, kind: str, seed: int, duration: float, budget: int, one_speed: bool = False,
            **extra) -> Path:
-    tag = "-".join([Path(str(v)).stem for v in extra.values()] + (["normalised"] if normalised else []))
+    tag = "-".join([Path(str(v)).stem for v in extra.values()] + (["onespeed"] if one_speed else []))
     path = tmp / f"{kind}-{seed}-{duration:g}-{budget}{'-' + tag if tag else ''}.h5"
     if path.exists():  # --workdir: a session recorded before with the same settings
         return path
     opts = RunOptions(output=path, sim=True, duration=duration, seed=seed, status=False, **extra)
     if kind == "excite":
+        speeds = (1.0,) if one_speed else SPEED_CYCLE
         _quiet(run_excitation, opts, ExcitationOptions(evaluations=budget, say=lambda _line: None,
-                                                         normalised=normalised))
+                                                         speeds=speeds))
     else:
         _quiet(run_session, opts)
     return path
@@ -138,37 +143,195 @@ def plant_truth(result) -> dict[str, float]:
     return truth
 
 
-def coverage(result, truth: dict[str, float]) -> list[tuple[str, float, float, float, bool]]:
-    est, se = result.estimate.theta, result.estimate.stderr
+def coverage(result, truth: dict[str, float]) -> list[tuple[str, float, float, float, bool, bool]]:
+    """(name, truth, estimate, 95 % half-width, truth inside, identifiable) of every parameter with a truth;
+    the half-width and identifiability as identify states them."""
+    est, half = result.estimate.theta, result.estimate.interval95
+    known = result.estimate.identifiable
     rows = []
     for k, nm in enumerate(result.names):
         if nm in truth:
-            rows.append((nm, truth[nm], float(est[k]), float(se[k]), abs(est[k] - truth[nm]) <= Z95 * se[k]))
+            inside = bool(abs(est[k] - truth[nm]) <= half[k])
+            rows.append((nm, truth[nm], float(est[k]), float(half[k]), inside, bool(known[k])))
     return rows
 
 
-ZERO_PHASE = False  # --zero-phase: every session filtered forward and backward (identify's zero_phase)
+def _covered(rows) -> tuple[int, int]:
+    """(truths inside, count) over the identifiable parameters of coverage rows."""
+    ident = [r for r in rows if r[5]]
+    return sum(r[4] for r in ident), len(ident)
 
 
-def identify_as_set(path: Path, effects, seed: int):
-    return _quiet(identify, str(path), effects=effects, seed=seed, scale_to_data=True, zero_phase=ZERO_PHASE)
+ZERO_PHASE = True  # sessions filtered forward and backward (identify's default); --causal: the paper's chain
 
 
-def heldout_on(result, path: Path, seed: int) -> np.ndarray:
-    """Per joint MSE (N m)^2 of the model on the test blocks of the session at `path` (identify's split)."""
-    ds = load_sessions(str(path), zero_phase=ZERO_PHASE)
-    test = make_splits(ds, load_settings(None)["splits"], seed=seed, scale_to_data=True).test
-    pred = result.fit.model.predict_dataset(test)
-    err = (test.tau - pred) ** 2
-    return np.array([err[test.moving[:, j], j].mean() for j in range(test.tau.shape[1])])
+def identify_as_set(path: Path, effects, seed: int, zero_phase: bool | None = None):
+    zp = ZERO_PHASE if zero_phase is None else zero_phase
+    return _quiet(identify, str(path), effects=effects, seed=seed, scale_to_data=True, zero_phase=zp)
+
+
+class Judge:
+    """The held-out session's test blocks filtered both ways (forward-backward and the paper's causal
+    chain), each with its floor (the plant's structure identified on that session's pool, same filter)."""
+
+    FILTERS = (("zero-phase", True), ("causal", False))
+
+    def __init__(self, path: Path, seed: int):
+        self.tests, self.floors, self.truth_ratio = {}, {}, {}
+        for name, zp in self.FILTERS:
+            ds = load_sessions(str(path), zero_phase=zp)
+            splits = make_splits(ds, load_settings(None)["splits"], seed=seed, scale_to_data=True)
+            self.tests[name] = splits.test
+            floor = identify_as_set(path, PLANT_EFFECTS, seed, zero_phase=zp)
+            self.floors[name] = floor.heldout_mse
+            self.joints = list(floor.fit.model.joint_names)
+            model, theta = floor.fit.model, floor.fit.model.theta.copy()
+            truth = plant_truth(floor)
+            model.theta = np.array([truth.get(n, v) for n, v in zip(floor.names, theta)])
+            self.truth_ratio[name] = self.mse(floor, name) / self.floors[name]
+            model.theta = theta
+
+    def mse(self, result, name: str) -> np.ndarray:
+        """Per joint MSE (N m)^2 of the model on the test blocks filtered `name`."""
+        test = self.tests[name]
+        err = (test.tau - result.fit.model.predict_dataset(test)) ** 2
+        return np.array([err[test.moving[:, j], j].mean() for j in range(test.tau.shape[1])])
+
+    def ratios(self, result) -> dict[str, np.ndarray]:
+        return {name: self.mse(result, name) / self.floors[name] for name, _ in self.FILTERS}
 
 
 def _fmt(xs) -> str:
     return " ".join(f"{x:9.5f}" for x in xs)
 
 
+KINDS = (("excitation", "excite", False), ("excitation, one speed", "excite", True),
+         ("bilateral", "run", False))
+
+
+def _ratio_text(ratios: dict) -> str:
+    return "   ".join(" ".join(f"{x:5.2f}x" for x in r) for r in ratios.values())
+
+
+def _seed_runs(tmp: Path, seed: int, duration: float, budget: int, judge: Judge, kinds: dict, per_seed: list,
+               t_start: float) -> dict:
+    """Every kind of session of one seed identified with the plant's effects: coverage and held-out ratios
+    collected into `kinds` and `per_seed`; the results by kind."""
+    results = {}
+    for kind, what, one_speed in KINDS:
+        path = record(tmp, what, seed, duration, budget, one_speed=one_speed)
+        res = identify_as_set(path, PLANT_EFFECTS, seed)
+        results[kind] = res
+        rows = coverage(res, plant_truth(res))
+        ratios = judge.ratios(res)
+        n_in, n_id = _covered(rows)
+        kinds.setdefault(kind, []).append((rows, ratios, res.estimate.condition, res.projection))
+        per_seed.append(f"{seed:4d}  {kind:24s} {res.estimate.condition:6.1f} {res.estimate.blocks:3d} "
+                        f"{n_in:3d}/{n_id:<3d} {sum(r[4] for r in rows):3d}/{len(rows):<3d} "
+                        + _ratio_text(ratios))
+        print(f"seed {seed}: {kind}, identify condition {res.estimate.condition:.1f}, {res.estimate.blocks} "
+              f"jackknife blocks; {n_in}/{n_id} identifiable truths inside their 95 % interval "
+              f"({sum(r[4] for r in rows)}/{len(rows)} of all); consistent as estimated "
+              f"{res.projection.as_estimated}, within uncertainty {res.projection.within_uncertainty} "
+              f"(chi2 {res.projection.chi2:.2f})  [{time.perf_counter() - t_start:.0f} s]", flush=True)
+        for nm, tv, ev, hv, inside, known in rows:
+            print(f"    {nm:34s} truth {tv:10.5f} estimate {ev:10.5f} +- {hv:9.5f} "
+                  f"{'in ' if inside else 'OUT'}{'' if known else '  (not identifiable)'}")
+    return results
+
+
+def _details(tmp: Path, seed: int, duration: float, budget: int, judge: Judge, results: dict, config,
+             row) -> None:
+    """Parts 1 and 2 of the module docstring for the first seed."""
+    ex, bil = record(tmp, "excite", seed, duration, budget), record(tmp, "run", seed, duration, budget)
+    names = [n for n, _ in judge.FILTERS]
+    print(f"\n1. held-out torque MSE / floor on the test blocks of bilateral seed {seed + 1000} "
+          f"({duration:.0f} s), joints {', '.join(judge.joints)}, filtered " + " | ".join(names))
+    for name in names:
+        print(f"   floor ({name}): " + " ".join(f"{x:.5f}" for x in judge.floors[name]) + " (N m)^2")
+    print(f"{'the plant truth (its parameters)':44s} " + _ratio_text(judge.truth_ratio))
+    for label, path, effects in (("excitation, plant effects", ex, PLANT_EFFECTS),
+                                 ("excitation, viscous+coulomb", ex, DEFAULT_EFFECTS),
+                                 ("excitation, no Stribeck", ex, NO_STRIBECK),
+                                 ("bilateral, plant effects", bil, PLANT_EFFECTS),
+                                 ("bilateral, viscous+coulomb", bil, DEFAULT_EFFECTS)):
+        res = results["excitation" if path == ex else "bilateral"] if effects == PLANT_EFFECTS else \
+            identify_as_set(path, effects, seed)
+        print(f"{label:44s} " + _ratio_text(judge.ratios(res)))
+    c_ex, c_bil = conditions(ex, config), conditions(bil, config)
+    r_ex, r_bil = results["excitation"], results["bilateral"]
+    print(f"\n2. condition numbers, {duration:.0f} s each (excitation whole session / bilateral)")
+    print(f"   plain (base + friction columns)       {c_ex['plain']:8.1f} / {c_bil['plain']:8.1f} = "
+          f"{c_bil['plain'] / c_ex['plain']:.2f}x")
+    print(f"   unit-norm columns                     {c_ex['unit']:8.1f} / {c_bil['unit']:8.1f} = "
+          f"{c_bil['unit'] / c_ex['unit']:.2f}x")
+    print(f"   identify (weighted, unit-norm, plant effects) {r_ex.estimate.condition:8.1f} / "
+          f"{r_bil.estimate.condition:8.1f} = {r_bil.estimate.condition / r_ex.estimate.condition:.2f}x",
+          flush=True)
+    row("condition number, identify: bilateral / excitation", r_bil.estimate.condition
+        / r_ex.estimate.condition, "x", f"seed {seed}, {duration:.0f} s, goal >= 10")
+
+
+def _loop(tmp: Path, seed: int, duration: float, budget: int, r_ex, row) -> None:
+    """Part 4 of the module docstring."""
+    from train.evaluation.fidelity import measure_fidelity
+
+    model_dir = tmp / "model-ex"
+    _quiet(r_ex.save, model_dir, force=True)
+    loop_s = min(duration, 60.0)
+    stock_tr, id_tr = tmp / "stock.truth.h5", tmp / f"ident{'-zp' if ZERO_PHASE else ''}.truth.h5"
+    stock = record(tmp, "run", seed + 2000, loop_s, budget, truth_trace=stock_tr)
+    ident = record(tmp, "run", seed + 2000, loop_s, budget, truth_trace=id_tr,
+                   arm_model=model_dir / "arm_model.toml")
+    f_stock, f_id = measure_fidelity(stock, stock_tr), measure_fidelity(ident, id_tr)
+    print(f"\n4. follower false reaction torque RMS in free motion, N m ({loop_s:.0f} s, seed "
+          f"{seed + 2000}): stock nominal model / identified arm model (excitation, plant effects)")
+    for j in f_stock.joints:
+        a, b = f_stock.joints[j]["follower_false_rms"], f_id.joints[j]["follower_false_rms"]
+        print(f"   {j}: {a:.4f} / {b:.4f} ({'lower' if b < a else 'NOT lower'})")
+        row(f"false reaction torque {j}: arm model / stock", b / a, "x", f"seed {seed + 2000}, goal < 1")
+
+
+def _summary(kinds: dict, per_seed: list, judge: Judge, held_seed: int, row) -> None:
+    print(f"\nper seed, plant effects: identify's condition number, jackknife blocks, identifiable truths "
+          f"inside their 95 % interval, all truths inside, held-out MSE / floor on bilateral seed "
+          f"{held_seed} (joints {', '.join(judge.joints)}) filtered "
+          + " | ".join(n for n, _ in judge.FILTERS))
+    print("\n".join(per_seed))
+    for kind, runs in kinds.items():
+        n_in = sum(_covered(rows)[0] for rows, *_ in runs)
+        n_id = sum(_covered(rows)[1] for rows, *_ in runs)
+        n_all = sum(len(rows) for rows, *_ in runs)
+        worst = {name: np.max([r[1][name] for r in runs], axis=0) for name, _ in judge.FILTERS}
+        for name, w in worst.items():
+            row(f"worst held-out MSE / floor ({name}), {kind}", float(w.max()), "x",
+                "every joint and seed, goal <= 1.1")
+        row(f"coverage of 95 % intervals (identifiable), {kind}", 100 * n_in / max(n_id, 1), "%",
+            "goal >= 90")
+        proj = [r[3] for r in runs]
+        as_est, within = sum(p.as_estimated for p in proj), sum(p.within_uncertainty for p in proj)
+        print(f"   {kind:24s} identifiable {n_id}/{n_all}, coverage {n_in}/{n_id} = "
+              f"{100 * n_in / max(n_id, 1):.0f} %; consistent as estimated {as_est}/{len(proj)}, "
+              f"projection within uncertainty {within}/{len(proj)}; worst held-out / floor "
+              + _ratio_text(worst))
+        by_name: dict[str, list] = {}
+        for rows, *_ in runs:
+            for nm, *_r, inside, known in rows:
+                by_name.setdefault(nm, []).append((inside, known))
+        print("      per parameter (inside/identifiable/runs): "
+              + "; ".join(f"{nm} {sum(i and k for i, k in v)}/{sum(k for _, k in v)}/{len(v)}"
+                          for nm, v in by_name.items()))
+    if "excitation" in kinds and "bilateral" in kinds:
+        for name, _ in judge.FILTERS:
+            ex = np.array([r[1][name] for r in kinds["excitation"]])
+            bil = np.array([r[1][name] for r in kinds["bilateral"]])
+            near = int((ex <= 1.1).all(axis=1).sum())
+            print(f"   {name}: excitation below bilateral in {int((ex < bil).sum())} of {ex.size} joint "
+                  f"comparisons; within 1.1x of the floor on every joint in {near} of {len(ex)} runs")
+
+
 def bench(seeds: list[int], duration: float, budget: int, workdir: str | None = None, loop: bool = True,
-          zero_phase: bool = False) -> list[dict]:
+          zero_phase: bool = True) -> list[dict]:
     """Every part of the module docstring, printed; the headline figures as run_all.py rows."""
     global ZERO_PHASE
     ZERO_PHASE = zero_phase
@@ -183,128 +346,18 @@ def bench(seeds: list[int], duration: float, budget: int, workdir: str | None = 
     with contextlib.ExitStack() as stack:
         tmp = Path(workdir) if workdir else Path(stack.enter_context(tempfile.TemporaryDirectory()))
         tmp.mkdir(parents=True, exist_ok=True)
-        cover: list = []
-        consistent: list = []
         held_seed = seeds[0] + 1000
-        held = record(tmp, "run", held_seed, duration, budget)
-        r_floor = identify_as_set(held, PLANT_EFFECTS, held_seed)
-        floor = r_floor.heldout_mse
+        judge = Judge(record(tmp, "run", held_seed, duration, budget), held_seed)
         per_seed: list[str] = []
         kinds: dict[str, list] = {}
         for i, seed in enumerate(seeds):
-            ex = record(tmp, "excite", seed, duration, budget)
-            r_ex = identify_as_set(ex, PLANT_EFFECTS, seed)
-            truth = plant_truth(r_ex)
-            rows = coverage(r_ex, truth)
-            cover += rows
-            consistent.append((seed, r_ex.projection.as_estimated, r_ex.projection.within_uncertainty,
-                               r_ex.projection.chi2, r_ex.projection.dof))
-            print(f"seed {seed}: excitation {duration:.0f} s, identify condition "
-                  f"{r_ex.estimate.condition:.1f}; "
-                  f"{sum(r[4] for r in rows)}/{len(rows)} truths inside their 95 % interval; consistent as "
-                  f"estimated {r_ex.projection.as_estimated}, within uncertainty "
-                  f"{r_ex.projection.within_uncertainty} (chi2 {r_ex.projection.chi2:.2f}, dof "
-                  f"{r_ex.projection.dof})  [{time.perf_counter() - t_start:.0f} s]", flush=True)
-            for nm, tv, ev, sv, inside in rows:
-                print(f"    {nm:34s} truth {tv:10.5f} estimate {ev:10.5f} +- {Z95 * sv:9.5f} "
-                      f"{'in' if inside else 'OUT'}")
-            ex_norm = record(tmp, "excite", seed, duration, budget, normalised=True)
-            for kind, path in (("excitation", ex), ("excitation, normalised design", ex_norm),
-                               ("bilateral", record(tmp, "run", seed, duration, budget))):
-                res = r_ex if kind == "excitation" else identify_as_set(path, PLANT_EFFECTS, seed)
-                rows_k = coverage(res, truth if kind == "excitation" else plant_truth(res))
-                ratio = heldout_on(res, held, held_seed) / floor
-                kinds.setdefault(kind, []).append((rows_k, ratio, res.estimate.condition,
-                                                   res.projection.within_uncertainty))
-                per_seed.append(f"{seed:4d}  {kind:30s} {res.estimate.condition:6.1f} "
-                                f"{sum(r[4] for r in rows_k):3d}/{len(rows_k)}   "
-                                + " ".join(f"{x:5.2f}x" for x in ratio))
+            results = _seed_runs(tmp, seed, duration, budget, judge, kinds, per_seed, t_start)
             if i > 0:
                 continue
-            bil = record(tmp, "run", seed, duration, budget)
-            r_ex_d = identify_as_set(ex, DEFAULT_EFFECTS, seed)
-            r_bil = identify_as_set(bil, PLANT_EFFECTS, seed)
-            r_bil_d = identify_as_set(bil, DEFAULT_EFFECTS, seed)
-            bil_rows = coverage(r_bil, plant_truth(r_bil))
-            print(f"bilateral seed {seed} ({duration:.0f} s), plant effects: {sum(r[4] for r in bil_rows)}/"
-                  f"{len(bil_rows)} truths inside their 95 % interval; "
-                  + ", ".join(f"{nm} {ev:.4f} (truth {tv:.4f})" for nm, tv, ev, _s, _i in bil_rows
-                              if nm in ("joint1.Izz+", "joint2.Iyy+", "joint2.Ixx+", "joint4.Iyy")))
-            joints = list(r_ex.fit.model.joint_names)
-            print(f"\n1. held-out torque MSE (N m)^2 on the test blocks of bilateral seed {seed + 1000} "
-                  f"({duration:.0f} s), joints {', '.join(joints)}")
-            print(f"{'model':44s} {_fmt([0] * 0)}" + " ".join(f"{j:>9s}" for j in joints) + "   / floor")
-            print(f"{'floor: plant structure fitted on its pool':44s} {_fmt(floor)}")
-            for label, res in (("excitation, plant effects", r_ex), ("excitation, viscous+coulomb", r_ex_d),
-                               ("bilateral, plant effects", r_bil), ("bilateral, viscous+coulomb", r_bil_d)):
-                mse = heldout_on(res, held, seed + 1000)
-                print(f"{label:44s} {_fmt(mse)}   " + " ".join(f"{m / f:5.2f}x" for m, f in zip(mse, floor)))
-            ex_n = record(tmp, "excite", seed, duration, budget, normalised=True)
-            r_ex_n = identify_as_set(ex_n, PLANT_EFFECTS, seed)
-            c_ex, c_bil, c_n = conditions(ex, config), conditions(bil, config), conditions(ex_n, config)
-            mse_n = heldout_on(r_ex_n, held, seed + 1000)
-            print(f"{'excitation (normalised design), plant effects':44s} {_fmt(mse_n)}   "
-                  + " ".join(f"{m / f:5.2f}x" for m, f in zip(mse_n, floor)))
-            print(f"\n2. condition numbers, {duration:.0f} s each (excitation whole session / bilateral)")
-            print(f"   plain (base + friction columns)       {c_ex['plain']:8.1f} / {c_bil['plain']:8.1f} = "
-                  f"{c_bil['plain'] / c_ex['plain']:.2f}x")
-            print(f"   unit-norm columns                     {c_ex['unit']:8.1f} / {c_bil['unit']:8.1f} = "
-                  f"{c_bil['unit'] / c_ex['unit']:.2f}x")
-            print(f"   identify (weighted, unit-norm, plant effects) {r_ex.estimate.condition:8.1f} / "
-                  f"{r_bil.estimate.condition:8.1f} = "
-                  f"{r_bil.estimate.condition / r_ex.estimate.condition:.2f}x")
-            print(f"   identify (weighted, unit-norm, viscous+coulomb) {r_ex_d.estimate.condition:8.1f} / "
-                  f"{r_bil_d.estimate.condition:8.1f} = "
-                  f"{r_bil_d.estimate.condition / r_ex_d.estimate.condition:.2f}x")
-            print(f"   trajectory designed on the unit-norm condition number (excite normalised=True): plain "
-                  f"{c_n['plain']:.1f} ({c_bil['plain'] / c_n['plain']:.2f}x), unit-norm {c_n['unit']:.1f} "
-                  f"({c_bil['unit'] / c_n['unit']:.2f}x), identify {r_ex_n.estimate.condition:.1f} "
-                  f"({r_bil.estimate.condition / r_ex_n.estimate.condition:.2f}x)", flush=True)
-            row("condition number, identify: bilateral / excitation", r_bil.estimate.condition
-                / r_ex.estimate.condition, "x", f"seed {seed}, {duration:.0f} s, goal >= 10")
-            if not loop:
-                continue
-            model_dir = tmp / "model-ex"
-            _quiet(r_ex.save, model_dir, force=True)
-            loop_s = min(duration, 60.0)
-            stock_tr, id_tr = tmp / "stock.truth.h5", tmp / f"ident{'-zp' if ZERO_PHASE else ''}.truth.h5"
-            stock = record(tmp, "run", seed + 2000, loop_s, budget, truth_trace=stock_tr)
-            ident = record(tmp, "run", seed + 2000, loop_s, budget, truth_trace=id_tr,
-                           arm_model=model_dir / "arm_model.toml")
-            from train.evaluation.fidelity import measure_fidelity
-
-            f_stock, f_id = measure_fidelity(stock, stock_tr), measure_fidelity(ident, id_tr)
-            print(f"\n4. follower false reaction torque RMS in free motion, N m ({loop_s:.0f} s, seed "
-                  f"{seed + 2000}): stock nominal model / identified arm model (excitation, plant effects)")
-            for j in f_stock.joints:
-                a, b = f_stock.joints[j]["follower_false_rms"], f_id.joints[j]["follower_false_rms"]
-                print(f"   {j}: {a:.4f} / {b:.4f} ({'lower' if b < a else 'NOT lower'})")
-                row(f"false reaction torque {j}: arm model / stock", b / a, "x",
-                    f"seed {seed + 2000}, goal < 1")
-        print(f"\nper seed, plant effects: identify's condition number, truths inside their 95 % interval, "
-              f"held-out MSE / floor on bilateral seed {held_seed} "
-              f"(joints {', '.join(r_floor.fit.model.joint_names)})")
-        print("\n".join(per_seed))
-        for kind, runs in kinds.items():
-            n_k = sum(sum(r[4] for r in rows_k) for rows_k, *_ in runs)
-            t_k = sum(len(rows_k) for rows_k, *_ in runs)
-            worst = np.max([ratio for _, ratio, *_ in runs], axis=0)
-            row(f"worst held-out MSE / floor, {kind}", float(worst.max()), "x",
-                "every joint and seed, goal <= 1.1")
-            row(f"coverage of 95 % intervals, {kind}", 100 * n_k / max(t_k, 1), "%", "goal >= 90")
-            print(f"   {kind:30s} coverage {n_k}/{t_k} = {100 * n_k / max(t_k, 1):.0f} %; physically "
-                  f"consistent (projection within uncertainty) {sum(r[3] for r in runs)}/{len(runs)}; "
-                  f"worst held-out / floor " + " ".join(f"{x:.2f}x" for x in worst))
-        n_in = sum(r[4] for r in cover)
-        print(f"\n3. over seeds {seeds}: physically consistent (projection found) in {len(consistent)}/"
-              f"{len(consistent)} runs; as estimated in {sum(c[1] for c in consistent)}, within uncertainty "
-              f"in "
-              f"{sum(c[2] for c in consistent)}; truth inside the 95 % interval for {n_in}/{len(cover)} "
-              f"= {100 * n_in / max(len(cover), 1):.0f} % of parameter estimates")
-        by_name: dict[str, list[bool]] = {}
-        for nm, *_rest, inside in cover:
-            by_name.setdefault(nm, []).append(inside)
-        print("   per parameter: " + "; ".join(f"{nm} {sum(v)}/{len(v)}" for nm, v in by_name.items()))
+            _details(tmp, seed, duration, budget, judge, results, config, row)
+            if loop:
+                _loop(tmp, seed, duration, budget, results["excitation"], row)
+        _summary(kinds, per_seed, judge, held_seed, row)
     print(f"\n[{time.perf_counter() - t_start:.0f} s wall]")
     return out
 
@@ -321,15 +374,15 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=180.0)
     ap.add_argument("--budget", type=int, default=1000)
     ap.add_argument("--workdir", default=None, help="keep the sessions here and reuse them on a rerun")
-    ap.add_argument("--zero-phase", action="store_true",
-                    help="identify and judge on data filtered forward and backward")
+    ap.add_argument("--causal", action="store_true",
+                    help="identify and judge on data filtered with the paper's causal chain")
     ap.add_argument("--no-loop", action="store_true", help="skip part 4 (the arm model in the loop)")
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
     duration, budget = args.duration, args.budget
     if args.quick:
         seeds, duration, budget = seeds[:1], 60.0, 300
-    bench(seeds, duration, budget, args.workdir, not args.no_loop, args.zero_phase)
+    bench(seeds, duration, budget, args.workdir, not args.no_loop, not args.causal)
 
 
 if __name__ == "__main__":

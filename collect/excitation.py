@@ -16,6 +16,11 @@ recorder and endings) whose recording drives the arm along a trajectory instead 
    arm held still. The session carries the excitation attributes of crane_io/session_format.py
    (`EXCITATION_ROOT`) and `hand_on` names the arm that was not driven (no hand moved the driven one).
 
+The speed schedule: a run long enough for SPEED_CYCLE's periods at about NOMINAL_PERIOD_S each at full
+speed (113 s) plays the designed period at the speed scales SPEED_CYCLE in turn (a whole number of
+cycles; the period is the duration over the cycles' total in full-speed periods); a shorter run plays
+whole periods of about NOMINAL_PERIOD_S at full speed (crane_io/physics/excitation_trajectory.py, `play`).
+
 The limits of the trajectory, for the run's bilateral joints: the software joint limits shrunk by
 `safety.limit_margin` plus LIMIT_CLEARANCE (out of the soft zone, with room for the tracking error);
 speed VELOCITY_FRACTION of the safety guard ([safety.velocity_limit]) and at most the URDF limit;
@@ -47,6 +52,7 @@ MAX_ACCELERATION = 4.4  # rad/s^2 (facts section 1: ROS 2 joint_limits.yaml, eve
 DEFAULT_DURATION_S = 20.0  # s of trajectory when none is given
 NOMINAL_PERIOD_S = 10.0  # s: a designed trajectory's period is the duration over round(duration / this)
 HARMONICS = 5
+SPEED_CYCLE = (1.0, 0.7, 0.5, 0.35, 0.25)  # speed scales of the periods of a long run, in turn
 
 
 @dataclass
@@ -57,6 +63,7 @@ class ExcitationOptions:
     evaluations: int = 1000  # the optimiser's budget in cost evaluations
     seconds: float | None = None  # ... and in seconds (None: no time limit)
     normalised: bool = False  # optimise the unit-column-norm condition number (excitation_design.optimise)
+    speeds: tuple[float, ...] = SPEED_CYCLE  # a long run's speed cycle ((1.0,): every period at full speed)
     say: object = None  # where the design's progress lines go (None: the run's status stream)
 
 
@@ -68,8 +75,23 @@ def trajectory_path(opts: RunOptions, ex: ExcitationOptions) -> Path:
     return out.with_name(out.stem + ".trajectory.json")
 
 
-def design_space(config, arm, joints, duration: float):
-    """The DesignSpace of the module docstring for `joints` and a trajectory of `duration` s."""
+def speed_schedule(duration: float, cycle: tuple[float, ...] = SPEED_CYCLE
+                   ) -> tuple[float, tuple[float, ...], int]:
+    """(period s, speed cycle, periods) of a designed trajectory played for `duration` s (the module
+    docstring's schedule, with the speed cycle `cycle`)."""
+    if not cycle or any(not 0.0 < s <= 1.0 for s in cycle):
+        raise ConfigError("every speed of the speed cycle must lie above 0 and at most 1")
+    slow = float(sum(1.0 / s for s in cycle))  # a cycle's length in full-speed periods
+    if len(cycle) > 1 and duration >= NOMINAL_PERIOD_S * slow:
+        cycles = max(1, round(duration / (NOMINAL_PERIOD_S * slow)))
+        return duration / (cycles * slow), tuple(float(s) for s in cycle), cycles * len(cycle)
+    periods = max(1, round(duration / NOMINAL_PERIOD_S))
+    return duration / periods, (1.0,), periods
+
+
+def design_space(config, arm, joints, duration: float, cycle: tuple[float, ...] = SPEED_CYCLE):
+    """The DesignSpace of the module docstring for `joints` and a trajectory played for `duration` s (speed
+    cycle `cycle`), and the number of periods played."""
     from crane_io.physics.excitation_design import DesignSpace
 
     s = config.safety
@@ -78,9 +100,9 @@ def design_space(config, arm, joints, duration: float):
     upper = np.array([arm.joint(n).upper for n in joints]) - margin
     vmax = np.array([min(VELOCITY_FRACTION * s.velocity_limit[n], arm.joint(n).velocity_limit)
                      for n in joints])
-    periods = max(1, round(duration / NOMINAL_PERIOD_S))
+    period, _, periods = speed_schedule(duration, cycle)
     return DesignSpace(tuple(joints), lower, upper, vmax, np.full(len(joints), MAX_ACCELERATION),
-                       period=duration / periods, harmonics=HARMONICS), periods
+                       period=period, harmonics=HARMONICS), periods
 
 
 def models(config, joints):
@@ -150,20 +172,24 @@ class ExcitationRun(BilateralRun):
         if duration is None:
             duration = given.duration if given is not None else DEFAULT_DURATION_S
         space, periods = design_space(self.config, self.arm, joints,
-                                      given.period if given is not None else duration)
+                                      given.period if given is not None else duration, ex.speeds)
         dynamics, clearance = models(self.config, joints)
         if given is not None:
             check_trajectory(given, space, clearance, f"trajectory file {ex.trajectory}")
             q, dq, ddq = given.evaluate(np.linspace(0.0, given.period, 60, endpoint=False))
-            traj = given.with_condition(et.regressor_condition(dynamics, q, dq, ddq)).with_periods(
-                max(1, round(duration / given.period)))
+            traj = given.with_condition(et.regressor_condition(dynamics, q, dq, ddq))
+            traj = traj.with_periods(traj.periods_within(duration))
         else:
-            self._say(f"designing an exciting trajectory for {', '.join(joints)}: {periods} x "
-                      f"{space.period:.1f} s, {HARMONICS} harmonics, budget {ex.evaluations} evaluations"
+            speeds = speed_schedule(duration, ex.speeds)[1]
+            self._say(f"designing an exciting trajectory for {', '.join(joints)}: {periods} periods of "
+                      f"{space.period:.1f} s at full speed"
+                      + (f" played at speeds {', '.join(f'{s:g}' for s in speeds)} in turn"
+                         if len(speeds) > 1 else "")
+                      + f", {HARMONICS} harmonics, budget {ex.evaluations} evaluations"
                       + (f" or {ex.seconds:g} s" if ex.seconds is not None else ""))
             result = optimise(space, dynamics, clearance, seed=self.options.seed, evaluations=ex.evaluations,
                               seconds=ex.seconds, progress=self._say, normalised=ex.normalised)
-            traj = result.trajectory.with_periods(periods)
+            traj = result.trajectory.with_periods(periods, speeds)
             self._say(f"condition number {result.initial_condition:.1f} at the start, "
                       f"{traj.condition_number:.1f} optimised ({result.evaluations} evaluations, "
                       f"{result.seconds:.0f} s; clearance {100 * result.clearance:.1f} cm)")

@@ -7,7 +7,8 @@ In session time t (s), for the driven arm's bilateral joints (the trajectory's j
    max(MIN_APPROACH_S, 1.875 d / homing_speed) for the largest joint distance d (peak speed
    `homing_speed`, as the alignment);
 2. the trajectory, T_a <= t < T_a + D: q(t - T_a) of crane_io.physics.excitation_trajectory for its
-   whole periods D; it starts and ends at rest (dq = ddq = 0), so the stop is as slow as the start;
+   whole periods at their speeds (`play`), D in all; it starts and ends at rest (dq = ddq = 0), so the
+   stop is as slow as the start;
 3. rest: the trajectory's first pose (where it ended), held for SETTLE_S.
 
 The other arm is held where it was at the start of recording. Both arms run the controller's
@@ -75,7 +76,7 @@ class ExcitationMotion:
         tt = t - ta
         if tt >= self.trajectory.duration:
             return self._first, self._zero
-        q, dq, _ = self.trajectory.evaluate(tt)
+        q, dq, _ = self.trajectory.play(tt)
         q_ref, dq_ref = self._first.copy(), self._zero.copy()
         q_ref[self.cols], dq_ref[self.cols] = q, dq
         return q_ref, dq_ref

@@ -73,6 +73,34 @@ def test_a_saved_trajectory_reads_back_the_same(setting, tmp_path):
         np.testing.assert_array_equal(a, b)
 
 
+def test_periods_played_at_their_speeds_join_at_rest_and_stay_within_the_limits(setting, tmp_path):
+    from collect.excitation import SPEED_CYCLE, speed_schedule
+
+    space, _, _ = setting
+    base = trajectory(np.random.default_rng(2).normal(0.0, 0.5, space.size), space)
+    traj = base.with_periods(4, (1.0, 0.5))
+    assert traj.duration == pytest.approx(base.period * (1 + 2 + 1 + 2))
+    starts = traj.period_starts()
+    t = np.linspace(0.0, traj.duration, 24001)
+    q, dq, ddq = traj.play(t)
+    assert np.all(np.abs(dq) <= space.vmax) and np.all(np.abs(ddq) <= space.amax)
+    q_joins, dq_joins, _ = traj.play(starts)
+    np.testing.assert_allclose(q_joins, np.repeat(base.start()[None], 5, axis=0), atol=1e-9)
+    np.testing.assert_allclose(dq_joins, 0.0, atol=1e-9)
+    # the second period is the first's path at half the speed
+    _, dq_fast, _ = traj.play(0.3 * base.period)
+    _, dq_slow, _ = traj.play(starts[1] + 0.6 * base.period)
+    np.testing.assert_allclose(dq_slow, 0.5 * dq_fast, atol=1e-12)
+    back = et.load(et.save(traj, tmp_path / "t.json"))
+    assert back == traj and back.speeds == (1.0, 0.5) and back.periods_within(traj.duration) == 4
+    old = {k: v for k, v in traj.to_dict().items() if k != "speeds"} | {"version": 1}
+    assert et.from_dict(old).speeds == (1.0,)
+    period, speeds, periods = speed_schedule(180.0)  # a long run cycles through the speeds
+    assert speeds == SPEED_CYCLE and period * sum(1 / s for s in speeds) * periods / len(speeds) \
+        == pytest.approx(180.0)
+    assert speed_schedule(20.0) == (10.0, (1.0,), 2)
+
+
 @pytest.mark.parametrize("change, words", [
     ({"format": "python"}, "is not an excitation trajectory"),
     ({"w_f": -1.0}, "positive `w_f`"),
@@ -80,6 +108,7 @@ def test_a_saved_trajectory_reads_back_the_same(setting, tmp_path):
     ({"q0": "__import__('os')"}, "`q0` as"),
     ({"extra": 1}, "unknown key 'extra'"),
     ({"periods": 0}, "`periods`"),
+    ({"speeds": [1.0, 1.5]}, "`speeds`"),
 ])
 def test_a_bad_trajectory_file_is_refused_in_one_sentence(setting, tmp_path, change, words):
     space, _, _ = setting

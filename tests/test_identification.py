@@ -87,6 +87,35 @@ def test_a_consistent_estimate_is_left_alone_and_an_inconsistent_one_is_projecte
         assert np.linalg.eigvalsh(pseudo_inertia(v)).min() > -1e-6 and v[0] > 0
 
 
+def test_excitation_blocks_are_its_speeds_and_a_parameter_within_noise_of_zero_is_not_identifiable(arm):
+    from train.evaluation.block_uncertainty import t_factor
+    from train.identification.blocks import speed_blocks
+
+    # two sessions (the first in two pieces), each 5 periods cycling through 3 speeds, at 10 Hz
+    starts = np.array([0.0, 1.0, 3.0, 7.0, 8.0, 10.0])
+    schedule = (starts, np.array([1.0, 0.5, 0.25, 1.0, 0.5]))
+    t = np.concatenate([np.arange(0.0, 4.0, 0.1), np.arange(5.0, 10.0, 0.1), np.arange(0.0, 10.0, 0.1)])
+    segment = np.repeat([0, 1, 2], [40, 50, 100])
+    plan = speed_blocks(t, segment, t, segment, [schedule, schedule], 10.0)
+    assert plan.count == 6
+    speed = np.array([1.0, 0.5, 0.25, 1.0, 0.5])[np.clip(np.searchsorted(starts, t, "right") - 1, 0, 4)]
+    for k in range(6):  # each block is one speed of one session
+        rows = plan.ids == k
+        assert len(set(speed[rows])) == 1 and len(set(segment[rows] == 2)) == 1
+    assert speed_blocks(t, segment, t, segment, [schedule, None], 10.0) is None  # a bilateral session
+    one_speed = (starts, np.ones(5))
+    assert speed_blocks(t, segment, t, segment, [one_speed, one_speed], 10.0) is None
+    # a parameter whose truth is zero is found within noise of zero: not identifiable; the others are
+    rng = np.random.default_rng(5)
+    q, dq, ddq = _exciting(arm, 3000, rng)
+    phi = np.concatenate([arm.base_regressor(q, dq, ddq), np.sign(dq)[:, :, None] * np.eye(3)[None]], 2)
+    truth = np.concatenate([arm.base_parameters(), [0.15, 0.25, 0.0]])
+    est = weighted_least_squares(phi, phi @ truth + rng.normal(0, 0.01, (3000, 3)), np.ones((3000, 3), bool),
+                                 _blocks(3000))
+    assert not est.identifiable[-1] and est.identifiable[-3:-1].all()
+    assert est.blocks >= 2 and np.allclose(est.interval95, t_factor(est.blocks) * est.stderr)
+
+
 def test_a_body_summary_names_its_mass_and_moments():
     # a 1 kg point mass at x = 0.1 m from the joint: pseudo-inertia rank one, consistent at the edge
     phi = np.array([1.0, 0.1, 0, 0, 0, 0, 0.01, 0, 0, 0.01])
@@ -115,7 +144,7 @@ def session(tmp_path_factory):
 def test_identify_writes_a_model_with_its_identification_and_a_verdict(session, tmp_path):
     out = tmp_path / "id"
     r = CliRunner().invoke(train_main, ["identify", str(session), "-o", str(out), "--scale-to-data",
-                                       "--json"])
+                                       "--json", "--causal"])  # the filters of the control loop
     assert r.exit_code in (0, 1), r.output
     doc = json.loads(r.output)
     assert doc["format"] == "crane-identification" and doc["joints"] == ["joint1", "joint2", "joint4"]

@@ -25,8 +25,9 @@ from ..config import MAX_RATE_HZ, MIN_RATE_HZ
                    "configuration, joint1,joint2,joint4); the others are held at [held].")
 @click.option("--duration", type=Number(float, 0, low_open=True, what="a positive number of seconds"),
               default=None, metavar="S",
-              help="Seconds of trajectory (whole periods of about 10 s; default 20, or the file's with "
-                   "--trajectory). The approach before and a short rest after are recorded too.")
+              help="Seconds of trajectory (whole periods of about 10 s, from 113 s on played at five speeds "
+                   "in turn; default 20, or the file's with --trajectory). The approach before and a short "
+                   "rest after are recorded too.")
 @click.option("--seed", type=SEED, default=0, show_default=True,
               help="Seed of the optimiser's start and of the simulated plants.")
 @click.option("--budget", type=Number(int, 1), default=1000, show_default=True, metavar="N",

@@ -11,6 +11,13 @@ The series is periodic with period 2 pi / w_f. `FourierTrajectory.at_rest()` say
 (and so ends each period) at rest, dq = ddq = 0: sum_l a_jl = 0 and sum_l l b_jl = 0 for every joint
 (crane_io/physics/excitation_design.py builds only such trajectories).
 
+A run plays `periods` periods one after another, period k at the speed scale s = speeds[k % len(speeds)]
+(0 < s <= 1): the same path in 1/s times the time, q(s t), s dq(s t), s^2 ddq(s t) (`play`). Every
+period starts and ends at rest at the same pose, so the periods join smoothly whatever their speeds, and
+a slower period stays within every limit the full-speed one keeps. Different speeds put the same path
+through other velocities (low speeds and slow reversals, where friction shows) and other accelerations,
+so an error locked to one period's phase differs from period to period.
+
 The identification regressor (`identification_regressor`) is the base-parameter regressor of
 crane_io.physics.dynamics (`ArmDynamics.base_regressor`) with two friction columns per joint: viscous
 dq_j and Coulomb tanh(dq_j / COULOMB_SMOOTHING) (the smooth sign of crane_io/physics/effects), each
@@ -18,7 +25,8 @@ in its joint's row only. `regressor_condition` is the 2-norm condition number of
 the samples.
 
 The file is JSON (`save`, `load`): data only, checked on loading, never code. Keys: format, version,
-joints, w_f (rad/s), q0 (J,) rad, a and b (J, L) rad/s, periods, condition_number.
+joints, w_f (rad/s), q0 (J,) rad, a and b (J, L) rad/s, periods, speeds (the speed cycle, each in
+(0, 1]), condition_number. A version-1 file has no `speeds` (every period at full speed).
 """
 
 from __future__ import annotations
@@ -33,9 +41,10 @@ import numpy as np
 from crane_io.errors import ConfigError
 
 FORMAT = "crane-excitation-trajectory"
-VERSION = 1
+VERSION = 2
+VERSIONS = (1, 2)  # the versions read: 1 has no `speeds`
 COULOMB_SMOOTHING = 0.05  # rad/s: the Coulomb column is tanh(dq / this)
-_KEYS = ("format", "version", "joints", "w_f", "q0", "a", "b", "periods", "condition_number")
+_KEYS = ("format", "version", "joints", "w_f", "q0", "a", "b", "periods", "speeds", "condition_number")
 _MAX_HARMONICS = 50
 
 
@@ -51,11 +60,13 @@ class FourierTrajectory:
     b: np.ndarray  # (J, L) rad/s
     periods: int = 1  # how many periods a run plays
     condition_number: float = field(default=float("nan"), compare=False)
+    speeds: tuple[float, ...] = (1.0,)  # the speed scale of period k is speeds[k % len(speeds)]
 
     def __eq__(self, other) -> bool:
         if not isinstance(other, FourierTrajectory):
             return NotImplemented
         return (self.joints == other.joints and self.w_f == other.w_f and self.periods == other.periods
+                and tuple(self.speeds) == tuple(other.speeds)
                 and all(np.array_equal(x, y) for x, y in ((self.q0, other.q0), (self.a, other.a),
                                                           (self.b, other.b))))
 
@@ -68,8 +79,38 @@ class FourierTrajectory:
 
     @property
     def duration(self) -> float:
-        """s: the periods a run plays."""
-        return self.periods * self.period
+        """s: the periods a run plays, each at its speed."""
+        return float(self.period_starts()[-1])
+
+    def period_speeds(self) -> np.ndarray:
+        """(periods,) the speed scale of each period a run plays."""
+        return np.array([self.speeds[k % len(self.speeds)] for k in range(self.periods)], dtype=float)
+
+    def period_starts(self) -> np.ndarray:
+        """(periods + 1,) s: the run time each period starts at, and the end of the run."""
+        return np.concatenate([[0.0], np.cumsum(self.period / self.period_speeds())])
+
+    def periods_within(self, duration: float) -> int:
+        """The number of periods (at least 1) of the speed cycle whose run time is closest to `duration`."""
+        lengths = self.period / np.array([self.speeds[k % len(self.speeds)]
+                                          for k in range(max(1, int(duration / self.period) + 1))])
+        ends = np.cumsum(lengths)
+        return int(np.argmin(np.abs(ends - duration))) + 1
+
+    def play(self, t) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(q, dq, ddq) at run time t (s) of the periods at their speeds (the module docstring); shapes as
+        `evaluate`. Past the end: the pose the last period ends at, at rest."""
+        t_arr = np.asarray(t, dtype=float)
+        tt = np.atleast_1d(t_arr)
+        starts = self.period_starts()
+        k = np.clip(np.searchsorted(starts, tt, side="right") - 1, 0, self.periods - 1)
+        s = self.period_speeds()[k]
+        local = np.clip((tt - starts[k]) * s, 0.0, self.period)
+        q, dq, ddq = self.evaluate(local)
+        dq, ddq = dq * s[:, None], ddq * (s * s)[:, None]
+        if t_arr.ndim == 0:
+            return q[0], dq[0], ddq[0]
+        return q, dq, ddq
 
     @property
     def harmonics(self) -> int:
@@ -100,18 +141,21 @@ class FourierTrajectory:
         return self.evaluate(0.0)[0]
 
     def with_condition(self, cond: float) -> FourierTrajectory:
-        return FourierTrajectory(self.joints, self.w_f, self.q0, self.a, self.b, self.periods, float(cond))
+        return FourierTrajectory(self.joints, self.w_f, self.q0, self.a, self.b, self.periods, float(cond),
+                                 self.speeds)
 
-    def with_periods(self, periods: int) -> FourierTrajectory:
+    def with_periods(self, periods: int, speeds: tuple[float, ...] | None = None) -> FourierTrajectory:
+        """The same series played `periods` times (cycling through `speeds`, default its own)."""
+        speeds = self.speeds if speeds is None else _speeds(list(speeds), "the trajectory")
         return FourierTrajectory(self.joints, self.w_f, self.q0, self.a, self.b, int(periods),
-                                 self.condition_number)
+                                 self.condition_number, tuple(speeds))
 
     # -- the file ---------------------------------------------------------------------------------------
     def to_dict(self) -> dict:
         return {"format": FORMAT, "version": VERSION, "joints": list(self.joints), "w_f": float(self.w_f),
                 "q0": [float(x) for x in self.q0], "a": np.asarray(self.a, float).tolist(),
                 "b": np.asarray(self.b, float).tolist(), "periods": int(self.periods),
-                "condition_number": float(self.condition_number)}
+                "speeds": [float(x) for x in self.speeds], "condition_number": float(self.condition_number)}
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=1) + "\n"
@@ -121,10 +165,12 @@ def from_dict(d, where: str = "the trajectory") -> FourierTrajectory:
     """The trajectory a file's content describes; ConfigError (one sentence naming `where`) otherwise."""
     if not isinstance(d, dict) or d.get("format") != FORMAT:
         raise ConfigError(f"{where} is not an excitation trajectory (its format is not {FORMAT!r})")
-    if d.get("version") != VERSION:
-        raise ConfigError(f"{where} has version {d.get('version')!r}; this toolkit reads version {VERSION}")
-    unknown = sorted(set(d) - set(_KEYS))
-    missing = [k for k in _KEYS if k not in d]
+    if d.get("version") not in VERSIONS:
+        raise ConfigError(f"{where} has version {d.get('version')!r}; this toolkit reads versions "
+                          f"{' and '.join(str(v) for v in VERSIONS)}")
+    keys = _KEYS if d["version"] == VERSION else tuple(k for k in _KEYS if k != "speeds")
+    unknown = sorted(set(d) - set(keys))
+    missing = [k for k in keys if k not in d]
     if unknown or missing:
         what = f"unknown key {unknown[0]!r}" if unknown else f"no {missing[0]!r}"
         raise ConfigError(f"{where} has {what}")
@@ -146,7 +192,17 @@ def from_dict(d, where: str = "the trajectory") -> FourierTrajectory:
         raise ConfigError(f"{where} needs `periods` as a whole number of at least 1, got {periods!r}")
     cond = d["condition_number"]
     cond = float("nan") if cond is None else _number(cond, where, "condition_number", finite=False)
-    return FourierTrajectory(tuple(joints), w_f, q0, a, b, periods, cond)
+    speeds = _speeds(d.get("speeds", [1.0]), where)
+    return FourierTrajectory(tuple(joints), w_f, q0, a, b, periods, cond, speeds)
+
+
+def _speeds(x, where: str) -> tuple[float, ...]:
+    ok = isinstance(x, list) and 1 <= len(x) <= _MAX_HARMONICS and all(
+        not isinstance(v, bool) and isinstance(v, (int, float)) and 0.0 < v <= 1.0 for v in x)
+    if not ok:
+        raise ConfigError(f"{where} needs `speeds` as a list of 1 to {_MAX_HARMONICS} speed scales, each "
+                          f"above 0 and at most 1")
+    return tuple(float(v) for v in x)
 
 
 def _number(x, where: str, key: str, finite: bool = True) -> float:

@@ -44,9 +44,9 @@ DEFAULTS = Thresholds()
               help="A parameter whose torque is below this share of the torque RMS does not matter.")
 @click.option("--max-heldout-ratio", type=Number(float, 1), default=DEFAULTS.max_heldout_ratio,
               show_default=True, help="Verdict: the largest held-out MSE over the fit's own, per joint.")
-@click.option("--zero-phase", is_flag=True,
-              help="Filter the sessions forward and backward instead of with the paper's causal chain (the "
-                   "model folder then does not run in the control loop; arm_model.toml does).")
+@click.option("--zero-phase/--causal", default=True, show_default=True,
+              help="Filter the sessions forward and backward (no lag), or with the paper's causal chain "
+                   "(then the model folder runs in the control loop too; arm_model.toml runs either way).")
 @click.option("--json", "as_json", is_flag=True, help="Print identification.json instead of the table.")
 @force_option("the model directory")
 @cli_errors

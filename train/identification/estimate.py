@@ -12,6 +12,14 @@ occurrence's block). Where the jackknife comes out below the textbook value on a
 chance), the textbook covariance is used, so a recording never gets a smaller error than its
 independent-sample value.
 
+A parameter is identifiable when the data tell its value from zero: its relative standard error is at
+most IDENTIFIABLE_REL_STDERR (the estimate lies at least two standard errors from zero, a t test at
+about 95 %). Any direction the data cannot see (a near-null direction of the regressor) gives the
+parameters along it a large standard error, so they fail the same test. A parameter that fails it is
+reported as not identifiable: its value is whatever the noise made it, and its interval says only that.
+The 95 % interval is +- t x stderr with Student's t at the jackknife's blocks - 1 degrees of freedom
+(train.evaluation.block_uncertainty.t_factor).
+
 The condition number is that of the weighted regressor with every column scaled to unit norm (the
 figure identification papers quote: how well the data separate the parameters, independent of units).
 """
@@ -24,8 +32,9 @@ import numpy as np
 
 from crane_io.errors import CraneError
 
-from ..evaluation.block_uncertainty import BlockPlan, least_squares_covariance
+from ..evaluation.block_uncertainty import BlockPlan, least_squares_covariance, t_factor
 
+IDENTIFIABLE_REL_STDERR = 0.5  # a parameter is identifiable when its estimate lies >= 2 stderr from zero
 CORRELATED = 0.95  # |correlation| above which two estimates are reported as a strongly correlated pair
 
 
@@ -42,10 +51,21 @@ class Estimate:
     condition: float  # condition number of the weighted, column-scaled regressor
     rows: int  # torque equations used
     correlated: list[tuple[int, int, float]] = field(default_factory=list)  # (i, j, r) with |r| > CORRELATED
+    blocks: int = 0  # the jackknife's blocks (0: the textbook covariance was used)
 
     @property
     def stderr(self) -> np.ndarray:
         return np.sqrt(np.clip(np.diag(self.cov), 0.0, None))
+
+    @property
+    def interval95(self) -> np.ndarray:
+        """(p,) half-width of each parameter's 95 % interval (the module docstring)."""
+        return (t_factor(self.blocks) if self.blocks >= 2 else 1.959964) * self.stderr
+
+    @property
+    def identifiable(self) -> np.ndarray:
+        """(p,) bool: the parameter's estimate lies at least 1 / IDENTIFIABLE_REL_STDERR stderr from zero."""
+        return self.stderr <= IDENTIFIABLE_REL_STDERR * np.abs(self.theta)
 
 
 def _stack(phi: np.ndarray, tau: np.ndarray, moving: np.ndarray):
@@ -95,12 +115,13 @@ def weighted_least_squares(phi: np.ndarray, tau: np.ndarray, moving: np.ndarray,
     ata_inv = np.linalg.inv((aw / col).T @ (aw / col)) / np.outer(col, col)
     cov_iid = s2 * ata_inv
     cov = least_squares_covariance(aw / col, yw, plan.ids[sample], plan.count) / np.outer(col, col)
+    blocks = plan.count
     if np.trace(cov / np.maximum(np.diag(cov_iid), 1e-300)[None, :]) < p:  # never below the iid value
-        cov = cov_iid
+        cov, blocks = cov_iid, 0
     cov = 0.5 * (cov + cov.T)
     se = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
     corr = cov / np.outer(se, se)
     pairs = [(i, k, float(corr[i, k])) for i in range(p) for k in range(i + 1, p)
              if abs(corr[i, k]) > CORRELATED]
     return Estimate(theta=theta, cov=cov, sigma=sigma, condition=condition, rows=int(len(y)),
-                    correlated=pairs)
+                    correlated=pairs, blocks=blocks)

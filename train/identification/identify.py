@@ -5,10 +5,12 @@ like `crane-train fit --model rigid-body` makes (compare, report, diagnose and t
 with identification.json beside it.
 
 The data are split as `fit` splits them (training pool, validation, test blocks); the parameters are
-estimated on the pool and judged on the test blocks. Sessions are filtered with the paper's causal chain
-(as `fit` filters them, so the model folder runs in the control loop) or, with `zero_phase`, forward and
-backward: the causal chain delays q, dq, ddq and tau alike, but the regressor is nonlinear in them, so
-the filtered torque is not quite the regressor of the filtered motion (docs/identification.md, "Results").
+estimated on the pool and judged on the test blocks. Sessions are filtered forward and backward
+(`zero_phase`, the default: the data are offline, so nothing needs a causal filter) or with the paper's
+causal chain (as `fit` filters them, so the model folder runs in the control loop): the causal chain
+delays q, dq, ddq and tau alike, but the regressor is nonlinear in them, so the filtered torque is not
+quite the regressor of the filtered motion (docs/identification.md, "Results"). The jackknife's blocks
+are the speeds of an excitation's speed cycle, or contiguous time blocks (blocks.py).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .blocks import excitation_schedule, speed_blocks
 from .consistency import Projection, project
 from .estimate import Estimate, weighted_least_squares
 from .verdict import Check, Thresholds, checks, parameter_contribution, to_json
@@ -42,6 +45,7 @@ class Identification:
     fit_mse: np.ndarray
     heldout_mse: np.ndarray
     share: np.ndarray = field(repr=False)
+    uncertainty: str = ""  # how the covariance was found (the jackknife's blocks)
 
     @property
     def passed(self) -> bool:
@@ -49,14 +53,16 @@ class Identification:
 
     def to_json(self) -> dict:
         est, se = self.estimate.theta, self.estimate.stderr
+        half, known = self.estimate.interval95, self.estimate.identifiable
         params = [{"name": n, "kind": "base" if k < self.n_base else "other", "estimate": float(est[k]),
-                   "stderr": float(se[k]),
+                   "stderr": float(se[k]), "interval95": float(half[k]), "identifiable": bool(known[k]),
                    "rel_stderr": float(se[k] / abs(est[k])) if est[k] != 0 else None,
                    "consistent": float(self.projection.theta[k]), "torque_share": float(self.share[k])}
                   for k, n in enumerate(self.names)]
         joints = list(self.fit.model.joint_names)
         return {"format": "crane-identification", "format_version": 1,
                 "joints": joints, "rows": self.estimate.rows, "condition_number": self.estimate.condition,
+                "uncertainty": self.uncertainty,
                 "residual_std": dict(zip(joints, self.estimate.sigma.tolist())),
                 "parameters": params,
                 "correlated_pairs": [{"a": self.names[i], "b": self.names[k], "r": r}
@@ -99,19 +105,36 @@ def _mse_where_moving(tau: np.ndarray, pred: np.ndarray, moving: np.ndarray) -> 
                      for j in range(tau.shape[1])])
 
 
+def _blocks(ds, pool, sources):
+    """(BlockPlan, its description) of the pool's rows: speed blocks for excitation sessions of several
+    speeds, else contiguous time blocks (blocks.py)."""
+    from ..models.rigid_body import fit_blocks
+
+    plan = None
+    if sources:
+        schedules = [excitation_schedule(p) for p in sources]
+        plan = speed_blocks(ds.t, ds.segment, pool.t, pool.segment, schedules, ds.rate_hz)
+    if plan is not None:
+        return plan, (f"delete-a-block jackknife over the {plan.count} speeds of the excitation's speed "
+                      f"cycle (each speed's periods one block)")
+    plan = fit_blocks(pool)
+    return plan, plan.describe()
+
+
 def identify(data, *, effects: Sequence[str] = DEFAULT_EFFECTS, seed: int = 0, scale_to_data: bool = False,
              config=None, arm: str | None = None, joints=None, thresholds: Thresholds | None = None,
-             zero_phase: bool = False) -> Identification:
+             zero_phase: bool = True) -> Identification:
     """Identify from `data` (a Dataset, or session file(s) read as train.api.load_sessions reads them;
     `zero_phase`: filtered forward and backward, the module docstring)."""
     from ..api import FitResult, load_sessions, load_settings, model_preprocessing, test_metrics
     from ..data.splits import make_splits
     from ..models.registry import make_model
-    from ..models.rigid_body import fit_blocks
     from ..settings import parse_effect
 
     thresholds = thresholds or Thresholds()
+    sources = None
     if not hasattr(data, "tau"):
+        sources = [data] if isinstance(data, (str, Path)) else list(data)
         data = load_sessions(data, arm=arm, joints=joints, config=config, zero_phase=zero_phase)
     ds = data
     splits = make_splits(ds, load_settings(config)["splits"], seed=seed, scale_to_data=scale_to_data)
@@ -121,7 +144,8 @@ def identify(data, *, effects: Sequence[str] = DEFAULT_EFFECTS, seed: int = 0, s
                        effects=effect_list, rows="per-joint")
     model.fit(pool, splits.val)  # resolves the context joints and the effect terms
     phi = model.regressor(pool.q, pool.dq, pool.ddq, context=pool.context)
-    est = weighted_least_squares(phi, pool.tau, pool.moving, fit_blocks(pool))
+    plan, uncertainty = _blocks(ds, pool, sources)
+    est = weighted_least_squares(phi, pool.tau, pool.moving, plan)
     dyn = model.dynamics
     names = list(model.names)
     n_base = model.n_base
@@ -140,7 +164,7 @@ def identify(data, *, effects: Sequence[str] = DEFAULT_EFFECTS, seed: int = 0, s
     fit = FitResult(model, test_metrics(model, ds, splits, pool, "rigid-body", seed), ds, splits)
     return Identification(fit=fit, names=names, estimate=est, projection=proj, checks=found,
                           thresholds=thresholds, n_base=n_base, fit_mse=fit_mse, heldout_mse=heldout_mse,
-                          share=share)
+                          share=share, uncertainty=uncertainty)
 
 
 def text(result: Identification) -> str:
@@ -148,11 +172,16 @@ def text(result: Identification) -> str:
     doc = result.to_json()
     lines = [f"identified {len(doc['parameters'])} parameters of {', '.join(doc['joints'])} from "
              f"{doc['rows']} torque equations; condition number {doc['condition_number']:.3g}",
+             f"uncertainty: {doc['uncertainty']}",
              "", f"{'parameter':32s} {'estimate':>12s} {'sigma %':>8s} {'consistent':>12s} {'torque %':>8s}"]
     for p in doc["parameters"]:
         rel = "-" if p["rel_stderr"] is None else f"{100 * p['rel_stderr']:.3g}"
         lines.append(f"{p['name']:32s} {p['estimate']:12.5g} {rel:>8s} {p['consistent']:12.5g} "
-                     f"{100 * p['torque_share']:8.3g}")
+                     f"{100 * p['torque_share']:8.3g}" + ("" if p["identifiable"] else "  not identifiable"))
+    unknown = [p["name"] for p in doc["parameters"] if not p["identifiable"]]
+    if unknown:
+        lines += ["", f"not identifiable (estimate within two standard errors of zero): {len(unknown)} of "
+                      f"{len(doc['parameters'])}"]
     if doc["correlated_pairs"]:
         lines += ["", "strongly correlated: " + "; ".join(f"{c['a']} ~ {c['b']} (r = {c['r']:+.3f})"
                                                          for c in doc["correlated_pairs"][:8])]
