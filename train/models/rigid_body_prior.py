@@ -31,7 +31,7 @@ def arm_model_table(path) -> dict:
     arm = IdentifiedArm.from_toml(path)
     return {"source": str(path), "free": list(arm.free), "locked": dict(arm.locked),
             "payload_mass": arm.payload_mass,
-            "bodies": {k: [float(x) for x in v] for k, v in arm.bodies.items()},
+            "bodies": {k: {"parameters": [float(x) for x in v]} for k, v in arm.bodies.items()},
             "friction": {j: dict(f) for j, f in arm.friction.items()}}
 
 
