@@ -21,7 +21,7 @@ PAYLOAD = 0.3  # kg at the tool
 def identified(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("round")
     truth = ArmDynamics(JOINTS, locked=HELD, payload_mass=PAYLOAD)
-    session, _ = write_synthetic_session(tmp / "s.h5", 200.0, rate_hz=100, seed=4,
+    session, _ = write_synthetic_session(tmp / "s.h5", 100.0, rate_hz=100, seed=4,
                                          dynamics=truth.inverse_dynamics)
     result = identify(str(session), scale_to_data=True)
     result.save(tmp / "id")
