@@ -436,7 +436,8 @@ def _use_arm_model(cfg: PlantConfig, path, where: str) -> None:
     try:
         model.check_configuration(cfg.joints, cfg.locked)
     except ConfigError as exc:
-        raise ConfigError(f"{where}: arm_model {exc}; set the plant's joints and [locked] to match") from None
+        raise ConfigError(f"{where}: {str(exc).split('; ')[0]}; set the plant's joints and [locked] to the "
+                          f"model's, or identify the arm again") from None
     for spec in cfg.all_effects:
         if spec.effect == "payload":
             raise ConfigError(f"{where}: arm_model {model.source} holds the identified payload in its "

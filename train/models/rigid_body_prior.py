@@ -50,7 +50,8 @@ def start_point(table: dict, dynamics, joint_names, context_joints, locked: dict
     try:
         arm.check_configuration(free, locked or {})
     except ConfigError as exc:
-        raise ConfigError(f"the rigid-body fit cannot start from it: {exc}") from None
+        raise ConfigError(f"{str(exc).split('; ')[0]}, so the rigid-body fit cannot start from it; fit "
+                          f"on data recorded in that configuration") from None
     phi = np.concatenate([arm.bodies[name] for name in dynamics.body_names()])
     base = dynamics.base_map_rows(tuple(joint_names)) @ phi
     theta0 = np.zeros(len(names))
