@@ -68,6 +68,7 @@ def test_the_cli_fit_records_the_start_and_the_saved_model_predicts_alike(setup)
                                         "--effect", "coulomb", "--scale-to-data", "--start-from", str(path),
                                         "--start-weight", "50", "-o", str(out)])
     assert r.exit_code == 0, r.output
+    assert f"started from the identified arm model {path} (weighing as much as 50 torque" in r.output
     options = json.loads((out / "model.json").read_text())["options"]
     assert options["start_weight"] == 50.0 and options["start_from"]["free"] == ["joint1", "joint2", "joint4"]
     again = load_model(out)

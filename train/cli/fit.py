@@ -121,4 +121,8 @@ def fit(sessions, method, out_dir, train_size, seed, effects, effect_files, epoc
         click.echo(f"{j:<10}{t['mse'][j]:>14.4g}{t['rmse'][j]:>12.4g}{t['nmse'][j]:>10.3g}")
     for line in effect_lines(result.model):
         click.echo(line)
+    start = getattr(result.model, "fit_info", {}).get("start")
+    if start:
+        click.echo(f"started from the identified arm model {start['arm_model']} (weighing as much as "
+                   f"{start['weight']:g} torque equations)")
     click.echo(f"model written to {out_dir}")
