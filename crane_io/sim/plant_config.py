@@ -70,13 +70,15 @@ import math
 from dataclasses import dataclass, field, fields, replace
 from importlib import resources
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from crane_io.description import default_arm
 from crane_io.errors import ConfigError
-from crane_io.physics.identified_model import IdentifiedArm
 from crane_io.sim.servo_health import OverloadConfig, SupplyConfig, ThermalConfig, check_configs
 from crane_io.toml_config import check_keys, check_seed, expect, from_table, is_number, read_toml
+
+if TYPE_CHECKING:
+    from crane_io.physics.identified_model import IdentifiedArm
 
 BILATERAL_JOINTS = ("joint1", "joint2", "joint4")  # the paper's joints: the default integrated set
 # the joints a plant can integrate (the gripper is always a held servo)
@@ -428,6 +430,8 @@ def load_plant_config(preset_or_path: str | Path = "crane-x7") -> PlantConfig:
 def _use_arm_model(cfg: PlantConfig, path, where: str) -> None:
     """Read the identified arm model `path` (relative to the plant file), check that it fits the plant,
     and add its friction to the plant's effects."""
+    from crane_io.physics.identified_model import IdentifiedArm
+
     if not isinstance(path, str) or not path:
         raise ConfigError(f"{where}: arm_model must be the path of an identified arm model (arm_model.toml)")
     base_dir = Path(where).parent if Path(where).is_file() else Path.cwd()
