@@ -6,9 +6,13 @@ numbers do not depend on the machine's load):
    test blocks of a separate bilateral session;
 2. `fit --model rigid-body --start-from arm_model.toml` on a short bilateral session: the fit started
    from the model identified from the excitation, with several weights, against the plain fit, on the
-   same held-out session.
+   same held-out session;
+3. the round trip on an arm carrying a payload: an excitation on the `crane-x7` plant plus a 0.3 kg
+   payload, identified, the simulated arm built from its arm_model.toml (plant key `arm_model`), and that
+   plant's gravity torque against the true (payload) plant's and the stock arm's over random poses.
 
     .venv/bin/python benchmarks/bench_identified_model.py [--duration 60] [--short 30] [--workdir DIR]
+                                                          [--round-trip-only]
 """
 
 from __future__ import annotations
@@ -42,11 +46,12 @@ def _quiet(fn, *args, **kwargs):
         return fn(*args, **kwargs)
 
 
-def record(tmp: Path, kind: str, seed: int, duration: float, budget: int = 300) -> Path:
-    path = tmp / f"{kind}-{seed}-{duration:g}.h5"
+def record(tmp: Path, kind: str, seed: int, duration: float, budget: int = 300,
+           plant: str | None = None) -> Path:
+    path = tmp / f"{kind}-{seed}-{duration:g}{'-' + Path(plant).stem if plant else ''}.h5"
     if path.exists():  # --workdir: recorded before with the same settings
         return path
-    opts = RunOptions(output=path, sim=True, duration=duration, seed=seed, status=False)
+    opts = RunOptions(output=path, sim=True, duration=duration, seed=seed, status=False, plant=plant)
     if kind == "excite":
         _quiet(run_excitation, opts, ExcitationOptions(evaluations=budget, say=lambda _line: None))
     else:
@@ -105,13 +110,62 @@ def bench(duration: float, short: float, workdir: str | None) -> None:
         print(f"[{time.perf_counter() - t0:.0f} s]")
 
 
+def payload_plant(tmp: Path, mass: float) -> Path:
+    """A plant TOML: the crane-x7 preset's effects plus a payload of `mass` kg."""
+    from crane_io.sim.plant_config import load_plant_config
+
+    lines = ['base = "crane-x7"', 'name = "payload"']
+    for e in load_plant_config("crane-x7").effects:
+        lines += ["[[effects]]", f'effect = "{e.effect}"'] + ([f'joint = "{e.joint}"'] if e.joint else [])
+        lines += [f"{k} = {v!r}" for k, v in e.values.items()]
+    lines += ["[[effects]]", 'effect = "payload"', f"mass = {mass!r}"]
+    path = tmp / "payload.toml"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def round_trip(tmp: Path, duration: float, mass: float = 0.3) -> None:
+    """Part 3 of the module docstring, printed."""
+    from crane_io.physics.dynamics import ArmDynamics
+    from crane_io.sim.arm_plant import ArmPlant
+
+    plant_toml = payload_plant(tmp, mass)
+    ex = record(tmp, "excite", 0, duration, plant=str(plant_toml))
+    res = _quiet(identify, str(ex), effects=EFFECTS, seed=0, scale_to_data=True)
+    model = tmp / "arm_model_payload.toml"
+    model.write_text(res.arm_model().to_toml())
+    built = tmp / "identified_plant.toml"
+    built.write_text(f'joints = ["joint1", "joint2", "joint4"]\narm_model = "{model.name}"\n')
+    plant = ArmPlant(built)
+    rng = np.random.default_rng(0)
+    q = rng.uniform([-1.5, -1.4, -2.0], [1.5, 1.4, -0.3], (200, 3))
+    g = plant.dyn.gravity_torque(q)
+    true = ArmDynamics(("joint1", "joint2", "joint4"), payload_mass=mass).gravity_torque(q)
+    stock = ArmDynamics(("joint1", "joint2", "joint4")).gravity_torque(q)
+    print(f"\n3. round trip, {duration:g} s excitation on crane-x7 + {mass:g} kg payload: gravity torque "
+          f"over 200 random poses, RMS per joint (N m)")
+    print(f"   identified plant - true plant   {_fmt3(np.sqrt(((g - true) ** 2).mean(axis=0)))}")
+    print(f"   stock arm - true plant          {_fmt3(np.sqrt(((stock - true) ** 2).mean(axis=0)))}")
+    print(f"   identified plant - identified model at rest (max) "
+          f"{np.abs(g - res.fit.model.predict(q, 0 * q, 0 * q)).max():.2e}")
+
+
+def _fmt3(x) -> str:
+    return " ".join(f"{v:8.4f}" for v in x)
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--duration", type=float, default=60.0, help="s of each long session")
     p.add_argument("--short", type=float, default=30.0, help="s of the short bilateral sessions (part 2)")
     p.add_argument("--workdir", default=None, help="keep the sessions here (and reuse them)")
+    p.add_argument("--round-trip-only", action="store_true", help="only part 3")
     a = p.parse_args()
-    bench(a.duration, a.short, a.workdir)
+    if not a.round_trip_only:
+        bench(a.duration, a.short, a.workdir)
+    with contextlib.ExitStack() as stack:
+        tmp = Path(a.workdir) if a.workdir else Path(stack.enter_context(tempfile.TemporaryDirectory()))
+        round_trip(tmp, a.duration)
 
 
 if __name__ == "__main__":
