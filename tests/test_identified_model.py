@@ -108,3 +108,19 @@ def test_run_records_the_arm_model_and_refuses_a_bad_one(nominal, tmp_path):
                                           "-o", str(tmp_path / "t.h5"), "--arm-model", str(path)])
     assert r.exit_code == 2 and "not physically consistent" in r.output and "Traceback" not in r.output
     assert not (tmp_path / "t.h5").exists()
+
+
+def test_a_body_just_outside_the_consistent_set_is_brought_in_and_one_far_outside_is_left(nominal):
+    from crane_io.physics.identified_model import into_consistent, pseudo_inertia
+
+    _, arm = nominal
+    v = arm.bodies["joint2"].copy()
+    lowest = np.linalg.eigvalsh(pseudo_inertia(v)).min()
+    near = v.copy()
+    near[[4, 6, 9]] -= 2 * (lowest + 5e-7)  # J - (lowest + 5e-7) 1: just outside
+    assert np.linalg.eigvalsh(pseudo_inertia(near)).min() < -1e-7
+    fixed = into_consistent(near)
+    assert np.linalg.eigvalsh(pseudo_inertia(fixed)).min() >= 0 and np.abs(fixed - near).max() < 1e-5
+    far = v.copy()
+    far[0] = -0.1
+    assert np.array_equal(into_consistent(far), far)

@@ -133,7 +133,8 @@ def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = ()
         epochs: int | None = None, scale_to_data: bool = False, config: PathLike | None = None,
         arm: str | None = None, joints: Sequence[str] | str | None = None, alpha: float | None = None,
         zero_phase: bool = False, progress: Callable[[int, int], None] | None = None,
-        eval_set: str | None = None) -> FitResult:
+        eval_set: str | None = None, start_from: PathLike | None = None,
+        start_weight: float = 100.0) -> FitResult:
     """Fit one model the paper's way: split the data (pool, validation, test; `scale_to_data` shrinks the
     sizes to short data), fit on `train_size` samples of the pool (all by default) and score on the test
     set.
@@ -143,7 +144,10 @@ def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = ()
     (rigid-body, hybrid): physical effects added to the model, e.g. "coulomb", "coulomb:joint=joint2",
     "stribeck:joint=joint4,stribeck_velocity=0.05"; effect_files: files defining more effects (effect-spec
     files .json, read as data; Python files .py, run: the model records their SHA-256);
-    epochs: of the network (default from the settings, 100); progress(done, total): called per epoch."""
+    epochs: of the network (default from the settings, 100); progress(done, total): called per epoch;
+    start_from (rigid-body): an identified arm model (arm_model.toml) the fit starts from and is
+    regularised towards, with the weight of `start_weight` torque equations
+    (train.models.rigid_body_prior)."""
     import numpy as np
 
     from .data.data_checks import fit_rows_finding, warn
@@ -152,6 +156,8 @@ def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = ()
 
     if (effects or effect_files) and method not in ("rigid-body", "hybrid"):
         raise ConfigError(f"effects apply to rigid-body and hybrid models, not {method}")
+    if start_from is not None and method != "rigid-body":
+        raise ConfigError(f"`start_from` applies to the rigid-body model, not {method}")
     _define_effects(effect_files)
     effects = [_effect(e) for e in effects]  # bad input is refused before any work
     settings = load_settings(config)
@@ -173,6 +179,10 @@ def fit(data: Dataset | Sessions, method: str, *, effects: Sequence[Effect] = ()
     options = {}
     if effects or effect_files:
         options["effects"] = [list(e) for e in effects]  # the model records each effect's spec as data
+    if start_from is not None:
+        from .models.rigid_body_prior import arm_model_table
+
+        options.update(start_from=arm_model_table(start_from), start_weight=start_weight)
     has_net = method.startswith("mlp-") or method == "hybrid"  # hybrid: a masked net on the residual
     if has_net:
         m = settings["mlp"]

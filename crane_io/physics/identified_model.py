@@ -49,6 +49,21 @@ def pseudo_inertia(v: np.ndarray) -> np.ndarray:
     return out
 
 
+def into_consistent(v: np.ndarray, margin: float = 10 * CONSISTENCY_TOLERANCE,
+                    reach: float = 1e-5) -> np.ndarray:
+    """The body's ten standard parameters, its pseudo-inertia J raised to at least `margin` by J + d 1
+    (d added to the mass and 2 d to each of I_xx, I_yy, I_zz) when a solver left it just outside the
+    consistent set: short of it by at most `reach` times its largest eigenvalue. Anything further out is
+    returned as it is (the loader then refuses it)."""
+    v = np.asarray(v, dtype=float).copy()
+    eig = np.linalg.eigvalsh(pseudo_inertia(v))
+    deficit = margin - eig.min()
+    if 0 < deficit <= reach * max(eig.max(), 1.0):
+        v[0] += deficit
+        v[[4, 6, 9]] += 2 * deficit
+    return v
+
+
 @dataclass
 class IdentifiedArm:
     free: tuple[str, ...]

@@ -116,7 +116,8 @@ class ArmPlant:
         self._kt_kept = (None, None)  # read_arrays: _kt_l and the array of it
         self._chain_fns = None  # read_arrays: chain_kernel.compiled(), loaded at first use
         locked = {n: v for n, v in config.locked.items() if n not in joints}  # an integrated joint is free
-        self.dyn = ArmDynamics(joints, locked=locked, payload_mass=self._payload)
+        self.dyn = ArmDynamics(joints, locked=locked, payload_mass=self._payload,
+                               identified=config.arm_model)  # an identified arm model's bodies
         self.model = self.dyn.model
         self.model.armature = self._armature.copy()
         self.data = self.model.createData()

@@ -15,6 +15,13 @@ Keys (every one optional; crane_io/sim/plants/crane-x7.toml documents each with 
                                position followers. ArmPlant(joints=...) overrides it; every joint
                                effect and joint wall must be on an integrated joint
     substep_s = 0.00025        integration substep (s); stick-slip is resolved every substep
+    arm_model = "PATH"         an identified arm model (arm_model.toml of `crane-train identify`, data
+                               only; a path relative to this file): the plant's rigid bodies are its
+                               bodies, and its viscous and Coulomb friction (where it has them) join
+                               [[effects]] as `viscous` and `coulomb` effects. Its free joints must be
+                               the plant's `joints` and its locked angles the plant's [locked] ones; a
+                               `payload` effect, or friction of the plant's own on a joint the model
+                               gives friction for, is refused (the model holds them already)
     effect_specs = [...]       effect-spec files (JSON, crane_io/physics/effects/spec.py; paths relative
                                to this file): effects as data (sums of basis terms) that [[effects]]
                                and [hidden] can name. Loading a plant never runs code: the former
@@ -63,19 +70,22 @@ import math
 from dataclasses import dataclass, field, fields, replace
 from importlib import resources
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from crane_io.description import default_arm
 from crane_io.errors import ConfigError
 from crane_io.sim.servo_health import OverloadConfig, SupplyConfig, ThermalConfig, check_configs
 from crane_io.toml_config import check_keys, check_seed, expect, from_table, is_number, read_toml
 
+if TYPE_CHECKING:
+    from crane_io.physics.identified_model import IdentifiedArm
+
 BILATERAL_JOINTS = ("joint1", "joint2", "joint4")  # the paper's joints: the default integrated set
 # the joints a plant can integrate (the gripper is always a held servo)
 ARM_JOINTS = ("joint1", "joint2", "joint3", "joint4", "joint5", "joint6", "joint7")
 _TOP_KEYS = {"name", "description", "base", "seed", "joints", "substep_s", "effect_files", "effect_specs",
              "torque_constant", "locked", "initial", "sensor", "overload", "thermal", "supply", "limits",
-             "effects", "known", "hidden", "environment"}
+             "effects", "known", "hidden", "environment", "arm_model"}
 ENVIRONMENT_KINDS = ("joint-wall", "plane")
 
 
@@ -172,6 +182,8 @@ class PlantConfig:
     hidden: EffectSpec | None = None
     environment: list[EnvironmentSpec] = field(default_factory=list)  # objects the arm can touch
     source: str = ""  # preset name or file path it was loaded from
+    arm_model: IdentifiedArm | None = None  # identified bodies (and friction) the plant is built from
+    arm_model_path: str = ""  # where arm_model was read from
 
     @property
     def all_effects(self) -> list[EffectSpec]:
@@ -189,6 +201,8 @@ class PlantConfig:
         }
         if self.environment:
             out["environment"] = [e.as_dict() for e in self.environment]
+        if self.arm_model is not None:
+            out["arm_model"] = self.arm_model_path
         return out
 
     def restricted_to(self, joints) -> PlantConfig:
@@ -406,7 +420,40 @@ def load_plant_config(preset_or_path: str | Path = "crane-x7") -> PlantConfig:
             get_effect(k["effect"])
         cfg.known.append((str(k["effect"]), k.get("joint"), k.get("shape")))
     cfg.environment = _environment(data.get("environment", []), where, cfg.joints)
+    if "arm_model" in data:
+        _use_arm_model(cfg, data["arm_model"], where)
     return cfg
+
+
+# ---- arm_model ---------------------------------------------------------------------------------------
+
+def _use_arm_model(cfg: PlantConfig, path, where: str) -> None:
+    """Read the identified arm model `path` (relative to the plant file), check that it fits the plant,
+    and add its friction to the plant's effects."""
+    from crane_io.physics.identified_model import IdentifiedArm
+
+    if not isinstance(path, str) or not path:
+        raise ConfigError(f"{where}: arm_model must be the path of an identified arm model (arm_model.toml)")
+    base_dir = Path(where).parent if Path(where).is_file() else Path.cwd()
+    full = Path(path) if Path(path).is_absolute() else base_dir / path
+    model = IdentifiedArm.from_toml(full)
+    try:
+        model.check_configuration(cfg.joints, cfg.locked)
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: {str(exc).split('; ')[0]}; set the plant's joints and [locked] to the "
+                          f"model's, or identify the arm again") from None
+    for spec in cfg.all_effects:
+        if spec.effect == "payload":
+            raise ConfigError(f"{where}: arm_model {model.source} holds the identified payload in its "
+                              f"bodies; remove the plant's payload effect")
+        eff = spec.build()
+        if spec.joint in model.friction and (eff.friction or spec.effect == "viscous"):
+            raise ConfigError(f"{where}: arm_model {model.source} gives the friction of {spec.joint}, and "
+                              f"so does the plant's effect {spec.effect!r}; remove one of them")
+    for joint in cfg.joints:
+        for name, value in sorted(model.friction.get(joint, {}).items(), reverse=True):
+            cfg.effects.append(EffectSpec(name, joint, {name: value}))
+    cfg.arm_model, cfg.arm_model_path = model, str(full)
 
 
 # ---- [[environment]] -------------------------------------------------------------------------------

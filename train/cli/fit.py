@@ -18,7 +18,7 @@ def _fit_and_save(sessions, method: str, out_dir, train_size: int | None = None,
               effects=(), effect_files=(), joints=None, alpha=None, zero_phase=False,
               scale_to_data=False, epochs: int | None = None, progress: bool = True,
               config_path=None, arm: str | None = None, eval_set: str | None = None,
-              force: bool = False):
+              force: bool = False, start_from=None, start_weight: float = 100.0):
     """train.api.fit on `arm`'s data of the sessions, saved to out_dir (with fit_metrics.json); returns the
     FitResult (its metrics document and model). The output is checked before any work; a session whose
     arm the operator's hand moved is refused (train.data.session.HandOnArmError) before anything is
@@ -27,7 +27,7 @@ def _fit_and_save(sessions, method: str, out_dir, train_size: int | None = None,
 
     from ..api import check_model_output, fit
 
-    check_model_output(out_dir, [*sessions, *effect_files, config_path], force)
+    check_model_output(out_dir, [*sessions, *effect_files, config_path, start_from], force)
     bar = None
     if progress and (method.startswith("mlp-") or method == "hybrid"):
         bar = tqdm(desc=method, unit="epoch", leave=False)
@@ -39,7 +39,7 @@ def _fit_and_save(sessions, method: str, out_dir, train_size: int | None = None,
     result = fit(list(sessions), method, effects=effects, effect_files=effect_files, train_size=train_size,
                  seed=seed, epochs=epochs, scale_to_data=scale_to_data, config=config_path, arm=arm,
                  joints=joints, alpha=alpha, zero_phase=zero_phase, progress=step if bar else None,
-                 eval_set=eval_set)
+                 eval_set=eval_set, start_from=start_from, start_weight=start_weight)
     if bar is not None:
         bar.close()
     result.save(out_dir, force=force)
@@ -85,6 +85,12 @@ def effect_lines(model) -> list[str]:
                    "--write-effect-file) or a Python file (.py, run; the model records its SHA-256).")
 @click.option("--epochs", type=Number(int, 1), default=None,
               help="Epochs of the network (mlp-mse, mlp-masked, hybrid) [100].")
+@click.option("--start-from", "start_from", type=click.Path(dir_okay=False, exists=True), default=None,
+              metavar="ARM_MODEL_TOML",
+              help="rigid-body: start the fit from an identified arm model (arm_model.toml of `crane-train "
+                   "identify`) and regularise it towards the model's parameters; the model records it.")
+@click.option("--start-weight", type=Number(float, 0.0, low_open=True), default=100.0, show_default=True,
+              help="How many torque equations the --start-from parameters count as.")
 @arm_option
 @data_options
 @click.option("--no-progress", is_flag=True,
@@ -92,7 +98,7 @@ def effect_lines(model) -> list[str]:
 @force_option("the model directory")
 @cli_errors
 def fit(sessions, method, out_dir, train_size, seed, effects, effect_files, epochs, arm, config_path, joints,
-        alpha, zero_phase, scale_to_data, eval_set, no_progress, force):
+        alpha, zero_phase, scale_to_data, eval_set, no_progress, force, start_from, start_weight):
     """Train one model on session files (the follower's data, or the leader's with --arm leader) and
     save it."""
     from ..data.session import HandOnArmError
@@ -101,7 +107,7 @@ def fit(sessions, method, out_dir, train_size, seed, effects, effect_files, epoc
         result = _fit_and_save(sessions, method, out_dir, train_size, seed,
                                [parse_effect(e) for e in effects], effect_files, joints, alpha, zero_phase,
                                scale_to_data, epochs, show_progress(not no_progress), config_path, arm,
-                               eval_set, force)
+                               eval_set, force, start_from, start_weight)
     except HandOnArmError as exc:
         raise HandOnArmError(hand_on_hint(exc), exc.path, exc.arm) from None
     doc = result.metrics
@@ -115,4 +121,8 @@ def fit(sessions, method, out_dir, train_size, seed, effects, effect_files, epoc
         click.echo(f"{j:<10}{t['mse'][j]:>14.4g}{t['rmse'][j]:>12.4g}{t['nmse'][j]:>10.3g}")
     for line in effect_lines(result.model):
         click.echo(line)
+    start = getattr(result.model, "fit_info", {}).get("start")
+    if start:
+        click.echo(f"started from the identified arm model {start['arm_model']} (weighing as much as "
+                   f"{start['weight']:g} torque equations)")
     click.echo(f"model written to {out_dir}")

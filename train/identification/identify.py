@@ -78,11 +78,11 @@ class Identification:
     def arm_model(self):
         """The consistent bodies and friction as an IdentifiedArm (crane_io.physics.identified_model)."""
         from crane_io.physics.arm_model import JOINT_NAMES
-        from crane_io.physics.identified_model import IdentifiedArm
+        from crane_io.physics.identified_model import IdentifiedArm, into_consistent
 
         dyn = self.fit.model.dynamics
         phi = self.projection.phi
-        bodies = {name: phi[10 * b:10 * b + 10].copy() for b, name in enumerate(dyn.body_names())}
+        bodies = {name: into_consistent(phi[10 * b:10 * b + 10]) for b, name in enumerate(dyn.body_names())}
         locked = {n: float(dyn.locked.get(n, 0.0)) for n in JOINT_NAMES if n not in dyn.joint_names}
         friction: dict[str, dict[str, float]] = {}
         for k, name in enumerate(self.names[self.n_base:], start=self.n_base):

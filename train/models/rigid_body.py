@@ -50,6 +50,11 @@ record stay at `locked` (default 0). With no moving context joint the regressor 
 base regressor of the learning joints (with the still joints at their medians). A model with context
 joints records them in model.json (state "context_joints"), and predicting on data without them is
 refused in one sentence. `context=False` is the old model: every other joint at `locked` (default 0).
+
+Starting from an identified arm model (option `start_from`, the [identified] table of an arm_model.toml
+as train.models.rigid_body_prior.arm_model_table reads it; `start_weight` torque equations' worth): the
+filter starts at the identified parameters with a finite covariance, so the fit is least squares
+regularised towards them (train.models.rigid_body_prior). The model records the table it started from.
 """
 
 from __future__ import annotations
@@ -85,14 +90,15 @@ def _arm_dynamics(joints, locked, payload_mass):
     return _DYNAMICS_CACHE[key]
 
 
-def rls(Phi: np.ndarray, y: np.ndarray, block: int = 64, p0: float = 1e8) -> tuple[np.ndarray, np.ndarray]:
-    """Recursive least squares, forgetting factor 1. Phi (N, k, p) stacked rows per sample, y (N, k).
+def rls(Phi: np.ndarray, y: np.ndarray, block: int = 64, p0=1e8) -> tuple[np.ndarray, np.ndarray]:
+    """Recursive least squares, forgetting factor 1, from theta = 0. Phi (N, k, p) stacked rows per
+    sample, y (N, k); p0: the initial covariance's diagonal (a number, or one per parameter).
     Returns (theta (p,), P (p, p))."""
     Phi = np.asarray(Phi, dtype=float)
     y = np.asarray(y, dtype=float)
     n, k, p = Phi.shape
     theta = np.zeros(p)
-    P = np.eye(p) * p0
+    P = np.diag(np.broadcast_to(np.asarray(p0, dtype=float), (p,))).copy()
     for start in range(0, n, block):
         A = Phi[start:start + block].reshape(-1, p)
         b = y[start:start + block].reshape(-1)
@@ -113,8 +119,12 @@ class RigidBodyModel(Model):
 
     def __init__(self, joint_names, preprocessing: dict | None = None, effects=(), effect_specs=None,
                  block: int = 64, p0: float = 1e8, payload_mass: float = 0.0, locked: dict | None = None,
-                 context: bool = True, rows: str = "auto", effect_files=()):
+                 context: bool = True, rows: str = "auto", effect_files=(), start_from: dict | None = None,
+                 start_weight: float = 100.0):
         refuse_effect_files(effect_files)
+        if not (np.isfinite(start_weight) and start_weight > 0):
+            raise ConfigError(f"start_weight must be a positive number of torque equations, got "
+                              f"{start_weight}")
         if rows not in FIT_ROWS:
             raise ConfigError(f"rows must be one of {', '.join(FIT_ROWS)}, got {rows!r}")
         specs = []
@@ -133,7 +143,8 @@ class RigidBodyModel(Model):
             raise ModelFileError(f"the model uses the effect {lacking[0]!r} but records no spec of it")
         super().__init__(joint_names, preprocessing, effects=specs, effect_specs=effect_specs,
                          block=int(block), p0=float(p0), payload_mass=float(payload_mass),
-                         locked=dict(locked or {}), context=bool(context), rows=rows)
+                         locked=dict(locked or {}), context=bool(context), rows=rows,
+                         start_from=start_from, start_weight=float(start_weight))
         self._table: dict | None = None  # effect name -> Effect, rebuilt from effect_specs
         self.block, self.p0 = int(block), float(p0)
         self._dyn: ArmDynamics | None = None
@@ -282,8 +293,10 @@ class RigidBodyModel(Model):
             Phi, y = Phi[ds.moving][:, None, :], y[ds.moving][:, None]
         scale = np.sqrt((Phi ** 2).mean(axis=(0, 1)))
         scale = np.where(scale > 1e-12, scale, 1.0)
-        theta_s, P_s = rls(Phi / scale, y, self.block, self.p0)
-        theta = theta_s / scale
+        theta0, p0 = self._start(terms, Phi.shape[2])
+        y_fit = y - Phi @ theta0  # the filter estimates the step from the start
+        theta_s, P_s = rls(Phi / scale, y_fit, self.block, p0)
+        theta = theta_s / scale + theta0
         resid = y - Phi @ theta
         dof = max(resid.size - len(theta), 1)
         s2 = float((resid ** 2).sum() / dof)
@@ -292,9 +305,23 @@ class RigidBodyModel(Model):
         plan = fit_blocks(ds)
         p = len(theta)
         rows = np.repeat(plan.ids[sample], y.shape[1])  # each equation's block (its sample's)
-        se_s = least_squares_jackknife((Phi / scale).reshape(-1, p), y.reshape(-1), rows, plan.count,
-                                       ridge=1.0 / self.p0)
+        se_s = least_squares_jackknife((Phi / scale).reshape(-1, p), y_fit.reshape(-1), rows, plan.count,
+                                       ridge=1.0 / p0)
         return theta, se_s / scale, s2, plan
+
+    def _start(self, terms, p: int) -> tuple[np.ndarray, np.ndarray]:
+        """The filter's start (p,) and initial covariance diagonal (p,), in the columns' unit-RMS scale:
+        zero and `p0` (plain least squares), or the identified arm model's parameters held with the
+        weight of `start_weight` torque equations (train.models.rigid_body_prior)."""
+        table = self.options.get("start_from")
+        if not table:
+            return np.zeros(p), np.full(p, self.p0)
+        from .rigid_body_prior import start_point
+
+        locked = self.options["locked"] if self.locked_resolved is None else self.locked_resolved
+        theta0, given = start_point(table, self.dynamics, self.joint_names, self.context_joints, locked,
+                                    self._parameter_names(terms))
+        return theta0, np.where(given, 1.0 / self.options["start_weight"], self.p0)
 
     def _check_given_shape(self, term, ds: Dataset) -> None:
         """A shape given on the command line (`--effect stribeck:stribeck_velocity=...`) must make the
@@ -333,6 +360,9 @@ class RigidBodyModel(Model):
                          "rows_used": "per-joint" if per_joint else "all-moving",
                          "stderr_method": plan.describe(), "stderr_blocks": int(plan.count),
                          "ci95_factor": t_factor(plan.count)}
+        if self.options.get("start_from"):
+            self.fit_info["start"] = {"arm_model": self.options["start_from"].get("source", ""),
+                                      "weight": self.options["start_weight"]}
         if not self.preprocessing:
             self.preprocessing = dict(train.meta.get("preprocessing", {}))
         return self
