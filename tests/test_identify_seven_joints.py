@@ -34,3 +34,8 @@ def test_excite_and_identify_all_seven_joints(tmp_path):
     assert sorted(coulomb) == sorted(ARM)
     for joint in ARM:
         assert 0.5 * truth[joint] < coulomb[joint] < 1.5 * truth[joint], (joint, coulomb[joint], truth[joint])
+    # the arm model written beside it loads: the simulator and the controller accept it
+    from crane_io.physics.identified_model import IdentifiedArm
+
+    arm = IdentifiedArm.from_toml(out / "arm_model.toml")
+    assert arm.free == ARM

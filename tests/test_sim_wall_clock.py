@@ -9,7 +9,7 @@ import time
 
 import pytest
 from dynamixel_sdk import COMM_SUCCESS, GroupSyncWrite, PacketHandler, PortHandler
-from fakes import SlowPlant
+from fakes import SlowPlant, TickingClock
 
 from crane_io.description import default_arm
 from crane_io.dynamixel.control_table import MODE_CURRENT
@@ -69,10 +69,16 @@ def test_slipped_and_stepped_time_add_up_and_substeps_stay_small():
     assert chain.stats.slips >= 3  # the long pauses, nobody touching the chain: slipped, not simulated
 
 
-def test_a_plant_behind_by_less_than_max_lag_catches_up_over_several_touches():
+def test_a_plant_behind_by_less_than_max_lag_catches_up_over_several_touches(monkeypatch):
+    """Each reading of the clock costs 20 us of real time, so a 1 ms substep costs about 40 us whatever
+    the machine's load: the plant is faster than real time and must catch up without slipping."""
+    import crane_io.sim.chain
+
+    clock = TickingClock(tick_s=2e-5)
+    monkeypatch.setattr(crane_io.sim.chain, "time", clock)
     chain, plant = chain_with(cost_s=0.0, max_lag_s=10.0, step_budget_s=0.0002)
     start = chain.time
-    time.sleep(0.2)  # 200 substeps to catch up: more than one touch's budget
+    clock.advance(0.2)  # 200 substeps to catch up: more than one touch's budget
     touches = 1
     while chain.touch() >= chain.max_substep_s:
         touches += 1

@@ -81,3 +81,24 @@ class LateReplies(PtyServer):
         for timer in self._timers:
             timer.cancel()
         super().stop()
+
+
+class TickingClock:
+    """Stands in for the `time` module of the code under test: real time advances by `tick_s` at every
+    reading (monotonic or perf_counter) and by `sleep`/`advance`, never by itself. Work then costs the
+    same whatever the machine's load."""
+
+    def __init__(self, tick_s: float = 2e-5):
+        self.now = 1000.0
+        self.tick_s = tick_s
+
+    def monotonic(self) -> float:
+        self.now += self.tick_s
+        return self.now
+
+    perf_counter = monotonic
+
+    def advance(self, seconds: float) -> None:
+        self.now += seconds
+
+    sleep = advance

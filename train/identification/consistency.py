@@ -16,7 +16,8 @@ a semidefinite program (cvxpy):
     minimise  || L ([K phi; f] - theta_hat) ||^2 + eps || (phi - phi_0) / s ||^2
     subject to  J_b(phi) >= 0 and m_b >= m_min for every body b,  f_k >= 0 for friction coefficients
 
-with L^T L the inverse covariance of the estimate theta_hat (base parameters then the other columns, f),
+with L^T L the inverse of the estimate's covariance plus its diagonal (`metric`: a jackknife covariance from
+few blocks is singular) for theta_hat (base parameters then the other columns, f),
 phi_0 the description's nominal standard parameters (s their scale) and a small eps: the data decide every
 direction they can see, the nominal model the directions they cannot (which no torque prediction depends
 on). The estimate is "consistent as estimated" when the projection does not move it (chi^2 below 1e-4 per
@@ -78,9 +79,18 @@ def body_summary(name: str, phi10: np.ndarray) -> dict:
             "min_pseudo_inertia_eigenvalue": float(np.linalg.eigvalsh(pseudo_inertia(phi10)).min())}
 
 
+def metric(cov: np.ndarray) -> np.ndarray:
+    """The covariance the projection measures distances with: `cov` plus its own diagonal. A jackknife
+    covariance from B blocks has rank at most B - 1 (e.g. 4 of 21 parameters from five blocks); its
+    unseen directions would count as known exactly, and the solver would be asked to keep them to
+    within rounding. With the diagonal added, every parameter is held to within its own variance."""
+    cov = 0.5 * (np.asarray(cov, float) + np.asarray(cov, float).T)
+    return cov + np.diag(np.clip(np.diag(cov), 0.0, None))
+
+
 def _whitening(cov: np.ndarray) -> np.ndarray:
-    """L with L^T L = cov^-1 (eigenvalues floored so a near-singular covariance stays usable)."""
-    vals, vecs = np.linalg.eigh(0.5 * (cov + cov.T))
+    """L with L^T L = metric(cov)^-1 (eigenvalues floored so a near-singular covariance stays usable)."""
+    vals, vecs = np.linalg.eigh(metric(cov))
     floor = max(vals.max(initial=0.0), 1e-300) * 1e-14
     return (vecs / np.sqrt(np.maximum(vals, floor))).T
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from .blocks import excitation_schedule, speed_blocks
 from .consistency import Projection, project
-from .estimate import Estimate, weighted_least_squares
+from .estimate import Estimate, IdentificationError, weighted_least_squares
 from .verdict import Check, Thresholds, checks, parameter_contribution, to_json
 
 DEFAULT_EFFECTS = ("viscous", "coulomb")
@@ -95,8 +95,24 @@ class Identification:
     def save(self, out_dir, *, force: bool = False) -> Path:
         """The model folder with identification.json and arm_model.toml in it, whole or not at all."""
         self.fit.documents[IDENTIFICATION_JSON] = self.to_json()
-        self.fit.documents[ARM_MODEL_TOML] = self.arm_model().to_toml()
+        self.fit.documents[ARM_MODEL_TOML] = _loadable(self.arm_model().to_toml())
         return self.fit.save(out_dir, force=force)
+
+
+def _loadable(text: str) -> str:
+    """`text` (an arm_model.toml) when the toolkit's own loader accepts it; IdentificationError otherwise:
+    a folder whose arm model the simulator and the controller would refuse is never written."""
+    import tomllib
+
+    from crane_io.errors import ConfigError
+    from crane_io.physics.identified_model import IdentifiedArm
+
+    try:
+        IdentifiedArm.from_dict(tomllib.loads(text)["identified"], "the identified arm model")
+    except ConfigError as e:
+        raise IdentificationError(f"{e}; the data do not pin the bodies down: record a longer or richer "
+                                  "excitation (docs/excitation.md)") from None
+    return text
 
 
 def _mse_where_moving(tau: np.ndarray, pred: np.ndarray, moving: np.ndarray) -> np.ndarray:
