@@ -1,7 +1,8 @@
 """The simulated arm's parameter arrays, their layout, and the per-joint effect torques evaluated from them.
 
 Both steppers of crane_io.sim.arm_plant.ArmPlant read the plant from these arrays
-(crane_io.sim.plant_reference: numpy and pinocchio; crane_io.sim.plant_kernel: compiled with numba), and
+(crane_io.sim.plant_reference: Python floats; crane_io.sim.plant_kernel: compiled with numba), the rigid
+body through crane_io.sim.plant_rigid, and
 both evaluate the effects with the scalar functions below (`kinetic`, `other_torque`, `cogging_torque`):
 the built-in effects' closed forms, as their `Effect.plant_terms` collect them in a
 crane_io.physics.effects.PlantTerms, are evaluated in this one place (a plain Python function on a row of
@@ -42,7 +43,7 @@ H_KT, H_INERTIA, H_VISC, H_LO, H_HI, H_SERVO = range(6)
 HELD_COLS = 6
 C_TAU, C_PD, C_KP, C_KD, C_LO, C_HI, C_GOAL, C_EXT = range(8)
 CMD_COLS = 8
-# joint kinds the compiled kernel takes: their axis (None: the model's)
+# the joint kinds of the simulated chain: their axis (None: the model's)
 REVOLUTE = {"JointModelRX": (1.0, 0.0, 0.0), "JointModelRY": (0.0, 1.0, 0.0),
             "JointModelRZ": (0.0, 0.0, 1.0), "JointModelRevoluteUnaligned": None}
 
@@ -81,13 +82,13 @@ def cogging_torque(c, qk):
 
 # ---- building the arrays ----------------------------------------------------------------------------
 def revolute_chain(model) -> bool:
-    """The pinocchio model is a serial chain of revolute joints (what the compiled kernel integrates)."""
+    """The pinocchio model is a serial chain of revolute joints (what crane_io.sim.plant_rigid integrates)."""
     return all(model.parents[i] == i - 1 and model.joints[i].shortname() in REVOLUTE
                for i in range(1, model.njoints))
 
 
 def geometry(model) -> np.ndarray:
-    """geo of a pinocchio model (a serial chain of revolute joints)."""
+    """geo of a pinocchio model (a serial chain of revolute joints: `revolute_chain`)."""
     n = model.nv
     geo = np.zeros((n, GEO_COLS))
     for i in range(n):
