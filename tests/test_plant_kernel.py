@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from crane_io.errors import ConfigError
-from crane_io.sim import plant_kernel
+from crane_io.sim import plant_backend, plant_kernel, plant_rigid
 from crane_io.sim.arm_plant import ArmPlant
 from crane_io.sim.plant_api import ActuatorCommand
 
@@ -122,6 +122,24 @@ def test_the_kernel_is_the_default_where_it_applies(tmp_path, monkeypatch):
     assert ArmPlant("crane-x7", kernel=True).kernel  # an explicit choice wins over the environment
 
 
+def test_without_numba_the_reference_path_runs_the_rigid_bodys_python_source_to_the_same_bits(monkeypatch):
+    """CRANE_PLANT_KERNEL=0: the reference stepper on plant_rigid's Python source (numba not needed); it
+    gives the kernel's bits, stuck joints breaking away included."""
+    monkeypatch.setenv("CRANE_PLANT_KERNEL", "0")
+    slow = ArmPlant("crane-x7", seed=4)
+    monkeypatch.delenv("CRANE_PLANT_KERNEL")
+    fast = ArmPlant("crane-x7", seed=4)
+    assert slow._stepper._mass_and_bias is plant_rigid.mass_and_bias and fast.kernel
+    rng = np.random.default_rng(2)
+    for k in range(30):
+        cmd, ext = _drive(k, 3, rng)
+        for p in (fast, slow):
+            p.set_external_torque(ext)
+            p.step(cmd, PERIOD)
+        assert fast.q.tobytes() == slow.q.tobytes() and fast.dq.tobytes() == slow.dq.tobytes(), k
+    assert np.all(fast.dq != 0.0)  # every joint broke away from rest
+
+
 def _trajectory_hash(plant: ArmPlant, steps: int = 200) -> str:
     from tests.test_plant_joints import _trajectory_hash as hashed
 
@@ -141,13 +159,14 @@ def test_the_kernels_trajectory_is_pinned(name):
     assert _trajectory_hash(ArmPlant(name, seed=3)) == _KERNEL_REFERENCE[name]
 
 
-def test_the_reference_path_still_records_the_pinned_session(tmp_path, monkeypatch):
+def test_the_reference_path_records_the_pinned_session(tmp_path, monkeypatch):
     from collect.runner import RunOptions, run_session
     from tests import test_collect_session_pinned as pinned
 
     if (platform.system(), platform.machine()) != pinned.PINNED_PLATFORM:
         pytest.skip("the digest was pinned on x86_64 Linux")
-    monkeypatch.setenv("CRANE_PLANT_KERNEL", "0")
+    choose = plant_backend.choose
+    monkeypatch.setattr(plant_backend, "choose", lambda plant, kernel: choose(plant, False))
     out = tmp_path / "s.h5"
     run_session(RunOptions(output=out, sim=True, seed=pinned.SEED, duration=pinned.DURATION_S, status=False))
     assert pinned.session_digest(out)[0] == pinned.PINNED_DIGEST

@@ -309,18 +309,39 @@ def _solve_free(m: list, idx: list, b: list) -> list:
 
 
 def _solve(a: list, b: list) -> list:
-    """Solve a small symmetric positive-definite system by Gaussian elimination without pivoting in floats,
-    crane_io.sim.plant_rigid.solve's operations in its order (the 1- and 2-unknown cases are the loop
-    written out, `sum` included: it adds from 0.0)."""
+    """Solve a small symmetric positive-definite system by Gaussian elimination without pivoting in floats:
+    `_eliminate` written out for len(b) unknowns (generated once per size: the same operations in the same
+    order, `sum` included: it adds from 0.0), crane_io.sim.plant_rigid.solve's operations."""
     n = len(b)
-    if n == 1:
-        return [b[0] / a[0][0]]
-    if n == 2:
-        (a00, a01), (a10, a11) = a
-        f = a10 / a00
-        x1 = (b[1] - f * b[0]) / (a11 - f * a01)
-        return [(b[0] - (0.0 + a01 * x1)) / a00, x1]
-    return _eliminate(a, b)
+    fn = _SOLVERS.get(n)
+    if fn is None:
+        fn = _SOLVERS[n] = _written_solve(n)
+    return fn(a, b)
+
+
+def _written_solve(n: int):
+    """_eliminate for n unknowns as straight-line code (the entries below the diagonal it zeroes are never
+    read again, so they are not written)."""
+    r = range(n)
+    src = ["def solve(a, b):", *[f"    {', '.join(f'a{i}_{c}' for c in r)}, = a[{i}]" for i in r],
+           f"    {', '.join(f'b{i}' for i in r)}, = b"]
+    for k in r:
+        for i in range(k + 1, n):
+            src.append(f"    f = a{i}_{k} / a{k}_{k}")
+            src += [f"    a{i}_{c} -= f * a{k}_{c}" for c in range(k + 1, n)]
+            src.append(f"    b{i} -= f * b{k}")
+    for k in range(n - 1, -1, -1):
+        total = "0.0"
+        for c in range(k + 1, n):
+            total = f"({total} + a{k}_{c} * x{c})"
+        src.append(f"    x{k} = (b{k} - {total}) / a{k}_{k}" if k < n - 1 else f"    x{k} = b{k} / a{k}_{k}")
+    src.append(f"    return [{', '.join(f'x{i}' for i in r)}]")
+    space: dict = {}
+    exec(compile("\n".join(src), f"<arm_plant solve, {n} unknowns>", "exec"), space)  # noqa: S102
+    return space["solve"]
+
+
+_SOLVERS: dict[int, object] = {}
 
 
 def _eliminate(a: list, b: list) -> list:
