@@ -101,11 +101,13 @@ COMPILED_LAYOUTS = {
     ),
     # ctypes: the numpy generator's state pointer; warnings: a numba whose sampler differs is said once
     "crane_io/sim/noise_kernel.py": ("crane_io.dynamixel.units", "ctypes", "warnings"),
-    "crane_io/sim/plant_kernel.py": ("crane_io.sim.plant_layout", "crane_io.sim.plant_rigid"),
+    "crane_io/sim/plant_kernel.py": ("crane_io.sim.plant_layout", "crane_io.sim.plant_rigid",
+                                     "crane_io.physics.effect_shapes"),
 }
 # Modules whose functions a compiled module compiles besides its own (same rule: numpy, math and layouts)
 COMPILED_SOURCES = {
-    "crane_io/sim/plant_layout.py": (),
+    "crane_io/physics/effect_shapes.py": (),  # the built-in effects' shapes, the plant's and the formulas'
+    "crane_io/sim/plant_layout.py": ("crane_io.physics.effect_shapes",),
     "crane_io/sim/plant_rigid.py": ("crane_io.sim.plant_layout",),  # the rigid body, both plant steppers'
 }
 

@@ -347,6 +347,8 @@ def test_a_plane_pushes_every_integrated_joint_through_the_jacobian_of_the_seven
     ("stiction", {"coulomb": 0.12, "breakaway": 0.2, "stiction_velocity": 0.02}),
     ("offset", {"offset": -0.07}), ("spring", {"stiffness": 0.4, "rest_angle": 0.5}),
     ("cogging", {"amplitude": 0.08, "phase": 0.5, "cycles_per_rev": 12.0}),
+    ("stribeck", {"stribeck": -0.05, "stribeck_velocity": 0.05}),  # a dip, not a bump
+    ("stiction", {"coulomb": 0.2, "breakaway": 0.12, "stiction_velocity": 0.02}),
 ])
 def test_the_plant_terms_of_an_effect_are_its_torque_on_any_joint(tmp_path, effect, values):
     """Each built-in's closed form in the plant (Effect.plant_terms) is the effect's own torque(), on a

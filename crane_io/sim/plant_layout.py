@@ -8,7 +8,8 @@ the built-in effects' closed forms, as their `Effect.plant_terms` collect them i
 crane_io.physics.effects.PlantTerms, are evaluated in this one place (a plain Python function on a row of
 floats: a list for the reference stepper, an array row in the compiled kernel).
 
-This module imports numpy and math only (the compiled kernel imports it).
+This module imports numpy, math and crane_io.physics.effect_shapes (the built-in effects' shapes) only
+(the compiled kernel imports it).
 
 Layouts (float64):
 - geo (n, GEO_COLS): per integrated joint, its placement in the parent joint's frame (rotation row-major,
@@ -35,6 +36,8 @@ import math
 
 import numpy as np
 
+from crane_io.physics.effect_shapes import ripple, stribeck
+
 G_R, G_P, G_AX, G_M, G_C, G_I = 0, 9, 12, 15, 16, 19
 GEO_COLS = 28
 (P_FCP, P_FCN, P_BANDP, P_BANDN, P_VISC, P_OFF, P_SK, P_SQ0K, P_LO, P_HI, P_KT, P_SERVO, P_NSTRIB) = range(13)
@@ -50,17 +53,16 @@ REVOLUTE = {"JointModelRX": (1.0, 0.0, 0.0), "JointModelRY": (0.0, 1.0, 0.0),
 
 # ---- the effects, per joint (one row of par; a list of floats or an array row) ----------------------------
 def kinetic(p, v):
-    """Kinetic friction of the joint of row p at velocity v (v = +-tiny for a joint breaking away)."""
+    """Kinetic friction of the joint of row p at velocity v (v = +-tiny for a joint breaking away): the
+    Coulomb level of its direction plus each Stribeck term amplitude x effect_shapes.stribeck x sign(v)."""
     if v > 0:
-        f = p[P_FCP]
+        f, sign = p[P_FCP], 1.0
     elif v < 0:
-        f = -p[P_FCN]
+        f, sign = -p[P_FCN], -1.0
     else:
         return 0.0
     for k in range(int(p[P_NSTRIB])):
-        amp, vs = p[P_STRIB + 2 * k], p[P_STRIB + 2 * k + 1]
-        x = v / vs
-        f += math.copysign(amp * math.exp(-x * x), v)
+        f += p[P_STRIB + 2 * k] * stribeck(v, p[P_STRIB + 2 * k + 1]) * sign
     return f
 
 
@@ -76,8 +78,8 @@ def other_torque(p, qi, dqi, k_stop, d_stop):
 
 
 def cogging_torque(c, qk):
-    """The cogging term c (a row of cog) at its joint's angle qk."""
-    return c[1] * math.sin(c[3] * qk) + c[2] * math.cos(c[3] * qk)
+    """The cogging term c (a row of cog) at its joint's angle qk (effect_shapes.ripple)."""
+    return ripple(qk, c[1], c[2], c[3])
 
 
 # ---- building the arrays ----------------------------------------------------------------------------

@@ -5,7 +5,8 @@ Conventions (all arrays SI, (N, J) in the dynamics' joint order):
 - A one-joint effect whose torque has a closed form defines it once, in `formula(q, dq, ddq, c, shape, ops)`:
   the torque on its joint from that joint's angle, velocity and acceleration (floats, or (N,) arrays), its
   coefficients c and shape values, with the elementwise functions of `ops` (`ARRAY_OPS` for arrays,
-  `SCALAR_OPS` for floats; `smooth_sign_ops(v0)` replaces sign(dq) by tanh(dq / v0)). Its regressor
+  `SCALAR_OPS` for floats; `smooth_sign_ops(v0)` replaces sign(dq) by tanh(dq / v0)), the built-in
+  shapes (crane_io.physics.effect_shapes: `ops.stribeck`, `ops.ripple`) included. Its regressor
   columns are the formula at each unit coefficient vector (`_columns`), and the control loop evaluates the
   same formula on floats (crane_io.physics.loop_model): one definition, the same IEEE operations in both.
 - `torque(q, dq, ddq, joint, values)` is what the effect ADDS to the torque the motor must supply
@@ -29,12 +30,14 @@ Conventions (all arrays SI, (N, J) in the dynamics' joint order):
 from __future__ import annotations
 
 import math
+import types
 from dataclasses import dataclass, field
 from types import SimpleNamespace
 
 import numpy as np
 
 from crane_io.errors import ConfigError
+from crane_io.physics import effect_shapes
 
 
 def _sign(x: float) -> float:
@@ -45,10 +48,20 @@ def _positive(x: float) -> float:
     return 1.0 if x > 0 else 0.0
 
 
-# the elementwise functions an effect's formula uses: on (N,) arrays, and on floats (the same values)
+def on_arrays(shape):
+    """A shape of crane_io.physics.effect_shapes (written on floats with math's exp, sin, cos) as the same
+    code on arrays: its `math` is numpy."""
+    return types.FunctionType(shape.__code__, {**shape.__globals__, "math": np}, shape.__name__,
+                              shape.__defaults__)
+
+
+# the elementwise functions an effect's formula uses: on (N,) arrays, and on floats (the same values); the
+# built-in effects' shapes (crane_io.physics.effect_shapes) among them
 ARRAY_OPS = SimpleNamespace(sign=np.sign, positive=lambda x: (x > 0).astype(float), exp=np.exp,
-                            sin=np.sin, cos=np.cos)
-SCALAR_OPS = SimpleNamespace(sign=_sign, positive=_positive, exp=math.exp, sin=math.sin, cos=math.cos)
+                            sin=np.sin, cos=np.cos, stribeck=on_arrays(effect_shapes.stribeck),
+                            ripple=on_arrays(effect_shapes.ripple))
+SCALAR_OPS = SimpleNamespace(sign=_sign, positive=_positive, exp=math.exp, sin=math.sin, cos=math.cos,
+                             stribeck=effect_shapes.stribeck, ripple=effect_shapes.ripple)
 
 
 def smooth_sign_ops(v0: float) -> SimpleNamespace:

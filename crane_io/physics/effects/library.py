@@ -92,7 +92,7 @@ class Stribeck(Effect):
     friction = True
 
     def formula(self, q, dq, ddq, c, shape, ops):
-        return c[0] * ops.exp(-((dq / max(shape["stribeck_velocity"], 1e-9)) ** 2)) * ops.sign(dq)
+        return c[0] * ops.stribeck(dq, max(shape["stribeck_velocity"], 1e-9)) * ops.sign(dq)
 
     def static_band(self, values):
         v = self.check_values(values)
@@ -121,7 +121,7 @@ class Stiction(Effect):
     friction = True
 
     def formula(self, q, dq, ddq, c, shape, ops):
-        return (c[0] + c[1] * ops.exp(-((dq / max(shape["stiction_velocity"], 1e-9)) ** 2))) * ops.sign(dq)
+        return (c[0] + c[1] * ops.stribeck(dq, max(shape["stiction_velocity"], 1e-9))) * ops.sign(dq)
 
     def coefficients(self, values):
         v = self.check_values(values)
@@ -221,8 +221,7 @@ class Cogging(Effect):
     integer_shapes = ("cycles_per_rev",)
 
     def formula(self, q, dq, ddq, c, shape, ops):
-        a = shape["cycles_per_rev"] * q
-        return c[0] * ops.sin(a) + c[1] * ops.cos(a)
+        return ops.ripple(q, c[0], c[1], shape["cycles_per_rev"])
 
     def coefficients(self, values):
         v = self.check_values(values)
@@ -263,7 +262,7 @@ class Backlash(Effect):
     shape_grid = {"reversal_velocity": [0.02, 0.05, 0.1, 0.2]}
 
     def formula(self, q, dq, ddq, c, shape, ops):
-        return c[0] * ddq * ops.exp(-((dq / max(shape["reversal_velocity"], 1e-9)) ** 2))
+        return c[0] * ddq * ops.stribeck(dq, max(shape["reversal_velocity"], 1e-9))
 
     def plant_terms(self, terms, k, values):
         """The plant simulates the gear gap itself (width, motor_inertia): the motor side is a state of
