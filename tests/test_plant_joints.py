@@ -77,7 +77,7 @@ _REFERENCE = {
     "contact-wall": "42a2e5ca9117d40e",
     "backlash+torque-constant-error": "950707d7f2817b12",
     "user friction effect+joint wall": "ff763403a5103d1a",
-    "user effect+payload+asymmetric Coulomb+spring": "bfd74d64480d9c95",
+    "user effect+payload+asymmetric Coulomb+spring": "4ada303b220b6158",
 }
 
 

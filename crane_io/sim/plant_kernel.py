@@ -35,7 +35,7 @@ import numpy as np
 
 # the layout's, the effect shapes' and the rigid body's names are the kernel's (its compiled functions,
 # theirs included, run in this namespace; callers read the columns here too)
-from crane_io.physics.effect_shapes import ripple, stribeck  # noqa: F401
+from crane_io.physics.effect_shapes import ripple, spring, stribeck  # noqa: F401
 from crane_io.sim.plant_layout import (  # noqa: F401
     C_EXT,
     C_GOAL,
@@ -67,11 +67,11 @@ from crane_io.sim.plant_layout import (  # noqa: F401
     P_HI,
     P_KT,
     P_LO,
+    P_NSPRING,
     P_NSTRIB,
     P_OFF,
     P_SERVO,
-    P_SK,
-    P_SQ0K,
+    P_SPRING,
     P_STRIB,
     P_VISC,
     cogging_torque,
@@ -285,9 +285,10 @@ def compiled():
     if _COMPILED is None:
         from crane_io.jit import compile_functions
 
-        names = ("kinematics", "rnea", "crba", "dynamics", "mass_and_bias", "stribeck", "ripple", "kinetic",
-                 "other_torque", "cogging_torque", "solve", "_motor", "_drive", "_free_accelerations",
-                 "_breaking_away", "_stick_slip", "_euler", "_integrate", "step", "step_arm")
+        names = ("kinematics", "rnea", "crba", "dynamics", "mass_and_bias", "stribeck", "spring", "ripple",
+                 "kinetic", "other_torque", "cogging_torque", "solve", "_motor", "_drive",
+                 "_free_accelerations", "_breaking_away", "_stick_slip", "_euler", "_integrate", "step",
+                 "step_arm")
         fns = compile_functions(globals(), names, SIGNATURES, error_model="numpy")
         _COMPILED = False if fns is None else (fns["step_arm"], fns["step"], fns["mass_and_bias"])
     return _COMPILED or None

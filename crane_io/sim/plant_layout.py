@@ -14,9 +14,10 @@ This module imports numpy, math and crane_io.physics.effect_shapes (the built-in
 Layouts (float64):
 - geo (n, GEO_COLS): per integrated joint, its placement in the parent joint's frame (rotation row-major,
   translation), its unit axis, the body's mass, centre of mass and rotational inertia about it (row-major);
-- par (n, P_STRIB + 2 S): Coulomb +, Coulomb -, static band +, static band -, viscous, offset, spring
-  stiffness, stiffness x rest angle, lower and upper end stop, torque constant, servo index, number of
-  Stribeck terms, then S (amplitude, velocity) pairs;
+- par (n, P_STRIB + 2 S + 2 R): Coulomb +, Coulomb -, static band +, static band -, viscous, offset,
+  number of springs, the column of the first spring, lower and upper end stop, torque constant, servo
+  index, number of Stribeck terms, then S (amplitude, velocity) pairs, then R (stiffness, rest angle)
+  pairs;
 - hpar (k, HELD_COLS): per held joint its torque constant, inertia, viscous friction, lower and upper end
   stop, servo index;
 - cog (C, 4): cogging terms (joint, sin amplitude, cos amplitude, periods per turn); C may be 0;
@@ -36,11 +37,12 @@ import math
 
 import numpy as np
 
-from crane_io.physics.effect_shapes import ripple, stribeck
+from crane_io.physics.effect_shapes import ripple, spring, stribeck
 
 G_R, G_P, G_AX, G_M, G_C, G_I = 0, 9, 12, 15, 16, 19
 GEO_COLS = 28
-(P_FCP, P_FCN, P_BANDP, P_BANDN, P_VISC, P_OFF, P_SK, P_SQ0K, P_LO, P_HI, P_KT, P_SERVO, P_NSTRIB) = range(13)
+(P_FCP, P_FCN, P_BANDP, P_BANDN, P_VISC, P_OFF, P_NSPRING, P_SPRING, P_LO, P_HI, P_KT, P_SERVO,
+ P_NSTRIB) = range(13)
 P_STRIB = 13
 H_KT, H_INERTIA, H_VISC, H_LO, H_HI, H_SERVO = range(6)
 HELD_COLS = 6
@@ -67,9 +69,12 @@ def kinetic(p, v):
 
 
 def other_torque(p, qi, dqi, k_stop, d_stop):
-    """Non-friction effect torques (viscous, offset, spring) and the end stops of the joint of row p
-    (inverse-dynamics sense)."""
-    t = p[P_VISC] * dqi + p[P_OFF] + p[P_SK] * qi - p[P_SQ0K]
+    """Non-friction effect torques (viscous, offset, each spring: effect_shapes.spring) and the end stops of
+    the joint of row p (inverse-dynamics sense)."""
+    t = p[P_VISC] * dqi + p[P_OFF]
+    first = int(p[P_SPRING])
+    for k in range(int(p[P_NSPRING])):
+        t += spring(qi, p[first + 2 * k], p[first + 2 * k + 1])
     if qi < p[P_LO]:
         t += k_stop * (qi - p[P_LO]) + d_stop * dqi
     elif qi > p[P_HI]:
@@ -110,13 +115,16 @@ def effect_rows(terms, lo, hi, kt, servo) -> np.ndarray:
     """par from a PlantTerms and, per integrated joint, its end stops, true torque constant, servo index."""
     n = len(terms.joints)
     n_strib = max([len(s) for s in terms.stribeck] + [0])
-    par = np.zeros((n, P_STRIB + 2 * n_strib))
+    first = P_STRIB + 2 * n_strib  # the springs' pairs follow the Stribeck pairs
+    par = np.zeros((n, first + 2 * max([len(s) for s in terms.springs] + [0])))
     for i in range(n):
         par[i, :P_STRIB] = (terms.coulomb_pos[i], terms.coulomb_neg[i], terms.band_pos[i], terms.band_neg[i],
-                            terms.viscous[i], terms.offset[i], terms.spring_k[i], terms.spring_q0k[i], lo[i],
-                            hi[i], kt[i], servo[i], len(terms.stribeck[i]))
+                            terms.viscous[i], terms.offset[i], len(terms.springs[i]), first, lo[i], hi[i],
+                            kt[i], servo[i], len(terms.stribeck[i]))
         for j, (amp, vs) in enumerate(terms.stribeck[i]):
             par[i, P_STRIB + 2 * j:P_STRIB + 2 * j + 2] = amp, vs
+        for j, (k, q0) in enumerate(terms.springs[i]):
+            par[i, first + 2 * j:first + 2 * j + 2] = k, q0
     return par
 
 

@@ -177,13 +177,12 @@ class Spring(Effect):
     shape_grid = {"rest_angle": [round(x, 3) for x in np.linspace(-1.5, 1.5, 13)]}
 
     def formula(self, q, dq, ddq, c, shape, ops):
-        return c[0] * (q - shape["rest_angle"])
+        return ops.spring(q, c[0], shape["rest_angle"])
 
     def plant_terms(self, terms, k, values):
         if not self._same_physics(Spring):
             return super().plant_terms(terms, k, values)
-        terms.spring_k[k] += values["stiffness"]
-        terms.spring_q0k[k] += values["stiffness"] * values["rest_angle"]
+        terms.springs[k].append((float(values["stiffness"]), float(values["rest_angle"])))
 
 
 class RotorInertia(Effect):
