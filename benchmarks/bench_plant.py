@@ -9,7 +9,7 @@
 4. The same with all seven joints integrated (preset crane-x7-7dof): the plant alone and two
    arms in lockstep.
 5. The compiled substep kernel (crane_io.sim.plant_kernel, the default) against the reference path
-   (`ArmPlant(kernel=False)`: pinocchio and Python floats per substep), 3 and 7 joints, the plant alone:
+   (`ArmPlant(kernel=False)`: Python floats per substep, the same bits), 3 and 7 joints, the plant alone:
    blocks of the two alternated in one process, CPU time, and their ratio.
 6. The simulated chain side alone (SimulatedChain.feed: Goal Current Sync Write + Fast Sync Read bytes
    in, the reply out, the plant step included) on its fast path (crane_io.sim.chain_kernel, the default)

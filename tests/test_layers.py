@@ -101,7 +101,14 @@ COMPILED_LAYOUTS = {
     ),
     # ctypes: the numpy generator's state pointer; warnings: a numba whose sampler differs is said once
     "crane_io/sim/noise_kernel.py": ("crane_io.dynamixel.units", "ctypes", "warnings"),
-    "crane_io/sim/plant_kernel.py": ("crane_io.sim.plant_layout",),
+    "crane_io/sim/plant_kernel.py": ("crane_io.sim.plant_layout", "crane_io.sim.plant_rigid",
+                                     "crane_io.physics.effect_shapes"),
+}
+# Modules whose functions a compiled module compiles besides its own (same rule: numpy, math and layouts)
+COMPILED_SOURCES = {
+    "crane_io/physics/effect_shapes.py": (),  # the built-in effects' shapes, the plant's and the formulas'
+    "crane_io/sim/plant_layout.py": ("crane_io.physics.effect_shapes",),
+    "crane_io/sim/plant_rigid.py": ("crane_io.sim.plant_layout",),  # the rigid body, both plant steppers'
 }
 
 
@@ -135,9 +142,9 @@ def test_the_imports_of_a_compiled_module_are_resolved():  # or the next test co
     assert "collect.controller_layout" in _modules_imported(ROOT / "collect/controller_kernel.py")  # relative
 
 
-@pytest.mark.parametrize("module", sorted(COMPILED_LAYOUTS))
+@pytest.mark.parametrize("module", sorted(COMPILED_LAYOUTS) + sorted(COMPILED_SOURCES))
 def test_compiled_modules_import_only_numpy_math_numba_and_their_layout(module):
-    allowed = COMPILED_ANYWHERE + COMPILED_LAYOUTS[module]
+    allowed = COMPILED_ANYWHERE + {**COMPILED_LAYOUTS, **COMPILED_SOURCES}[module]
     others = sorted(m for m in _modules_imported(ROOT / module)
                     if not any(m == a or m.startswith(a + ".") for a in allowed))
     assert others == [], f"{module} imports {others}: not numpy, math, numba or a layout module of it"

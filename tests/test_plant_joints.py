@@ -1,8 +1,7 @@
 """The simulated arm integrates any set of joints: ArmPlant(joints=...) and the plant
-configuration's `joints` key. With the default three joints the plant computes the same bits as before
-the generalisation (hashes below were computed with the 3-joint code of commit 64ad013) on its reference
-path (`kernel=False`: pinocchio per substep); the compiled kernel, the default where it applies, is
-checked against that path in tests/test_plant_kernel.py."""
+configuration's `joints` key. With the default three joints the reference path's (`kernel=False`)
+trajectories are pinned below (presets, backlash, user-defined effects, [[environment]] objects); where the
+compiled kernel applies (the default) it gives the same bits (tests/test_plant_kernel.py)."""
 
 from __future__ import annotations
 
@@ -69,15 +68,16 @@ class SoftFriction(Effect):
         return (abs(v["level"]), abs(v["level"]))
 '''
 
-# (preset or extra TOML, sha256[:16] of every step's state, motor torque and reading) from the 3-joint code
+# (preset or extra TOML, sha256[:16] of every step's state, motor torque and reading) on x86_64 Linux; the
+# first three are tests/test_plant_kernel.py's _KERNEL_REFERENCE: the two steppers compute the same bits
 _REFERENCE = {
-    "crane-x7": "8f67b47cd9315f4b",
-    "baseline": "504875ea7a099c3b",
-    "hidden-cogging": "1607779576ab1512",
-    "contact-wall": "d77a835c91c0ebea",
-    "backlash+torque-constant-error": "f9e64ead5bb7a274",
-    "user friction effect+joint wall": "9d027d7072c158b9",
-    "user effect+payload+asymmetric Coulomb+spring": "0d2d3aa1609b610b",
+    "crane-x7": "23195b13a6e4133e",
+    "baseline": "df694052eb0cb756",
+    "hidden-cogging": "cbb1ef498f63615f",
+    "contact-wall": "42a2e5ca9117d40e",
+    "backlash+torque-constant-error": "950707d7f2817b12",
+    "user friction effect+joint wall": "ff763403a5103d1a",
+    "user effect+payload+asymmetric Coulomb+spring": "4ada303b220b6158",
 }
 
 
@@ -347,6 +347,8 @@ def test_a_plane_pushes_every_integrated_joint_through_the_jacobian_of_the_seven
     ("stiction", {"coulomb": 0.12, "breakaway": 0.2, "stiction_velocity": 0.02}),
     ("offset", {"offset": -0.07}), ("spring", {"stiffness": 0.4, "rest_angle": 0.5}),
     ("cogging", {"amplitude": 0.08, "phase": 0.5, "cycles_per_rev": 12.0}),
+    ("stribeck", {"stribeck": -0.05, "stribeck_velocity": 0.05}),  # a dip, not a bump
+    ("stiction", {"coulomb": 0.2, "breakaway": 0.12, "stiction_velocity": 0.02}),
 ])
 def test_the_plant_terms_of_an_effect_are_its_torque_on_any_joint(tmp_path, effect, values):
     """Each built-in's closed form in the plant (Effect.plant_terms) is the effect's own torque(), on a

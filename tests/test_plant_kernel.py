@@ -1,16 +1,15 @@
 """The plant's two steppers (crane_io/sim/plant_backend.py): the compiled one (crane_io/sim/plant_kernel.py)
 against the reference (crane_io/sim/plant_reference.py), through the plant that picked them.
 
-The kernel computes the rigid-body terms itself (Newton-Euler in the joints' frames) instead of calling
-pinocchio every substep, so it cannot give pinocchio's last bits. What is pinned instead:
-- its mass matrix and bias torque equal pinocchio's (crba, nonLinearEffects) to 1e-12 relative, for 3 and
-  7 joints, held joints locked at other angles, a payload;
+Both take the rigid body from crane_io/sim/plant_rigid.py (checked against pinocchio in
+tests/test_plant_rigid.py) and the effects from crane_io/sim/plant_layout.py, in the same order of operations.
+What is pinned:
 - the compiled code computes exactly what its Python source computes (no fused multiply-add, no
   reassociation), bit for bit;
-- a plant's trajectory equals the reference stepper's (`ArmPlant(kernel=False)`) to 1e-12 over the first
-  second and stays close (a stick-slip decision at a rounding-level tie may later go the other way);
-- the reference stepper still records the pinned 1 s session bit for bit, and so does the kernel (that
-  session takes no decision at a tie); the plant's physics tests run on the kernel unchanged.
+- a plant's trajectory on the kernel is the reference stepper's (`ArmPlant(kernel=False)`) bit for bit,
+  stick-slip included, for 3 and 7 joints;
+- the reference stepper records the pinned 1 s session bit for bit, and so does the kernel; the kernel's
+  trajectories are pinned; the plant's physics tests run on the kernel.
 """
 
 from __future__ import annotations
@@ -18,17 +17,17 @@ from __future__ import annotations
 import platform
 
 import numpy as np
-import pinocchio as pin
 import pytest
 
 from crane_io.errors import ConfigError
-from crane_io.sim import plant_kernel
+from crane_io.sim import plant_backend, plant_kernel, plant_rigid
 from crane_io.sim.arm_plant import ArmPlant
 from crane_io.sim.plant_api import ActuatorCommand
 
 pytestmark = pytest.mark.skipif(plant_kernel.compiled() is None, reason="numba is not installed")
 
 PERIOD = 0.002
+STEPS = 600  # current mode with moving, stopping and sticking joints, then position mode from step 300
 GAINS = np.tile([800.0, 0.0, 0.0], (8, 1))
 EXTRA = {  # extra plant configurations (TOML), beside presets
     "locked-elsewhere": 'base = "crane-x7"\n[locked]\njoint3 = 0.4\njoint5 = -0.7\njoint6 = 0.3\n'
@@ -61,29 +60,6 @@ def _drive(k: int, n_int: int, rng: np.random.Generator):
     return ActuatorCommand(np.ones(8, bool), mode, current, position, GAINS, np.full(8, 2.0)), ext
 
 
-@pytest.mark.parametrize("name", ["crane-x7", "crane-x7-7dof", "hidden-payload", "locked-elsewhere"])
-def test_the_kernels_mass_matrix_and_bias_equal_pinocchios(tmp_path, name):
-    plant = _plant(tmp_path, name)
-    assert plant.kernel
-    _step_arm, _step, dynamics = plant_kernel.compiled()
-    model, data = plant.model, plant.model.createData()
-    n = model.nv
-    mass, bias = np.empty((n, n)), np.empty(n)
-    work = (np.empty((n, 3, 3)), np.empty((n, 3)), np.empty((n, 12)), np.zeros(n), np.empty(n),
-            np.empty((n, 3)), np.empty((n, 3, 3)))
-    rng = np.random.default_rng(5)
-    for _ in range(300):
-        q, dq = rng.uniform(-3, 3, n), rng.uniform(-4, 4, n)
-        k = plant._stepper
-        dynamics(n, k.geo, k.arm, k.scal, q, dq, mass, bias, *work)
-        m = pin.crba(model, data, q)
-        m = np.triu(m) + np.triu(m, 1).T
-        b = pin.nonLinearEffects(model, data, q, dq)
-        np.testing.assert_allclose(mass, m, rtol=0, atol=1e-12 * np.abs(m).max())
-        np.testing.assert_allclose(bias, b, rtol=0, atol=1e-12 * np.abs(b).max())
-        assert np.array_equal(mass, mass.T)
-
-
 @pytest.mark.parametrize("name", ["crane-x7", "crane-x7-7dof", "hidden-cogging", "asymmetric+spring"])
 def test_the_compiled_kernel_computes_what_its_python_source_computes_bit_for_bit(tmp_path, name):
     plant = _plant(tmp_path, name)
@@ -111,28 +87,23 @@ def test_the_compiled_kernel_computes_what_its_python_source_computes_bit_for_bi
 
 @pytest.mark.parametrize("name", ["crane-x7", "crane-x7-7dof", "baseline", "hidden-cogging", "hidden-offset",
                                   "hidden-stribeck", "asymmetric+spring", "locked-elsewhere"])
-def test_the_kernel_follows_the_reference_path(tmp_path, name):
+def test_the_kernel_gives_the_reference_paths_bits(tmp_path, name):
     fast, ref = _plant(tmp_path, name, seed=4), _plant(tmp_path, name, seed=4, kernel=False)
     assert fast.kernel and not ref.kernel
     rng = np.random.default_rng(2)
     n_int = len(fast.joints)
     stuck = 0
-    for k in range(600):
+    for k in range(STEPS):
         cmd, ext = _drive(k, n_int, rng)
         for p in (fast, ref):
             p.set_external_torque(ext)
             p.step(cmd, PERIOD)
-        (qa, dqa), (qb, dqb) = fast.state(), ref.state()
-        held = fast._held  # the held servos: the same operations, bit for bit
-        assert qa[held].tobytes() == qb[held].tobytes() and dqa[held].tobytes() == dqb[held].tobytes()
-        assert fast._held_current.tobytes() == ref._held_current.tobytes()
-        tol = 1e-12 if k < 500 else 1e-6  # the first second to rounding, then close
-        np.testing.assert_allclose(qa, qb, rtol=0, atol=tol, err_msg=f"step {k}")
-        np.testing.assert_allclose(dqa, dqb, rtol=0, atol=100 * tol, err_msg=f"step {k}")
-        np.testing.assert_allclose(fast.motor_torque, ref.motor_torque, rtol=0, atol=1e3 * tol)
+        for a, b in zip((*fast.state(), fast.motor_torque, fast._held_current),
+                        (*ref.state(), ref.motor_torque, ref._held_current)):
+            assert a.tobytes() == b.tobytes(), f"step {k}"
         stuck += int(np.any(fast.dq == 0.0))
         ra, rb = fast.read(), ref.read()  # the same noise stream
-        np.testing.assert_allclose(ra.position, rb.position, rtol=0, atol=1e-6)
+        assert ra.position.tobytes() == rb.position.tobytes()
     assert stuck > 20  # stick-slip was exercised
 
 
@@ -149,6 +120,24 @@ def test_the_kernel_is_the_default_where_it_applies(tmp_path, monkeypatch):
     monkeypatch.setenv("CRANE_PLANT_KERNEL", "0")
     assert not ArmPlant("crane-x7").kernel
     assert ArmPlant("crane-x7", kernel=True).kernel  # an explicit choice wins over the environment
+
+
+def test_without_numba_the_reference_path_runs_the_rigid_bodys_python_source_to_the_same_bits(monkeypatch):
+    """CRANE_PLANT_KERNEL=0: the reference stepper on plant_rigid's Python source (numba not needed); it
+    gives the kernel's bits, stuck joints breaking away included."""
+    monkeypatch.setenv("CRANE_PLANT_KERNEL", "0")
+    slow = ArmPlant("crane-x7", seed=4)
+    monkeypatch.delenv("CRANE_PLANT_KERNEL")
+    fast = ArmPlant("crane-x7", seed=4)
+    assert slow._stepper._mass_and_bias is plant_rigid.mass_and_bias and fast.kernel
+    rng = np.random.default_rng(2)
+    for k in range(30):
+        cmd, ext = _drive(k, 3, rng)
+        for p in (fast, slow):
+            p.set_external_torque(ext)
+            p.step(cmd, PERIOD)
+        assert fast.q.tobytes() == slow.q.tobytes() and fast.dq.tobytes() == slow.dq.tobytes(), k
+    assert np.all(fast.dq != 0.0)  # every joint broke away from rest
 
 
 def _trajectory_hash(plant: ArmPlant, steps: int = 200) -> str:
@@ -170,13 +159,14 @@ def test_the_kernels_trajectory_is_pinned(name):
     assert _trajectory_hash(ArmPlant(name, seed=3)) == _KERNEL_REFERENCE[name]
 
 
-def test_the_reference_path_still_records_the_pinned_session(tmp_path, monkeypatch):
+def test_the_reference_path_records_the_pinned_session(tmp_path, monkeypatch):
     from collect.runner import RunOptions, run_session
     from tests import test_collect_session_pinned as pinned
 
     if (platform.system(), platform.machine()) != pinned.PINNED_PLATFORM:
         pytest.skip("the digest was pinned on x86_64 Linux")
-    monkeypatch.setenv("CRANE_PLANT_KERNEL", "0")
+    choose = plant_backend.choose
+    monkeypatch.setattr(plant_backend, "choose", lambda plant, kernel: choose(plant, False))
     out = tmp_path / "s.h5"
     run_session(RunOptions(output=out, sim=True, seed=pinned.SEED, duration=pinned.DURATION_S, status=False))
     assert pinned.session_digest(out)[0] == pinned.PINNED_DIGEST

@@ -1,8 +1,9 @@
 """The simulated CRANE-X7 arm: the physics behind the simulated servo chain for all 8 servos.
 
 The integrated joints (`joints`: any of joint1..joint7, default the config's `joints` key, whose own
-default is the paper's joint1, joint2, joint4) are integrated with the n-DOF pinocchio dynamics
-(crane_io.physics.dynamics; the other joints locked at the configured angles), plus the configured physical
+default is the paper's joint1, joint2, joint4) are integrated with the n-DOF rigid-body dynamics
+(crane_io.sim.plant_rigid, on the geometry and inertias of crane_io.physics.dynamics' model; the other
+joints locked at the configured angles), plus the configured physical
 effects (crane_io.physics.effects), plus the actuator, plus the external torque (an operator's hand):
 
     M(q) ddq + C(q, dq) dq + g(q) + tau_effects(q, dq) + friction = Kt_true * I + tau_ext
@@ -10,7 +11,7 @@ effects (crane_io.physics.effects), plus the actuator, plus the external torque 
 - Actuator: current mode -> torque = Kt_true x goal current (the chain already clamped it to the
   Current Limit); position modes -> the servo's PD controller (as in crane_io.sim.simple_plant);
   torque off -> no motor torque: the joint is back-drivable (gravity + friction only).
-- Rotor inertia goes into the mass matrix (pinocchio's armature); a payload into the dynamics.
+- Rotor inertia goes into the mass matrix (the model's armature); a payload into the dynamics.
 - Friction effects (coulomb, coulomb-asym, stribeck, stiction, user effects with friction=True) do
   true stick-slip, resolved every substep (default 0.25 ms): a joint at rest stays EXACTLY at rest
   while the friction needed to hold it (the net of motor, gravity, coupling, external and other
@@ -83,11 +84,11 @@ class ArmPlant:
     the joints integrated with the rigid-body dynamics (any of joint1..joint7, put in arm order;
     default the config's `joints`, itself by default joint1, joint2, joint4); `kernel`: step with the
     compiled stepper (crane_io.sim.plant_backend.CompiledStepper, crane_io.sim.plant_kernel) or with the
-    reference stepper (crane_io.sim.plant_reference: pinocchio calls and Python floats per substep),
+    reference stepper (crane_io.sim.plant_reference: Python floats per substep),
     chosen once, when the plant is built (crane_io.sim.plant_backend.choose). Default: the compiled one
     when numba is installed and the plant has no backlash, user-defined effect or [[environment]] object
     (those run on the reference stepper), unless the environment variable CRANE_PLANT_KERNEL is "0" (then
-    always the reference). The two agree to rounding, not bit for bit (see crane_io.sim.plant_kernel)."""
+    always the reference, numba not imported). The two compute the same bits (crane_io.sim.plant_kernel)."""
 
     def __init__(self, config: PlantConfig | str | Path | None = None, seed: int | None = None,
                  joints=None, kernel: bool | None = None):
@@ -120,7 +121,6 @@ class ArmPlant:
                                identified=config.arm_model)  # an identified arm model's bodies
         self.model = self.dyn.model
         self.model.armature = self._armature.copy()
-        self.data = self.model.createData()
         lo = np.array([arm.joint(n).lower for n in joints]) - _STOP_MARGIN
         hi = np.array([arm.joint(n).upper for n in joints]) + _STOP_MARGIN
         self._lo_l, self._hi_l = lo.tolist(), hi.tolist()
@@ -166,6 +166,10 @@ class ArmPlant:
                                             [self._kt_l[i] for i in self._bi_l], self._bi_l)
         self.cog = plant_layout.cogging_rows(self.terms.cogging)
         self.held_omega = _HELD_OMEGA
+        if not plant_layout.revolute_chain(self.model):  # (every arm of joint1..joint7 in arm order is)
+            raise ConfigError("the simulated arm integrates a serial chain of revolute joints only")
+        self.geo = plant_layout.geometry(self.model)  # the rigid body (crane_io.sim.plant_rigid)
+        self.scal = np.array([self._k_stop, self._d_stop, *self.model.gravity.linear, self.held_omega])
         self._stepper = plant_backend.choose(self, kernel)
 
     @property

@@ -9,10 +9,11 @@ A stepper has one interface, two implementations:
 - `step_args(dt)`, `cycle_args(dt)`, `read_args()`: the plant's arguments of the simulated chain's compiled
   lockstep cycle (crane_io.sim.lockstep_kernel), or None.
 
-crane_io.sim.plant_reference.ReferenceStepper is the reference (pinocchio and Python floats; every plant);
+crane_io.sim.plant_reference.ReferenceStepper is the reference (Python floats per substep; every plant);
 `CompiledStepper` calls crane_io.sim.plant_kernel (numba) on the arrays of crane_io.sim.plant_layout, for a
-serial chain of revolute joints without backlash, user-defined effects or [[environment]] objects. The two
-agree to rounding (tests/test_plant_kernel.py).
+plant without backlash, user-defined effects or [[environment]] objects. Both take the rigid body from
+crane_io.sim.plant_rigid, the reference stepper through `mass_and_bias` (compiled where numba works, else
+its Python source); the two compute the same bits (tests/test_plant_kernel.py).
 """
 
 from __future__ import annotations
@@ -25,24 +26,25 @@ import numpy as np
 
 from crane_io.dynamixel.units import AMPERE_PER_CURRENT_LSB, RADS_PER_VELOCITY_LSB
 from crane_io.errors import ConfigError
-from crane_io.sim import noise_kernel, plant_kernel, plant_layout
+from crane_io.sim import noise_kernel, plant_kernel, plant_layout, plant_rigid
 from crane_io.sim.plant_reference import ReferenceStepper
 
 
 def choose(plant, kernel: bool | None):
     """The stepper of `plant`: the compiled one when `kernel` is True (ConfigError when it cannot take the
     plant or numba is missing), the reference when False; None: the compiled one where it applies and
-    works, unless the environment variable CRANE_PLANT_KERNEL is "0"."""
-    fits = not (plant._backlash or plant._generic or plant.environment) and plant_layout.revolute_chain(
-        plant.model)
+    works, unless the environment variable CRANE_PLANT_KERNEL is "0" (then the reference stepper with the
+    rigid body's Python source: numba is not imported)."""
+    fits = not (plant._backlash or plant._generic or plant.environment)
     required = kernel is True
+    interpreted = kernel is None and os.environ.get("CRANE_PLANT_KERNEL", "1") == "0"
     if kernel is None:
-        kernel = os.environ.get("CRANE_PLANT_KERNEL", "1") != "0" and fits
+        kernel = not interpreted and fits
     elif kernel and not fits:
         raise ConfigError("the compiled plant kernel does not simulate backlash, user-defined effects or "
                           "[[environment]] objects; use kernel=False for this plant")
+    fns = None if interpreted else plant_kernel.compiled()
     if kernel:
-        fns = plant_kernel.compiled()
         if fns is None and required:
             raise ConfigError("the compiled plant kernel needs numba (pip install numba)")
         if fns is not None:
@@ -53,7 +55,21 @@ def choose(plant, kernel: bool | None):
                     raise
                 warnings.warn(f"the compiled plant kernel is not usable here ({type(exc).__name__}: "
                               f"{exc}); the plant integrates on its reference path", stacklevel=3)
-    return ReferenceStepper(plant)
+    return ReferenceStepper(plant, _mass_and_bias(plant, fns))
+
+
+def _mass_and_bias(plant, fns):
+    """plant_rigid.mass_and_bias compiled (from fns, plant_kernel.compiled()) when it runs here, else its
+    Python source."""
+    if fns is not None:
+        q = np.asarray(plant.q, dtype=float)
+        try:
+            fns[2](plant.geo, plant.model.armature, plant.scal, q, np.zeros_like(q))
+            return fns[2]
+        except Exception as exc:  # e.g. a numba that cannot compile it here: the Python source
+            warnings.warn(f"the compiled rigid-body dynamics are not usable here ({type(exc).__name__}: "
+                          f"{exc}); the plant's reference path runs their Python source", stacklevel=4)
+    return plant_rigid.mass_and_bias
 
 
 class CompiledStepper:
@@ -65,11 +81,8 @@ class CompiledStepper:
     def __init__(self, plant, fns):
         self.plant = plant
         self.step_arm, self.step_substeps = fns[0], fns[1]
-        m = plant.model
-        self.geo = plant_layout.geometry(m)
-        self.par, self.cog = plant.par, plant.cog
-        self.arm = m.armature  # a view of the model's vector (kept live: a test may change it)
-        self.scal = np.array([plant._k_stop, plant._d_stop, *m.gravity.linear, plant.held_omega])
+        self.geo, self.par, self.cog, self.scal = plant.geo, plant.par, plant.cog, plant.scal
+        self.arm = plant.model.armature  # a view of the model's vector (kept live: a test may change it)
         self.hpar = plant_layout.held_rows(plant._held_kt_l, plant._held_inertia_l, plant._held_visc_l,
                                            plant._held_lo_l, plant._held_hi_l, plant._held_l)
         self.pd0 = np.zeros((len(plant.joints), 6))  # no servo PD

@@ -1,12 +1,13 @@
-"""The reference stepper of crane_io.sim.arm_plant.ArmPlant: pinocchio calls and Python floats per substep.
+"""The reference stepper of crane_io.sim.arm_plant.ArmPlant: Python floats per substep.
 
 It steps everything the plant models (backlash, user-defined effects, [[environment]] objects included);
-crane_io.sim.plant_backend.CompiledStepper is its compiled twin for the plants the kernel covers (the two
-agree to rounding: tests/test_plant_kernel.py). The effects are evaluated with the layout's functions
-(crane_io.sim.plant_layout), which the compiled kernel compiles.
+crane_io.sim.plant_backend.CompiledStepper is its compiled twin for the plants the kernel covers, and
+computes the same bits (tests/test_plant_kernel.py). The rigid body comes from
+crane_io.sim.plant_rigid (`mass_and_bias`: compiled, or its Python source), the effects from the layout's
+functions (crane_io.sim.plant_layout): the functions the compiled kernel compiles.
 
 Per joint in plain Python: a plant has up to 8 joints, for which floats cost less than numpy's fancy
-indexing and reductions; the IEEE operations are those of the array form, so the results are the same.
+indexing and reductions; the IEEE operations are those of the compiled kernel, in the same order.
 """
 
 from __future__ import annotations
@@ -16,7 +17,6 @@ import struct
 from operator import add, sub
 
 import numpy as np
-import pinocchio as pin
 
 from crane_io.sim.plant_layout import P_BANDN, P_BANDP, cogging_torque, held_matrix, kinetic, other_torque
 
@@ -27,15 +27,17 @@ class ReferenceStepper:
 
     compiled = False
 
-    def __init__(self, plant):
+    def __init__(self, plant, mass_and_bias):
+        """`mass_and_bias`: crane_io.sim.plant_rigid.mass_and_bias, compiled or not."""
         self.plant = plant
         n = len(plant.joints)
-        self.data = plant.data  # pinocchio's work space
+        self._mass_and_bias = mass_and_bias
+        self._arm = plant.model.armature  # a view of the model's vector (kept live: a test may change it)
         self._rows = plant.par.tolist()  # par's rows as lists of floats
         self._cog_rows = plant.cog.tolist()
         self._key = struct.Struct(f"<{4 * n + 1}d")  # a substep's inputs (q, dq, motor, external torque, h)
         self._joint_range = tuple(range(n))
-        self._euler, self._drive, self._mirror = written_out(n)
+        self._euler, self._drive = written_out(n)
         self._last_key, self._last_out = b"", None  # the last substep's inputs and result (_substep)
         self._held_cache: dict[float, tuple[float, float, float, float]] = {}
         self._zero_row = np.zeros((1, n))
@@ -106,16 +108,16 @@ class ReferenceStepper:
             gen_nf, gen_fr = self._generic_torques(q, dq)
             other = list(map(add, other, gen_nf))
         drive = self._drive(tau_m, ext, other)
-        qa, dqa = np.array(q), np.array(dq)
+        m = self._mass_and_bias(p.geo, self._arm, p.scal, np.array(q), np.array(dq)).tolist()
+        rhs = list(map(sub, drive, m.pop()))  # (the last row: the bias torque; the others: M)
         if 0.0 not in dq:  # every joint moves (== : -0.0 is at rest too)
             rows = self._rows
             f = [kinetic(rows[i], v) for i, v in enumerate(dq)]
             if gen_fr is not None:
                 f = list(map(add, f, gen_fr))
-            net = np.array(list(map(sub, drive, f)))
-            ddq = pin.aba(p.model, self.data, qa, dqa, net).tolist()
+            ddq = _solve(m, list(map(sub, rhs, f)))
         else:
-            ddq = self._stick_slip(qa, dqa, dq, drive, gen_fr)
+            ddq = self._stick_slip(m, rhs, dq, gen_fr)
         # semi-implicit Euler: velocity first, then position; friction stops a joint, it never reverses
         # it within a substep
         return self._euler(q, dq, ddq, h)
@@ -164,15 +166,11 @@ class ReferenceStepper:
             tau[i] = tc
         return tau
 
-    def _stick_slip(self, qa, dqa, dq, drive: list, gen_fr) -> list:
-        """Accelerations when some joint stands still: the stuck joints are held while the friction needed
-        to hold each lies inside its static band; the joint pushed furthest beyond its band breaks away
-        first, in that direction (then the others are tested again)."""
-        model = self.plant.model
-        m = pin.crba(model, self.data, qa).tolist()  # the upper triangle; mirror it
-        self._mirror(m)
-        nle = pin.nonLinearEffects(model, self.data, qa, dqa).tolist()
-        rhs = list(map(sub, drive, nle))
+    def _stick_slip(self, m: list, rhs: list, dq, gen_fr) -> list:
+        """Accelerations when some joint stands still (m: the mass matrix, rhs: drive - bias): the stuck
+        joints are held while the friction needed to hold each lies inside its static band; the joint
+        pushed furthest beyond its band breaks away first, in that direction (then the others are tested
+        again)."""
         free = [v != 0.0 for v in dq]
         vel = list(dq)  # velocity used for friction: tiny in the break-away direction
         rows = self._rows
@@ -260,15 +258,13 @@ def _breaking_away(rows, m, rhs, ddq, free, idx) -> tuple[int, float]:
 
 
 def written_out(n: int) -> tuple:
-    """(euler, drive, mirror) for n joints: the per-joint float arithmetic of the substep written out
+    """(euler, drive) for n joints: the per-joint float arithmetic of the substep written out
     (generated once per n: a loop over n small lists costs more than the arithmetic itself):
 
     - euler(q, dq, ddq, h) -> ((q'), (dq')): semi-implicit Euler, velocity first (a velocity that would
       change sign in the substep stops at zero: friction stops a joint, it never reverses it), then
       position;
-    - drive(tau_m, ext, other) -> [tau_m + ext - other] per joint;
-    - mirror(m): copies the upper triangle of the n x n list-of-lists m (pinocchio's crba) below the
-      diagonal."""
+    - drive(tau_m, ext, other) -> [tau_m + ext - other] per joint."""
     fns = _WRITTEN_OUT.get(n)
     if fns is None:
         r = range(n)
@@ -283,14 +279,10 @@ def written_out(n: int) -> tuple:
         src += [f"    return ({', '.join(f'q{i} + h * v{i}' for i in r)},), "
                 f"({', '.join(f'v{i}' for i in r)},)",
                 "def drive(t, e, o):",
-                f"    return [{', '.join(f't[{i}] + e[{i}] - o[{i}]' for i in r)}]",
-                "def mirror(m):"]
-        lower = [(a, b) for a in range(1, n) for b in range(a)]
-        src += [f"    {', '.join(f'm[{a}][{b}]' for a, b in lower)}, = "
-                f"{', '.join(f'm[{b}][{a}]' for a, b in lower)}," if lower else "    pass"]
+                f"    return [{', '.join(f't[{i}] + e[{i}] - o[{i}]' for i in r)}]"]
         space: dict = {}
         exec(compile("\n".join(src), f"<arm_plant substep, {n} joints>", "exec"), space)  # noqa: S102
-        fns = _WRITTEN_OUT[n] = (space["euler"], space["drive"], space["mirror"])
+        fns = _WRITTEN_OUT[n] = (space["euler"], space["drive"])
     return fns
 
 
@@ -317,26 +309,44 @@ def _solve_free(m: list, idx: list, b: list) -> list:
 
 
 def _solve(a: list, b: list) -> list:
-    """Solve a small symmetric positive-definite system. Up to 3 unknowns by Gaussian elimination in
-    floats (the 1- and 2-unknown cases are the general loop written out: the same operations in the same
-    order, `sum` included: it adds from 0.0); more (4..7 integrated joints) with LAPACK, which is cheaper
-    there than the loop."""
+    """Solve a small symmetric positive-definite system by Gaussian elimination without pivoting in floats:
+    `_eliminate` written out for len(b) unknowns (generated once per size: the same operations in the same
+    order, `sum` included: it adds from 0.0), crane_io.sim.plant_rigid.solve's operations."""
     n = len(b)
-    if n > 3:
-        return np.linalg.solve(np.array(a), np.array(b)).tolist()
-    if n == 1:
-        return [b[0] / a[0][0]]
-    if n == 2:
-        (a00, a01), (a10, a11) = a
-        f = a10 / a00
-        x1 = (b[1] - f * b[0]) / (a11 - f * a01)
-        return [(b[0] - (0.0 + a01 * x1)) / a00, x1]
-    return _eliminate(a, b)
+    fn = _SOLVERS.get(n)
+    if fn is None:
+        fn = _SOLVERS[n] = _written_solve(n)
+    return fn(a, b)
+
+
+def _written_solve(n: int):
+    """_eliminate for n unknowns as straight-line code (the entries below the diagonal it zeroes are never
+    read again, so they are not written)."""
+    r = range(n)
+    src = ["def solve(a, b):", *[f"    {', '.join(f'a{i}_{c}' for c in r)}, = a[{i}]" for i in r],
+           f"    {', '.join(f'b{i}' for i in r)}, = b"]
+    for k in r:
+        for i in range(k + 1, n):
+            src.append(f"    f = a{i}_{k} / a{k}_{k}")
+            src += [f"    a{i}_{c} -= f * a{k}_{c}" for c in range(k + 1, n)]
+            src.append(f"    b{i} -= f * b{k}")
+    for k in range(n - 1, -1, -1):
+        total = "0.0"
+        for c in range(k + 1, n):
+            total = f"({total} + a{k}_{c} * x{c})"
+        src.append(f"    x{k} = (b{k} - {total}) / a{k}_{k}" if k < n - 1 else f"    x{k} = b{k} / a{k}_{k}")
+    src.append(f"    return [{', '.join(f'x{i}' for i in r)}]")
+    space: dict = {}
+    exec(compile("\n".join(src), f"<arm_plant solve, {n} unknowns>", "exec"), space)  # noqa: S102
+    return space["solve"]
+
+
+_SOLVERS: dict[int, object] = {}
 
 
 def _eliminate(a: list, b: list) -> list:
-    """Gaussian elimination without pivoting on lists of floats, any size (what _solve writes out for 1
-    and 2 unknowns)."""
+    """Gaussian elimination without pivoting on lists of floats, any size (crane_io.sim.plant_rigid.solve
+    on lists; what _solve writes out for 1 and 2 unknowns)."""
     n = len(b)
     a = [row[:] for row in a]
     b = b[:]

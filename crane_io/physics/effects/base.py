@@ -5,7 +5,8 @@ Conventions (all arrays SI, (N, J) in the dynamics' joint order):
 - A one-joint effect whose torque has a closed form defines it once, in `formula(q, dq, ddq, c, shape, ops)`:
   the torque on its joint from that joint's angle, velocity and acceleration (floats, or (N,) arrays), its
   coefficients c and shape values, with the elementwise functions of `ops` (`ARRAY_OPS` for arrays,
-  `SCALAR_OPS` for floats; `smooth_sign_ops(v0)` replaces sign(dq) by tanh(dq / v0)). Its regressor
+  `SCALAR_OPS` for floats; `smooth_sign_ops(v0)` replaces sign(dq) by tanh(dq / v0)), the built-in
+  shapes (crane_io.physics.effect_shapes: `ops.stribeck`, `ops.spring`, `ops.ripple`) included. Its regressor
   columns are the formula at each unit coefficient vector (`_columns`), and the control loop evaluates the
   same formula on floats (crane_io.physics.loop_model): one definition, the same IEEE operations in both.
 - `torque(q, dq, ddq, joint, values)` is what the effect ADDS to the torque the motor must supply
@@ -29,12 +30,14 @@ Conventions (all arrays SI, (N, J) in the dynamics' joint order):
 from __future__ import annotations
 
 import math
+import types
 from dataclasses import dataclass, field
 from types import SimpleNamespace
 
 import numpy as np
 
 from crane_io.errors import ConfigError
+from crane_io.physics import effect_shapes
 
 
 def _sign(x: float) -> float:
@@ -45,10 +48,21 @@ def _positive(x: float) -> float:
     return 1.0 if x > 0 else 0.0
 
 
-# the elementwise functions an effect's formula uses: on (N,) arrays, and on floats (the same values)
+def on_arrays(shape):
+    """A shape of crane_io.physics.effect_shapes (written on floats with math's exp, sin, cos) as the same
+    code on arrays: its `math` is numpy."""
+    return types.FunctionType(shape.__code__, {**shape.__globals__, "math": np}, shape.__name__,
+                              shape.__defaults__)
+
+
+# the elementwise functions an effect's formula uses: on (N,) arrays, and on floats (the same values); the
+# built-in effects' shapes (crane_io.physics.effect_shapes) among them
 ARRAY_OPS = SimpleNamespace(sign=np.sign, positive=lambda x: (x > 0).astype(float), exp=np.exp,
-                            sin=np.sin, cos=np.cos)
-SCALAR_OPS = SimpleNamespace(sign=_sign, positive=_positive, exp=math.exp, sin=math.sin, cos=math.cos)
+                            sin=np.sin, cos=np.cos, stribeck=on_arrays(effect_shapes.stribeck),
+                            spring=effect_shapes.spring, ripple=on_arrays(effect_shapes.ripple))
+SCALAR_OPS = SimpleNamespace(sign=_sign, positive=_positive, exp=math.exp, sin=math.sin, cos=math.cos,
+                             stribeck=effect_shapes.stribeck, spring=effect_shapes.spring,
+                             ripple=effect_shapes.ripple)
 
 
 def smooth_sign_ops(v0: float) -> SimpleNamespace:
@@ -79,8 +93,7 @@ class PlantTerms:
     stribeck: list[list[tuple[float, float]]] = field(default_factory=list)  # per joint: (amplitude, vs)
     viscous: list[float] = field(default_factory=list)
     offset: list[float] = field(default_factory=list)
-    spring_k: list[float] = field(default_factory=list)  # stiffness
-    spring_q0k: list[float] = field(default_factory=list)  # stiffness x rest angle
+    springs: list[list[tuple[float, float]]] = field(default_factory=list)  # per joint: (stiffness, rest)
     cogging: list[tuple[int, float, float, float]] = field(default_factory=list)  # (k, sin, cos, cycles)
     armature: list[float] = field(default_factory=list)  # rotor inertia (the dynamics' armature)
     payload: float = 0.0  # kg at the tool
@@ -91,12 +104,12 @@ class PlantTerms:
 
     def __post_init__(self):
         n = len(self.joints)
-        for name in ("coulomb_pos", "coulomb_neg", "viscous", "offset", "spring_k", "spring_q0k", "armature",
-                     "band_pos", "band_neg"):
+        for name in ("coulomb_pos", "coulomb_neg", "viscous", "offset", "armature", "band_pos", "band_neg"):
             if not getattr(self, name):
                 setattr(self, name, [0.0] * n)
-        if not self.stribeck:
-            self.stribeck = [[] for _ in range(n)]
+        for name in ("stribeck", "springs"):
+            if not getattr(self, name):
+                setattr(self, name, [[] for _ in range(n)])
 
 
 class Effect:

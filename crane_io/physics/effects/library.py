@@ -92,7 +92,7 @@ class Stribeck(Effect):
     friction = True
 
     def formula(self, q, dq, ddq, c, shape, ops):
-        return c[0] * ops.exp(-((dq / max(shape["stribeck_velocity"], 1e-9)) ** 2)) * ops.sign(dq)
+        return c[0] * ops.stribeck(dq, max(shape["stribeck_velocity"], 1e-9)) * ops.sign(dq)
 
     def static_band(self, values):
         v = self.check_values(values)
@@ -121,7 +121,7 @@ class Stiction(Effect):
     friction = True
 
     def formula(self, q, dq, ddq, c, shape, ops):
-        return (c[0] + c[1] * ops.exp(-((dq / max(shape["stiction_velocity"], 1e-9)) ** 2))) * ops.sign(dq)
+        return (c[0] + c[1] * ops.stribeck(dq, max(shape["stiction_velocity"], 1e-9))) * ops.sign(dq)
 
     def coefficients(self, values):
         v = self.check_values(values)
@@ -177,13 +177,12 @@ class Spring(Effect):
     shape_grid = {"rest_angle": [round(x, 3) for x in np.linspace(-1.5, 1.5, 13)]}
 
     def formula(self, q, dq, ddq, c, shape, ops):
-        return c[0] * (q - shape["rest_angle"])
+        return ops.spring(q, c[0], shape["rest_angle"])
 
     def plant_terms(self, terms, k, values):
         if not self._same_physics(Spring):
             return super().plant_terms(terms, k, values)
-        terms.spring_k[k] += values["stiffness"]
-        terms.spring_q0k[k] += values["stiffness"] * values["rest_angle"]
+        terms.springs[k].append((float(values["stiffness"]), float(values["rest_angle"])))
 
 
 class RotorInertia(Effect):
@@ -221,8 +220,7 @@ class Cogging(Effect):
     integer_shapes = ("cycles_per_rev",)
 
     def formula(self, q, dq, ddq, c, shape, ops):
-        a = shape["cycles_per_rev"] * q
-        return c[0] * ops.sin(a) + c[1] * ops.cos(a)
+        return ops.ripple(q, c[0], c[1], shape["cycles_per_rev"])
 
     def coefficients(self, values):
         v = self.check_values(values)
@@ -263,7 +261,7 @@ class Backlash(Effect):
     shape_grid = {"reversal_velocity": [0.02, 0.05, 0.1, 0.2]}
 
     def formula(self, q, dq, ddq, c, shape, ops):
-        return c[0] * ddq * ops.exp(-((dq / max(shape["reversal_velocity"], 1e-9)) ** 2))
+        return c[0] * ddq * ops.stribeck(dq, max(shape["reversal_velocity"], 1e-9))
 
     def plant_terms(self, terms, k, values):
         """The plant simulates the gear gap itself (width, motor_inertia): the motor side is a state of
