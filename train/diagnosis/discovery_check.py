@@ -11,9 +11,11 @@ blocks and scored on the held-out ones (`heldout_check`):
   rest refitted), so every term that is proposed lowers the held-out error;
 - the refit with what is left must not make any joint's held-out error worse: a rigid-body base is
   shared by the joints, and a term that buys one joint's fit with another's is not a discovery. Worse
-  means larger summed over the held-out blocks (beyond WORSE_TOLERANCE, the fit's rounding) and larger in
-  at least half of them: one short block where a joint's small error moves is the noise of fitting the
-  shared parameters on fewer blocks, not a trade.
+  means larger summed over the held-out blocks (beyond WORSE_TOLERANCE, the fit's rounding), larger in
+  at least half of them, and larger by more than one standard error of that sum (sqrt(B) x the spread
+  of the B per-block changes): refitting the shared parameters with one more column moves a joint's
+  small error up in one block and down in the next, and a change the blocks do not agree on is that
+  noise, not a trade.
 """
 
 from __future__ import annotations
@@ -88,13 +90,14 @@ def heldout_check(engine: Engine, T: np.ndarray, S: list[int], j: int, train: li
             break
         dropped.append(S.pop(worst))
         after = before
-    per_block = np.zeros((len(held), n_joints))
+    count, worse = np.zeros(n_joints), []
     if S:
-        per_block = (block_sse(engine, placed(T[:, S], j, n_joints), train, held)
-                     > block_sse(engine, None, train, held) * (1 + WORSE_TOLERANCE))
-    count = per_block.sum(axis=0)
-    worse = [k for k in range(n_joints) if after[k] > before[k] * (1 + WORSE_TOLERANCE)
-             and 2 * count[k] >= len(held)] if S else []
+        alone = block_sse(engine, None, train, held)
+        change = block_sse(engine, placed(T[:, S], j, n_joints), train, held) - alone
+        count = (change > WORSE_TOLERANCE * alone).sum(axis=0)
+        spread = np.sqrt(len(held)) * change.std(axis=0, ddof=1) if len(held) > 1 else np.zeros(n_joints)
+        worse = [k for k in range(n_joints) if after[k] > before[k] * (1 + WORSE_TOLERANCE)
+                 and 2 * count[k] >= len(held) and after[k] - before[k] > spread[k]]
     return HeldOut(S, dropped, before, after, count, worse)
 
 

@@ -12,8 +12,9 @@
    (train.models.hybrid_share): networks trained like this one on all but one of 3 time blocks of the
    training data predict the block left out; on those out-of-fold predictions the network's output gets
    the least-squares weight w in [0, 1] of physics + w x network (on the samples where the joint
-   moves), shrunk by the share of its gain that survives leaving each 3 s block out, 0 unless that
-   held-out gain is positive by more than one standard error (or with fewer than 50 samples), and
+   moves), shrunk to the part of its gain that survives leaving each 3 s block out (each block's
+   gain the fraction of its own physics error removed, every block alike; counted one standard error
+   below their mean, 0 unless that bound is positive, or with fewer than 50 samples), and
    capped so that the hybrid is no worse than the physics on the validation data. w = 0 falls back to
    the physics alone, so a network that learnt noise, or too little, does not make the hybrid worse than
    its physics part on held-out data. The weight is folded into the network's output scaling (its

@@ -12,16 +12,23 @@ For one joint, r = the physics part's residual and m = the out-of-fold network o
 samples where the joint moves, cut into K contiguous time blocks (train.evaluation.block_uncertainty:
 blocks of >= 3 s, 5 to 20 of them). The least-squares weight over all blocks is w_all = clip(r.m / m.m, 0, 1).
 Leaving block k out, w_(k) = the same from the other blocks, and the held-out gain of the blend on block
-k is g_k = |r_k|^2 - |r_k - w_(k) m_k|^2 (what physics + w_(k) x network removes from the physics part's
-squared error on data the weight never saw). Then
+k is the fraction of that block's physics error it removes,
 
-* w = 0 (the physics alone) unless the network helps out of sample: the total held-out gain sum_k g_k
-  is positive by more than one standard error (sqrt(K) x the spread of the g_k), and at least
-  MIN_ROWS validation samples and 2 blocks exist;
-* otherwise w = w_all x min(1, sum_k g_k / G_in), G_in the gain of w_all on the data it was chosen on:
-  the share of the apparent gain that survives cross-validation. With plenty of data the two gains
-  agree and w = w_all; with little data the held-out gain is a smaller part of the in-sample one and
-  the network's share shrinks towards 0.
+    g_k = (|r_k|^2 - |r_k - w_(k) m_k|^2) / |r_k|^2,
+
+on data the weight never saw. Each block counts alike, whatever the size of its error: the promise is
+about every stretch of held-out data, and a network's error is not the same everywhere (where the
+physics part is already good - a spring's joint near its rest angle - a network that overshoots makes
+physics + w x network worse than the physics there, while it removes most of a large error elsewhere).
+Then, with g the mean of the g_k, se = their spread / sqrt(K) and G_in = the same mean for w_all on
+the data it was chosen on:
+
+* w = 0 (the physics alone) unless the network helps out of sample by one standard error of caution:
+  g - se > 0, with at least MIN_ROWS samples and 2 blocks;
+* otherwise w = w_all x min(1, (g - se) / G_in): the part of the apparent gain that the held-out
+  blocks support, counted one standard error below their mean. With plenty of data, and a network that
+  helps alike in every block, that is G_in and w = w_all; with few blocks, or blocks that disagree, the
+  share shrinks towards 0, continuously (w reaches 0 where the bound does).
 
 Last, the share never makes the hybrid worse than its physics part on the validation samples where the
 joint moves: w is capped at 2 r.m / m.m there (0 when the network's output there points against the
@@ -52,9 +59,9 @@ class Share:
     weight: float
     weight_all: float  # the least-squares weight on all the blocks
     blocks: int
-    cv_gain: float  # held-out reduction of the squared error, summed over the blocks
+    cv_gain: float  # mean over the blocks of the share of the physics' held-out error the blend removes
     cv_gain_se: float  # its standard error (from the spread over the blocks)
-    in_sample_gain: float
+    in_sample_gain: float  # the same mean for w_all on the data it was chosen on
     reason: str
 
 
@@ -78,18 +85,20 @@ def block_cv_share(r: np.ndarray, m: np.ndarray, rate_hz: float, count: int | No
     RM, MM = float(rm.sum()), float(mm.sum())
     w_all = _clip_weight(RM, MM)
     w_out = np.array([_clip_weight(RM - rm[i], MM - mm[i]) for i in range(k)])
-    gains = 2 * w_out * rm - w_out ** 2 * mm  # |r_k|^2 - |r_k - w_(k) m_k|^2
-    cv_gain = float(gains.sum())
-    cv_se = float(np.sqrt(k) * gains.std(ddof=1))
-    in_gain = 2 * w_all * RM - w_all ** 2 * MM
-    if cv_gain <= cv_se or in_gain <= 0:
+    scale = np.maximum(rr, 1e-300)
+    gains = (2 * w_out * rm - w_out ** 2 * mm) / scale  # share of |r_k|^2 removed by w_(k) m_k
+    cv_gain = float(gains.mean())
+    cv_se = float(gains.std(ddof=1) / np.sqrt(k))
+    in_gain = float(np.mean((2 * w_all * rm - w_all ** 2 * mm) / scale))
+    lower = cv_gain - cv_se
+    if lower <= 0 or in_gain <= 0:
         return Share(0.0, w_all, k, cv_gain, cv_se, in_gain,
                      "the network does not lower the held-out error of the blocks (by more than one "
                      "standard error)")
-    w = w_all * min(1.0, cv_gain / in_gain)
-    return Share(float(w), w_all, k, cv_gain, cv_se, float(in_gain),
-                 "weight shrunk by the held-out share of the in-sample gain" if w < w_all
-                 else "the network's full least-squares weight")
+    w = w_all * min(1.0, lower / in_gain)
+    reason = ("weight shrunk to the part of the in-sample gain that the held-out blocks support (one "
+              "standard error below their mean)" if w < w_all else "the network's full least-squares weight")
+    return Share(float(w), w_all, k, cv_gain, cv_se, in_gain, reason)
 
 
 def time_order(ds) -> np.ndarray:
