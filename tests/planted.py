@@ -39,8 +39,8 @@ CENTER = {"joint1": 0.0, "joint2": 0.5, "joint3": 0.0, "joint4": -1.3, "joint5":
           "joint7": 0.0}
 SPAN = {"joint1": 0.9, "joint2": 0.7, "joint3": 0.8, "joint4": 0.7, "joint5": 1.0, "joint6": 0.9,
         "joint7": 1.0}
-# PD gains per joint, N m/rad and N m s/rad. Joints 1, 2, 4: the paper-set values of the original helper
-# (unchanged, so its sessions are bit for bit the same). Joint3 carries the elbow and forearm like joint1
+# PD gains per joint, N m/rad and N m s/rad. Joints 1, 2, 4: the paper-set values (the three-joint
+# sessions depend on them bit for bit). Joint3 carries the elbow and forearm like joint1
 # (similar gains, a little softer); the wrist joints (5, 6, 7) move only the hand, about 0.006 kg m^2 of
 # rotor inertia plus a few thousandths of link inertia: small gains (by estimate ~25 rad/s bandwidth and
 # damping ratio ~0.6; the quantised position's velocity noise times KD stays a few hundredths of a N m).
