@@ -1,5 +1,6 @@
 """Name the damage when an HDF5 dataset cannot be read: which dataset, which rows, and whether its
-fletcher32 checksum failed (shared by crane-collect recover and crane-train's session reader).
+fletcher32 checksum failed (shared by crane-collect recover and crane-train's session reader); and find
+damage HDF5 itself does not survive (`damaged_string_heap`).
 
 HDF5 reports a checksum mismatch only as "filter returned failure during read". To say more, every
 stored chunk of the dataset is read raw (`read_direct_chunk`, no filters) and its fletcher32 checksum
@@ -7,6 +8,9 @@ stored chunk of the dataset is read raw (`read_direct_chunk`, no filters) and it
 """
 
 from __future__ import annotations
+
+import mmap
+import struct
 
 import h5py
 import numpy as np
@@ -179,3 +183,49 @@ def missing_filter(ds: h5py.Dataset) -> str | None:
     except (OSError, ValueError, RuntimeError):
         return None
     return None
+
+
+GCOL = b"GCOL"  # the signature of an HDF5 global heap collection (variable-length strings live there)
+_GCOL_HEADER = struct.Struct("<4sB3sQ")  # signature, version 1, reserved, collection size (with header)
+_GCOL_OBJECT = struct.Struct("<HH4sQ")  # heap object index (0: free space), reference count, reserved, size
+
+
+def damaged_string_heap(path) -> str | None:
+    """A sentence naming the damage when a global heap collection of the HDF5 file `path` is not
+    self-consistent (a collection longer than the file, an object that runs past its collection), else
+    None. HDF5 reads such an object's claimed length before it looks at it: a bit flipped in a size field
+    makes a string attribute's read hang or take all the memory, so this is checked before any string is
+    read (HDF5 file format specification, version 2, section III.E "Global Heap")."""
+    with open(path, "rb") as fh:
+        size = fh.seek(0, 2)
+        if size < _GCOL_HEADER.size:
+            return None
+        with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as raw:
+            at = raw.find(GCOL)
+            while at >= 0:
+                problem = _collection_problem(raw, at, size)
+                if problem:
+                    return f"its string storage (the HDF5 global heap at byte {at}) is damaged: {problem}"
+                at = raw.find(GCOL, at + 1)
+    return None
+
+
+def _collection_problem(raw, at: int, size: int) -> str | None:
+    if at + _GCOL_HEADER.size > size:
+        return None
+    _, version, reserved, length = _GCOL_HEADER.unpack_from(raw, at)
+    if version != 1 or reserved != bytes(3):
+        return None  # the four letters inside other data, not a collection
+    end = at + length
+    if length < _GCOL_HEADER.size or end > size:
+        return f"a collection of {length} bytes where at most {size - at} remain"
+    j = at + _GCOL_HEADER.size
+    while j + _GCOL_OBJECT.size <= end:
+        index, _, _, obj = _GCOL_OBJECT.unpack_from(raw, j)
+        if index == 0:  # the free space closes the collection: it is all the bytes that are left
+            return None if obj == end - j else (f"its free space says {obj} bytes where {end - j} are "
+                                                f"left, so an object before it has the wrong size")
+        if obj > end - j - _GCOL_OBJECT.size:
+            return f"an object of {obj} bytes in a collection with {end - j - _GCOL_OBJECT.size} left"
+        j += _GCOL_OBJECT.size + (obj + 7) // 8 * 8
+    return None if j <= end else "its last object runs past the collection"

@@ -290,3 +290,21 @@ def test_a_damaged_truth_trace_is_one_sentence(tmp_path, kind, words):
     with pytest.raises(SessionFileError, match=words) as info:
         _read_trace(path, NAMES)
     assert "/tau_ext" in str(info.value) and _digest(path) == before
+
+
+def test_a_string_heap_object_whose_size_is_damaged_is_one_sentence_not_a_hang(base):
+    """HDF5 reads a variable-length string's heap object by the size stored beside it; a flipped bit
+    there made the read hang or take all the memory. The reader checks the heap before any string."""
+    import struct
+
+    raw = bytearray(base.read_bytes())
+    at = raw.find(b"GCOL")
+    assert at > 0
+    size_at = at + 16 + 8  # the first object's size field, after the collection's and its own header
+    (size,) = struct.unpack_from("<Q", raw, size_at)
+    struct.pack_into("<Q", raw, size_at, size + 2048)
+
+    def damage(path):
+        path.write_bytes(bytes(raw))
+    message = _outcome(_damaged(base, damage))
+    assert message and "string storage" in message and "damaged" in message

@@ -31,7 +31,7 @@ import h5py
 import numpy as np
 
 from crane_io.errors import SessionFileError
-from crane_io.h5check import member
+from crane_io.h5check import damaged_string_heap, member
 from crane_io.session_format import (  # noqa: F401 - FORMAT_VERSION: the newest version this reader understands
     ARMS,
     DEFAULT_HAND_ON,
@@ -137,6 +137,15 @@ def _open(path: Path) -> h5py.File:
     # A plain read first: it checks the file's length against its header, which an SWMR read skips (a
     # cut-off copy read in SWMR mode makes HDF5 retry its checksums for many minutes). A recording still
     # being written, or one whose writer crashed, refuses the plain read and is read in SWMR mode.
+    f = _open_hdf5(path)
+    heap = damaged_string_heap(path)  # before any string is read: HDF5 hangs on some such damage
+    if heap:
+        f.close()
+        raise SessionFileError(f"{path} cannot be read: {heap}")
+    return f
+
+
+def _open_hdf5(path: Path) -> h5py.File:
     try:
         return h5py.File(str(path), "r")
     except (OSError, RuntimeError, ValueError) as exc:

@@ -68,13 +68,33 @@ def read_attrs(path, obj) -> dict:
     except (OSError, RuntimeError, ValueError, TypeError, KeyError):
         raise SessionFileError(f"{path}: the attributes of {obj.name} cannot be read, so the file is "
                                f"damaged") from None
+    limit = _file_bytes(path, obj)
     for name in names:
         try:
+            stored = obj.attrs.get_id(name)
+            if _elements(stored.shape) * max(stored.dtype.itemsize, 1) > limit:
+                raise ValueError("an attribute larger than its file")  # a damaged dataspace; never read
             out[name] = decode(obj.attrs[name])
         except (OSError, RuntimeError, ValueError, TypeError, KeyError):
             raise SessionFileError(f"{path}: the attribute {name!r} of {obj.name} cannot be read (damaged, "
                                    f"or of a type this reader does not know)") from None
     return out
+
+
+def _file_bytes(path, obj) -> int:
+    """The size of the file `obj` lives in: no attribute's stored value can be larger (a damaged
+    dataspace can claim billions of elements, which h5py would allocate before reading)."""
+    try:
+        return os.path.getsize(obj.file.filename)
+    except (OSError, ValueError, TypeError):
+        return os.path.getsize(path)
+
+
+def _elements(shape) -> int:
+    """Elements of an attribute's shape (None: an empty attribute; (): a scalar), as an exact int."""
+    if shape is None:
+        return 0
+    return math.prod(int(d) for d in shape)
 
 
 def _is_int(v) -> bool:

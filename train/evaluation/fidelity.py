@@ -36,7 +36,7 @@ import numpy as np
 
 from crane_io import session_format as sf
 from crane_io.errors import CraneError, SessionFileError
-from crane_io.h5check import member
+from crane_io.h5check import damaged_string_heap, member
 from crane_io.session_format import TRUTH_TRACE_FORMAT as TRUTH_FORMAT
 from crane_io.session_format import TRUTH_TRACE_VERSION as TRUTH_FORMAT_VERSION
 
@@ -126,6 +126,10 @@ def _read_trace(path: Path, joint_names: tuple[str, ...]) -> _Trace:
             f = h5py.File(str(path), "r", swmr=True)  # a trace whose writer crashed
         except (OSError, RuntimeError, ValueError) as exc:
             raise SessionFileError(f"{path} cannot be opened as HDF5 ({exc})") from None
+    heap = damaged_string_heap(path)  # before any string is read: HDF5 hangs on some such damage
+    if heap:
+        f.close()
+        raise SessionFileError(f"{path} cannot be read: {heap}")
     with f:
         attrs = read_attrs(path, f)
         check_format_attr(path, attrs, TRUTH_FORMAT, "a truth trace")
