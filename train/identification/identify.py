@@ -59,7 +59,8 @@ class Identification:
     share: np.ndarray = field(repr=False)
     uncertainty: str = ""  # how the covariance was found (the jackknife's blocks)
     min_speed: float = 0.0  # rad/s: the minimum speed asked for
-    fit_speeds: np.ndarray = field(default=None, repr=False)  # (J,) rad/s: each joint's equations' slowest
+    # (J,) rad/s: each joint's slowest sample used (the minimum speed, or its fastest FASTEST_SHARE's)
+    fit_speeds: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
 
     @property
     def passed(self) -> bool:
