@@ -5,7 +5,9 @@ the control loop.
 
 Per seed: an excitation with the default speed cycle (collect/excitation.py SPEED_CYCLE), one that plays
 every period at full speed (`ExcitationOptions(speeds=(1.0,))`) and a bilateral session, each identified
-with the plant's effect set (zero-phase filtering, identify's default; --causal: the paper's chain), for
+with the plant's effects that act above identify's minimum speed (Coulomb, viscous, rotor inertia on joint
+4; the plant's Stribeck friction of 0.05 rad/s acts only below it; --min-speed 0: every moving sample and
+the plant's whole effect set), zero-phase filtering (identify's default; --causal: the paper's chain), for
 coverage and for the held-out error on the first seed's separate bilateral session. The first seed also
 gives the details:
 
@@ -13,8 +15,8 @@ gives the details:
    filtered both ways (forward-backward and the paper's causal chain), each over its noise floor: the
    plant's structure identified on that session's own training pool with the same filter (same split).
    The plant's true parameters are judged the same way, as the reference a perfect identification
-   reaches; the models of the excitation and of the bilateral session with the plant's effect set, with
-   the default (viscous, Coulomb) and without Stribeck.
+   reaches; the models of the excitation and of the bilateral session as above, from every moving sample
+   with the plant's whole effect set (`min_speed=0`), and with the default effects (viscous, Coulomb).
 2. condition numbers of both recordings: the plain one of the base + friction regressor
    (crane_io.physics.excitation_trajectory.recording_condition), its unit-column-norm version, and the
    one identify prints (weighted, unit-norm columns, the fit's rows).
@@ -56,7 +58,7 @@ from crane_io.physics.excitation_trajectory import recording_condition  # noqa: 
 from crane_io.sim.plant_config import load_plant_config  # noqa: E402
 from train.api import load_sessions, load_settings  # noqa: E402
 from train.data.splits import make_splits  # noqa: E402
-from train.identification.identify import identify  # noqa: E402
+from train.identification.identify import MIN_SPEED, identify  # noqa: E402
 
 PLANT = "crane-x7"
 # the plant's structure in identify's terms: Coulomb (its stiction while moving), viscous, Stribeck on every
@@ -163,11 +165,20 @@ def _covered(rows) -> tuple[int, int]:
 
 
 ZERO_PHASE = True  # sessions filtered forward and backward (identify's default); --causal: the paper's chain
+SPEED = MIN_SPEED  # rad/s, identify's minimum speed (--min-speed)
 
 
-def identify_as_set(path: Path, effects, seed: int, zero_phase: bool | None = None):
+def fit_effects() -> tuple[str, ...]:
+    """The plant's effects that act above the minimum speed: all of them at 0, else without Stribeck."""
+    return PLANT_EFFECTS if SPEED == 0 else NO_STRIBECK
+
+
+def identify_as_set(path: Path, effects, seed: int, zero_phase: bool | None = None,
+                    min_speed: float | None = None):
     zp = ZERO_PHASE if zero_phase is None else zero_phase
-    return _quiet(identify, str(path), effects=effects, seed=seed, scale_to_data=True, zero_phase=zp)
+    speed = SPEED if min_speed is None else min_speed
+    return _quiet(identify, str(path), effects=effects, seed=seed, scale_to_data=True, zero_phase=zp,
+                  min_speed=speed)
 
 
 class Judge:
@@ -182,7 +193,7 @@ class Judge:
             ds = load_sessions(str(path), zero_phase=zp)
             splits = make_splits(ds, load_settings(None)["splits"], seed=seed, scale_to_data=True)
             self.tests[name] = splits.test
-            floor = identify_as_set(path, PLANT_EFFECTS, seed, zero_phase=zp)
+            floor = identify_as_set(path, PLANT_EFFECTS, seed, zero_phase=zp, min_speed=0.0)
             self.floors[name] = floor.heldout_mse
             self.joints = list(floor.fit.model.joint_names)
             model, theta = floor.fit.model, floor.fit.model.theta.copy()
@@ -220,7 +231,7 @@ def _seed_runs(tmp: Path, seed: int, duration: float, budget: int, judge: Judge,
     results = {}
     for kind, what, one_speed in KINDS:
         path = record(tmp, what, seed, duration, budget, one_speed=one_speed)
-        res = identify_as_set(path, PLANT_EFFECTS, seed)
+        res = identify_as_set(path, fit_effects(), seed)
         results[kind] = res
         rows = coverage(res, plant_truth(res))
         ratios = judge.ratios(res)
@@ -249,15 +260,17 @@ def _details(tmp: Path, seed: int, duration: float, budget: int, judge: Judge, r
           f"({duration:.0f} s), joints {', '.join(judge.joints)}, filtered " + " | ".join(names))
     for name in names:
         print(f"   floor ({name}): " + " ".join(f"{x:.5f}" for x in judge.floors[name]) + " (N m)^2")
-    print(f"{'the plant truth (its parameters)':44s} " + _ratio_text(judge.truth_ratio))
-    for label, path, effects in (("excitation, plant effects", ex, PLANT_EFFECTS),
-                                 ("excitation, viscous+coulomb", ex, DEFAULT_EFFECTS),
-                                 ("excitation, no Stribeck", ex, NO_STRIBECK),
-                                 ("bilateral, plant effects", bil, PLANT_EFFECTS),
-                                 ("bilateral, viscous+coulomb", bil, DEFAULT_EFFECTS)):
-        res = results["excitation" if path == ex else "bilateral"] if effects == PLANT_EFFECTS else \
-            identify_as_set(path, effects, seed)
-        print(f"{label:44s} " + _ratio_text(judge.ratios(res)))
+    print(f"{'the plant truth (its parameters)':48s} " + _ratio_text(judge.truth_ratio))
+    for label, path, effects, speed in (
+            (f"excitation, above {SPEED:g} rad/s", ex, fit_effects(), None),
+            ("excitation, every moving sample, plant effects", ex, PLANT_EFFECTS, 0.0),
+            ("excitation, viscous+coulomb", ex, DEFAULT_EFFECTS, None),
+            (f"bilateral, above {SPEED:g} rad/s", bil, fit_effects(), None),
+            ("bilateral, every moving sample, plant effects", bil, PLANT_EFFECTS, 0.0),
+            ("bilateral, viscous+coulomb", bil, DEFAULT_EFFECTS, None)):
+        res = results["excitation" if path == ex else "bilateral"] if speed is None and \
+            effects == fit_effects() else identify_as_set(path, effects, seed, min_speed=speed)
+        print(f"{label:48s} " + _ratio_text(judge.ratios(res)))
     c_ex, c_bil = conditions(ex, config), conditions(bil, config)
     r_ex, r_bil = results["excitation"], results["bilateral"]
     print(f"\n2. condition numbers, {duration:.0f} s each (excitation whole session / bilateral)")
@@ -279,7 +292,8 @@ def _loop(tmp: Path, seed: int, duration: float, budget: int, r_ex, row) -> None
     model_dir = tmp / "model-ex"
     _quiet(r_ex.save, model_dir, force=True)
     loop_s = min(duration, 60.0)
-    stock_tr, id_tr = tmp / "stock.truth.h5", tmp / f"ident{'-zp' if ZERO_PHASE else ''}.truth.h5"
+    stock_tr, id_tr = tmp / "stock.truth.h5", tmp / (f"ident{'-zp' if ZERO_PHASE else ''}"
+                                                  f"{f'-v{SPEED:g}' if SPEED else ''}.truth.h5")
     stock = record(tmp, "run", seed + 2000, loop_s, budget, truth_trace=stock_tr)
     ident = record(tmp, "run", seed + 2000, loop_s, budget, truth_trace=id_tr,
                    arm_model=model_dir / "arm_model.toml")
@@ -331,10 +345,10 @@ def _summary(kinds: dict, per_seed: list, judge: Judge, held_seed: int, row) -> 
 
 
 def bench(seeds: list[int], duration: float, budget: int, workdir: str | None = None, loop: bool = True,
-          zero_phase: bool = True) -> list[dict]:
+          zero_phase: bool = True, min_speed: float = MIN_SPEED) -> list[dict]:
     """Every part of the module docstring, printed; the headline figures as run_all.py rows."""
-    global ZERO_PHASE
-    ZERO_PHASE = zero_phase
+    global ZERO_PHASE, SPEED
+    ZERO_PHASE, SPEED = zero_phase, min_speed
     out: list[dict] = []
 
     def row(metric: str, value: float, unit: str = "", note: str = "") -> None:
@@ -377,12 +391,14 @@ def main() -> None:
     ap.add_argument("--causal", action="store_true",
                     help="identify and judge on data filtered with the paper's causal chain")
     ap.add_argument("--no-loop", action="store_true", help="skip part 4 (the arm model in the loop)")
+    ap.add_argument("--min-speed", type=float, default=MIN_SPEED,
+                    help="identify's minimum speed, rad/s (0: every moving sample, the plant's effects)")
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
     duration, budget = args.duration, args.budget
     if args.quick:
         seeds, duration, budget = seeds[:1], 60.0, 300
-    bench(seeds, duration, budget, args.workdir, not args.no_loop, not args.causal)
+    bench(seeds, duration, budget, args.workdir, not args.no_loop, not args.causal, args.min_speed)
 
 
 if __name__ == "__main__":

@@ -194,3 +194,20 @@ def test_an_effect_can_be_identified_on_one_joint(session, tmp_path):
     others = [p["name"] for p in json.loads(r.output)["parameters"] if p["kind"] == "other"]
     assert sorted(others) == ["coulomb.coulomb@joint2", "viscous.viscous@joint1", "viscous.viscous@joint2",
                               "viscous.viscous@joint4"]
+
+
+def test_slow_samples_are_left_out_of_the_fit_and_an_effect_only_they_hold_is_refused(session, tmp_path):
+    docs = {}
+    for speed in ("0", None):
+        args = ["identify", str(session), "-o", str(tmp_path / f"id{speed}"), "--scale-to-data", "--json"]
+        r = CliRunner().invoke(train_main, args + (["--min-speed", speed] if speed else []))
+        assert r.exit_code in (0, 1), r.output
+        docs[speed] = json.loads(r.output)
+    assert docs["0"]["min_speed"] == 0 and docs[None]["min_speed"] == 0.3
+    assert 0 < docs[None]["rows"] < docs["0"]["rows"]
+    assert all(0 < v <= 0.3 for v in docs[None]["fit_speed"].values())
+    assert all(v == 0 for v in docs["0"]["fit_speed"].values())
+    r = CliRunner().invoke(train_main, ["identify", str(session), "-o", str(tmp_path / "s"),
+                                       "--scale-to-data", "--effect", "stribeck:stribeck_velocity=0.05"])
+    assert r.exit_code == 2 and "Traceback" not in r.output and "minimum speed of 0.3 rad/s" in r.output
+    assert not (tmp_path / "s").exists()

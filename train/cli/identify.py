@@ -13,7 +13,7 @@ import click
 
 from crane_io.cli_support import SEED, Number, cli_errors
 
-from ..identification.identify import DEFAULT_EFFECTS
+from ..identification.identify import DEFAULT_EFFECTS, MIN_SPEED
 from ..identification.verdict import Thresholds
 from .options import arm_option, force_option
 
@@ -47,11 +47,15 @@ DEFAULTS = Thresholds()
 @click.option("--zero-phase/--causal", default=True, show_default=True,
               help="Filter the sessions forward and backward (no lag), or with the paper's causal chain "
                    "(then the model folder runs in the control loop too; arm_model.toml runs either way).")
+@click.option("--min-speed", type=Number(float, 0), default=MIN_SPEED, show_default=True,
+              help="rad/s: each joint's torque is fitted where it moves at least this fast (slower samples "
+                   "hold the friction of reversals and stops, which the filters spread); 0 uses every "
+                   "moving sample.")
 @click.option("--json", "as_json", is_flag=True, help="Print identification.json instead of the table.")
 @force_option("the model directory")
 @cli_errors
 def identify(sessions, out_dir, effects, joints, arm, seed, scale_to_data, config_path, max_condition,
-             max_rel_stderr, negligible, max_heldout_ratio, zero_phase, as_json, force):
+             max_rel_stderr, negligible, max_heldout_ratio, zero_phase, min_speed, as_json, force):
     """Identify the arm's inertial and friction parameters from SESSION(s): excitation or bilateral data."""
     from ..api import check_model_output
     from ..identification.identify import identify as run_identification
@@ -61,7 +65,8 @@ def identify(sessions, out_dir, effects, joints, arm, seed, scale_to_data, confi
     thresholds = Thresholds(max_condition, max_rel_stderr, negligible, max_heldout_ratio)
     result = run_identification(list(sessions), effects=effects or DEFAULT_EFFECTS, seed=seed,
                                 scale_to_data=scale_to_data, config=config_path, arm=arm, joints=joints,
-                                thresholds=thresholds, zero_phase=zero_phase)
+                                thresholds=thresholds, zero_phase=zero_phase,
+                                min_speed=min_speed)
     result.save(out_dir, force=force)
     if as_json:
         click.echo(json.dumps(result.to_json(), indent=2))

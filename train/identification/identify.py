@@ -11,6 +11,16 @@ causal chain (as `fit` filters them, so the model folder runs in the control loo
 delays q, dq, ddq and tau alike, but the regressor is nonlinear in them, so the filtered torque is not
 quite the regressor of the filtered motion (docs/identification.md, "Results"). The jackknife's blocks
 are the speeds of an excitation's speed cycle, or contiguous time blocks (blocks.py).
+
+Each joint's torque equation is used where that joint moves faster than `min_speed` (MIN_SPEED by
+default; a joint that moves that fast in less than FASTEST_SHARE of the samples where it moves: in its
+fastest FASTEST_SHARE of them). Below it lies what friction does within milliseconds at a reversal or a
+stop (the Coulomb step, stiction, sticking); the filters spread that torque over the slow samples around
+it (the zero-phase filter on both sides), where no friction model of the velocity follows it, and the
+least squares tilts the inertias to absorb it (docs/identification.md, "Results"). An effect that acts
+only below `min_speed` (Stribeck friction of 0.05 rad/s) is refused then; `min_speed=0` uses every moving
+sample. The fit's and the held-out errors are measured on every moving sample either way: the model is
+used on all of them.
 """
 
 from __future__ import annotations
@@ -31,6 +41,8 @@ DEFAULT_EFFECTS = ("viscous", "coulomb")
 NONNEGATIVE = ("viscous.viscous", "coulomb.coulomb")
 IDENTIFICATION_JSON = "identification.json"
 ARM_MODEL_TOML = "arm_model.toml"  # the identified bodies for the dynamics, the controller and the plant
+MIN_SPEED = 0.3  # rad/s: a joint's slower samples are left out of the fit (module docstring)
+FASTEST_SHARE = 0.2  # a joint that rarely reaches MIN_SPEED is fitted on this share of its fastest samples
 
 
 @dataclass
@@ -46,6 +58,9 @@ class Identification:
     heldout_mse: np.ndarray
     share: np.ndarray = field(repr=False)
     uncertainty: str = ""  # how the covariance was found (the jackknife's blocks)
+    min_speed: float = 0.0  # rad/s: the minimum speed asked for
+    # (J,) rad/s: each joint's slowest sample used (the minimum speed, or its fastest FASTEST_SHARE's)
+    fit_speeds: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
 
     @property
     def passed(self) -> bool:
@@ -61,7 +76,9 @@ class Identification:
                   for k, n in enumerate(self.names)]
         joints = list(self.fit.model.joint_names)
         return {"format": "crane-identification", "format_version": 1,
-                "joints": joints, "rows": self.estimate.rows, "condition_number": self.estimate.condition,
+                "joints": joints, "rows": self.estimate.rows, "min_speed": self.min_speed,
+                "fit_speed": dict(zip(joints, np.asarray(self.fit_speeds, float).tolist())),
+                "condition_number": self.estimate.condition,
                 "uncertainty": self.uncertainty,
                 "residual_std": dict(zip(joints, self.estimate.sigma.tolist())),
                 "parameters": params,
@@ -121,6 +138,27 @@ def _mse_where_moving(tau: np.ndarray, pred: np.ndarray, moving: np.ndarray) -> 
                      for j in range(tau.shape[1])])
 
 
+def _fit_rows(pool, phi: np.ndarray, names: list[str], min_speed: float) -> tuple[np.ndarray, np.ndarray]:
+    """((N, J) bool, (J,) rad/s): where each joint moves fast enough, and how fast that is (the module
+    docstring); IdentificationError when a parameter's column vanishes on those rows."""
+    if not (np.isfinite(min_speed) and min_speed >= 0):
+        raise IdentificationError(f"the minimum speed must be 0 or more rad/s, got {min_speed!r}")
+    speed = np.abs(pool.dq)
+    limits = np.zeros(speed.shape[1])
+    for j in range(speed.shape[1]):
+        moving = speed[pool.moving[:, j], j]
+        if min_speed > 0 and moving.size:
+            limits[j] = min(min_speed, float(np.quantile(moving, 1.0 - FASTEST_SHARE)))
+    used = pool.moving & (speed >= limits)
+    if min_speed > 0:
+        norm = np.linalg.norm(phi[used], axis=0)
+        for k in np.flatnonzero(norm <= 1e-9 * norm.max(initial=0.0)):
+            raise IdentificationError(f"{names[k]} does not act in the samples faster than the minimum speed "
+                                      f"of {min_speed:g} rad/s: identify with a lower minimum speed (0 uses "
+                                      f"every moving sample) or without that effect")
+    return used, limits
+
+
 def _blocks(ds, pool, sources):
     """(BlockPlan, its description) of the pool's rows: speed blocks for excitation sessions of several
     speeds, else contiguous time blocks (blocks.py)."""
@@ -139,9 +177,10 @@ def _blocks(ds, pool, sources):
 
 def identify(data, *, effects: Sequence[str] = DEFAULT_EFFECTS, seed: int = 0, scale_to_data: bool = False,
              config=None, arm: str | None = None, joints=None, thresholds: Thresholds | None = None,
-             zero_phase: bool = True) -> Identification:
+             zero_phase: bool = True, min_speed: float = MIN_SPEED) -> Identification:
     """Identify from `data` (a Dataset, or session file(s) read as train.api.load_sessions reads them;
-    `zero_phase`: filtered forward and backward, the module docstring)."""
+    `zero_phase`: filtered forward and backward; `min_speed` rad/s: the slowest samples used, the module
+    docstring)."""
     from ..api import FitResult, load_sessions, load_settings, model_preprocessing, test_metrics
     from ..data.splits import make_splits
     from ..models.registry import make_model
@@ -161,9 +200,10 @@ def identify(data, *, effects: Sequence[str] = DEFAULT_EFFECTS, seed: int = 0, s
     model.fit(pool, splits.val)  # resolves the context joints and the effect terms
     phi = model.regressor(pool.q, pool.dq, pool.ddq, context=pool.context)
     plan, uncertainty = _blocks(ds, pool, sources)
-    est = weighted_least_squares(phi, pool.tau, pool.moving, plan)
-    dyn = model.dynamics
     names = list(model.names)
+    used, fit_speeds = _fit_rows(pool, phi, names, min_speed)
+    est = weighted_least_squares(phi, pool.tau, used, plan)
+    dyn = model.dynamics
     n_base = model.n_base
     nonneg = np.array([n.split("@")[0] in NONNEGATIVE for n in names[n_base:]], dtype=bool)
     proj = project(est.theta, est.cov, dyn.base_map_rows(model.joint_names), dyn.standard_parameters(),
@@ -180,14 +220,17 @@ def identify(data, *, effects: Sequence[str] = DEFAULT_EFFECTS, seed: int = 0, s
     fit = FitResult(model, test_metrics(model, ds, splits, pool, "rigid-body", seed), ds, splits)
     return Identification(fit=fit, names=names, estimate=est, projection=proj, checks=found,
                           thresholds=thresholds, n_base=n_base, fit_mse=fit_mse, heldout_mse=heldout_mse,
-                          share=share, uncertainty=uncertainty)
+                          share=share, uncertainty=uncertainty, min_speed=float(min_speed),
+                          fit_speeds=fit_speeds)
 
 
 def text(result: Identification) -> str:
     """The identification as a person reads it: parameters with sigma %, bodies, checks, verdict."""
     doc = result.to_json()
     lines = [f"identified {len(doc['parameters'])} parameters of {', '.join(doc['joints'])} from "
-             f"{doc['rows']} torque equations; condition number {doc['condition_number']:.3g}",
+             f"{doc['rows']} torque equations (each joint's where it moves at least "
+             + ", ".join(f"{v:.2g}" for v in doc["fit_speed"].values())
+             + f" rad/s fast); condition number {doc['condition_number']:.3g}",
              f"uncertainty: {doc['uncertainty']}",
              "", f"{'parameter':32s} {'estimate':>12s} {'sigma %':>8s} {'consistent':>12s} {'torque %':>8s}"]
     for p in doc["parameters"]:
