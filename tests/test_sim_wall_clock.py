@@ -113,7 +113,7 @@ def test_a_host_that_keeps_talking_never_trips_the_watchdog_of_a_slow_plant():
 
 
 def test_over_a_pty_every_instruction_is_answered_while_the_plant_lags(tmp_path):
-    """The issue's failure: sim-serve with a plant slower than real time answered 3 of 23 checks."""
+    """sim-serve with a plant slower than real time answers every instruction of a dynamixel-sdk client."""
     chain, _ = chain_with(cost_s=0.02)
     with PtyServer(chain, tmp_path / "crane") as server:
         port = PatientPort(str(tmp_path / "crane"))
