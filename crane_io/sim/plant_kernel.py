@@ -78,7 +78,15 @@ from crane_io.sim.plant_layout import (  # noqa: F401
     kinetic,
     other_torque,
 )
-from crane_io.sim.plant_rigid import crba, dynamics, kinematics, mass_and_bias, rnea, solve  # noqa: F401
+from crane_io.sim.plant_rigid import (  # noqa: F401
+    body_times,
+    crba,
+    dynamics,
+    kinematics,
+    mass_and_bias,
+    rnea,
+    solve,
+)
 
 
 def step(q, dq, cmd, h, n_sub, geo, arm, par, cog, scal):
@@ -285,8 +293,8 @@ def compiled():
     if _COMPILED is None:
         from crane_io.jit import compile_functions
 
-        names = ("kinematics", "rnea", "crba", "dynamics", "mass_and_bias", "stribeck", "spring", "ripple",
-                 "kinetic", "other_torque", "cogging_torque", "solve", "_motor", "_drive",
+        names = ("kinematics", "body_times", "rnea", "crba", "dynamics", "mass_and_bias", "stribeck",
+                 "spring", "ripple", "kinetic", "other_torque", "cogging_torque", "solve", "_motor", "_drive",
                  "_free_accelerations", "_breaking_away", "_stick_slip", "_euler", "_integrate", "step",
                  "step_arm")
         fns = compile_functions(globals(), names, SIGNATURES, error_model="numpy")

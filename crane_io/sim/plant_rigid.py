@@ -44,6 +44,18 @@ def kinematics(n, geo, q, rot, pos):
             pos[i, r] = geo[i, G_P + r]
 
 
+def body_times(geo, i, m, cx, cy, cz, v0, v1, v2, w0, w1, w2):
+    """Body i's spatial inertia (mass m, centre of mass c, rotational inertia about c in geo) times the
+    motion (v, w): (m (v - c x w), Ic w + c x f), f its linear part."""
+    f0 = m * (v0 - (cy * w2 - cz * w1))
+    f1 = m * (v1 - (cz * w0 - cx * w2))
+    f2 = m * (v2 - (cx * w1 - cy * w0))
+    a0 = (geo[i, G_I] * w0 + geo[i, G_I + 1] * w1 + geo[i, G_I + 2] * w2) + (cy * f2 - cz * f1)
+    a1 = (geo[i, G_I + 3] * w0 + geo[i, G_I + 4] * w1 + geo[i, G_I + 5] * w2) + (cz * f0 - cx * f2)
+    a2 = (geo[i, G_I + 6] * w0 + geo[i, G_I + 7] * w1 + geo[i, G_I + 8] * w2) + (cx * f1 - cy * f0)
+    return f0, f1, f2, a0, a1, a2
+
+
 def rnea(n, geo, rot, pos, dq, ddq, g0, g1, g2, tau, wk):
     """tau = M(q) ddq + C(q, dq) dq + g(q) without the armature (gravity (g0, g1, g2)), for the kinematics
     in rot, pos. wk: (n, 12) work array (force on each body, linear then angular, in its own frame)."""
@@ -75,19 +87,9 @@ def rnea(n, geo, rot, pos, dq, ddq, g0, g1, g2, tau, wk):
         bw2 = r[0, 2] * aw0 + r[1, 2] * aw1 + r[2, 2] * aw2 + az * dd + (nw0 * sy - nw1 * sx)
         m = geo[i, G_M]
         cx, cy, cz = geo[i, G_C], geo[i, G_C + 1], geo[i, G_C + 2]
-        # f = I a + v x* (I v); I (v, w) = (m (v - c x w), Ic w + c x f)
-        fl0 = m * (bl0 - (cy * bw2 - cz * bw1))
-        fl1 = m * (bl1 - (cz * bw0 - cx * bw2))
-        fl2 = m * (bl2 - (cx * bw1 - cy * bw0))
-        fa0 = (geo[i, G_I] * bw0 + geo[i, G_I + 1] * bw1 + geo[i, G_I + 2] * bw2) + (cy * fl2 - cz * fl1)
-        fa1 = (geo[i, G_I + 3] * bw0 + geo[i, G_I + 4] * bw1 + geo[i, G_I + 5] * bw2) + (cz * fl0 - cx * fl2)
-        fa2 = (geo[i, G_I + 6] * bw0 + geo[i, G_I + 7] * bw1 + geo[i, G_I + 8] * bw2) + (cx * fl1 - cy * fl0)
-        hl0 = m * (nl0 - (cy * nw2 - cz * nw1))
-        hl1 = m * (nl1 - (cz * nw0 - cx * nw2))
-        hl2 = m * (nl2 - (cx * nw1 - cy * nw0))
-        ha0 = (geo[i, G_I] * nw0 + geo[i, G_I + 1] * nw1 + geo[i, G_I + 2] * nw2) + (cy * hl2 - cz * hl1)
-        ha1 = (geo[i, G_I + 3] * nw0 + geo[i, G_I + 4] * nw1 + geo[i, G_I + 5] * nw2) + (cz * hl0 - cx * hl2)
-        ha2 = (geo[i, G_I + 6] * nw0 + geo[i, G_I + 7] * nw1 + geo[i, G_I + 8] * nw2) + (cx * hl1 - cy * hl0)
+        # f = I a + v x* (I v)
+        fl0, fl1, fl2, fa0, fa1, fa2 = body_times(geo, i, m, cx, cy, cz, bl0, bl1, bl2, bw0, bw1, bw2)
+        hl0, hl1, hl2, ha0, ha1, ha2 = body_times(geo, i, m, cx, cy, cz, nl0, nl1, nl2, nw0, nw1, nw2)
         # v x* h = (w x h_lin, w x h_ang + v x h_lin)
         wk[i, 0] = fl0 + (nw1 * hl2 - nw2 * hl1)
         wk[i, 1] = fl1 + (nw2 * hl0 - nw0 * hl2)
