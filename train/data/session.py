@@ -22,7 +22,6 @@ arm's torque holds the hand's force besides its own dynamics, so it is no invers
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -31,7 +30,7 @@ import h5py
 import numpy as np
 
 from crane_io.errors import SessionFileError
-from crane_io.h5check import damaged_string_heap, member
+from crane_io.h5check import member
 from crane_io.session_format import (  # noqa: F401 - FORMAT_VERSION: the newest version this reader understands
     ARMS,
     DEFAULT_HAND_ON,
@@ -58,6 +57,7 @@ from .session_check import (
     check_rate_matches,
     check_source,
     dataset,
+    open_checked,
     read_attrs,
     read_rows,
 )
@@ -68,7 +68,6 @@ if TYPE_CHECKING:
     from os import PathLike
 
 MIN_SAMPLES = 100  # fewer raw samples than this cannot be filtered and split meaningfully
-_TRUNCATED = re.compile(r"truncated file: eof = (?P<eof>\d+).*stored_eof = (?P<stored>\d+)")
 
 
 @dataclass
@@ -123,41 +122,7 @@ def check_hand_free(session: RawSession) -> None:
 
 
 def _open(path: Path) -> h5py.File:
-    if not path.exists():
-        raise SessionFileError(f"session file {path} does not exist")
-    if not path.is_file():
-        raise SessionFileError(f"{path} is not a file")
-    try:
-        with open(path, "rb") as fh:
-            fh.read(8)
-    except OSError as exc:
-        raise SessionFileError(f"{path} cannot be read ({exc.strerror or exc})") from None
-    if not h5py.is_hdf5(str(path)):
-        raise SessionFileError(f"{path} is not an HDF5 file, so it cannot be a crane-session")
-    # A plain read first: it checks the file's length against its header, which an SWMR read skips (a
-    # cut-off copy read in SWMR mode makes HDF5 retry its checksums for many minutes). A recording still
-    # being written, or one whose writer crashed, refuses the plain read and is read in SWMR mode.
-    f = _open_hdf5(path)
-    heap = damaged_string_heap(path)  # before any string is read: HDF5 hangs on some such damage
-    if heap:
-        f.close()
-        raise SessionFileError(f"{path} cannot be read: {heap}")
-    return f
-
-
-def _open_hdf5(path: Path) -> h5py.File:
-    try:
-        return h5py.File(str(path), "r")
-    except (OSError, RuntimeError, ValueError) as exc:
-        cut = _TRUNCATED.search(str(exc))
-        if cut:
-            raise SessionFileError(f"{path} is cut off: it has {int(cut['eof'])} bytes but its HDF5 header "
-                                   f"says {int(cut['stored'])} (an incomplete copy or download); copy it "
-                                   f"again") from None
-    try:
-        return h5py.File(str(path), "r", swmr=True)
-    except (OSError, RuntimeError, ValueError) as exc:
-        raise SessionFileError(f"{path} cannot be opened as HDF5 ({exc})") from None
+    return open_checked(path, "session file", "a crane-session")
 
 
 def _read(path: Path, ds: h5py.Dataset, n: int) -> np.ndarray:

@@ -21,12 +21,14 @@ from __future__ import annotations
 
 import math
 import os
+import re
+from pathlib import Path
 
 import h5py
 import numpy as np
 
 from crane_io.errors import SessionFileError
-from crane_io.h5check import damaged_dataset, member, missing_filter
+from crane_io.h5check import damaged_dataset, damaged_string_heap, member, missing_filter
 from crane_io.session_format import (
     EXCITATION_ROOT,
     FORMAT_ATTR,
@@ -43,6 +45,52 @@ MAX_MEMORY_FRACTION = 0.5  # what one read may take of this computer's memory
 RATE_TOLERANCE = 2.0  # rate_hz and the median step of t agree within this factor
 NUMBER_KINDS = "fiu"  # numpy dtype kinds a signal may be stored as: float, signed and unsigned integer
 DECLARED = {a.name: a.kind for a in OPTIONAL_ROOT + IMPORT_ROOT + EXCITATION_ROOT}
+
+
+
+_TRUNCATED = re.compile(r"truncated file: eof = (?P<eof>\d+).*stored_eof = (?P<stored>\d+)")
+
+
+def open_checked(path: Path, what: str, kind: str) -> h5py.File:
+    """The HDF5 file at `path` opened read-only for a reader of `what` ("session file", "truth trace"),
+    or one sentence (SessionFileError): missing, not a file, unreadable, not HDF5 (so it cannot be
+    `kind`), cut off, or its string storage damaged. A plain read comes first: it checks the file's
+    length against its header, which an SWMR read skips (a cut-off copy read in SWMR mode makes HDF5
+    retry its checksums for many minutes). A recording still being written, or one whose writer
+    crashed, refuses the plain read and is read in SWMR mode. The global heap is checked before any
+    string is read: HDF5 hangs on some damage there (crane_io.h5check.damaged_string_heap)."""
+    if not path.exists():
+        raise SessionFileError(f"{what} {path} does not exist")
+    if not path.is_file():
+        raise SessionFileError(f"{path} is not a file")
+    try:
+        with open(path, "rb") as fh:
+            fh.read(8)
+    except OSError as exc:
+        raise SessionFileError(f"{path} cannot be read ({exc.strerror or exc})") from None
+    if not h5py.is_hdf5(str(path)):
+        raise SessionFileError(f"{path} is not an HDF5 file, so it cannot be {kind}")
+    f = _open_hdf5(path)
+    heap = damaged_string_heap(path)
+    if heap:
+        f.close()
+        raise SessionFileError(f"{path} cannot be read: {heap}")
+    return f
+
+
+def _open_hdf5(path: Path) -> h5py.File:
+    try:
+        return h5py.File(str(path), "r")
+    except (OSError, RuntimeError, ValueError) as exc:
+        cut = _TRUNCATED.search(str(exc))
+        if cut:
+            raise SessionFileError(f"{path} is cut off: it has {int(cut['eof'])} bytes but its HDF5 header "
+                                   f"says {int(cut['stored'])} (an incomplete copy or download); copy it "
+                                   f"again") from None
+    try:
+        return h5py.File(str(path), "r", swmr=True)
+    except (OSError, RuntimeError, ValueError) as exc:
+        raise SessionFileError(f"{path} cannot be opened as HDF5 ({exc})") from None
 
 
 def decode(value):

@@ -36,12 +36,12 @@ import numpy as np
 
 from crane_io import session_format as sf
 from crane_io.errors import CraneError, SessionFileError
-from crane_io.h5check import damaged_string_heap, member
+from crane_io.h5check import member
 from crane_io.session_format import TRUTH_TRACE_FORMAT as TRUTH_FORMAT
 from crane_io.session_format import TRUTH_TRACE_VERSION as TRUTH_FORMAT_VERSION
 
 from ..data.session import _open, _read, check_version, read_session
-from ..data.session_check import check_format_attr, check_joint_names, dataset, read_attrs
+from ..data.session_check import check_format_attr, check_joint_names, dataset, open_checked, read_attrs
 
 NOMINAL = "nominal model"
 DEAD_ZONE_ALPHA = 0.1  # a joint moves when |dq| > alpha std(dq) (the paper's dead-zone rule)
@@ -115,21 +115,7 @@ def _arm_member(path: Path, f: h5py.File, arm: str, key: str, n: int, joints: in
 
 
 def _read_trace(path: Path, joint_names: tuple[str, ...]) -> _Trace:
-    if not path.exists():
-        raise SessionFileError(f"truth trace {path} does not exist")
-    if not path.is_file() or not h5py.is_hdf5(str(path)):
-        raise SessionFileError(f"{path} is not an HDF5 file, so it cannot be a truth trace")
-    try:
-        f = h5py.File(str(path), "r")
-    except (OSError, RuntimeError, ValueError):
-        try:
-            f = h5py.File(str(path), "r", swmr=True)  # a trace whose writer crashed
-        except (OSError, RuntimeError, ValueError) as exc:
-            raise SessionFileError(f"{path} cannot be opened as HDF5 ({exc})") from None
-    heap = damaged_string_heap(path)  # before any string is read: HDF5 hangs on some such damage
-    if heap:
-        f.close()
-        raise SessionFileError(f"{path} cannot be read: {heap}")
+    f = open_checked(path, "truth trace", "a truth trace")
     with f:
         attrs = read_attrs(path, f)
         check_format_attr(path, attrs, TRUTH_FORMAT, "a truth trace")
