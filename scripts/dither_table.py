@@ -160,13 +160,15 @@ def _cells(values, fmt: str, sep: str = " / ") -> str:
 
 
 def _percent(ratio: float | None, places: int) -> str:
-    """A contact error ratio in percent; one more place when the rounding would hide which side of the
-    10 % goal it is on."""
+    """A contact error ratio in percent; more places (up to three more) while the rounding would hide
+    which side of the 10 % goal it is on."""
     if ratio is None:
         return "-"
     text = f"{100 * ratio:.{places}f}"
-    if float(text) == 10.0 and ratio != 0.1:
-        text = f"{100 * ratio:.{places + 1}f}"
+    for extra in range(1, 4):
+        if float(text) != 10.0 or ratio == 0.1:
+            break
+        text = f"{100 * ratio:.{places + extra}f}"
     return text
 
 
