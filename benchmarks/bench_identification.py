@@ -166,6 +166,9 @@ def _covered(rows) -> tuple[int, int]:
 
 ZERO_PHASE = True  # sessions filtered forward and backward (identify's default); --causal: the paper's chain
 SPEED = MIN_SPEED  # rad/s, identify's minimum speed (--min-speed)
+CUTOFF = None  # rad/s, identify's filter cutoff (--cutoff; None: identify's default)
+# rad/s: the held-out session is judged filtered with the settings' cutoff (the paper's), and so is its floor
+JUDGE_CUTOFF = load_settings(None)["preprocess"].cutoff_rad_s
 
 
 def fit_effects() -> tuple[str, ...]:
@@ -174,11 +177,12 @@ def fit_effects() -> tuple[str, ...]:
 
 
 def identify_as_set(path: Path, effects, seed: int, zero_phase: bool | None = None,
-                    min_speed: float | None = None):
+                    min_speed: float | None = None, cutoff: float | None = None):
+    """identify's result (its defaults, the benchmark's filter and minimum speed unless given)."""
     zp = ZERO_PHASE if zero_phase is None else zero_phase
     speed = SPEED if min_speed is None else min_speed
     return _quiet(identify, str(path), effects=effects, seed=seed, scale_to_data=True, zero_phase=zp,
-                  min_speed=speed)
+                  min_speed=speed, cutoff=CUTOFF if cutoff is None else cutoff)
 
 
 class Judge:
@@ -193,7 +197,8 @@ class Judge:
             ds = load_sessions(str(path), zero_phase=zp)
             splits = make_splits(ds, load_settings(None)["splits"], seed=seed, scale_to_data=True)
             self.tests[name] = splits.test
-            floor = identify_as_set(path, PLANT_EFFECTS, seed, zero_phase=zp, min_speed=0.0)
+            floor = identify_as_set(path, PLANT_EFFECTS, seed, zero_phase=zp, min_speed=0.0,
+                                    cutoff=JUDGE_CUTOFF)
             self.floors[name] = floor.heldout_mse
             self.joints = list(floor.fit.model.joint_names)
             model, theta = floor.fit.model, floor.fit.model.theta.copy()
@@ -293,7 +298,8 @@ def _loop(tmp: Path, seed: int, duration: float, budget: int, r_ex, row) -> None
     _quiet(r_ex.save, model_dir, force=True)
     loop_s = min(duration, 60.0)
     stock_tr, id_tr = tmp / "stock.truth.h5", tmp / (f"ident{'-zp' if ZERO_PHASE else ''}"
-                                                  f"{f'-v{SPEED:g}' if SPEED else ''}.truth.h5")
+                                                  f"{f'-v{SPEED:g}' if SPEED else ''}"
+                                                  f"{f'-c{CUTOFF:g}' if CUTOFF else ''}.truth.h5")
     stock = record(tmp, "run", seed + 2000, loop_s, budget, truth_trace=stock_tr)
     ident = record(tmp, "run", seed + 2000, loop_s, budget, truth_trace=id_tr,
                    arm_model=model_dir / "arm_model.toml")
@@ -345,10 +351,10 @@ def _summary(kinds: dict, per_seed: list, judge: Judge, held_seed: int, row) -> 
 
 
 def bench(seeds: list[int], duration: float, budget: int, workdir: str | None = None, loop: bool = True,
-          zero_phase: bool = True, min_speed: float = MIN_SPEED) -> list[dict]:
+          zero_phase: bool = True, min_speed: float = MIN_SPEED, cutoff: float | None = None) -> list[dict]:
     """Every part of the module docstring, printed; the headline figures as run_all.py rows."""
-    global ZERO_PHASE, SPEED
-    ZERO_PHASE, SPEED = zero_phase, min_speed
+    global ZERO_PHASE, SPEED, CUTOFF
+    ZERO_PHASE, SPEED, CUTOFF = zero_phase, min_speed, cutoff
     out: list[dict] = []
 
     def row(metric: str, value: float, unit: str = "", note: str = "") -> None:
@@ -393,12 +399,15 @@ def main() -> None:
     ap.add_argument("--no-loop", action="store_true", help="skip part 4 (the arm model in the loop)")
     ap.add_argument("--min-speed", type=float, default=MIN_SPEED,
                     help="identify's minimum speed, rad/s (0: every moving sample, the plant's effects)")
+    ap.add_argument("--cutoff", type=float, default=None,
+                    help="identify's filter cutoff, rad/s (default: identify's)")
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
     duration, budget = args.duration, args.budget
     if args.quick:
         seeds, duration, budget = seeds[:1], 60.0, 300
-    bench(seeds, duration, budget, args.workdir, not args.no_loop, not args.causal, args.min_speed)
+    bench(seeds, duration, budget, args.workdir, not args.no_loop, not args.causal, args.min_speed,
+          args.cutoff)
 
 
 if __name__ == "__main__":
