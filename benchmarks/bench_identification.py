@@ -328,7 +328,7 @@ def _loop(tmp: Path, seed: int, duration: float, budget: int, r_ex, row) -> None
         row(f"false reaction torque {j}: arm model / stock", b / a, "x", f"seed {seed + 2000}, goal < 1")
 
 
-def _summary(kinds: dict, per_seed: list, judge: Judge, held_seed: int, row) -> None:
+def _summary(kinds: dict, per_seed: list, judge: Judge, held_seed: int, row, seeds: list[int]) -> None:
     print(f"\nper seed, plant effects: identify's condition number, jackknife blocks, identifiable truths "
           f"inside their 95 % interval, all truths inside, held-out MSE / floor on bilateral seed "
           f"{held_seed} (joints {', '.join(judge.joints)}) filtered "
@@ -362,8 +362,11 @@ def _summary(kinds: dict, per_seed: list, judge: Judge, held_seed: int, row) -> 
             ex = np.array([r[1][name] for r in kinds["excitation"]])
             bil = np.array([r[1][name] for r in kinds["bilateral"]])
             near = int((ex <= 1.1).all(axis=1).sum())
+            lost = ", ".join(f"seed {seeds[i]} {judge.joints[j]} {ex[i, j]:.3f}x / {bil[i, j]:.3f}x"
+                             for i, j in zip(*np.nonzero(ex >= bil)))
             print(f"   {name}: excitation below bilateral in {int((ex < bil).sum())} of {ex.size} joint "
-                  f"comparisons; within 1.1x of the floor on every joint in {near} of {len(ex)} runs")
+                  f"comparisons (not: {lost or 'none'}); within 1.1x of the floor on every joint in {near} "
+                  f"of {len(ex)} runs")
 
 
 def bench(seeds: list[int], duration: float, budget: int, workdir: str | None = None, loop: bool = True,
@@ -393,7 +396,7 @@ def bench(seeds: list[int], duration: float, budget: int, workdir: str | None = 
             _details(tmp, seed, duration, budget, judge, results, config, row)
             if loop:
                 _loop(tmp, seed, duration, budget, results["excitation"], row)
-        _summary(kinds, per_seed, judge, held_seed, row)
+        _summary(kinds, per_seed, judge, held_seed, row, seeds)
     print(f"\n[{time.perf_counter() - t_start:.0f} s wall]")
     return out
 
