@@ -63,6 +63,7 @@ class Identification:
     min_speed: float = 0.0  # rad/s: the minimum speed asked for
     # (J,) rad/s: each joint's slowest sample used (the minimum speed, or its fastest FASTEST_SHARE's)
     fit_speeds: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    filter: dict = field(default_factory=dict)  # zero_phase, cutoff_rad_s of the data identified from
 
     @property
     def passed(self) -> bool:
@@ -79,6 +80,7 @@ class Identification:
         joints = list(self.fit.model.joint_names)
         return {"format": "crane-identification", "format_version": 1,
                 "joints": joints, "rows": self.estimate.rows, "min_speed": self.min_speed,
+                "filter": self.filter,
                 "fit_speed": dict(zip(joints, np.asarray(self.fit_speeds, float).tolist())),
                 "condition_number": self.estimate.condition,
                 "uncertainty": self.uncertainty,
@@ -132,6 +134,12 @@ def _loadable(text: str) -> str:
         raise IdentificationError(f"{e}; the data do not pin the bodies down: record a longer or richer "
                                   "excitation (docs/excitation.md)") from None
     return text
+
+
+def _filter(ds) -> dict:
+    """How the data were filtered (their preprocessing settings): zero-phase or causal, the cutoff."""
+    pre = ds.meta.get("preprocessing", {})
+    return {"zero_phase": bool(pre.get("zero_phase", False)), "cutoff_rad_s": pre.get("cutoff_rad_s")}
 
 
 def _mse_where_moving(tau: np.ndarray, pred: np.ndarray, moving: np.ndarray) -> np.ndarray:
@@ -244,16 +252,19 @@ def identify(data, *, effects: Sequence[str] = DEFAULT_EFFECTS, seed: int = 0, s
     return Identification(fit=fit, names=names, estimate=est, projection=proj, checks=found,
                           thresholds=thresholds, n_base=n_base, fit_mse=fit_mse, heldout_mse=heldout_mse,
                           share=share, uncertainty=uncertainty, min_speed=float(min_speed),
-                          fit_speeds=fit_speeds)
+                          fit_speeds=fit_speeds, filter=_filter(ds))
 
 
 def text(result: Identification) -> str:
     """The identification as a person reads it: parameters with sigma %, bodies, checks, verdict."""
     doc = result.to_json()
+    cutoff = doc["filter"]["cutoff_rad_s"]
     lines = [f"identified {len(doc['parameters'])} parameters of {', '.join(doc['joints'])} from "
              f"{doc['rows']} torque equations (each joint's where it moves at least "
              + ", ".join(f"{v:.2g}" for v in doc["fit_speed"].values())
              + f" rad/s fast); condition number {doc['condition_number']:.3g}",
+             f"filtered {'forward and backward' if doc['filter']['zero_phase'] else 'causally'}"
+             + ("" if cutoff is None else f" at {cutoff:g} rad/s"),
              f"uncertainty: {doc['uncertainty']}",
              "", f"{'parameter':32s} {'estimate':>12s} {'sigma %':>8s} {'consistent':>12s} {'torque %':>8s}"]
     for p in doc["parameters"]:
