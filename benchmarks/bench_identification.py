@@ -7,13 +7,14 @@ Per seed: an excitation with the default speed cycle (collect/excitation.py SPEE
 every period at full speed (`ExcitationOptions(speeds=(1.0,))`) and a bilateral session, each identified
 with the plant's effects that act above identify's minimum speed (Coulomb, viscous, rotor inertia on joint
 4; the plant's Stribeck friction of 0.05 rad/s acts only below it; --min-speed 0: every moving sample and
-the plant's whole effect set), zero-phase filtering (identify's default; --causal: the paper's chain), for
-coverage and for the held-out error on the first seed's separate bilateral session. The first seed also
-gives the details:
+the plant's whole effect set), zero-phase filtering at identify's cutoff (its defaults; --cutoff: another;
+--causal: the paper's chain), for coverage and for the held-out error on the first seed's separate
+bilateral session. The first seed also gives the details:
 
 1. held-out torque MSE on the test blocks of a separate bilateral session (its own seed) per joint,
-   filtered both ways (forward-backward and the paper's causal chain), each over its noise floor: the
-   plant's structure identified on that session's own training pool with the same filter (same split).
+   filtered both ways (forward-backward and the paper's causal chain, both at the settings' cutoff), each
+   over its noise floor: the plant's structure identified on that session's own training pool with the
+   same filter (same split).
    The plant's true parameters are judged the same way, as the reference a perfect identification
    reaches; the models of the excitation and of the bilateral session as above, from every moving sample
    with the plant's whole effect set (`min_speed=0`), and with the default effects (viscous, Coulomb).
@@ -26,10 +27,12 @@ gives the details:
    base columns on the plant's exact inverse dynamics over random states), friction from the plant
    preset.
 4. the identified arm model as both arms' nominal observer model (`run --arm-model`) against the stock
-   one, same seed: the follower's false reaction torque in free motion (`crane-train fidelity` with the
-   truth trace).
+   one and against the same arm model without its Coulomb friction, same seed: the follower's false
+   reaction torque in free motion, the leader's hand-torque error, the force sum and the tracking error
+   (`crane-train fidelity` with the truth trace).
 
     .venv/bin/python benchmarks/bench_identification.py [--quick] [--seeds 0,1,2] [--duration 180]
+        [--workdir DIR] [--min-speed V] [--cutoff W] [--causal] [--no-loop]
 """
 
 from __future__ import annotations
