@@ -7,13 +7,14 @@ Per seed: an excitation with the default speed cycle (collect/excitation.py SPEE
 every period at full speed (`ExcitationOptions(speeds=(1.0,))`) and a bilateral session, each identified
 with the plant's effects that act above identify's minimum speed (Coulomb, viscous, rotor inertia on joint
 4; the plant's Stribeck friction of 0.05 rad/s acts only below it; --min-speed 0: every moving sample and
-the plant's whole effect set), zero-phase filtering (identify's default; --causal: the paper's chain), for
-coverage and for the held-out error on the first seed's separate bilateral session. The first seed also
-gives the details:
+the plant's whole effect set), zero-phase filtering at identify's cutoff (its defaults; --cutoff: another;
+--causal: the paper's chain), for coverage and for the held-out error on the first seed's separate
+bilateral session. The first seed also gives the details:
 
 1. held-out torque MSE on the test blocks of a separate bilateral session (its own seed) per joint,
-   filtered both ways (forward-backward and the paper's causal chain), each over its noise floor: the
-   plant's structure identified on that session's own training pool with the same filter (same split).
+   filtered both ways (forward-backward and the paper's causal chain, both at the settings' cutoff), each
+   over its noise floor: the plant's structure identified on that session's own training pool with the
+   same filter (same split).
    The plant's true parameters are judged the same way, as the reference a perfect identification
    reaches; the models of the excitation and of the bilateral session as above, from every moving sample
    with the plant's whole effect set (`min_speed=0`), and with the default effects (viscous, Coulomb).
@@ -26,10 +27,12 @@ gives the details:
    base columns on the plant's exact inverse dynamics over random states), friction from the plant
    preset.
 4. the identified arm model as both arms' nominal observer model (`run --arm-model`) against the stock
-   one, same seed: the follower's false reaction torque in free motion (`crane-train fidelity` with the
-   truth trace).
+   one and against the same arm model without its Coulomb friction, same seed: the follower's false
+   reaction torque in free motion, the leader's hand-torque error, the force sum and the tracking error
+   (`crane-train fidelity` with the truth trace).
 
     .venv/bin/python benchmarks/bench_identification.py [--quick] [--seeds 0,1,2] [--duration 180]
+        [--workdir DIR] [--min-speed V] [--cutoff W] [--causal] [--no-loop]
 """
 
 from __future__ import annotations
@@ -55,6 +58,7 @@ from collect.runner import run_session  # noqa: E402
 from crane_io import session_format as sf  # noqa: E402
 from crane_io.physics.dynamics import ArmDynamics  # noqa: E402
 from crane_io.physics.excitation_trajectory import recording_condition  # noqa: E402
+from crane_io.physics.identified_model import IdentifiedArm  # noqa: E402
 from crane_io.sim.plant_config import load_plant_config  # noqa: E402
 from train.api import load_sessions, load_settings  # noqa: E402
 from train.data.splits import make_splits  # noqa: E402
@@ -166,6 +170,9 @@ def _covered(rows) -> tuple[int, int]:
 
 ZERO_PHASE = True  # sessions filtered forward and backward (identify's default); --causal: the paper's chain
 SPEED = MIN_SPEED  # rad/s, identify's minimum speed (--min-speed)
+CUTOFF = None  # rad/s, identify's filter cutoff (--cutoff; None: identify's default)
+# rad/s: the held-out session is judged filtered with the settings' cutoff (the paper's), and so is its floor
+JUDGE_CUTOFF = load_settings(None)["preprocess"].cutoff_rad_s
 
 
 def fit_effects() -> tuple[str, ...]:
@@ -174,11 +181,12 @@ def fit_effects() -> tuple[str, ...]:
 
 
 def identify_as_set(path: Path, effects, seed: int, zero_phase: bool | None = None,
-                    min_speed: float | None = None):
+                    min_speed: float | None = None, cutoff: float | None = None):
+    """identify's result (its defaults, the benchmark's filter and minimum speed unless given)."""
     zp = ZERO_PHASE if zero_phase is None else zero_phase
     speed = SPEED if min_speed is None else min_speed
     return _quiet(identify, str(path), effects=effects, seed=seed, scale_to_data=True, zero_phase=zp,
-                  min_speed=speed)
+                  min_speed=speed, cutoff=CUTOFF if cutoff is None else cutoff)
 
 
 class Judge:
@@ -193,7 +201,8 @@ class Judge:
             ds = load_sessions(str(path), zero_phase=zp)
             splits = make_splits(ds, load_settings(None)["splits"], seed=seed, scale_to_data=True)
             self.tests[name] = splits.test
-            floor = identify_as_set(path, PLANT_EFFECTS, seed, zero_phase=zp, min_speed=0.0)
+            floor = identify_as_set(path, PLANT_EFFECTS, seed, zero_phase=zp, min_speed=0.0,
+                                    cutoff=JUDGE_CUTOFF)
             self.floors[name] = floor.heldout_mse
             self.joints = list(floor.fit.model.joint_names)
             model, theta = floor.fit.model, floor.fit.model.theta.copy()
@@ -293,20 +302,36 @@ def _loop(tmp: Path, seed: int, duration: float, budget: int, r_ex, row) -> None
     _quiet(r_ex.save, model_dir, force=True)
     loop_s = min(duration, 60.0)
     stock_tr, id_tr = tmp / "stock.truth.h5", tmp / (f"ident{'-zp' if ZERO_PHASE else ''}"
-                                                  f"{f'-v{SPEED:g}' if SPEED else ''}.truth.h5")
+                                                  f"{f'-v{SPEED:g}' if SPEED else ''}"
+                                                  f"{f'-c{CUTOFF:g}' if CUTOFF else ''}.truth.h5")
+    arm = r_ex.arm_model()
+    no_coulomb = model_dir / "arm_model_no_coulomb.toml"  # bodies and viscous friction only
+    no_coulomb.write_text(IdentifiedArm(arm.free, arm.locked, arm.bodies, arm.payload_mass, {
+        j: {k: v for k, v in f.items() if k != "coulomb"} for j, f in arm.friction.items()}).to_toml())
+    nc_tr = id_tr.with_name(id_tr.name.replace(".truth.h5", "-no-coulomb.truth.h5"))
     stock = record(tmp, "run", seed + 2000, loop_s, budget, truth_trace=stock_tr)
     ident = record(tmp, "run", seed + 2000, loop_s, budget, truth_trace=id_tr,
                    arm_model=model_dir / "arm_model.toml")
-    f_stock, f_id = measure_fidelity(stock, stock_tr), measure_fidelity(ident, id_tr)
-    print(f"\n4. follower false reaction torque RMS in free motion, N m ({loop_s:.0f} s, seed "
-          f"{seed + 2000}): stock nominal model / identified arm model (excitation, plant effects)")
-    for j in f_stock.joints:
-        a, b = f_stock.joints[j]["follower_false_rms"], f_id.joints[j]["follower_false_rms"]
+    ident_nc = record(tmp, "run", seed + 2000, loop_s, budget, truth_trace=nc_tr, arm_model=no_coulomb)
+    fid = {"stock": measure_fidelity(stock, stock_tr), "no Coulomb": measure_fidelity(ident_nc, nc_tr),
+           "arm model": measure_fidelity(ident, id_tr)}
+    print(f"\n4. follower false reaction torque RMS in free motion (moving / still), the leader's "
+          f"hand-torque error, the force sum and the tracking error, N m and deg ({loop_s:.0f} s, seed "
+          f"{seed + 2000}): the stock nominal model; the identified arm model's bodies and viscous friction "
+          f"only; the whole arm model (its Coulomb friction too)")
+    for j in fid["stock"].joints:
+        for name, f in fid.items():
+            m = f.joints[j]
+            print(f"   {j} {name:10s} false {m['follower_false_rms']:.4f} "
+                  f"({m['follower_false_rms_moving']:.4f} / {m['follower_false_rms_still']:.4f})  hand error "
+                  f"{m['leader_hand_error_rms']:.4f}  sum {m['force_sum_rms']:.4f}  tracking "
+                  f"{m['tracking_rms_deg']:.3f} deg")
+        a, b = fid["stock"].joints[j]["follower_false_rms"], fid["arm model"].joints[j]["follower_false_rms"]
         print(f"   {j}: {a:.4f} / {b:.4f} ({'lower' if b < a else 'NOT lower'})")
         row(f"false reaction torque {j}: arm model / stock", b / a, "x", f"seed {seed + 2000}, goal < 1")
 
 
-def _summary(kinds: dict, per_seed: list, judge: Judge, held_seed: int, row) -> None:
+def _summary(kinds: dict, per_seed: list, judge: Judge, held_seed: int, row, seeds: list[int]) -> None:
     print(f"\nper seed, plant effects: identify's condition number, jackknife blocks, identifiable truths "
           f"inside their 95 % interval, all truths inside, held-out MSE / floor on bilateral seed "
           f"{held_seed} (joints {', '.join(judge.joints)}) filtered "
@@ -340,15 +365,18 @@ def _summary(kinds: dict, per_seed: list, judge: Judge, held_seed: int, row) -> 
             ex = np.array([r[1][name] for r in kinds["excitation"]])
             bil = np.array([r[1][name] for r in kinds["bilateral"]])
             near = int((ex <= 1.1).all(axis=1).sum())
+            lost = ", ".join(f"seed {seeds[i]} {judge.joints[j]} {ex[i, j]:.3f}x / {bil[i, j]:.3f}x"
+                             for i, j in zip(*np.nonzero(ex >= bil)))
             print(f"   {name}: excitation below bilateral in {int((ex < bil).sum())} of {ex.size} joint "
-                  f"comparisons; within 1.1x of the floor on every joint in {near} of {len(ex)} runs")
+                  f"comparisons (not: {lost or 'none'}); within 1.1x of the floor on every joint in {near} "
+                  f"of {len(ex)} runs")
 
 
 def bench(seeds: list[int], duration: float, budget: int, workdir: str | None = None, loop: bool = True,
-          zero_phase: bool = True, min_speed: float = MIN_SPEED) -> list[dict]:
+          zero_phase: bool = True, min_speed: float = MIN_SPEED, cutoff: float | None = None) -> list[dict]:
     """Every part of the module docstring, printed; the headline figures as run_all.py rows."""
-    global ZERO_PHASE, SPEED
-    ZERO_PHASE, SPEED = zero_phase, min_speed
+    global ZERO_PHASE, SPEED, CUTOFF
+    ZERO_PHASE, SPEED, CUTOFF = zero_phase, min_speed, cutoff
     out: list[dict] = []
 
     def row(metric: str, value: float, unit: str = "", note: str = "") -> None:
@@ -371,7 +399,7 @@ def bench(seeds: list[int], duration: float, budget: int, workdir: str | None = 
             _details(tmp, seed, duration, budget, judge, results, config, row)
             if loop:
                 _loop(tmp, seed, duration, budget, results["excitation"], row)
-        _summary(kinds, per_seed, judge, held_seed, row)
+        _summary(kinds, per_seed, judge, held_seed, row, seeds)
     print(f"\n[{time.perf_counter() - t_start:.0f} s wall]")
     return out
 
@@ -393,12 +421,15 @@ def main() -> None:
     ap.add_argument("--no-loop", action="store_true", help="skip part 4 (the arm model in the loop)")
     ap.add_argument("--min-speed", type=float, default=MIN_SPEED,
                     help="identify's minimum speed, rad/s (0: every moving sample, the plant's effects)")
+    ap.add_argument("--cutoff", type=float, default=None,
+                    help="identify's filter cutoff, rad/s (default: identify's)")
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
     duration, budget = args.duration, args.budget
     if args.quick:
         seeds, duration, budget = seeds[:1], 60.0, 300
-    bench(seeds, duration, budget, args.workdir, not args.no_loop, not args.causal, args.min_speed)
+    bench(seeds, duration, budget, args.workdir, not args.no_loop, not args.causal, args.min_speed,
+          args.cutoff)
 
 
 if __name__ == "__main__":

@@ -8,7 +8,10 @@ Kp, Kd, Kf and cutoff g (shared/crane_x7_facts.md section 6a; the Sakaino/Tsuji-
   actually applied in the previous cycle (after safety clamps);
 - reaction-force observer (RFOB): tau_res = tau_dis - gravity(q) - D w  (what the outside world -
   the operator's hand on the leader, the environment on the follower - pushes against the arm, with
-  the DOB's sign: a hand pushing the joint positive gives tau_res < 0); with a learned model on an arm
+  the DOB's sign: a hand pushing the joint positive gives tau_res < 0); with an identified arm model
+  (`arm_model`: its bodies in gravity(q) and J, its viscous friction as D) that has Coulomb friction c,
+  tau_res = tau_dis - gravity(q) - D w - c tanh(w / v0), v0 = NOMINAL_COULOMB_VELOCITY (the smooth
+  sign: no jump at rest, where the pseudo-derivative velocity is noise); with a learned model on an arm
   (`models`), the joints it covers take the model's reaction torque instead,
   tau_res = L(L(tau_applied)) - f(L(L(q)), L(D(q)), D(D(q))) with the training's filters
   (collect/model_reaction.py), and fall back to the nominal one in a cycle whose prediction is unusable;
@@ -61,6 +64,9 @@ from .config import Config
 from .controller_layout import ArmEstimates, ArmSignals, Commands, ControlLaw
 from .controller_numpy import NumpyLaw
 from .safety import Breach, SafetyMonitor
+
+# rad/s, v0: the nominal observers subtract an identified arm model's Coulomb friction c as c tanh(w / v0)
+NOMINAL_COULOMB_VELOCITY = 0.05
 
 __all__ = ["ArmEstimates", "ArmSignals", "BilateralController", "Commands", "GravityModel", "InertiaModel"]
 
@@ -196,10 +202,11 @@ class BilateralController:
     observers see the torque that really went out (otherwise the unclamped reference is assumed).
 
     `compiled`: the backend. The compiled one (collect/controller_kernel.py: the same arithmetic, the same
-    bits, in one call per cycle) covers the nominal observers without friction dither; True asks for it (a
-    ConfigError when numba is missing, a learned model is given or the dither is on), False takes the
-    numpy reference, None (default) the compiled one when it covers the configuration and numba is
-    already loaded in this process (a simulated run: the simulator's kernels loaded it), so a run on real
+    bits, in one call per cycle) covers the nominal observers without friction dither or an arm model's
+    Coulomb friction; True asks for it (a ConfigError when numba is missing, a learned model is given,
+    the dither is on or the arm model has Coulomb friction), False takes the numpy reference, None
+    (default) the compiled one when it covers the configuration and numba is already loaded in this
+    process (a simulated run: the simulator's kernels loaded it), so a run on real
     arms never imports numba for it."""
 
     def __init__(self, config: Config, arm: ArmDescription | None = None, models: dict | None = None,
@@ -225,14 +232,21 @@ class BilateralController:
         self.kt = np.array([j.torque_constant for j in self.arm.joints])
         self.deadband = config.controller.position_deadband
         # an identified arm model (crane_io.physics.identified_model): its bodies in the gravity and inertia
-        # models and its viscous friction as the nominal D of the joints it covers
+        # models, its viscous friction as the nominal D and its Coulomb friction c as c tanh(w / v0)
+        # (NOMINAL_COULOMB_VELOCITY) in the nominal observers of the joints it covers
         self.arm_model = arm_model
+        self.coulomb = None  # (n,) N m: the nominal observers' Coulomb friction (None: none subtracted)
+        self.coulomb_velocity = NOMINAL_COULOMB_VELOCITY
         if arm_model is not None:
             if config.controller.gravity_model != "dynamics":
                 raise ConfigError("an identified arm model needs controller.gravity_model = \"dynamics\"")
+            coulomb = np.zeros(self.n)
             for joint, friction in arm_model.friction.items():
-                if "viscous" in friction and joint in names:
-                    self.D[names.index(joint)] = friction["viscous"]
+                if joint in names:
+                    self.D[names.index(joint)] = friction.get("viscous", self.D[names.index(joint)])
+                    coulomb[names.index(joint)] = friction.get("coulomb", 0.0)
+            if np.any(coulomb * self.bil != 0.0):
+                self.coulomb = coulomb * self.bil
         self.gravity = GravityModel(config.controller.gravity_model, config, self.arm, arm_model)
         self.inertia = InertiaModel(config.controller.inertia_model, config, self.arm, self.J,
                                     config.controller.inertia_update_cycles, arm_model)
@@ -260,7 +274,8 @@ class BilateralController:
         if compiled is False:
             return NumpyLaw(self)
         why = ("a learned model in an observer" if any(self.models.values())
-               else "the friction dither" if self.dither_amplitude > 0.0 else None)
+               else "the friction dither" if self.dither_amplitude > 0.0
+               else "an identified arm model's Coulomb friction" if self.coulomb is not None else None)
         if compiled is None and (why is not None or "numba" not in sys.modules):
             return NumpyLaw(self)
         if why is not None:

@@ -39,6 +39,8 @@ class _Observer:
         self.y = a * self.y + (1.0 - a) * (self.applied + gjw)
         tau_dis = self.y - gjw
         tau_res = tau_dis - grav - c.D * w
+        if c.coulomb is not None:
+            tau_res = tau_res - c.coulomb * np.tanh(w / c.coulomb_velocity)
         if self.model is not None:
             res_m, ok = self.model.update(q, self.applied, dt)
             i = self.model.idx

@@ -148,6 +148,7 @@ def test_identify_writes_a_model_with_its_identification_and_a_verdict(session, 
     assert r.exit_code in (0, 1), r.output
     doc = json.loads(r.output)
     assert doc["format"] == "crane-identification" and doc["joints"] == ["joint1", "joint2", "joint4"]
+    assert doc["filter"] == {"zero_phase": False, "cutoff_rad_s": 25.0}  # the settings' cutoff
     assert (out / "model.json").exists() and (out / "loop_model.npz").exists()
     assert json.loads((out / "identification.json").read_text())["verdict"] == doc["verdict"]
     friction = {p["name"]: p for p in doc["parameters"] if p["kind"] == "other"}
@@ -184,6 +185,9 @@ def test_bad_thresholds_are_one_sentence(session, tmp_path):
     r = CliRunner().invoke(train_main, ["identify", str(session), "-o", str(tmp_path / "id"),
                                        "--negligible", "2"])
     assert r.exit_code == 2 and "Traceback" not in r.output and "--negligible" in r.output
+    r = CliRunner().invoke(train_main, ["identify", str(session), "-o", str(tmp_path / "id"),
+                                       "--cutoff", "0"])
+    assert r.exit_code == 2 and "Traceback" not in r.output and "--cutoff" in r.output
 
 
 def test_an_effect_can_be_identified_on_one_joint(session, tmp_path):
@@ -204,6 +208,7 @@ def test_slow_samples_are_left_out_of_the_fit_and_an_effect_only_they_hold_is_re
         assert r.exit_code in (0, 1), r.output
         docs[speed] = json.loads(r.output)
     assert docs["0"]["min_speed"] == 0 and docs[None]["min_speed"] == 0.3
+    assert docs[None]["filter"] == {"zero_phase": True, "cutoff_rad_s": 60.0}  # identify's zero-phase cutoff
     assert 0 < docs[None]["rows"] < docs["0"]["rows"]
     assert all(0 < v <= 0.3 for v in docs[None]["fit_speed"].values())
     assert all(v == 0 for v in docs["0"]["fit_speed"].values())
@@ -211,3 +216,24 @@ def test_slow_samples_are_left_out_of_the_fit_and_an_effect_only_they_hold_is_re
                                        "--scale-to-data", "--effect", "stribeck:stribeck_velocity=0.05"])
     assert r.exit_code == 2 and "Traceback" not in r.output and "minimum speed of 0.3 rad/s" in r.output
     assert not (tmp_path / "s").exists()
+
+
+def test_no_parameter_gets_a_smaller_standard_error_than_its_independent_sample_value():
+    from train.evaluation.block_uncertainty import BlockPlan, least_squares_covariance
+
+    rng = np.random.default_rng(1)
+    n, p = 1000, 4
+    phi = rng.normal(size=(n, 1, p))
+    ids = np.repeat(np.arange(5), n // 5)
+    offset = rng.normal(size=5)[ids]  # an error that differs between the blocks, in the first column only
+    tau = phi @ np.array([1.0, -2.0, 0.5, 3.0]) + 0.1 * rng.normal(size=(n, 1)) \
+        + 0.05 * offset[:, None] * phi[:, :, 0]
+    a, y = phi[:, 0], tau[:, 0]
+    resid = y - a @ np.linalg.lstsq(a, y, rcond=None)[0]
+    iid = np.sqrt(np.diag(resid @ resid / (n - p) * np.linalg.inv(a.T @ a)))
+    jack = np.sqrt(np.diag(least_squares_covariance(a, y, ids, 5)))
+    assert jack[0] > 2 * iid[0] and np.any(jack[1:] < 0.99 * iid[1:])  # five blocks' spread: some below
+    est = weighted_least_squares(phi, tau, np.ones((n, 1), bool), BlockPlan(ids, 5, 1.0, 0))
+    assert est.blocks == 5  # the jackknife's covariance, not the textbook one
+    assert np.all(est.stderr >= iid * (1 - 1e-9))
+    assert est.stderr[0] == pytest.approx(jack[0], rel=1e-6)  # a larger jackknife variance is kept

@@ -87,6 +87,33 @@ def test_the_controller_takes_the_identified_gravity_and_viscous_friction(nomina
     assert ident.D[names.index("joint1")] == stock.D[names.index("joint1")]
 
 
+def test_the_nominal_observers_subtract_the_identified_coulomb_friction_with_a_smooth_sign(nominal):
+    from collect.config import load_config
+    from collect.controller import NOMINAL_COULOMB_VELOCITY, BilateralController
+    from collect.controller_layout import ArmSignals
+
+    _, arm = nominal  # joint2: viscous 0.05, Coulomb 0.24
+    config = load_config()
+    without = IdentifiedArm(arm.free, arm.locked, arm.bodies, friction={"joint2": {"viscous": 0.05}})
+    assert not BilateralController(config, compiled=None, arm_model=arm).compiled  # the compiled one declines
+    ctl = {name: BilateralController(config, compiled=False, arm_model=a)
+           for name, a in (("coulomb", arm), ("viscous", without))}
+    with pytest.raises(ConfigError, match="Coulomb friction"):
+        BilateralController(config, compiled=True, arm_model=arm)
+    names = ctl["coulomb"].arm.joint_names
+    q0 = np.random.default_rng(0).normal(0.0, 0.3, len(names))
+    q = q0 + 0.002 * np.arange(1, len(names) + 1)  # a step: the pseudo-derivative velocity is not zero
+    for c in ctl.values():
+        c.step(ArmSignals(q0.copy()), ArmSignals(q0.copy()), 0.002)  # both observers in the same state
+    est = {n: c.observer("follower").update(q, 0.002) for n, c in ctl.items()}  # (w, tau_dis, tau_res)
+    j2 = names.index("joint2")
+    w = est["coulomb"][0][j2]
+    assert abs(w) > 0.1 * NOMINAL_COULOMB_VELOCITY
+    diff = est["viscous"][2] - est["coulomb"][2]
+    assert diff[j2] == pytest.approx(0.24 * np.tanh(w / NOMINAL_COULOMB_VELOCITY), rel=1e-9)
+    assert np.all(np.delete(diff, j2) == 0.0)  # the other joints' friction is the description's
+
+
 def test_run_records_the_arm_model_and_refuses_a_bad_one(nominal, tmp_path):
     import h5py
     from click.testing import CliRunner

@@ -51,7 +51,8 @@ from ..config import MAX_RATE_HZ, MIN_RATE_HZ
                    "--arm leader).")
 @click.option("--arm-model", "arm_model", type=click.Path(dir_okay=False), default=None, metavar="TOML",
               help="An identified arm model (arm_model.toml of `crane-train identify`) as both arms' nominal "
-                   "observer model: its bodies in the gravity and inertia terms, its viscous friction as D.")
+                   "observer model: its bodies in the gravity and inertia terms, its viscous friction as D, "
+                   "its Coulomb friction c as c tanh(w / 0.05 rad/s).")
 @click.option("--seed", type=SEED, default=0, show_default=True,
               help="Seed of the simulated operator and plants (--sim).")
 @click.option("--duration", type=Number(float, 0, low_open=True, what="a positive number of seconds"),

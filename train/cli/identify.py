@@ -13,7 +13,7 @@ import click
 
 from crane_io.cli_support import SEED, Number, cli_errors
 
-from ..identification.identify import DEFAULT_EFFECTS, MIN_SPEED
+from ..identification.identify import DEFAULT_EFFECTS, MIN_SPEED, ZERO_PHASE_CUTOFF
 from ..identification.verdict import Thresholds
 from .options import arm_option, force_option
 
@@ -51,11 +51,15 @@ DEFAULTS = Thresholds()
               help="rad/s: each joint's torque is fitted where it moves at least this fast (slower samples "
                    "hold the friction of reversals and stops, which the filters spread); 0 uses every "
                    "moving sample.")
+@click.option("--cutoff", type=Number(float, 0, low_open=True, unit="rad/s"), default=None,
+              help=f"rad/s: the filters' cutoff [{ZERO_PHASE_CUTOFF:g} with --zero-phase (a low cutoff "
+                   f"biases the inertias: the rigid body is nonlinear in the motion it attenuates), the "
+                   f"settings' with --causal].")
 @click.option("--json", "as_json", is_flag=True, help="Print identification.json instead of the table.")
 @force_option("the model directory")
 @cli_errors
 def identify(sessions, out_dir, effects, joints, arm, seed, scale_to_data, config_path, max_condition,
-             max_rel_stderr, negligible, max_heldout_ratio, zero_phase, min_speed, as_json, force):
+             max_rel_stderr, negligible, max_heldout_ratio, zero_phase, min_speed, cutoff, as_json, force):
     """Identify the arm's inertial and friction parameters from SESSION(s): excitation or bilateral data."""
     from ..api import check_model_output
     from ..identification.identify import identify as run_identification
@@ -66,7 +70,7 @@ def identify(sessions, out_dir, effects, joints, arm, seed, scale_to_data, confi
     result = run_identification(list(sessions), effects=effects or DEFAULT_EFFECTS, seed=seed,
                                 scale_to_data=scale_to_data, config=config_path, arm=arm, joints=joints,
                                 thresholds=thresholds, zero_phase=zero_phase,
-                                min_speed=min_speed)
+                                min_speed=min_speed, cutoff=cutoff)
     result.save(out_dir, force=force)
     if as_json:
         click.echo(json.dumps(result.to_json(), indent=2))

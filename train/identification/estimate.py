@@ -8,9 +8,12 @@ The uncertainty accounts for serial correlation: the residuals of a recording at
 over tens of samples, so the textbook covariance s^2 (A^T A)^-1 is too small. The covariance is the
 delete-a-block jackknife's over contiguous time blocks (train.evaluation.block_uncertainty: the same
 blocks and estimator as `crane-train fit`'s standard errors; a repeated sample stays in its first
-occurrence's block). Where the jackknife comes out below the textbook value on average (few blocks, by
-chance), the textbook covariance is used, so a recording never gets a smaller error than its
-independent-sample value.
+occurrence's block). A recording never gets a smaller error than its independent-sample value: where the
+jackknife comes out below the textbook value on average (few blocks, by chance), the textbook covariance
+is used; otherwise each parameter whose jackknife variance lies below its textbook variance is raised to
+it (its correlations kept). A jackknife over five blocks estimates each variance from four degrees of
+freedom, so some come out several times too small by chance; the t factor of the interval covers that
+spread only for an estimate that is unbiased, and the textbook value is a floor the data justify anyway.
 
 A parameter is identifiable when the data tell its value from zero: its relative standard error is at
 most IDENTIFIABLE_REL_STDERR (the estimate lies at least two standard errors from zero, a t test at
@@ -80,6 +83,18 @@ def _solve(a: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.linalg.lstsq(a, y, rcond=None)[0]
 
 
+def _never_below_iid(cov: np.ndarray, cov_iid: np.ndarray, blocks: int) -> tuple[np.ndarray, int]:
+    """(covariance, the jackknife's blocks or 0 for the textbook one): the jackknife's `cov`, each
+    parameter's variance raised to at least its textbook value `cov_iid` (the module docstring: a few
+    blocks' spread can be small by chance), its correlations kept; the textbook covariance itself when
+    the jackknife lies below it on average."""
+    ratio = np.diag(cov) / np.maximum(np.diag(cov_iid), 1e-300)
+    if ratio.mean() < 1.0:
+        return cov_iid, 0
+    lift = np.sqrt(np.maximum(1.0 / np.maximum(ratio, 1e-300), 1.0))
+    return cov * np.outer(lift, lift), blocks
+
+
 def weighted_least_squares(phi: np.ndarray, tau: np.ndarray, moving: np.ndarray, plan: BlockPlan) -> Estimate:
     """The estimate of theta in tau = phi @ theta from phi (N, J, p), tau (N, J) N m, the dead-zone mask
     moving (N, J) and the samples' time blocks `plan` (train.evaluation.block_uncertainty)."""
@@ -115,9 +130,7 @@ def weighted_least_squares(phi: np.ndarray, tau: np.ndarray, moving: np.ndarray,
     ata_inv = np.linalg.inv((aw / col).T @ (aw / col)) / np.outer(col, col)
     cov_iid = s2 * ata_inv
     cov = least_squares_covariance(aw / col, yw, plan.ids[sample], plan.count) / np.outer(col, col)
-    blocks = plan.count
-    if np.trace(cov / np.maximum(np.diag(cov_iid), 1e-300)[None, :]) < p:  # never below the iid value
-        cov, blocks = cov_iid, 0
+    cov, blocks = _never_below_iid(cov, cov_iid, plan.count)
     cov = 0.5 * (cov + cov.T)
     se = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
     corr = cov / np.outer(se, se)

@@ -42,6 +42,8 @@ NONNEGATIVE = ("viscous.viscous", "coulomb.coulomb")
 IDENTIFICATION_JSON = "identification.json"
 ARM_MODEL_TOML = "arm_model.toml"  # the identified bodies for the dynamics, the controller and the plant
 MIN_SPEED = 0.3  # rad/s: a joint's slower samples are left out of the fit (module docstring)
+# rad/s: the low-pass (and pseudo-derivative) cutoff of zero-phase identification (module docstring)
+ZERO_PHASE_CUTOFF = 60.0
 FASTEST_SHARE = 0.2  # a joint that rarely reaches MIN_SPEED is fitted on this share of its fastest samples
 
 
@@ -61,6 +63,7 @@ class Identification:
     min_speed: float = 0.0  # rad/s: the minimum speed asked for
     # (J,) rad/s: each joint's slowest sample used (the minimum speed, or its fastest FASTEST_SHARE's)
     fit_speeds: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    filter: dict = field(default_factory=dict)  # zero_phase, cutoff_rad_s of the data identified from
 
     @property
     def passed(self) -> bool:
@@ -77,6 +80,7 @@ class Identification:
         joints = list(self.fit.model.joint_names)
         return {"format": "crane-identification", "format_version": 1,
                 "joints": joints, "rows": self.estimate.rows, "min_speed": self.min_speed,
+                "filter": self.filter,
                 "fit_speed": dict(zip(joints, np.asarray(self.fit_speeds, float).tolist())),
                 "condition_number": self.estimate.condition,
                 "uncertainty": self.uncertainty,
@@ -132,6 +136,12 @@ def _loadable(text: str) -> str:
     return text
 
 
+def _filter(ds) -> dict:
+    """How the data were filtered (their preprocessing settings): zero-phase or causal, the cutoff."""
+    pre = ds.meta.get("preprocessing", {})
+    return {"zero_phase": bool(pre.get("zero_phase", False)), "cutoff_rad_s": pre.get("cutoff_rad_s")}
+
+
 def _mse_where_moving(tau: np.ndarray, pred: np.ndarray, moving: np.ndarray) -> np.ndarray:
     err = (tau - pred) ** 2
     return np.array([err[moving[:, j], j].mean() if moving[:, j].any() else np.nan
@@ -175,13 +185,34 @@ def _blocks(ds, pool, sources):
     return plan, plan.describe()
 
 
+def _load(paths, arm, joints, config, zero_phase: bool, cutoff: float | None):
+    """The sessions at `paths` read and preprocessed as train.api.load_sessions does, with the filters'
+    cutoff `cutoff` (identify's argument)."""
+    import dataclasses
+
+    from ..api import load_settings
+    from ..settings import load_dataset
+
+    if cutoff is None and zero_phase:
+        cutoff = ZERO_PHASE_CUTOFF
+    pre = load_settings(config)["preprocess"]
+    if cutoff is not None:
+        if not (np.isfinite(cutoff) and cutoff > 0):
+            raise IdentificationError(f"the filters' cutoff must be a positive number of rad/s, got "
+                                      f"{cutoff!r}")
+        pre = dataclasses.replace(pre, cutoff_rad_s=float(cutoff), pseudo_diff_rad_s=float(cutoff))
+    return load_dataset([str(p) for p in paths], joints, None, zero_phase, pre, arm)
+
+
 def identify(data, *, effects: Sequence[str] = DEFAULT_EFFECTS, seed: int = 0, scale_to_data: bool = False,
              config=None, arm: str | None = None, joints=None, thresholds: Thresholds | None = None,
-             zero_phase: bool = True, min_speed: float = MIN_SPEED) -> Identification:
+             zero_phase: bool = True, min_speed: float = MIN_SPEED,
+             cutoff: float | None = None) -> Identification:
     """Identify from `data` (a Dataset, or session file(s) read as train.api.load_sessions reads them;
-    `zero_phase`: filtered forward and backward; `min_speed` rad/s: the slowest samples used, the module
-    docstring)."""
-    from ..api import FitResult, load_sessions, load_settings, model_preprocessing, test_metrics
+    `zero_phase`: filtered forward and backward; `cutoff` rad/s: the filters' cutoff, None: identify's
+    (ZERO_PHASE_CUTOFF) for zero-phase filtering, the settings' for the causal chain; `min_speed` rad/s:
+    the slowest samples used, the module docstring)."""
+    from ..api import FitResult, load_settings, model_preprocessing, test_metrics
     from ..data.splits import make_splits
     from ..models.registry import make_model
     from ..settings import parse_effect
@@ -190,7 +221,7 @@ def identify(data, *, effects: Sequence[str] = DEFAULT_EFFECTS, seed: int = 0, s
     sources = None
     if not hasattr(data, "tau"):
         sources = [data] if isinstance(data, (str, Path)) else list(data)
-        data = load_sessions(data, arm=arm, joints=joints, config=config, zero_phase=zero_phase)
+        data = _load(sources, arm, joints, config, zero_phase, cutoff)
     ds = data
     splits = make_splits(ds, load_settings(config)["splits"], seed=seed, scale_to_data=scale_to_data)
     pool = splits.pool
@@ -221,16 +252,19 @@ def identify(data, *, effects: Sequence[str] = DEFAULT_EFFECTS, seed: int = 0, s
     return Identification(fit=fit, names=names, estimate=est, projection=proj, checks=found,
                           thresholds=thresholds, n_base=n_base, fit_mse=fit_mse, heldout_mse=heldout_mse,
                           share=share, uncertainty=uncertainty, min_speed=float(min_speed),
-                          fit_speeds=fit_speeds)
+                          fit_speeds=fit_speeds, filter=_filter(ds))
 
 
 def text(result: Identification) -> str:
     """The identification as a person reads it: parameters with sigma %, bodies, checks, verdict."""
     doc = result.to_json()
+    cutoff = doc["filter"]["cutoff_rad_s"]
     lines = [f"identified {len(doc['parameters'])} parameters of {', '.join(doc['joints'])} from "
              f"{doc['rows']} torque equations (each joint's where it moves at least "
              + ", ".join(f"{v:.2g}" for v in doc["fit_speed"].values())
              + f" rad/s fast); condition number {doc['condition_number']:.3g}",
+             f"filtered {'forward and backward' if doc['filter']['zero_phase'] else 'causally'}"
+             + ("" if cutoff is None else f" at {cutoff:g} rad/s"),
              f"uncertainty: {doc['uncertainty']}",
              "", f"{'parameter':32s} {'estimate':>12s} {'sigma %':>8s} {'consistent':>12s} {'torque %':>8s}"]
     for p in doc["parameters"]:
