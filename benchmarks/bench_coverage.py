@@ -10,6 +10,8 @@ joints 1, 2 and 4 (tests/planted.py drives the plant directly at 500 Hz):
 * `hidden-rotor-inertia`: 0.02 kg m^2 of rotor inertia on joint4 (an inertia column itself);
 * `hidden-coulomb`: 0.25 N m of Coulomb friction on joint2;
 * `hidden-viscous`: 0.08 N m s/rad of viscous friction on joint1;
+* `hidden-cogging`: a 12/rev ripple of 0.08 N m on joint4 (its amplitude and phase are not linear
+  coefficients of the fit: judged in the diagnosis only);
 * and in every session the plant's viscous friction on joint2 (0.04 N m s/rad, a known effect).
 
 Each session is preprocessed as `crane-train fit` does (the default, causal filters) and fitted by the
@@ -39,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-PRESETS = ("hidden-spring", "hidden-rotor-inertia", "hidden-coulomb", "hidden-viscous")
+PRESETS = ("hidden-spring", "hidden-rotor-inertia", "hidden-coulomb", "hidden-viscous", "hidden-cogging")
 ALWAYS = (("viscous", "joint2"),)  # plant effects every preset has, judged in every session too
 
 
