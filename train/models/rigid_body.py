@@ -25,6 +25,16 @@ RSS / (rows - parameters)) counts every row as independent and is too small. fit
 records the method, the block count and the 95 % interval's factor (value +- ci95_factor x stderr,
 Student's t with blocks - 1 degrees of freedom).
 
+Reported values: the model predicts with `theta`, fitted on the data as given (the paper's causal
+signals for a loop model). When the data carry the same samples filtered zero-phase (Dataset.offline,
+train.data.preprocess) the same regressor, shapes and rows are fitted once more on those, and that is
+what the model reports (`reported_parameters`, `parameters_table`, `effect_values`; fit_info
+"reported_from" says which; the causal value stays in the table as `loop_value`): the causal
+acceleration's noise (errors in a regressor) shrinks the fitted inertias and biases every coefficient
+correlated with them (a spring in back-and-forth moves, a rotor inertia), which a zero-phase estimate
+of the same samples, with its far less noisy acceleration, does not. Rows where the zero-phase velocity
+already says a joint stands still are left out of it.
+
 Effects: `effects=[(name, joint_name or None, shape dict or None), ...]`. A joint-scope effect with
 joint None is added once per learning joint. An effect with shape parameters (e.g. a Stribeck
 velocity) and no shape given tries every value of its grid and keeps the one with the lowest validation
