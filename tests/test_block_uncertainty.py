@@ -215,6 +215,8 @@ def test_crane_train_fit_prints_the_effect_parameters_with_their_intervals(tmp_p
     lines = result.output.splitlines()
     head = next(i for i, line in enumerate(lines) if line.startswith("effect parameters"))
     assert "jackknife" in lines[head] and "95 % interval" in lines[head]
-    name, value, pm, se, low, high = lines[head + 1].translate(str.maketrans("[],", "   ")).split()
-    assert name.startswith("coulomb.") and pm == "±"
-    assert float(low) < float(value) < float(high) and float(se) > 0
+    assert lines[head + 1].strip().startswith("values from zero-phase derivatives of the same samples")
+    name, value, pm, se, low, high, loop, loop_value = lines[head + 2].translate(
+        str.maketrans("[],", "   ")).split()
+    assert name.startswith("coulomb.") and pm == "±" and loop == "loop"
+    assert float(low) < float(value) < float(high) and float(se) > 0 and abs(float(loop_value)) > 0

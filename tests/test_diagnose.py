@@ -121,8 +121,10 @@ def test_diagnose_cli_json_report_and_compare_end_to_end(case, planted_dir, tmp_
     for key in ("joint", "rank", "effect", "error_reduction", "parameters", "significant", "sentence"):
         assert key in first
     assert first["effect"] == "coulomb" and first["rank"] == 1
-    assert set(first["parameters"]["coulomb"]) == {"value", "std", "unit"}
-    assert first["parameters"]["coulomb"]["unit"] == "N m"
+    coulomb = first["parameters"]["coulomb"]
+    assert {"value", "std", "unit", "ci95", "loop_value", "loop_std"} <= set(coulomb)
+    assert coulomb["unit"] == "N m" and coulomb["ci95"][0] <= 0.25 <= coulomb["ci95"][1]
+    assert doc["settings"]["values_from"] == "zero-phase derivatives of the same samples"
     assert set(doc["summary"]) == {"joint1", "joint2", "joint4"}
     saved = tmp_path / "diag" / "diagnosis.json"
     r = runner.invoke(main, ["diagnose", str(base), str(session), "--json-out", str(saved)])

@@ -25,6 +25,7 @@ from .options import force_option
 
 def _params_text(params: dict) -> str:
     return ", ".join(f"{n} = {p['value']:.3g} ± {p['std']:.2g} {p['unit']}".rstrip()
+                     + (f" (95 %: {p['ci95'][0]:.3g} to {p['ci95'][1]:.3g})" if p.get("ci95") else "")
                      for n, p in params.items())
 
 

@@ -49,6 +49,8 @@ def _fit_and_save(sessions, method: str, out_dir, train_size: int | None = None,
 def effect_lines(model) -> list[str]:
     """The fitted effect parameters of a rigid-body model (or a hybrid's physics part) with their standard
     errors and 95 % intervals, and how those were computed; none for other models."""
+    from ..models.rigid_body import REPORTED_OWN
+
     rigid = getattr(model, "rigid", model)
     if getattr(rigid, "method", None) != "rigid-body" or not rigid.is_fitted:
         return []
@@ -59,10 +61,14 @@ def effect_lines(model) -> list[str]:
     factor = float(info.get("ci95_factor", 1.96))
     lines = [f"effect parameters (± standard error: {info.get('stderr_method', 'least-squares covariance')}; "
              f"95 % interval = value ± {factor:.3g} x standard error)"]
+    source = info.get("reported_from")
+    if source and source != REPORTED_OWN:
+        lines.append(f"  values from {source}")
     for r in rows:
         half = factor * r["stderr"]
+        loop = f"  loop {r['loop_value']:.4g}" if source and source != REPORTED_OWN else ""
         lines.append(f"  {r['name']:<34}{r['value']:>11.4g} ± {r['stderr']:<9.2g}"
-                     f"[{r['value'] - half:.4g}, {r['value'] + half:.4g}]")
+                     f"[{r['value'] - half:.4g}, {r['value'] + half:.4g}]{loop}")
     return lines
 
 

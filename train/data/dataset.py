@@ -8,6 +8,11 @@ is never one) travel along as `context_names` with their filtered angle, velocit
 (`context_q`, `context_dq`, `context_ddq`, (N, K), the same preprocessing as the learning joints). The
 rigid-body model puts them into its kinematics (train.models.rigid_body); the networks keep the
 paper's inputs (the learning joints' q, dq, ddq) and ignore them.
+
+Offline signals: `offline`, when given, is a Dataset of the same rows filtered zero-phase (no delay,
+forward-backward; train.data.preprocess) — what a parameter estimate may use that needs no causal
+filter (train.models.rigid_body reports its parameter values from it). None when the data themselves
+are zero-phase or were made without it.
 """
 
 from __future__ import annotations
@@ -37,6 +42,7 @@ class Dataset:
     context_q: np.ndarray = field(default=None)  # (N, K) rad
     context_dq: np.ndarray = field(default=None)  # (N, K) rad/s
     context_ddq: np.ndarray = field(default=None)  # (N, K) rad/s^2
+    offline: Dataset | None = field(default=None, repr=False)  # the same rows filtered zero-phase
 
     def __post_init__(self):
         if self.segment is None:
@@ -48,6 +54,8 @@ class Dataset:
                 a = getattr(self, name)
                 if a is None or np.shape(a) != (len(self.t), k):
                     raise ValueError(f"{name} must have shape ({len(self.t)}, {k}), got {np.shape(a)}")
+        if self.offline is not None and len(self.offline) != len(self.t):
+            raise ValueError(f"offline must have {len(self.t)} rows, got {len(self.offline)}")
 
     @property
     def context(self) -> dict | None:
@@ -71,4 +79,5 @@ class Dataset:
                        self.ddq[index], self.tau[index], self.moving[index], self.rate_hz,
                        self.segment[index], dict(self.meta), self.context_names,
                        *((None, None, None) if not self.context_names else
-                         (self.context_q[index], self.context_dq[index], self.context_ddq[index])))
+                         (self.context_q[index], self.context_dq[index], self.context_ddq[index])),
+                       None if self.offline is None else self.offline.subset(index))

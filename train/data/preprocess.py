@@ -14,6 +14,14 @@ Then the first `settle_s` of each piece are dropped (filter start-up), every pie
 `downsample_hz` (the low-pass is the anti-alias filter) and the pieces are concatenated with `segment`
 ids (no filter ever runs across a boundary). The dead-zone mask uses sigma_j over all the data.
 
+Offline signals: with the paper's causal filters the Dataset also carries the same rows filtered
+zero-phase (`Dataset.offline`, the same settings with `zero_phase`): the model that runs in the loop
+keeps the causal chain for its predictions, and a parameter value reported from the recording (which
+needs no causal filter) is estimated from the zero-phase signals, whose acceleration is far less noisy
+(train.models.rigid_body). Their mask is the causal one and the same threshold on the zero-phase
+velocity: the causal velocity lags, so for a few samples after a stop it still says "moving" while the
+joint already sticks.
+
 `PreprocessConfig.arm` names the arm whose group is read ("follower" by default, "leader" for
 `crane-train fit --arm leader`); it travels with the other settings into Dataset.meta["preprocessing"]
 and so into every saved model (model.json "preprocessing" -> "arm"), which is how the evaluation
@@ -156,14 +164,26 @@ def _check_session(s: RawSession, config: PreprocessConfig) -> None:
 def _filtered_piece(s: RawSession, piece, cols: list[int], ccols: list[int], settle: int,
                     config: PreprocessConfig) -> tuple:
     """(t, q, dq, ddq, tau, cq, cdq, cddq) of one continuous piece: filtered, settled, down-sampled, the
-    learning joints' columns apart from the context joints'."""
+    learning joints' columns apart from the context joints'; with `config.zero_phase` False these are
+    followed by the same seven signals filtered zero-phase (`offline_config`)."""
     J = len(cols)
     t, q, tau = s.t[piece], s.q[piece][:, cols + ccols], s.tau[piece][:, cols]
-    q, dq, ddq, tau = filter_signals(q, tau, s.rate_hz, config)
+    configs = [config] if config.zero_phase else [config, offline_config(config)]
+    signals = [a for c in configs for a in filter_signals(q, tau, s.rate_hz, c)]
     keep = slice(settle, None)
-    t, (q, dq, ddq, tau) = _downsample(t[keep], [q[keep], dq[keep], ddq[keep], tau[keep]],
-                                       s.rate_hz, config.downsample_hz)
-    return t, q[:, :J], dq[:, :J], ddq[:, :J], tau, q[:, J:], dq[:, J:], ddq[:, J:]
+    t, signals = _downsample(t[keep], [a[keep] for a in signals], s.rate_hz, config.downsample_hz)
+    out = [t]
+    for q, dq, ddq, tau in zip(*[iter(signals)] * 4):
+        out += [q[:, :J], dq[:, :J], ddq[:, :J], tau, q[:, J:], dq[:, J:], ddq[:, J:]]
+    return tuple(out)
+
+
+def offline_config(config: PreprocessConfig) -> PreprocessConfig:
+    """The same settings with zero-phase filtering: the offline signals of a Dataset (Dataset.offline),
+    for estimates that need no causal filter."""
+    values = config.to_dict()
+    values["zero_phase"] = True
+    return PreprocessConfig.from_dict(values)
 
 
 def _too_short(sessions: list[RawSession], config: PreprocessConfig, longest: float) -> ConfigError:
@@ -191,8 +211,9 @@ def preprocess(sessions: list[RawSession] | RawSession, config: PreprocessConfig
         sessions = [sessions]
     if config.joints == ("all",):  # every arm joint all the sessions record
         config = _with_all_joints(config, sessions)
-    keys = ("t", "q", "dq", "ddq", "tau", "cq", "cdq", "cddq")
-    parts = {k: [] for k in ("t", "q", "dq", "ddq", "tau", "segment", "cq", "cdq", "cddq")}
+    keys = ("t", "q", "dq", "ddq", "tau", "cq", "cdq", "cddq", "oq", "odq", "oddq", "otau", "ocq", "ocdq",
+            "ocddq")
+    parts = {k: [] for k in (*keys, "segment")}
     # context joints: the other arm joints every session records (their recorded angles enter the
     # rigid-body model's kinematics); filtered together with the learning joints, column by column
     context = [n for n in ARM_JOINTS if n not in config.joints
@@ -218,7 +239,7 @@ def preprocess(sessions: list[RawSession] | RawSession, config: PreprocessConfig
             seg += 1
     if not parts["t"]:
         raise _too_short(sessions, config, longest)
-    cat = {k: np.concatenate(v) for k, v in parts.items()}
+    cat = {k: np.concatenate(v) for k, v in parts.items() if v}
     _check_travel(cat["q"], config.joints)
     moving, sigma = dead_zone_mask(cat["dq"], config.alpha, joint_names=config.joints)
     rate = min(config.downsample_hz, min(s.rate_hz for s in sessions))
@@ -227,10 +248,18 @@ def preprocess(sessions: list[RawSession] | RawSession, config: PreprocessConfig
             "raw_rate_hz": [s.rate_hz for s in sessions], "arm": config.arm, "pieces_dropped": dropped,
             "usable_fraction": moving_fractions(moving, config.joints), "context_joints": list(context),
             "data_checks": [f.to_dict() for s in sessions for f in s.findings]}
+    offline, zp = None, offline_config(config).to_dict()
+    if "oq" in cat:  # the same rows filtered zero-phase; a joint moves where both velocities say so
+        omoving = moving & (np.abs(cat["odq"]) > config.alpha * sigma[None, :])
+        offline = Dataset(joint_names=tuple(config.joints), t=cat["t"], q=cat["oq"], dq=cat["odq"],
+                          ddq=cat["oddq"], tau=cat["otau"], moving=omoving, rate_hz=float(rate),
+                          segment=cat["segment"], meta={**meta, "preprocessing": zp},
+                          context_names=tuple(context), context_q=cat["ocq"], context_dq=cat["ocdq"],
+                          context_ddq=cat["ocddq"])
     return Dataset(joint_names=tuple(config.joints), t=cat["t"], q=cat["q"], dq=cat["dq"], ddq=cat["ddq"],
                    tau=cat["tau"], moving=moving, rate_hz=float(rate), segment=cat["segment"], meta=meta,
                    context_names=tuple(context), context_q=cat["cq"], context_dq=cat["cdq"],
-                   context_ddq=cat["cddq"])
+                   context_ddq=cat["cddq"], offline=offline)
 
 
 def read_preprocessed(paths: Path | str | Sequence[str | PathLike[str]], config: PreprocessConfig,

@@ -5,12 +5,12 @@ over its shape grid, its held-out error reductions, and the jackknife uncertaint
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..evaluation.block_uncertainty import jackknife_values
+from ..evaluation.block_uncertainty import jackknife_values, t_factor
 from .effects import named_values
 
 if TYPE_CHECKING:
@@ -41,6 +41,17 @@ def jackknife(per_fold: list[dict[str, float]]) -> dict[str, tuple[float, float]
     """name -> (mean over folds, delete-a-block jackknife standard error) of the per-fold values (each
     fold's fit leaves one contiguous time block out; train.evaluation.block_uncertainty)."""
     return jackknife_values(per_fold)
+
+
+def interval_factor(folds: int) -> float:
+    """The half-width of a 95 % interval in jackknife standard errors over `folds` blocks (Student's t
+    with folds - 1 degrees of freedom: 2.78 at 5 folds)."""
+    return t_factor(folds) if folds >= 2 else float("nan")
+
+
+def interval(value: float, std: float, factor: float) -> list[float]:
+    """[low, high] of value +- factor x std."""
+    return [float(value - factor * std), float(value + factor * std)]
 
 
 class Engine:
@@ -196,6 +207,7 @@ class CVFit:
     columns_all: np.ndarray | None = None  # (N, J, c) the candidate's columns at shape_all (refined)
     identifiable: bool = True  # False: its columns lie in the span of the basis (see identifiability)
     collinear: tuple[str, ...] = ()  # linear coefficients that cannot be told apart from the others
+    fold_shapes: list = field(default_factory=list)  # the shape each fold's fit used (refined)
 
     def reduction(self, joint: int) -> float:
         """Fraction of the held-out SSE on `joint` (all folds) the candidate removes."""
@@ -288,7 +300,7 @@ def cross_validate(engine: Engine, effect: Any,
     integers = tuple(getattr(effect, "integer_shapes", ()) or ())
     sse_before = np.zeros((J, K))
     sse_after = np.zeros((J, K))
-    fold_values = []
+    fold_values, fold_shapes = [], []
 
     def best_fit(train):
         best = None
@@ -307,13 +319,14 @@ def cross_validate(engine: Engine, effect: Any,
         _, shape, C = best_fit(train)
         th_x, th_c, _ = engine.fit(C, train)
         fold_values.append(named_values(effect, th_c, shape))
+        fold_shapes.append(shape)
         sse_before[:, k] = baseline[k]
         sse_after[:, k] = engine.heldout_sse(C, th_x, th_c, k)
     count = engine.W.sum(axis=0)
     index, shape_all, C_all = best_fit(list(range(K)))
     identifiable, collinear = identifiability(engine, C_all, effect)
     return CVFit(sse_before, sse_after, count, fold_values, shape_all, index, C_all,
-                 identifiable=identifiable, collinear=collinear)
+                 identifiable=identifiable, collinear=collinear, fold_shapes=fold_shapes)
 
 
 IDENTIFIABLE_TOL = 1e-3  # a column whose part outside the span is below 0.1 % of its size: absorbed

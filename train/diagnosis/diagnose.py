@@ -28,7 +28,11 @@ The method, per joint j (names as in the session):
    value is the mean over folds and its uncertainty the delete-a-block jackknife standard error
    sqrt((K-1)/K * sum (v_k - mean)^2), which stays honest when neighbouring samples are correlated
    (plain least-squares standard errors would not); refined shapes included. A candidate whose
-   columns the basis spans is not identifiable: no value is given (cv.identifiability).
+   columns the basis spans is not identifiable: no value is given (cv.identifiability). For a physics
+   model on data with zero-phase signals (Dataset.offline) the linear parameters' values and standard
+   errors are those of the same fits on the zero-phase signals (train.diagnosis.offline_values: the
+   causal acceleration's noise biases coefficients correlated with an inertia); the causal ones are kept
+   as `loop_value` / `loop_std`, and `settings.values_from` says which.
 5. Significant: error_reduction >= `min_reduction` AND the held-out error falls in every fold
    (`min_fold_fraction`), judged by forward selection (ranking.forward_selection): each
    candidate on top of the effects selected before it. A session with nothing missing yields no
@@ -52,7 +56,7 @@ from crane_io.errors import CraneError
 
 from ..data.dataset import Dataset
 from ..models.recorded_effects import effect_entries, effect_identities
-from .cv import CVFit, Engine, cross_validate, fold_ids, jackknife, sparse_joint
+from .cv import CVFit, Engine, cross_validate, fold_ids, interval, interval_factor, jackknife, sparse_joint
 from .defaults import DEFAULT_FOLDS, DEFAULT_MIN_FOLD_FRACTION, DEFAULT_MIN_REDUCTION
 from .effects import (
     bind,
@@ -170,6 +174,7 @@ def _run(ds: Dataset, X, y, residual, effects=None, *, exclude=(), folds: int = 
                                         min_fold_fraction)
     # what remains once the selected effects (and the refined own shapes) are in: the refit on all rows
     remaining = final.y - final.X @ final.fit(None, list(range(folds)))[0] if final.p else residual
+    values_from = _offline_values(ds, model, refinements, fold, folds, results, tried, selected)
     for c in selected:
         c.sentence = c.sentence[:-1] + selected_suffix(c) + "."
     settings = {"folds": folds, "min_reduction": min_reduction, "min_fold_fraction": min_fold_fraction,
@@ -178,9 +183,22 @@ def _run(ds: Dataset, X, y, residual, effects=None, *, exclude=(), folds: int = 
                 "selection": "forward: each effect judged on top of the ones selected before it",
                 "samples": len(ds), "moving_samples": {name: int(ds.moving[:, j].sum())
                                                        for j, name in enumerate(ds.joint_names)}}
+    settings["values_from"] = values_from
     result = _assemble(ds, remaining, results, settings, refinements, folds)
     result.selected = [f"{c.effect} on {c.joint}" for c in selected]
     return result
+
+
+def _offline_values(ds: Dataset, model, refinements, fold, folds: int, results, tried, selected) -> str:
+    """Where the reported values come from: the zero-phase signals of the same samples when the data
+    carry them and the model is a physics model (train.diagnosis.offline_values), else the fits
+    judged."""
+    from .offline_values import SOURCE, offline_basis, report_offline_values
+
+    X_off = offline_basis(model, ds, refinements, folds, fold) if model is not None else None
+    if X_off is not None and report_offline_values(ds, X_off, fold, folds, results, tried, selected):
+        return SOURCE
+    return "the fits judged (the data the model runs on)"
 
 
 def _own_shape_terms(model, ds: Dataset) -> list[dict]:
@@ -282,6 +300,7 @@ def refine_own_shapes(model: Model | None, ds: Dataset, X: np.ndarray, y: np.nda
         mean, sd = jackknife(values)[item["parameter"]]
         out.append({"joint": names[j], "effect": item["name"], "parameter": item["parameter"],
                     "unit": item["unit"], "model_value": s0, "value": v_all, "fold_mean": mean, "std": sd,
+                    "ci95": interval(mean, sd, interval_factor(folds)),
                     "error_reduction": red, "significant": is_significant(red, improved, folds, min_reduction,
                                                                          min_fold_fraction)})
         X = _replace_term(X, X_all, item)

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .cv import CVFit, Engine, cross_validate, jackknife
+from .cv import CVFit, Engine, cross_validate, interval, interval_factor, jackknife
 from .effects import param_units
 from .result import Candidate
 from .text import candidate_text, spill_over_sentence
@@ -58,12 +58,15 @@ MAX_SELECTED = 6  # forward selection stops after this many effects
 
 
 def fit_parameters(effect, fit: CVFit) -> tuple[dict[str, dict], list[str]]:
-    """(parameters {name: {"value", "std", "unit"}}, the linear coefficients that cannot be told apart from
-    the basis) of a candidate's cross-validated fit: the mean over folds and its jackknife standard error;
+    """(parameters {name: {"value", "std", "unit", "ci95"}}, the linear coefficients that cannot be told
+    apart from the basis) of a candidate's cross-validated fit: the mean over folds, its jackknife
+    standard error and the 95 % interval value +- t_{K-1} x std (`interval`);
     no value for a candidate that is not identifiable, nor for a coefficient the basis can trade with."""
     units = param_units(effect)
     stats = jackknife(fit.fold_values) if fit.fold_values else {}
-    parameters = {n: {"value": v, "std": sd, "unit": units.get(n, "")} for n, (v, sd) in stats.items()}
+    factor = interval_factor(len(fit.fold_values))
+    parameters = {n: {"value": v, "std": sd, "unit": units.get(n, ""), "ci95": interval(v, sd, factor)}
+                  for n, (v, sd) in stats.items()}
     if not fit.identifiable:
         parameters = {}  # any value fits as well: printing one (with a tiny spread) would mislead
     loose = list(fit.collinear)
@@ -123,7 +126,8 @@ def forward_selection(engine: Engine, joint_names: Sequence[str], results: dict[
     A pick after the first reports its parameters (and shape) from its fit on top of the picks before it,
     the model it joins, not from its fit alone (kept in `parameters_alone`).
 
-    `tried` maps id(candidate) -> (effect, columns_by_shape, its CVFit, columns_at); candidates are
+    `tried` maps id(candidate) -> (effect, columns_by_shape, its CVFit, columns_at) (a nested pick's: the
+    fit its values come from); candidates are
     changed in place. Candidates not significant on their own are not tried again (one that only
     becomes significant once another effect is in shows when diagnosing the refitted model).
     Returns the selected candidates and the engine whose basis holds all of them."""
@@ -138,6 +142,8 @@ def forward_selection(engine: Engine, joint_names: Sequence[str], results: dict[
         leader.selection_step = len(selected)
         if leader.given:  # judged again with the earlier picks in: its values are from that model
             _take_nested_values(leader, tried[id(leader)][0], fits[id(leader)])
+            effect, cols, _, cols_at = tried[id(leader)]
+            tried[id(leader)] = (effect, cols, fits[id(leader)], cols_at)  # the fit its values are from
         eng = eng.extended(fits[id(leader)].columns_all)
         if not pool:
             break

@@ -25,6 +25,16 @@ RSS / (rows - parameters)) counts every row as independent and is too small. fit
 records the method, the block count and the 95 % interval's factor (value +- ci95_factor x stderr,
 Student's t with blocks - 1 degrees of freedom).
 
+Reported values: the model predicts with `theta`, fitted on the data as given (the paper's causal
+signals for a loop model). When the data carry the same samples filtered zero-phase (Dataset.offline,
+train.data.preprocess) the same regressor, shapes and rows are fitted once more on those, and that is
+what the model reports (`reported_parameters`, `parameters_table`, `effect_values`; fit_info
+"reported_from" says which; the causal value stays in the table as `loop_value`): the causal
+acceleration's noise (errors in a regressor) shrinks the fitted inertias and biases every coefficient
+correlated with them (a spring in back-and-forth moves, a rotor inertia), which a zero-phase estimate
+of the same samples, with its far less noisy acceleration, does not. Rows where the zero-phase velocity
+already says a joint stands still are left out of it.
+
 Effects: `effects=[(name, joint_name or None, shape dict or None), ...]`. A joint-scope effect with
 joint None is added once per learning joint. An effect with shape parameters (e.g. a Stribeck
 velocity) and no shape given tries every value of its grid and keeps the one with the lowest validation
@@ -112,6 +122,9 @@ def rls(Phi: np.ndarray, y: np.ndarray, block: int = 64, p0=1e8) -> tuple[np.nda
 
 
 FIT_ROWS = ("auto", "all-moving", "per-joint")
+REPORTED_ZERO_PHASE = ("zero-phase derivatives of the same samples (the model predicts with its causal fit, "
+                       "`loop_value`)")
+REPORTED_OWN = "the model's own fit"
 
 
 class RigidBodyModel(Model):
@@ -152,6 +165,7 @@ class RigidBodyModel(Model):
         self.locked_resolved: dict | None = None  # locked angles the dynamics use (None: options' locked)
         self.theta: np.ndarray | None = None
         self.stderr: np.ndarray | None = None
+        self.reported: dict | None = None  # {"theta", "stderr"} from Dataset.offline, or None (theta's)
         self.names: list[str] = []
         self.terms: list[dict] = []  # resolved effect terms: name, joint (index or None), shape
         self.fit_info: dict = {}
@@ -356,16 +370,32 @@ class RigidBodyModel(Model):
         self.terms = terms
         self.theta, self.stderr, s2, plan = self._solve(fit_ds, terms, per_joint, uncertainty=True)
         self.names = self._parameter_names(terms)
+        self.reported = self._reported(fit_ds, terms, per_joint, n_par)
         self.fit_info = {"rows": int(len(rows)), "residual_variance": s2, "shape_search": tuned,
                          "rows_used": "per-joint" if per_joint else "all-moving",
                          "stderr_method": plan.describe(), "stderr_blocks": int(plan.count),
-                         "ci95_factor": t_factor(plan.count)}
+                         "ci95_factor": t_factor(plan.count),
+                         "reported_from": REPORTED_ZERO_PHASE if self.reported else REPORTED_OWN}
         if self.options.get("start_from"):
             self.fit_info["start"] = {"arm_model": self.options["start_from"].get("source", ""),
                                       "weight": self.options["start_weight"]}
         if not self.preprocessing:
             self.preprocessing = dict(train.meta.get("preprocessing", {}))
         return self
+
+    def _reported(self, fit_ds: Dataset, terms, per_joint: bool, n_par: int) -> dict | None:
+        """{"theta", "stderr"} of the same fit on the zero-phase signals of the fit's samples (where
+        those, too, say the joints move), or None when the data carry none or too few such rows."""
+        off = fit_ds.offline
+        if off is None:
+            return None
+        if not per_joint:
+            off = off.subset(np.flatnonzero(off.all_moving))
+        need = n_par // len(self.joint_names) + 1 if per_joint else n_par + 1
+        if (off.moving.sum(axis=0).min() if per_joint else len(off)) < need:
+            return None
+        theta, stderr = self._solve(off, terms, per_joint, uncertainty=True)[:2]
+        return {"theta": theta, "stderr": stderr}
 
     def _check_enough_rows(self, train: Dataset, rows: np.ndarray, per_joint: bool, need: int) -> None:
         """The fit's rows hold at least `need` samples (per joint, where each joint moves, when per-joint)."""
@@ -440,23 +470,34 @@ class RigidBodyModel(Model):
     def predict_dataset(self, ds: Dataset) -> np.ndarray:
         return self.predict(ds.q, ds.dq, ds.ddq, context=ds.context)
 
+    def reported_parameters(self) -> tuple[np.ndarray, np.ndarray]:
+        """(values (p,), standard errors (p,)) the model reports: from the zero-phase signals of the
+        fit's samples when the data carried them (fit_info["reported_from"] says), else its own theta."""
+        if self.reported is not None:
+            return self.reported["theta"], self.reported["stderr"]
+        return self.theta, self.stderr
+
     def parameters_table(self) -> list[dict]:
-        """One row per fitted parameter: name, value, standard error, relative standard error."""
+        """One row per fitted parameter: name, value, standard error, relative standard error (the
+        reported estimate, `reported_parameters`) and `loop_value`, the value the model predicts with."""
         out = []
-        for name, v, se in zip(self.names, self.theta, self.stderr):
+        theta, stderr = self.reported_parameters()
+        for name, v, se, own in zip(self.names, theta, stderr, self.theta):
             out.append({"name": name, "value": float(v), "stderr": float(se),
-                        "rel_stderr": float(se / abs(v)) if v != 0 else float("inf")})
+                        "rel_stderr": float(se / abs(v)) if v != 0 else float("inf"),
+                        "loop_value": float(own)})
         return out
 
     def effect_values(self) -> list[dict]:
-        """Named physical values of every effect term (from its fitted coefficients and shape)."""
+        """Named physical values of every effect term (from its reported coefficients and shape)."""
         out, k = [], self.n_base
+        theta = self.reported_parameters()[0]
         for term in self.terms:
             effect = self.effect_by_name(term["name"])
             n = effect.n_columns()
             joint = None if term["joint"] is None else self.joint_names[term["joint"]]
             out.append({"effect": term["name"], "joint": joint,
-                        "values": effect.values_from_coefficients(self.theta[k:k + n], term["shape"])})
+                        "values": effect.values_from_coefficients(theta[k:k + n], term["shape"])})
             k += n
         return out
 
@@ -466,7 +507,9 @@ class RigidBodyModel(Model):
                 "context_joints": list(self.context_joints), "locked_resolved": self.locked_resolved}
 
     def _save_extra(self, directory: Path) -> None:
-        np.savez(directory / ARRAYS, theta=self.theta, stderr=self.stderr)
+        extra = {} if self.reported is None else {"reported_theta": self.reported["theta"],
+                                                  "reported_stderr": self.reported["stderr"]}
+        np.savez(directory / ARRAYS, theta=self.theta, stderr=self.stderr, **extra)
 
     def _load_extra(self, directory: Path, state: dict) -> None:
         path = Path(directory) / ARRAYS
@@ -483,6 +526,13 @@ class RigidBodyModel(Model):
             raise ModelFileError(f"{path} is corrupt, not a readable numpy .npz file; fit the model "
                                  f"again") from None
         self.fit_info = state.get("fit_info", {})
+        self.reported = None
+        if self.fit_info.get("reported_from") == REPORTED_ZERO_PHASE:
+            r = read_arrays(directory, ARRAYS, {"reported_theta": 1, "reported_stderr": 1})
+            if not r["reported_theta"].shape == r["reported_stderr"].shape == self.theta.shape:
+                raise ModelFileError(f"{path} holds {r['reported_theta'].size} reported values for "
+                                     f"{self.theta.size} parameters; fit the model again")
+            self.reported = {"theta": r["reported_theta"], "stderr": r["reported_stderr"]}
         self.context_joints = tuple(state.get("context_joints") or ())  # older models: none
         lr = state.get("locked_resolved")
         self.locked_resolved = None if lr is None else {str(k): float(v) for k, v in lr.items()}

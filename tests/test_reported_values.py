@@ -1,0 +1,73 @@
+"""The values a fit and a diagnosis report come from the zero-phase signals of the same samples
+(Dataset.offline); the loop model keeps the paper's causal fit for its predictions."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tests.sessions import write_synthetic_session
+from train.data.preprocess import PreprocessConfig, preprocess
+from train.data.session import read_sessions
+
+
+def test_the_dataset_carries_its_rows_filtered_zero_phase(tmp_path):
+    path, _ = write_synthetic_session(tmp_path / "s.h5", 12, seed=3)
+    raw = read_sessions([path])
+    ds = preprocess(raw)
+    zp = preprocess(raw, PreprocessConfig(zero_phase=True))
+    off = ds.offline
+    assert zp.offline is None and off is not None and off.offline is None
+    np.testing.assert_array_equal(off.t, ds.t)
+    for name in ("q", "dq", "ddq", "tau", "context_q"):
+        np.testing.assert_allclose(getattr(off, name), getattr(zp, name), rtol=0, atol=1e-12)
+    assert not np.allclose(off.ddq, ds.ddq)  # causal and zero-phase differ
+    sigma = np.asarray(ds.meta["sigma"])
+    np.testing.assert_array_equal(off.moving, ds.moving & (np.abs(off.dq) > ds.meta["alpha"] * sigma))
+    assert 0 < off.moving.sum() < ds.moving.sum()
+    rows = np.flatnonzero(ds.all_moving)[::3]
+    sub = ds.subset(rows)
+    np.testing.assert_array_equal(sub.offline.ddq, off.ddq[rows])
+    np.testing.assert_array_equal(sub.offline.moving, off.moving[rows])
+
+
+@pytest.fixture(scope="module")
+def spring(tmp_path_factory):
+    """A 30 s planted session of the hidden-spring plant (0.3 N m/rad on joint1, relaxed at 0.5 rad)."""
+    from tests.planted import simulate_session
+
+    path = simulate_session(tmp_path_factory.mktemp("spring") / "s.h5", "hidden-spring", 30.0, seed=1)
+    return preprocess(read_sessions([path]))
+
+
+def test_fit_and_diagnosis_report_zero_phase_values_whose_intervals_cover_a_planted_spring(spring, tmp_path):
+    from crane_io.physics.effects import get_effect
+    from crane_io.sim.plant_config import load_plant_config
+    from train.diagnosis.diagnose import diagnose
+    from train.models.registry import load_model, make_model
+    from train.models.rigid_body import REPORTED_ZERO_PHASE
+
+    known = [(n, j, None) for n, j, _ in load_plant_config("hidden-spring").known]
+    model = make_model("rigid-body", spring.joint_names,
+                       effects=[*known, ("spring", "joint1", {"rest_angle": 0.5})]).fit(spring)
+    assert model.fit_info["reported_from"] == REPORTED_ZERO_PHASE
+    i = model.names.index("spring.stiffness@joint1")
+    row = model.parameters_table()[i]
+    assert row["value"] == model.reported["theta"][i] != row["loop_value"] == model.theta[i]
+    half = model.fit_info["ci95_factor"] * row["stderr"]
+    assert abs(row["value"] - 0.3) <= half
+    model.save(tmp_path / "m")
+    loaded = load_model(tmp_path / "m")
+    np.testing.assert_array_equal(loaded.reported_parameters()[0], model.reported["theta"])
+    np.testing.assert_array_equal(loaded.predict_dataset(spring), model.predict_dataset(spring))
+
+    baseline = make_model("rigid-body", spring.joint_names, effects=known).fit(spring)
+    d = diagnose(baseline, spring, [get_effect(n) for n in ("spring", "offset", "viscous")])
+    first = next(c for c in d.candidates if c.joint == "joint1")
+    stiffness = first.parameters["stiffness"]
+    assert first.effect == "spring" and first.significant
+    assert d.settings["values_from"] == "zero-phase derivatives of the same samples"
+    assert stiffness["from"] == d.settings["values_from"] and stiffness["value"] != stiffness["loop_value"]
+    assert stiffness["ci95"][0] <= 0.3 <= stiffness["ci95"][1]
+    width = stiffness["ci95"][1] - stiffness["ci95"][0]
+    assert width == pytest.approx(2 * 2.776 * stiffness["std"], rel=1e-3)  # t with 4 degrees of freedom
