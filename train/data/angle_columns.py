@@ -25,6 +25,7 @@ takes its columns from the filtered series.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -52,15 +53,24 @@ class AngleSeries:
         """x (M, ...) filtered along axis 0 as the zero-phase torque is, each piece on its own."""
         x = np.asarray(x, dtype=float)
         out = x.copy()
-        bounds = np.flatnonzero(np.diff(self.segment)) + 1
-        for piece in np.split(np.arange(len(x)), bounds):
-            if len(piece) < 2:
-                continue
-            part = x[piece[0]:piece[-1] + 1]
+        for a, b in self.pieces:
+            part = x[a:b]
             for _ in range(2):
                 part = lowpass(part, self.cutoff_rad_s, self.rate_hz, zero_phase=True)
-            out[piece[0]:piece[-1] + 1] = part
+            out[a:b] = part
         return out
+
+    @cached_property
+    def pieces(self) -> list[tuple[int, int]]:
+        """(first, end) rows of each continuous piece long enough to filter."""
+        bounds = [0, *(np.flatnonzero(np.diff(self.segment)) + 1).tolist(), len(self.segment)]
+        return [(a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b - a >= 2]
+
+    @cached_property
+    def filtered(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """The learning and the context joints' angles filtered as the torque is."""
+        context = None if self.context_q is None else self.torque_filter(self.context_q)
+        return self.torque_filter(self.q), context
 
 
 @dataclass(frozen=True)
@@ -97,19 +107,27 @@ def angle_part_correction(ds: Dataset, columns: Callable[[Dataset], np.ndarray |
     s = ds.angle.series
     if ds.context_names and (s.context_q is None or s.context_q.shape[1] != len(ds.context_names)):
         return None
-    filtered_c = None if s.context_q is None else s.torque_filter(s.context_q)
     try:
         with np.errstate(all="ignore"):  # a column undefined at rest is left as it is
             raw = columns(_at_rest(ds, s.q, s.context_q))
-            smooth = columns(_at_rest(ds, s.torque_filter(s.q), filtered_c))
+            if raw is None:
+                return None
+            raw = np.asarray(raw, dtype=float)
+            flat = raw.reshape(len(raw), -1)
+            some = np.any(flat != 0, axis=0)  # the columns with an angle-only part (not friction, inertia)
+            if not some.any():
+                return np.zeros((len(ds.angle.rows), *raw.shape[1:]))
+            smooth = columns(_at_rest(ds, *s.filtered))
     except (ArithmeticError, ValueError):
         return None
-    if raw is None or smooth is None:
+    if smooth is None:
         return None
-    raw, smooth = np.asarray(raw, dtype=float), np.asarray(smooth, dtype=float)
+    smooth = np.asarray(smooth, dtype=float)
     if raw.shape != smooth.shape or not (np.isfinite(raw).all() and np.isfinite(smooth).all()):
         return None
-    return (s.torque_filter(raw) - smooth)[ds.angle.rows]
+    out = np.zeros_like(flat)
+    out[:, some] = s.torque_filter(flat[:, some]) - smooth.reshape(len(smooth), -1)[:, some]
+    return out.reshape(raw.shape)[ds.angle.rows]
 
 
 def columns_on(ds: Dataset, columns: Callable[[Dataset], np.ndarray | None]) -> np.ndarray | None:
