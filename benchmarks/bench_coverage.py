@@ -10,8 +10,8 @@ joints 1, 2 and 4 (tests/planted.py drives the plant directly at 500 Hz):
 * `hidden-rotor-inertia`: 0.02 kg m^2 of rotor inertia on joint4 (an inertia column itself);
 * `hidden-coulomb`: 0.25 N m of Coulomb friction on joint2;
 * `hidden-viscous`: 0.08 N m s/rad of viscous friction on joint1;
-* `hidden-cogging`: a 12/rev ripple of 0.08 N m on joint4 (its amplitude and phase are not linear
-  coefficients of the fit: judged in the diagnosis only);
+* `hidden-cogging`: a 12/rev ripple of 0.08 N m on joint4 (the fit's linear coefficients are its sin and
+  cos pair, amplitude x cos and x sin of the phase; amplitude and phase are judged in the diagnosis);
 * and in every session the plant's viscous friction on joint2 (0.04 N m s/rad, a known effect).
 
 Each session is preprocessed as `crane-train fit` does (the default, causal filters) and fitted by the
@@ -64,10 +64,13 @@ def _model(ds, preset: str):
     shape = {k: float(hidden[k]) for k in effect.shape_grid if k in hidden} or None
     effects.append((name, joint, shape))
     truths = {}
-    for column in effect.column_names(joint, shape):  # "spring.stiffness@joint1": the value "stiffness"
+    values = {p.name: float(hidden[p.name]) for p in effect.params if p.name in hidden}
+    for k, column in enumerate(effect.column_names(joint, shape)):  # "spring.stiffness@joint1": "stiffness"
         key = column.split(".", 1)[1].split("@")[0]
         if key in hidden:
             truths[column] = float(hidden[key])
+        elif key in ("sin", "cos"):  # a ripple's coefficient pair: amplitude x cos, sin of the phase
+            truths[column] = float(effect.coefficients(values)[k])
     for ename, ejoint in ALWAYS:
         for spec in config.effects:
             if spec.effect == ename and spec.joint == ejoint and (ename, ejoint) != (name, joint):

@@ -71,3 +71,26 @@ def test_fit_and_diagnosis_report_zero_phase_values_whose_intervals_cover_a_plan
     assert stiffness["ci95"][0] <= 0.3 <= stiffness["ci95"][1]
     width = stiffness["ci95"][1] - stiffness["ci95"][0]
     assert width == pytest.approx(2 * 2.776 * stiffness["std"], rel=1e-3)  # t with 4 degrees of freedom
+
+
+def test_a_columns_angle_only_part_is_filtered_as_the_torque_is(tmp_path):
+    """On the zero-phase signals a fast function of the angle comes out as the torque's filter leaves it
+    (the same session with that function as its torque), a column affine in the angle is unchanged, and
+    a subset of the rows takes its rows of the same columns."""
+    from dataclasses import replace
+
+    from train.data.angle_columns import columns_on
+
+    path, _ = write_synthetic_session(tmp_path / "s.h5", 12, seed=3)
+    raw = read_sessions([path])[0]
+    ripple = lambda q: np.sin(12.0 * q)  # noqa: E731  (a 12/rev cogging ripple's column)
+    off = preprocess(raw).offline
+    torque = preprocess(replace(raw, tau=ripple(raw.q))).offline.tau
+    plain = ripple(off.q)
+    filtered = columns_on(off, lambda d: ripple(d.q))
+    error, before = (np.sqrt(np.mean((x - torque) ** 2)) for x in (filtered, plain))
+    assert error < 0.1 * before and before > 0.05
+    affine = lambda d: np.stack([2.0 * d.q - 0.5, d.dq, d.ddq], axis=2)  # noqa: E731
+    np.testing.assert_allclose(columns_on(off, affine), affine(off), rtol=0, atol=1e-12)
+    rows = np.flatnonzero(off.all_moving)[::3]
+    np.testing.assert_array_equal(columns_on(off.subset(rows), lambda d: ripple(d.q)), filtered[rows])

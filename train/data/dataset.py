@@ -13,6 +13,10 @@ Offline signals: `offline`, when given, is a Dataset of the same rows filtered z
 forward-backward; train.data.preprocess) — what a parameter estimate may use that needs no causal
 filter (train.models.rigid_body reports its parameter values from it). None when the data themselves
 are zero-phase or were made without it.
+
+Angle series: `angle`, on the offline Dataset, says which rows of the preprocessed data's unfiltered
+angle series (train.data.angle_columns) its rows are; a regressor column's angle-only part is then
+filtered from it as the torque is (angle_columns.columns_on). None elsewhere.
 """
 
 from __future__ import annotations
@@ -24,6 +28,8 @@ import numpy as np
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
+
+    from .angle_columns import AngleRows
 
 
 @dataclass
@@ -43,6 +49,7 @@ class Dataset:
     context_dq: np.ndarray = field(default=None)  # (N, K) rad/s
     context_ddq: np.ndarray = field(default=None)  # (N, K) rad/s^2
     offline: Dataset | None = field(default=None, repr=False)  # the same rows filtered zero-phase
+    angle: AngleRows | None = field(default=None, repr=False)  # the rows of the unfiltered angle series
 
     def __post_init__(self):
         if self.segment is None:
@@ -56,6 +63,8 @@ class Dataset:
                     raise ValueError(f"{name} must have shape ({len(self.t)}, {k}), got {np.shape(a)}")
         if self.offline is not None and len(self.offline) != len(self.t):
             raise ValueError(f"offline must have {len(self.t)} rows, got {len(self.offline)}")
+        if self.angle is not None and len(self.angle.rows) != len(self.t):
+            raise ValueError(f"angle must index {len(self.t)} rows, got {len(self.angle.rows)}")
 
     @property
     def context(self) -> dict | None:
@@ -80,4 +89,5 @@ class Dataset:
                        self.segment[index], dict(self.meta), self.context_names,
                        *((None, None, None) if not self.context_names else
                          (self.context_q[index], self.context_dq[index], self.context_ddq[index])),
-                       None if self.offline is None else self.offline.subset(index))
+                       None if self.offline is None else self.offline.subset(index),
+                       None if self.angle is None else self.angle.subset(index))

@@ -20,7 +20,9 @@ keeps the causal chain for its predictions, and a parameter value reported from 
 needs no causal filter) is estimated from the zero-phase signals, whose acceleration is far less noisy
 (train.models.rigid_body). Their mask is the causal one and the same threshold on the zero-phase
 velocity: the causal velocity lags, so for a few samples after a stop it still says "moving" while the
-joint already sticks.
+joint already sticks. The offline Dataset also carries the unfiltered angles of the same rows
+(`Dataset.angle`): a regressor column's angle-only part (a cogging ripple's sin(n q)) is filtered from
+them as the torque is (train.data.angle_columns), which a fast function of the filtered angle is not.
 
 `PreprocessConfig.arm` names the arm whose group is read ("follower" by default, "leader" for
 `crane-train fit --arm leader`); it travels with the other settings into Dataset.meta["preprocessing"]
@@ -37,6 +39,7 @@ import numpy as np
 
 from crane_io.errors import ConfigError
 
+from .angle_columns import AngleRows, AngleSeries
 from .data_checks import warn
 from .dataset import Dataset
 from .filters import lowpass, pseudo_diff
@@ -165,16 +168,21 @@ def _filtered_piece(s: RawSession, piece, cols: list[int], ccols: list[int], set
                     config: PreprocessConfig) -> tuple:
     """(t, q, dq, ddq, tau, cq, cdq, cddq) of one continuous piece: filtered, settled, down-sampled, the
     learning joints' columns apart from the context joints'; with `config.zero_phase` False these are
-    followed by the same seven signals filtered zero-phase (`offline_config`)."""
+    followed by the same seven signals filtered zero-phase (`offline_config`) and the unfiltered angles
+    (learning, context joints) at the same rows (train.data.angle_columns)."""
     J = len(cols)
     t, q, tau = s.t[piece], s.q[piece][:, cols + ccols], s.tau[piece][:, cols]
     configs = [config] if config.zero_phase else [config, offline_config(config)]
     signals = [a for c in configs for a in filter_signals(q, tau, s.rate_hz, c)]
+    if not config.zero_phase:
+        signals.append(q)
     keep = slice(settle, None)
     t, signals = _downsample(t[keep], [a[keep] for a in signals], s.rate_hz, config.downsample_hz)
     out = [t]
-    for q, dq, ddq, tau in zip(*[iter(signals)] * 4):
+    for q, dq, ddq, tau in zip(*[iter(signals[:len(configs) * 4])] * 4):
         out += [q[:, :J], dq[:, :J], ddq[:, :J], tau, q[:, J:], dq[:, J:], ddq[:, J:]]
+    if not config.zero_phase:
+        out += [signals[-1][:, :J], signals[-1][:, J:]]
     return tuple(out)
 
 
@@ -212,7 +220,7 @@ def preprocess(sessions: list[RawSession] | RawSession, config: PreprocessConfig
     if config.joints == ("all",):  # every arm joint all the sessions record
         config = _with_all_joints(config, sessions)
     keys = ("t", "q", "dq", "ddq", "tau", "cq", "cdq", "cddq", "oq", "odq", "oddq", "otau", "ocq", "ocdq",
-            "ocddq")
+            "ocddq", "rq", "rcq")
     parts = {k: [] for k in (*keys, "segment")}
     # context joints: the other arm joints every session records (their recorded angles enter the
     # rigid-body model's kinematics); filtered together with the learning joints, column by column
@@ -255,11 +263,18 @@ def preprocess(sessions: list[RawSession] | RawSession, config: PreprocessConfig
                           ddq=cat["oddq"], tau=cat["otau"], moving=omoving, rate_hz=float(rate),
                           segment=cat["segment"], meta={**meta, "preprocessing": zp},
                           context_names=tuple(context), context_q=cat["ocq"], context_dq=cat["ocdq"],
-                          context_ddq=cat["ocddq"])
+                          context_ddq=cat["ocddq"], angle=_angle_rows(cat, float(rate), config))
     return Dataset(joint_names=tuple(config.joints), t=cat["t"], q=cat["q"], dq=cat["dq"], ddq=cat["ddq"],
                    tau=cat["tau"], moving=moving, rate_hz=float(rate), segment=cat["segment"], meta=meta,
                    context_names=tuple(context), context_q=cat["cq"], context_dq=cat["cdq"],
                    context_ddq=cat["cddq"], offline=offline)
+
+
+def _angle_rows(cat: dict, rate_hz: float, config: PreprocessConfig) -> AngleRows:
+    """Every row of the unfiltered angle series, with the torque's filter (train.data.angle_columns)."""
+    series = AngleSeries(t=cat["t"], q=cat["rq"], context_q=cat["rcq"] if cat["rcq"].shape[1] else None,
+                         segment=cat["segment"], rate_hz=rate_hz, cutoff_rad_s=config.cutoff_rad_s)
+    return AngleRows(series, np.arange(len(cat["t"])))
 
 
 def read_preprocessed(paths: Path | str | Sequence[str | PathLike[str]], config: PreprocessConfig,

@@ -54,6 +54,7 @@ import numpy as np
 
 from crane_io.errors import CraneError
 
+from ..data.angle_columns import columns_on
 from ..data.dataset import Dataset
 from ..models.recorded_effects import effect_entries, effect_identities
 from .cv import CVFit, Engine, cross_validate, fold_ids, interval, interval_factor, jackknife, sparse_joint
@@ -99,7 +100,9 @@ def physics_basis(model: Model, ds: Dataset) -> np.ndarray | None:
     None for a model that is not linear in its parameters."""
     from ..models.base import basis_on
 
-    X = basis_on(model, ds)  # train.models.base.Model's linear_basis; a stand-in may lack it
+    # train.models.base.Model's linear_basis (a stand-in may lack it); on zero-phase signals with the
+    # columns' angle-only part filtered as the torque is (train.data.angle_columns)
+    X = columns_on(ds, lambda d: basis_on(model, d))
     if X is None:
         return None
     X = np.asarray(X, dtype=float)

@@ -11,6 +11,7 @@ import numpy as np
 
 from crane_io.errors import CraneError
 
+from ..data.angle_columns import columns_on
 from ..data.dataset import Dataset
 from .result import DiagnosisError
 
@@ -67,12 +68,18 @@ def named_values(effect: Any, coefs: np.ndarray, shape: dict | None) -> dict[str
     return out
 
 
+def _effect_columns(effect: Any, joint: int | None, shape: dict | None) -> Callable[[Dataset], np.ndarray]:
+    """Dataset -> the effect's columns on it (for train.data.angle_columns.columns_on: on zero-phase
+    signals the columns' angle-only part is filtered as the torque is)."""
+    return lambda d: effect.columns(d.q, d.dq, d.ddq, joint, shape)
+
+
 def candidate_columns(effect: Any, ds: Dataset, joint: int | None) -> list[tuple[dict | None, np.ndarray]]:
     """[(shape, columns (N, J, c))] for every shape whose columns are finite and act on some moving
     sample; empty if there is none (the candidate cannot be tried on these data)."""
     out = []
     for shape in shape_options(effect):
-        C = np.asarray(effect.columns(ds.q, ds.dq, ds.ddq, joint, shape), dtype=float)
+        C = np.asarray(columns_on(ds, _effect_columns(effect, joint, shape)), dtype=float)
         if C.ndim == 2:
             C = C[:, :, None]
         usable = C.shape[:2] == ds.tau.shape and np.isfinite(C).all()
@@ -114,7 +121,7 @@ def columns_at(effect: Any, ds: Dataset, joint: int | None) -> Callable[[dict], 
     finite (for refining a shape between grid points)."""
     def at(shape: dict) -> np.ndarray | None:
         try:
-            C = np.asarray(effect.columns(ds.q, ds.dq, ds.ddq, joint, shape), dtype=float)
+            C = np.asarray(columns_on(ds, _effect_columns(effect, joint, shape)), dtype=float)
         except (CraneError, ValueError, ZeroDivisionError, FloatingPointError):
             return None
         if C.ndim == 2:

@@ -11,7 +11,9 @@ same basis (the model's regressor with its refined shapes and the picks the cand
 from the shape that fold's causal fit chose and refining it on the zero-phase signals within the same
 bracket (a spring's rest angle correlates with its stiffness) — and its parameters' mean and
 delete-a-block jackknife standard error are reported from those fits. The causal fit's values stay with
-each parameter as `loop_value` / `loop_std`.
+each parameter as `loop_value` / `loop_std`. On the zero-phase signals every column's angle-only part (a
+cogging ripple, a spring, gravity) is filtered from the unfiltered angle as the torque is
+(train.data.angle_columns, through physics_basis and columns_at).
 """
 
 from __future__ import annotations

@@ -33,7 +33,9 @@ what the model reports (`reported_parameters`, `parameters_table`, `effect_value
 acceleration's noise (errors in a regressor) shrinks the fitted inertias and biases every coefficient
 correlated with them (a spring in back-and-forth moves, a rotor inertia), which a zero-phase estimate
 of the same samples, with its far less noisy acceleration, does not. Rows where the zero-phase velocity
-already says a joint stands still are left out of it.
+already says a joint stands still are left out of it. There each column's angle-only part (a cogging
+ripple, a spring, gravity) is filtered from the unfiltered angle as the torque is
+(train.data.angle_columns), which a fast function of the filtered angle is not.
 
 Effects: `effects=[(name, joint_name or None, shape dict or None), ...]`. A joint-scope effect with
 joint None is added once per learning joint. An effect with shape parameters (e.g. a Stribeck
@@ -76,6 +78,7 @@ import numpy as np
 
 from crane_io.errors import ConfigError, CraneError
 
+from ..data.angle_columns import columns_on
 from ..data.dataset import Dataset
 from ..data.splits import AUTO_ALL_MOVING_MAX_JOINTS
 from ..data.splits import per_joint as per_joint_set
@@ -299,7 +302,7 @@ class RigidBodyModel(Model):
         joint's only where that joint moves. Returns (theta, standard errors, residual variance, the
         block plan of the standard errors); with `uncertainty` False (the shape search) the standard
         errors are those of the least-squares covariance and the plan None."""
-        Phi = self.regressor(ds.q, ds.dq, ds.ddq, terms, ds.context)
+        Phi = columns_on(ds, lambda d: self.regressor(d.q, d.dq, d.ddq, terms, d.context))
         y = ds.tau
         sample = np.arange(len(ds))
         if per_joint:
