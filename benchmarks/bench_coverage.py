@@ -257,15 +257,22 @@ def run(quick: bool = False, presets=None, seeds=None, folder: str | None = None
         return rows
 
 
-def _option(argv: list[str], name: str) -> str | None:
-    return argv[argv.index(name) + 1] if name in argv else None
+def main() -> None:
+    import argparse
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="4 seeds of 30 s of the spring alone")
+    ap.add_argument("--presets", default=None, help="comma-separated planted presets (default: all five)")
+    ap.add_argument("--seeds", default=None, help="e.g. 0-19 or 0,3,5 (default: 0-19)")
+    ap.add_argument("--sessions", default=None, metavar="DIR",
+                    help="keep the simulated sessions here and reuse those found")
+    ap.add_argument("--parts", default="fit,diagnose", help="fit, diagnose or both (comma-separated)")
+    args = ap.parse_args()
+    for row in run(args.quick, args.presets.split(",") if args.presets else None,
+                   _seeds(args.seeds) if args.seeds else None, args.sessions,
+                   tuple(args.parts.split(","))):
+        print(f"{row['metric']:<72} {row['value']:<8.4g} {row['unit']:<9} {row['note']}")
 
 
 if __name__ == "__main__":
-    argv = sys.argv[1:]
-    presets = _option(argv, "--presets")
-    seeds = _option(argv, "--seeds")
-    for row in run("--quick" in argv, presets.split(",") if presets else None,
-                   _seeds(seeds) if seeds else None, _option(argv, "--sessions"),
-                   tuple((_option(argv, "--parts") or "fit,diagnose").split(","))):
-        print(f"{row['metric']:<72} {row['value']:<8.4g} {row['unit']:<9} {row['note']}")
+    main()
