@@ -68,6 +68,32 @@ def test_flipped_cut_or_inserted_bytes_are_one_sentence(data, suffix):
     _read(bytes(raw), suffix)
 
 
+def _zip_flag_offsets(raw: bytes) -> list[int]:
+    """Where the general-purpose flag bits of every local (PK 3 4, +6) and central (PK 1 2, +8) header
+    of a ZIP archive are."""
+    out = []
+    for signature, offset in ((b"PK\x03\x04", 6), (b"PK\x01\x02", 8)):
+        at = raw.find(signature)
+        while at >= 0:
+            out += [at + offset, at + offset + 1]
+            at = raw.find(signature, at + 1)
+    return out
+
+
+def test_every_flag_bit_of_an_npz_header_flipped_is_one_sentence():
+    """A flipped flag bit can mark a member encrypted or compressed in a way zipfile does not read
+    (zipfile raises RuntimeError or NotImplementedError for those)."""
+    offsets = _zip_flag_offsets(NPZ)
+    assert len(offsets) == 12  # three members, each in a local and a central header
+    refused = []
+    for at in offsets:
+        for bit in range(8):
+            raw = bytearray(NPZ)
+            raw[at] ^= 1 << bit
+            refused.append(_read(bytes(raw), ".npz"))
+    assert any(m and "encrypted" in m for m in refused)
+
+
 @pytest.mark.parametrize("content, suffix, words", [
     (_npz(t=np.array([None, 1], dtype=object), q=np.ones((2, 2)), tau1=np.ones(2)), ".npz", "Python objects"),
     (b"PK\x03\x04" + bytes(range(200)), ".npz", "cannot be read as NPZ"),

@@ -78,7 +78,8 @@ def npz_arrays(raw: bytes) -> tuple[dict | None, str | None]:
         if "allow_pickle" in str(exc) or "Object arrays" in str(exc):
             return None, "holds Python objects (pickled data), which are never loaded"
         return None, "is corrupt, not a readable numpy .npz file"
-    except (OSError, EOFError, zipfile.BadZipFile, KeyError, TypeError, RuntimeError, MemoryError):
+    except (OSError, EOFError, zipfile.BadZipFile, KeyError, TypeError, RuntimeError, NotImplementedError,
+            MemoryError):  # RuntimeError: a member flagged encrypted; NotImplementedError: an unknown method
         return None, "is corrupt, not a readable numpy .npz file"
 
 

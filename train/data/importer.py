@@ -219,7 +219,9 @@ def _read_npz(path: Path, wanted: list[str]) -> dict[str, np.ndarray]:
             raise ImportMapError(f"{path} holds Python objects (pickled data), which are never "
                                  f"loaded") from None
         raise ImportMapError(f"{path} cannot be read as NPZ ({exc})") from None
-    except (OSError, EOFError, zipfile.BadZipFile, MemoryError) as exc:
+    except (OSError, EOFError, zipfile.BadZipFile, MemoryError, NotImplementedError, RuntimeError) as exc:
+        # zipfile raises RuntimeError for a member flagged as encrypted and NotImplementedError for a
+        # compression method or flag it does not know: what one flipped bit of a header makes
         raise ImportMapError(f"{path} cannot be read as NPZ ({exc})") from None
 
 
