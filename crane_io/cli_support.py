@@ -46,7 +46,8 @@ class LazyGroup(click.Group):
         from crane_io import shutdown
 
         try:
-            return super().invoke(ctx)
+            with shutdown.resurface_lost_interrupts():
+                return super().invoke(ctx)
         except KeyboardInterrupt as exc:
             shutdown.disarm_prompt_exit()
             _ignore_further_stop_signals()
@@ -67,20 +68,22 @@ class LazyGroup(click.Group):
             shutdown.disarm_prompt_exit()
 
     def main(self, *args, **kwargs):
-        from crane_io.shutdown import restore_interrupt, set_activity
+        from crane_io.shutdown import set_activity
 
-        restore_interrupt()
         if self.prompt_exit:
             set_activity("starting up")
         return super().main(*args, **kwargs)
 
     def resolve_command(self, ctx, args):
+        from crane_io.shutdown import arm_prompt_exit, restore_interrupt, set_activity
+
+        # the subcommand's module is imported here, still under the start-up's Ctrl+C handler (one line,
+        # 130, at once): a KeyboardInterrupt raised inside the import machinery's own callbacks is lost
         name, cmd, rest = super().resolve_command(ctx, args)
         if name in self.prompt_exit:
-            from crane_io.shutdown import arm_prompt_exit, set_activity
-
             set_activity("loading the toolkit's modules")
             arm_prompt_exit(ctx.find_root().info_name, self.interrupt_note)
+        restore_interrupt()
         return name, cmd, rest
 
     def list_commands(self, ctx):

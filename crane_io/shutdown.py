@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import _thread
 import signal
 import sys
 import threading
@@ -278,6 +279,35 @@ def _unraisable(args) -> None:
 
 
 _previous_unraisable: list = []
+
+
+@contextlib.contextmanager
+def resurface_lost_interrupts(delay_s: float = 0.02):
+    """While active, a Ctrl+C whose KeyboardInterrupt was raised where Python can only print it and throw
+    it away (a weakref callback of the import machinery, a garbage-collection callback) is not lost: it
+    is delivered again to the main thread `delay_s` later (from a timer thread), by then back in ordinary
+    code, where it ends the command as any Ctrl+C does. Nothing is printed for the lost one. A stop
+    signal an active handle_termination() already recorded is left to it. Anything else goes to the
+    previous hook. Main thread only (elsewhere nothing is installed)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = sys.unraisablehook
+
+    def hook(args):
+        if isinstance(args.exc_value, KeyboardInterrupt) and not isinstance(args.exc_value, Terminated):
+            timer = threading.Timer(delay_s, _thread.interrupt_main)
+            timer.daemon = True
+            timer.start()
+            return
+        previous(args)
+
+    sys.unraisablehook = hook
+    try:
+        yield
+    finally:
+        if sys.unraisablehook is hook:
+            sys.unraisablehook = previous
 
 
 def _stop_numbers() -> set[int]:

@@ -161,7 +161,8 @@ def test_realtime_over_ptys_with_wall_clock_arms(tmp_path):
     scheduling is granted (to the run and to the simulated arms, as real servos always answer in
     time) the run aligns and records whatever else runs; where it is not, beside other load the
     500 Hz control can run at 50 Hz, which it cannot be stable at, and the run must then end in a
-    clean safety stop (a complete file if recording had begun), never hang or crash. The watchdog
+    clean safety stop (a complete file if recording had begun), never hang or crash; links too slow for
+    the rate are refused before torque-on in one sentence. The watchdog
     gets 1 s: a descheduled host must not be the test's subject."""
     servers = []
     try:
@@ -172,6 +173,13 @@ def test_realtime_over_ptys_with_wall_clock_arms(tmp_path):
                               str(servers[1][1]), "--duration", "1.5", "-o", str(out),
                               "--config", str(_config(tmp_path, "fifo", watchdog=1.0)), "--skip-selftest"],
                              capture_output=True, text=True, timeout=600)
+        if "so the loop cannot keep that rate" in run.stderr:
+            # the links timed before torque-on: on a busy machine a pty's reads can take most of the
+            # period whatever the scheduling (the kernel moves pty data in its own worker threads), and
+            # the run then refuses in one sentence without touching anything
+            assert run.returncode != 0 and run.stderr.count("\n") == 1, run.stderr
+            assert run.stderr.startswith("Error: ") and not out.exists()
+            return
         assert "real-time:" in run.stderr
         run_rt = "real-time: SCHED_FIFO" in run.stderr
         if arms_rt and run_rt:

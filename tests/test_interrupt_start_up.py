@@ -51,13 +51,49 @@ def test_ctrl_c_while_the_kernels_compile_ends_the_run_with_one_line(tmp_path, d
     assert not (tmp_path / "s.h5").exists()
 
 
-def test_ctrl_c_in_crane_train_is_one_line_and_130(tmp_path):
+@pytest.mark.parametrize("delay", [0.3, 0.8, 1.6])
+def test_ctrl_c_in_crane_train_is_one_line_and_130(tmp_path, delay):
+    """Wherever the signal lands (the imports, the import machinery's own callbacks, the command), it is
+    one line and 130; only a command that had already ended on its own (the empty file refused, 2; or
+    killed by the signal in the interpreter's own exit, after its one line) may finish otherwise. Never a traceback, never an interruption taken and then ignored."""
     session = tmp_path / "s.h5"
-    session.write_bytes(b"")  # never read: the signal comes while the command starts
+    session.write_bytes(b"")
     code, err, _ = _interrupt([str(BIN / "crane-train"), "fit", str(session), "--model", "mlp-masked",
-                               "-o", str(tmp_path / "m")], 0.8)
-    assert (code, err) == (130, "crane-train: interrupted\n") or code == 2, err
-    assert "Traceback" not in err
+                               "-o", str(tmp_path / "m")], delay)
+    assert "Traceback" not in err and "Exception ignored" not in err, err
+    if code in (2, -signal.SIGINT):  # ended on its own; the signal may land in the interpreter's exit
+        assert err.startswith("Error: ") and err.count("\n") == 1, err
+    else:
+        assert code == 130 and err.count("\n") == 1 and err.startswith("crane-train: interrupted"), err
+
+
+LOST_IN_A_CALLBACK = """
+import signal, sys, weakref
+from crane_io.shutdown import resurface_lost_interrupts
+
+class Thing:
+    pass
+
+def callback(ref):
+    raise KeyboardInterrupt  # as a Ctrl+C landing inside a weakref callback of the import machinery
+
+with resurface_lost_interrupts():
+    try:
+        thing = Thing()
+        ref = weakref.ref(thing, callback)
+        del thing  # the callback runs; its exception is unraisable
+        for _ in range(400):
+            __import__("time").sleep(0.01)
+        print("lost")
+    except KeyboardInterrupt:
+        print("delivered")
+"""
+
+
+def test_a_ctrl_c_lost_in_a_callback_is_delivered_again():
+    run = subprocess.run([sys.executable, "-c", LOST_IN_A_CALLBACK], capture_output=True, text=True,
+                         timeout=120)
+    assert run.stdout == "delivered\n" and run.stderr == "", (run.stdout, run.stderr)
 
 
 SWALLOWING = """
