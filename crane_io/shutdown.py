@@ -26,9 +26,9 @@ Inside `handle_termination()` the stop signals behave according to the phase the
 
 from __future__ import annotations
 
+import _thread
 import contextlib
 import os
-import _thread
 import signal
 import sys
 import threading

@@ -55,7 +55,8 @@ def test_ctrl_c_while_the_kernels_compile_ends_the_run_with_one_line(tmp_path, d
 def test_ctrl_c_in_crane_train_is_one_line_and_130(tmp_path, delay):
     """Wherever the signal lands (the imports, the import machinery's own callbacks, the command), it is
     one line and 130; only a command that had already ended on its own (the empty file refused, 2; or
-    killed by the signal in the interpreter's own exit, after its one line) may finish otherwise. Never a traceback, never an interruption taken and then ignored."""
+    killed by the signal in the interpreter's own exit, after its one line) may finish otherwise.
+    Never a traceback, never an interruption taken and then ignored."""
     session = tmp_path / "s.h5"
     session.write_bytes(b"")
     code, err, _ = _interrupt([str(BIN / "crane-train"), "fit", str(session), "--model", "mlp-masked",
