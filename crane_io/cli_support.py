@@ -154,6 +154,15 @@ def cli_errors(func):
     return wrapper
 
 
+def interval_digits(value: float, half: float, least: int = 3, most: int = 8) -> int:
+    """Significant digits that print a value and its interval value +- `half` with the interval's width
+    visible to two digits (a bound never rounds onto the value or onto a round number it stops short
+    of): 3 for a wide interval, more for a narrow one; `least` to `most`."""
+    if not (math.isfinite(value) and math.isfinite(half)) or half <= 0 or value == 0:
+        return least
+    return int(min(most, max(least, math.ceil(math.log10(abs(value) / half)) + 2)))
+
+
 def shown(value) -> str:
     """`value` as text safe to print on a terminal: control characters (escape codes, newlines) are shown
     as Python escapes (\\x1b, \\n), everything else as it is."""

@@ -56,3 +56,17 @@ def test_the_flags_come_from_the_command_and_the_groups_above_it():
     assert flags == {"duration": "--duration", "force": "--force", "leader_port": "--leader-port",
                      "verbose": "--verbose"}
     assert with_flags("`force` or `nothing`", flags) == "--force or `nothing`"
+
+
+def test_an_interval_is_printed_with_the_digits_that_show_its_width():
+    from crane_io.cli_support import interval_digits
+
+    def text(value, half):
+        d = interval_digits(value, half)
+        return f"{value:.{d}g} ({value - half:.{d}g} to {value + half:.{d}g})"
+
+    # a narrow interval that stops short of a round number is not printed as reaching it
+    assert text(0.249331, 0.000643) == "0.24933 (0.24869 to 0.24997)"
+    assert text(0.2, 0.05) == "0.2 (0.15 to 0.25)"  # a wide one keeps three digits
+    assert interval_digits(0.0, 1e-3) == 3 and interval_digits(1.0, 0.0) == 3
+    assert interval_digits(1.0, 1e-12) == 8 and interval_digits(float("nan"), 1.0) == 3

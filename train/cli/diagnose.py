@@ -17,16 +17,21 @@ import json
 
 import click
 
-from crane_io.cli_support import Number, cli_errors
+from crane_io.cli_support import Number, cli_errors, interval_digits
 
 from ..diagnosis.defaults import DEFAULT_FOLDS, DEFAULT_MIN_REDUCTION
 from .options import force_option
 
 
 def _params_text(params: dict) -> str:
-    return ", ".join(f"{n} = {p['value']:.3g} ± {p['std']:.2g} {p['unit']}".rstrip()
-                     + (f" (95 %: {p['ci95'][0]:.3g} to {p['ci95'][1]:.3g})" if p.get("ci95") else "")
-                     for n, p in params.items())
+    return ", ".join(_param_text(n, p) for n, p in params.items())
+
+
+def _param_text(name: str, p: dict) -> str:
+    ci = p.get("ci95")
+    d = interval_digits(p["value"], (ci[1] - ci[0]) / 2) if ci else 3
+    text = f"{name} = {p['value']:.{d}g} ± {p['std']:.2g} {p['unit']}".rstrip()
+    return text + (f" (95 %: {ci[0]:.{d}g} to {ci[1]:.{d}g})" if ci else "")
 
 
 @click.command()
