@@ -1,20 +1,20 @@
-"""The offline (zero-phase) signals' own settings: their least cutoff and how far a stop reaches into them
-(train.data.preprocess builds Dataset.offline with them; `crane-train identify` filters at the same
-cutoff). Plain numpy, so that a command's --help can show the numbers without the data stack."""
+"""How far a stop reaches into the offline (zero-phase) signals, and the rows it reaches
+(train.data.preprocess leaves them out of Dataset.offline's mask).
+
+A zero-phase filter looks both ways: the offline signals of the rows just before a joint stops (or just
+after it starts) mix in the stop, where the friction torque is whatever holds the joint rather than
+Coulomb's +-fc, while the regressor's sign(dq) column already (or still) says +-1. Fitted with those
+rows, a Coulomb friction comes out low (0.25 N m as 0.231 on the two-arm walkthrough session of
+docs/modelling.md, 0.248 on average over the planted sessions). So a joint counts as moving in the
+offline mask only OFFLINE_REACH_TAUS time constants of the low-pass (1 / cutoff: 120 ms at the default
+25 rad/s) or more away from any row where it stands still and from the ends of its continuous piece
+(where the backward pass starts)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-# rad/s: the least cutoff of the offline signals' low-pass and pseudo-derivative (a higher configured
-# cutoff is kept). Filtered forward and backward a signal loses no phase, so the filters need only keep
-# the acceleration's noise down; a lower cutoff smears each stop further.
-OFFLINE_CUTOFF_RAD_S = 60.0
-# A zero-phase filter looks both ways: the offline signals of the rows just before a joint stops (or just
-# after it starts) mix in the stop, where the friction torque is whatever holds the joint rather than
-# Coulomb's +-fc. A joint counts as moving in the offline mask only this many time constants of the
-# offline low-pass (50 ms at 60 rad/s) or more away from a row where it stands still.
-OFFLINE_REACH_TAUS = 3.0
+OFFLINE_REACH_TAUS = 3.0  # time constants of the offline low-pass (module docstring)
 
 
 def near_rest(still: np.ndarray, segment: np.ndarray, reach_rows: float) -> np.ndarray:

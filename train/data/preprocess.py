@@ -15,7 +15,7 @@ Then the first `settle_s` of each piece are dropped (filter start-up), every pie
 ids (no filter ever runs across a boundary). The dead-zone mask uses sigma_j over all the data.
 
 Offline signals: with the paper's causal filters the Dataset also carries the same rows filtered
-zero-phase (`Dataset.offline`, `offline_config`): the model that runs in the loop
+zero-phase (`Dataset.offline`, the same settings with `zero_phase`): the model that runs in the loop
 keeps the causal chain for its predictions, and a parameter value reported from the recording (which
 needs no causal filter) is estimated from the zero-phase signals, whose acceleration is far less noisy
 (train.models.rigid_body). Their mask is the causal one and the same threshold on the zero-phase
@@ -23,9 +23,8 @@ velocity: the causal velocity lags, so for a few samples after a stop it still s
 joint already sticks. The offline Dataset also carries the unfiltered angles of the same rows
 (`Dataset.angle`): a regressor column's angle-only part (a cogging ripple's sin(n q)) is filtered from
 them as the torque is (train.data.angle_columns), which a fast function of the filtered angle is not.
-The offline filters' cutoffs are at least OFFLINE_CUTOFF_RAD_S (60 rad/s), and a joint counts as moving
-in the offline mask only away from its stops and from the ends of its piece, whose zero-phase signals
-mix in the stop (train.data.offline_signals: why, and how far).
+A joint counts as moving in the offline mask only away from its stops and from the ends of its piece,
+whose zero-phase signals mix in the stop (train.data.offline_signals: why, and how far).
 
 `PreprocessConfig.arm` names the arm whose group is read ("follower" by default, "leader" for
 `crane-train fit --arm leader`); it travels with the other settings into Dataset.meta["preprocessing"]
@@ -47,7 +46,7 @@ from .data_checks import warn
 from .dataset import Dataset
 from .filters import lowpass, pseudo_diff
 from .masks import DeadZoneError, dead_zone_mask, moving_fractions
-from .offline_signals import OFFLINE_CUTOFF_RAD_S, OFFLINE_REACH_TAUS, near_rest
+from .offline_signals import OFFLINE_REACH_TAUS, near_rest
 from .session import ARMS, RawSession, read_sessions
 
 if TYPE_CHECKING:
@@ -191,13 +190,10 @@ def _filtered_piece(s: RawSession, piece, cols: list[int], ccols: list[int], set
 
 
 def offline_config(config: PreprocessConfig) -> PreprocessConfig:
-    """The settings of the offline signals of a Dataset (Dataset.offline), for estimates that need no
-    causal filter: zero-phase filtering, both cutoffs at least OFFLINE_CUTOFF_RAD_S (the module
-    docstring); the rest as `config`."""
+    """The same settings with zero-phase filtering: the offline signals of a Dataset (Dataset.offline),
+    for estimates that need no causal filter."""
     values = config.to_dict()
     values["zero_phase"] = True
-    for name in ("cutoff_rad_s", "pseudo_diff_rad_s"):
-        values[name] = max(float(values[name]), OFFLINE_CUTOFF_RAD_S)
     return PreprocessConfig.from_dict(values)
 
 
@@ -266,7 +262,7 @@ def preprocess(sessions: list[RawSession] | RawSession, config: PreprocessConfig
     offline, zp = None, offline_config(config).to_dict()
     if "oq" in cat:  # the same rows filtered zero-phase; a joint moves where both velocities say so
         omoving = moving & (np.abs(cat["odq"]) > config.alpha * sigma[None, :])
-        reach = OFFLINE_REACH_TAUS / offline_config(config).cutoff_rad_s * rate
+        reach = OFFLINE_REACH_TAUS / config.cutoff_rad_s * rate
         omoving &= ~near_rest(~omoving, cat["segment"], reach)
         offline = Dataset(joint_names=tuple(config.joints), t=cat["t"], q=cat["oq"], dq=cat["odq"],
                           ddq=cat["oddq"], tau=cat["otau"], moving=omoving, rate_hz=float(rate),
@@ -282,8 +278,7 @@ def preprocess(sessions: list[RawSession] | RawSession, config: PreprocessConfig
 def _angle_rows(cat: dict, rate_hz: float, config: PreprocessConfig) -> AngleRows:
     """Every row of the unfiltered angle series, with the torque's filter (train.data.angle_columns)."""
     series = AngleSeries(t=cat["t"], q=cat["rq"], context_q=cat["rcq"] if cat["rcq"].shape[1] else None,
-                         segment=cat["segment"], rate_hz=rate_hz,
-                         cutoff_rad_s=offline_config(config).cutoff_rad_s)
+                         segment=cat["segment"], rate_hz=rate_hz, cutoff_rad_s=config.cutoff_rad_s)
     return AngleRows(series, np.arange(len(cat["t"])))
 
 

@@ -31,7 +31,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data.offline_signals import OFFLINE_CUTOFF_RAD_S
 from .blocks import excitation_schedule, speed_blocks
 from .consistency import Projection, project
 from .estimate import Estimate, IdentificationError, weighted_least_squares
@@ -43,9 +42,8 @@ NONNEGATIVE = ("viscous.viscous", "coulomb.coulomb")
 IDENTIFICATION_JSON = "identification.json"
 ARM_MODEL_TOML = "arm_model.toml"  # the identified bodies for the dynamics, the controller and the plant
 MIN_SPEED = 0.3  # rad/s: a joint's slower samples are left out of the fit (module docstring)
-# rad/s: the low-pass (and pseudo-derivative) cutoff of zero-phase identification (module docstring):
-# the offline signals' cutoff of every Dataset
-ZERO_PHASE_CUTOFF = OFFLINE_CUTOFF_RAD_S
+# rad/s: the low-pass (and pseudo-derivative) cutoff of zero-phase identification (module docstring)
+ZERO_PHASE_CUTOFF = 60.0
 FASTEST_SHARE = 0.2  # a joint that rarely reaches MIN_SPEED is fitted on this share of its fastest samples
 
 
