@@ -21,11 +21,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import h5py
 import numpy as np
 
 from crane_io.description import default_arm
 from crane_io.dynamixel.units import RAD_PER_PULSE
 from crane_io.physics.dynamics import ArmDynamics
+from crane_io.session_format import TAU_FROM_GOAL, TAU_SOURCE_ATTR
 from crane_io.sim.arm_plant import ArmPlant
 from crane_io.sim.plant_api import ActuatorCommand
 from crane_io.sim.plant_config import ARM_JOINTS, check_joints, load_plant_config
@@ -148,4 +150,7 @@ def simulate_session(path, preset: str, duration_s: float = 60.0, seed: int = 0,
         TAU[i] = goal_current * kt_cfg
         plant.step(ActuatorCommand(enabled, mode, goal_current.copy(), goal_position, gains, limit), dt)
         q_prev, dq_b_prev = q_b, dq_b
-    return write_minimal_session(path, t, Q, TAU, names, rate_hz, source="sim", seed=seed)
+    # every column is the current commanded right after the row's read, as crane-collect records it
+    sources = np.array([TAU_FROM_GOAL] * n_servo, dtype=h5py.string_dtype())
+    return write_minimal_session(path, t, Q, TAU, names, rate_hz, source="sim", seed=seed,
+                                 attrs={TAU_SOURCE_ATTR: sources})

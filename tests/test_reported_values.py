@@ -47,6 +47,35 @@ def test_near_rest_reaches_both_ways_within_each_piece():
     np.testing.assert_array_equal(near_rest(still, segment, 0), still)
 
 
+def test_a_commanded_torque_is_centred_on_the_read_in_the_offline_signals_only(tmp_path):
+    """A column recorded as the current commanded after each read ("goal_current") enters the offline
+    signals as the mean of each command and the one before; the causal signals keep the recording, and
+    a column recorded otherwise is untouched."""
+    import dataclasses
+
+    import h5py
+
+    from train.data.offline_signals import command_centred
+
+    names = ("joint1", "joint2", "joint3", "joint4", "joint5", "joint6", "joint7", "gripper")
+    sources = ["goal_current"] * len(names)
+    sources[names.index("joint4")] = "present_current"
+    attrs = {"tau_source": np.array(sources, dtype=h5py.string_dtype())}
+    path, _ = write_synthetic_session(tmp_path / "s.h5", 12, seed=3, attrs=attrs)
+    raw = read_sessions([path])[0]
+    ds = preprocess(raw)
+    plain = preprocess(dataclasses.replace(raw, attrs={}))
+    np.testing.assert_array_equal(ds.tau, plain.tau)
+    goal = np.array([source == "goal_current" for source in sources])
+    centred = dataclasses.replace(raw, attrs={}, tau=command_centred(raw.tau, goal))  # one continuous piece
+    np.testing.assert_allclose(ds.offline.tau, preprocess(centred).offline.tau, rtol=0, atol=1e-12)
+    moved = np.abs(ds.offline.tau - plain.offline.tau).max(axis=0)
+    assert moved[list(ds.joint_names).index("joint4")] == 0 and moved.min() == 0 < moved.max()
+    np.testing.assert_array_equal(command_centred(np.array([[1.0, 5.0], [3.0, 7.0], [5.0, 9.0]]),
+                                                  np.array([True, False])),
+                                  [[1.0, 5.0], [2.0, 7.0], [4.0, 9.0]])
+
+
 def test_reported_friction_is_not_pulled_low_by_the_rows_beside_a_stop(tmp_path):
     """The synthetic joints stand still a third of the time, held by a torque that wanders inside the
     friction band; the zero-phase signals of the rows beside each stop mix that in. With those rows out

@@ -24,7 +24,8 @@ joint already sticks. The offline Dataset also carries the unfiltered angles of 
 (`Dataset.angle`): a regressor column's angle-only part (a cogging ripple's sin(n q)) is filtered from
 them as the torque is (train.data.angle_columns), which a fast function of the filtered angle is not.
 A joint counts as moving in the offline mask only away from its stops and from the ends of its piece,
-whose zero-phase signals mix in the stop (train.data.offline_signals: why, and how far).
+whose zero-phase signals mix in the stop; and a torque recorded as the command sent after each read is
+centred on the read's instant first (train.data.offline_signals: why, and how).
 
 `PreprocessConfig.arm` names the arm whose group is read ("follower" by default, "leader" for
 `crane-train fit --arm leader`); it travels with the other settings into Dataset.meta["preprocessing"]
@@ -46,7 +47,7 @@ from .data_checks import warn
 from .dataset import Dataset
 from .filters import lowpass, pseudo_diff
 from .masks import DeadZoneError, dead_zone_mask, moving_fractions
-from .offline_signals import OFFLINE_REACH_TAUS, near_rest
+from .offline_signals import OFFLINE_REACH_TAUS, command_centred, commanded_columns, near_rest
 from .session import ARMS, RawSession, read_sessions
 
 if TYPE_CHECKING:
@@ -176,7 +177,8 @@ def _filtered_piece(s: RawSession, piece, cols: list[int], ccols: list[int], set
     J = len(cols)
     t, q, tau = s.t[piece], s.q[piece][:, cols + ccols], s.tau[piece][:, cols]
     configs = [config] if config.zero_phase else [config, offline_config(config)]
-    signals = [a for c in configs for a in filter_signals(q, tau, s.rate_hz, c)]
+    torques = [tau] if config.zero_phase else [tau, command_centred(tau, commanded_columns(s, cols))]
+    signals = [a for c, torque in zip(configs, torques) for a in filter_signals(q, torque, s.rate_hz, c)]
     if not config.zero_phase:
         signals.append(q)
     keep = slice(settle, None)
