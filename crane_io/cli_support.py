@@ -154,13 +154,15 @@ def cli_errors(func):
     return wrapper
 
 
-def interval_digits(value: float, half: float, least: int = 3, most: int = 8) -> int:
-    """Significant digits that print a value and its interval value +- `half` with the interval's width
-    visible to two digits (a bound never rounds onto the value or onto a round number it stops short
-    of): 3 for a wide interval, more for a narrow one; `least` to `most`."""
+def interval_format(value: float, half: float, least: int = 3, most: int = 8) -> str:
+    """The format spec that prints a value and its interval value +- `half` with the interval's width
+    visible to two digits, so that a bound never rounds onto the value or onto a round number it stops
+    short of: "{least}g" for a wide interval; for a narrow one more significant digits (up to `most`),
+    trailing zeros kept ("#.5g": 0.25000, not 0.25)."""
     if not (math.isfinite(value) and math.isfinite(half)) or half <= 0 or value == 0:
-        return least
-    return int(min(most, max(least, math.ceil(math.log10(abs(value) / half)) + 2)))
+        return f".{least}g"
+    digits = int(min(most, max(least, math.ceil(math.log10(abs(value) / half)) + 2)))
+    return f".{least}g" if digits == least else f"#.{digits}g"
 
 
 def shown(value) -> str:

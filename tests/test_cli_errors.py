@@ -59,14 +59,15 @@ def test_the_flags_come_from_the_command_and_the_groups_above_it():
 
 
 def test_an_interval_is_printed_with_the_digits_that_show_its_width():
-    from crane_io.cli_support import interval_digits
+    from crane_io.cli_support import interval_format
 
     def text(value, half):
-        d = interval_digits(value, half)
-        return f"{value:.{d}g} ({value - half:.{d}g} to {value + half:.{d}g})"
+        f = interval_format(value, half)
+        return f"{value:{f}} ({value - half:{f}} to {value + half:{f}})"
 
     # a narrow interval that stops short of a round number is not printed as reaching it
     assert text(0.249331, 0.000643) == "0.24933 (0.24869 to 0.24997)"
+    assert text(0.248213, 0.0018) == "0.24821 (0.24641 to 0.25001)"  # trailing zeros kept
     assert text(0.2, 0.05) == "0.2 (0.15 to 0.25)"  # a wide one keeps three digits
-    assert interval_digits(0.0, 1e-3) == 3 and interval_digits(1.0, 0.0) == 3
-    assert interval_digits(1.0, 1e-12) == 8 and interval_digits(float("nan"), 1.0) == 3
+    assert interval_format(0.0, 1e-3) == ".3g" and interval_format(1.0, 0.0) == ".3g"
+    assert interval_format(1.0, 1e-12) == "#.8g" and interval_format(float("nan"), 1.0) == ".3g"

@@ -17,7 +17,7 @@ import json
 
 import click
 
-from crane_io.cli_support import Number, cli_errors, interval_digits
+from crane_io.cli_support import Number, cli_errors, interval_format
 
 from ..diagnosis.defaults import DEFAULT_FOLDS, DEFAULT_MIN_REDUCTION
 from .options import force_option
@@ -29,9 +29,9 @@ def _params_text(params: dict) -> str:
 
 def _param_text(name: str, p: dict) -> str:
     ci = p.get("ci95")
-    d = interval_digits(p["value"], (ci[1] - ci[0]) / 2) if ci else 3
-    text = f"{name} = {p['value']:.{d}g} ± {p['std']:.2g} {p['unit']}".rstrip()
-    return text + (f" (95 %: {ci[0]:.{d}g} to {ci[1]:.{d}g})" if ci else "")
+    f = interval_format(p["value"], (ci[1] - ci[0]) / 2) if ci else ".3g"
+    text = f"{name} = {p['value']:{f}} ± {p['std']:.2g} {p['unit']}".rstrip()
+    return text + (f" (95 %: {ci[0]:{f}} to {ci[1]:{f}})" if ci else "")
 
 
 @click.command()

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import click
 
-from crane_io.cli_support import SEED, Number, cli_errors, interval_digits
+from crane_io.cli_support import SEED, Number, cli_errors, interval_format
 
 from ..models.method_names import METHOD_NAMES
 from ..progress import show_progress
@@ -66,10 +66,10 @@ def effect_lines(model) -> list[str]:
         lines.append(f"  values from {source}")
     for r in rows:
         half = factor * r["stderr"]
-        d = interval_digits(r["value"], half, least=4)
-        loop = f"  loop {r['loop_value']:.{d}g}" if source and source != REPORTED_OWN else ""
-        lines.append(f"  {r['name']:<34}{r['value']:>11.{d}g} ± {r['stderr']:<9.2g}"
-                     f"[{r['value'] - half:.{d}g}, {r['value'] + half:.{d}g}]{loop}")
+        f = interval_format(r["value"], half, least=4)
+        loop = f"  loop {r['loop_value']:{f}}" if source and source != REPORTED_OWN else ""
+        lines.append(f"  {r['name']:<34}{r['value']:>11{f}} ± {r['stderr']:<9.2g}"
+                     f"[{r['value'] - half:{f}}, {r['value'] + half:{f}}]{loop}")
     return lines
 
 
