@@ -68,7 +68,7 @@ def effect_lines(model) -> list[str]:
         half = factor * r["stderr"]
         f = interval_format(r["value"], half, least=4)
         loop = f"  loop {r['loop_value']:{f}}" if source and source != REPORTED_OWN else ""
-        lines.append(f"  {r['name']:<34}{r['value']:>11{f}} ± {r['stderr']:<9.2g}"
+        lines.append(f"  {r['name']:<34}{format(r['value'], f):>11} ± {r['stderr']:<9.2g}"
                      f"[{r['value'] - half:{f}}, {r['value'] + half:{f}}]{loop}")
     return lines
 
