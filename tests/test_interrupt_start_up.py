@@ -51,16 +51,34 @@ def test_ctrl_c_while_the_kernels_compile_ends_the_run_with_one_line(tmp_path, d
     assert not (tmp_path / "s.h5").exists()
 
 
+def _before_the_handler(err: str) -> bool:
+    """The traceback of a KeyboardInterrupt that came before crane-train's first line had installed its
+    handler (the interpreter's own start, the entry script's first imports): Python's default, which no
+    program can change. On a busy machine a signal sent a fraction of a second after the start can land
+    there."""
+    source = (Path(__file__).parents[1] / "train" / "cli" / "__init__.py").read_text().splitlines()
+    installed = next(i for i, line in enumerate(source, 1) if line.startswith("interrupt_until_main("))
+    lines = err.strip().splitlines()
+    if not lines or lines[0] != "Traceback (most recent call last):" or lines[-1] != "KeyboardInterrupt":
+        return False
+    ours = [int(line.split('", line ')[1].split(",")[0]) for line in lines
+            if line.strip().startswith("File ") and line.split('"')[1].endswith("train/cli/__init__.py")]
+    return all(n <= installed for n in ours) and "crane_io/cli_support" not in err
+
+
 @pytest.mark.parametrize("delay", [0.3, 0.8, 1.6])
 def test_ctrl_c_in_crane_train_is_one_line_and_130(tmp_path, delay):
-    """Wherever the signal lands (the imports, the import machinery's own callbacks, the command), it is
-    one line and 130; only a command that had already ended on its own (the empty file refused, 2; or
-    killed by the signal in the interpreter's own exit, after its one line) may finish otherwise.
-    Never a traceback, never an interruption taken and then ignored."""
+    """Wherever the signal lands once crane-train's first line has run (the imports, the import
+    machinery's own callbacks, the command), it is one line and 130; only a command that had already
+    ended on its own (the empty file refused, 2; or killed by the signal in the interpreter's own exit,
+    after its one line) may finish otherwise. Never a traceback, never an interruption taken and then
+    ignored. Before that first line the interpreter's own default applies (`_before_the_handler`)."""
     session = tmp_path / "s.h5"
     session.write_bytes(b"")
     code, err, _ = _interrupt([str(BIN / "crane-train"), "fit", str(session), "--model", "mlp-masked",
                                "-o", str(tmp_path / "m")], delay)
+    if _before_the_handler(err):
+        return
     assert "Traceback" not in err and "Exception ignored" not in err, err
     if code in (2, -signal.SIGINT):  # ended on its own; the signal may land in the interpreter's exit
         assert err.startswith("Error: ") and err.count("\n") == 1, err
