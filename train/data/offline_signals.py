@@ -26,6 +26,7 @@ offline mask only OFFLINE_REACH_TAUS time constants of the low-pass (1 / cutoff:
 from __future__ import annotations
 
 import numpy as np
+from scipy.ndimage import maximum_filter1d
 
 from crane_io.session_format import TAU_FROM_GOAL, TAU_SOURCE_ATTR
 
@@ -34,11 +35,17 @@ OFFLINE_REACH_TAUS = 3.0  # time constants of the offline low-pass (module docst
 
 def near_rest(still: np.ndarray, segment: np.ndarray, reach_rows: float) -> np.ndarray:
     """(N, J) bool: the rows within `reach_rows` rows of a row where the joint is `still` (N, J) or of the
-    ends of its continuous piece (`segment` (N,)), each piece on its own."""
+    ends of its continuous piece (`segment` (N,)), each piece on its own (beyond a piece's ends counts
+    as still)."""
     k = int(np.ceil(reach_rows))
     out = still.astype(bool).copy()
     if k <= 0:
         return out
+    bounds = [0, *(np.flatnonzero(np.diff(segment)) + 1).tolist(), len(segment)]
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        out[a:b] = maximum_filter1d(out[a:b].astype(np.uint8), size=2 * k + 1, axis=0, mode="constant",
+                                    cval=1) > 0
+    return out
     bounds = [0, *(np.flatnonzero(np.diff(segment)) + 1).tolist(), len(segment)]
     for a, b in zip(bounds[:-1], bounds[1:]):
         edge = np.ones((k, still.shape[1]), dtype=bool)
